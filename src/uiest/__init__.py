@@ -1,0 +1,33 @@
+"""uiest: state estimation for nonlinear systems with unbounded unknown inputs.
+
+The public entry points are :class:`System`, :func:`simulate` and the result containers;
+models live in :mod:`uiest.models`.
+"""
+
+from uiest.box import Box
+from uiest.errors import CertificationError, DataError, ModelError, OptionError, SolverError, UiestError
+from uiest.noise import GaussianNoise, UniformNoise
+from uiest.results import Trajectory
+from uiest.signal import Signal
+from uiest.simulate import simulate
+from uiest.system import Linearization, System
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "Box",
+    "CertificationError",
+    "DataError",
+    "GaussianNoise",
+    "Linearization",
+    "ModelError",
+    "OptionError",
+    "Signal",
+    "SolverError",
+    "System",
+    "Trajectory",
+    "UiestError",
+    "UniformNoise",
+    "__version__",
+    "simulate",
+]

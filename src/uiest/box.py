@@ -1,0 +1,170 @@
+"""Box domains ``{z : lower <= z <= upper}`` whose sides may be infinite."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from uiest.errors import DataError, ModelError
+
+FloatArray = NDArray[np.float64]
+
+
+def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] = DataError) -> FloatArray:
+    """Return ``value`` as a finite 1-D float array of length ``size``.
+
+    A scalar is accepted for ``size == 1``. Raises ``error`` naming ``name`` otherwise.
+    """
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise error(f"{name}: expected {size} real numbers, got {value!r}") from exc
+    if arr.ndim == 0 and size == 1:
+        arr = arr.reshape(1)
+    if arr.shape != (size,):
+        raise error(f"{name}: expected shape ({size},), got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise error(f"{name}: expected finite values, got {arr.tolist()}")
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Box:
+    """The box ``lower <= z <= upper`` in R^n; entries may be ``-inf``/``+inf``.
+
+    Parameters
+    ----------
+    lower, upper : array_like, shape (n,)
+        Elementwise bounds with ``lower <= upper``; NaN is not allowed.
+
+    """
+
+    lower: FloatArray
+    upper: FloatArray
+
+    def __post_init__(self) -> None:
+        lower = np.array(self.lower, dtype=float, ndmin=1)
+        upper = np.array(self.upper, dtype=float, ndmin=1)
+        if lower.ndim != 1 or lower.shape != upper.shape:
+            raise ModelError(
+                f"Box: lower and upper must be 1-D of equal length, got shapes {lower.shape} and {upper.shape}"
+            )
+        if np.isnan(lower).any() or np.isnan(upper).any():
+            raise ModelError(f"Box: bounds must not be NaN, got lower={lower.tolist()}, upper={upper.tolist()}")
+        if (lower > upper).any():
+            raise ModelError(f"Box: expected lower <= upper, got lower={lower.tolist()}, upper={upper.tolist()}")
+        lower.setflags(write=False)
+        upper.setflags(write=False)
+        object.__setattr__(self, "lower", lower)
+        object.__setattr__(self, "upper", upper)
+
+    @classmethod
+    def unbounded(cls, n: int) -> Box:
+        """The whole space R^n."""
+        return cls(np.full(n, -np.inf), np.full(n, np.inf))
+
+    @classmethod
+    def symmetric(cls, bound: ArrayLike, n: int | None = None) -> Box:
+        """The box ``|z_i| <= bound_i`` (``bound`` scalar or shape (n,))."""
+        b = np.abs(np.asarray(bound, dtype=float))
+        if b.ndim == 0:
+            b = np.full(1 if n is None else n, float(b))
+        return cls(-b, b)
+
+    @classmethod
+    def coerce(cls, value: Box | tuple[Any, Any] | None, n: int, name: str) -> Box:
+        """Build a box of dimension ``n`` from a Box, a ``(lower, upper)`` pair or None (= R^n).
+
+        Scalars in the pair are broadcast to length ``n``.
+        """
+        if value is None:
+            return cls.unbounded(n)
+        if isinstance(value, Box):
+            box = value
+        else:
+            try:
+                lo, hi = value
+            except (TypeError, ValueError) as exc:
+                raise ModelError(f"{name}: expected a Box or a (lower, upper) pair, got {value!r}") from exc
+            lo_arr, hi_arr = (np.asarray(b, dtype=float) for b in (lo, hi))
+            lo_arr, hi_arr = (np.full(n, float(b)) if b.ndim == 0 else b for b in (lo_arr, hi_arr))
+            if lo_arr.shape != (n,) or hi_arr.shape != (n,):
+                raise ModelError(f"{name}: expected scalars or bounds of length {n}, got {lo!r} and {hi!r}")
+            try:
+                box = cls(lo_arr, hi_arr)
+            except ModelError as exc:
+                raise ModelError(f"{name}: {exc}") from exc
+        if box.size != n:
+            raise ModelError(f"{name}: expected a box of dimension {n}, got dimension {box.size}")
+        return box
+
+    @property
+    def size(self) -> int:
+        """Dimension n."""
+        return int(self.lower.size)
+
+    @property
+    def is_bounded(self) -> bool:
+        """True when every side is finite."""
+        return bool(np.isfinite(self.lower).all() and np.isfinite(self.upper).all())
+
+    @property
+    def width(self) -> FloatArray:
+        """``upper - lower``, shape (n,) (``inf`` where a side is infinite)."""
+        return self.upper - self.lower
+
+    @property
+    def center(self) -> FloatArray:
+        """A representative point, shape (n,).
+
+        The midpoint where both sides are finite, the finite side where only one is, 0 where none is.
+        """
+        lo_ok, hi_ok = np.isfinite(self.lower), np.isfinite(self.upper)
+        lo = np.where(lo_ok, self.lower, 0.0)
+        hi = np.where(hi_ok, self.upper, 0.0)
+        return np.where(lo_ok & hi_ok, 0.5 * (lo + hi), np.where(lo_ok, lo, hi))
+
+    def contains(self, z: ArrayLike, tol: float = 0.0) -> bool | NDArray[np.bool_]:
+        """Whether ``z`` (shape (n,) or (m, n)) lies in the box enlarged by ``tol`` times its width.
+
+        Returns a bool for one point and an array of shape (m,) for m points.
+        """
+        arr = np.asarray(z, dtype=float)
+        slack = tol * np.where(np.isfinite(self.width), self.width, 0.0)
+        inside = (arr >= self.lower - slack) & (arr <= self.upper + slack)
+        return bool(inside.all()) if arr.ndim == 1 else inside.all(axis=-1)
+
+    def clip(self, z: ArrayLike) -> FloatArray:
+        """Project ``z`` (shape (..., n)) onto the box."""
+        return np.clip(np.asarray(z, dtype=float), self.lower, self.upper)
+
+    def corners(self) -> FloatArray:
+        """The 2^n corners, shape (2^n, n); only for bounded boxes."""
+        if not self.is_bounded:
+            raise ModelError(f"Box.corners: the box is unbounded (lower={self.lower}, upper={self.upper})")
+        grids = np.meshgrid(*[(lo, hi) for lo, hi in zip(self.lower, self.upper, strict=True)], indexing="ij")
+        return np.stack([g.ravel() for g in grids], axis=-1)
+
+    def sample(self, rng: np.random.Generator, count: int) -> FloatArray:
+        """``count`` points drawn uniformly from a bounded box, shape (count, n)."""
+        if not self.is_bounded:
+            raise ModelError(f"Box.sample: the box is unbounded (lower={self.lower}, upper={self.upper})")
+        return rng.uniform(self.lower, self.upper, size=(count, self.size))
+
+    def to_dict(self) -> dict[str, list[float]]:
+        """Plain-data form (``inf`` kept as float)."""
+        return {"lower": self.lower.tolist(), "upper": self.upper.tolist()}
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Box):
+            return NotImplemented
+        return bool(np.array_equal(self.lower, other.lower) and np.array_equal(self.upper, other.upper))
+
+    def __hash__(self) -> int:
+        return hash((self.lower.tobytes(), self.upper.tobytes()))
+
+    def __repr__(self) -> str:
+        return f"Box(lower={self.lower.tolist()}, upper={self.upper.tolist()})"

@@ -1,0 +1,31 @@
+"""Typed exceptions of uiest.
+
+Every error raised for bad user input is one of these, and its message names the argument,
+what was expected and what came. The CLI turns them into a one-line message and exit code 2.
+"""
+
+from __future__ import annotations
+
+
+class UiestError(Exception):
+    """Base class of every error raised by uiest on purpose."""
+
+
+class ModelError(UiestError, ValueError):
+    """A system description is inconsistent (sizes, domains, non-finite model values)."""
+
+
+class DataError(UiestError, ValueError):
+    """Data handed to a function has the wrong shape, non-finite values or leaves its domain."""
+
+
+class OptionError(UiestError, ValueError):
+    """An unknown name or an invalid option value (model name, keyword, setting)."""
+
+
+class CertificationError(UiestError, RuntimeError):
+    """A certificate was required but could not be established."""
+
+
+class SolverError(UiestError, RuntimeError):
+    """A numerical solver failed and the caller asked for failures to be raised."""

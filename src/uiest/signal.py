@@ -1,0 +1,90 @@
+"""Description of one signal of a system (x, u, w, v or y): names, units, domain, scale."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import Box, FloatArray
+from uiest.errors import ModelError
+
+SIGNAL_KINDS = ("x", "u", "w", "v", "y")
+"""The five signals of ``x+ = f(x, u, w), y = h(x, v)``, in this order everywhere."""
+
+
+@dataclass(frozen=True, eq=False)
+class Signal:
+    """Names, units, domain and nominal scale of one vector signal.
+
+    Parameters
+    ----------
+    kind : {"x", "u", "w", "v", "y"}
+        Which signal of the system this is.
+    names, units : tuple of str, length n
+        One per component.
+    bounds : Box
+        The domain (X, U, V, Y; for w always the whole space, see ``System.w_range``).
+    scale : ndarray, shape (n,)
+        Positive nominal magnitudes; solvers and certificates work in ``z / scale``.
+
+    """
+
+    kind: str
+    names: tuple[str, ...]
+    units: tuple[str, ...]
+    bounds: Box
+    scale: FloatArray
+
+    def __post_init__(self) -> None:
+        n = self.bounds.size
+        if self.kind not in SIGNAL_KINDS:
+            raise ModelError(f"Signal.kind: expected one of {SIGNAL_KINDS}, got {self.kind!r}")
+        if len(self.names) != n or len(self.units) != n:
+            raise ModelError(
+                f"{self.kind}: expected {n} names and units, got {len(self.names)} names and {len(self.units)} units"
+            )
+        scale = np.array(self.scale, dtype=float, ndmin=1)
+        if scale.shape != (n,) or not np.all(np.isfinite(scale)) or not np.all(scale > 0):
+            raise ModelError(f"{self.kind}_scale: expected {n} positive finite numbers, got {scale.tolist()}")
+        scale.setflags(write=False)
+        object.__setattr__(self, "scale", scale)
+
+    @property
+    def size(self) -> int:
+        """Number of components n."""
+        return self.bounds.size
+
+    @classmethod
+    def build(
+        cls,
+        kind: str,
+        n: int,
+        *,
+        bounds: Box | tuple[ArrayLike, ArrayLike] | None = None,
+        names: Sequence[str] | None = None,
+        units: Sequence[str] | None = None,
+        scale: ArrayLike | None = None,
+        fallback_scale: ArrayLike | None = None,
+    ) -> Signal:
+        """Build a signal from optional user data.
+
+        Default names are ``kind[i]``, default units ``""``. The scale, per component, is the
+        given one, else the finite non-zero width of ``bounds``, else ``fallback_scale``, else 1.
+        """
+        box = Box.coerce(bounds, n, f"{kind}_bounds")
+        names_t = tuple(f"{kind}[{i}]" for i in range(n)) if names is None else tuple(str(s) for s in names)
+        units_t = ("",) * n if units is None else tuple(str(s) for s in units)
+        if scale is not None:
+            try:
+                scale_arr = np.broadcast_to(np.asarray(scale, dtype=float), (n,)).copy()
+            except ValueError as exc:
+                raise ModelError(f"{kind}_scale: expected {n} positive numbers, got {scale!r}") from exc
+        else:
+            fallback = np.ones(n) if fallback_scale is None else np.broadcast_to(fallback_scale, (n,))
+            width = box.width
+            usable = np.isfinite(width) & (width > 0)
+            scale_arr = np.where(usable, np.where(usable, width, 1.0), fallback)
+        return cls(kind=kind, names=names_t, units=units_t, bounds=box, scale=scale_arr)

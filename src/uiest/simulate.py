@@ -1,0 +1,149 @@
+"""Simulation of a :class:`~uiest.system.System`: :func:`simulate` returns a :class:`Trajectory`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray, as_vector
+from uiest.errors import DataError, ModelError
+from uiest.noise import NoiseModel
+from uiest.results import Trajectory
+from uiest.system import System
+
+InputLike = ArrayLike | Callable[[int, FloatArray], ArrayLike] | None
+
+
+def _check_steps(steps: Any) -> int:
+    if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 0:
+        raise DataError(f"steps: expected a non-negative integer, got {steps!r}")
+    return int(steps)
+
+
+def _sequence(value: ArrayLike, rows: int, n: int, name: str) -> FloatArray:
+    """A (rows, n) array from a (rows, n) array or a constant (n,) vector."""
+    try:
+        arr = np.asarray(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"{name}: expected an array of shape ({rows}, {n}), got {type(value).__name__}") from exc
+    if arr.ndim <= 1 and arr.size == n:
+        arr = np.broadcast_to(arr.reshape(n), (rows, n))
+    if arr.shape != (rows, n):
+        raise DataError(f"{name}: expected shape ({rows}, {n}) or a constant of shape ({n},), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise DataError(f"{name}: expected finite values")
+    return np.array(arr, dtype=float)
+
+
+def _known_input(system: System, u: InputLike, steps: int) -> FloatArray | Callable[[int, FloatArray], ArrayLike]:
+    if callable(u):
+        return u
+    if u is None:
+        if system.nu == 0:
+            return np.zeros((steps, 0))
+        bounds = system.u.bounds
+        if np.array_equal(bounds.lower, bounds.upper):
+            return np.broadcast_to(bounds.lower, (steps, system.nu)).copy()
+        raise DataError(f"u: required, the system has nu={system.nu} known inputs and U={bounds} is not a point")
+    return _sequence(u, steps, system.nu, "u")
+
+
+def simulate(
+    system: System,
+    x0: ArrayLike,
+    steps: int,
+    *,
+    u: InputLike = None,
+    w: InputLike = None,
+    v: ArrayLike | NoiseModel | None = None,
+    seed: int | None = None,
+    progress: Callable[[int], None] | None = None,
+) -> Trajectory:
+    """Simulate ``x[k+1] = f(x[k], u[k], w[k])``, ``y[k] = h(x[k], v[k])`` for k = 0..steps-1.
+
+    Parameters
+    ----------
+    system : System
+    x0 : array_like, shape (nx,)
+        Initial state; must lie in the state domain X.
+    steps : int
+        Number of transitions K >= 0.
+    u : array_like (K, nu) or (nu,), callable ``(k, x[k]) -> (nu,)``, or None
+        Known input. None: no input (nu = 0) or the single point of U when U is a point.
+        Every value must lie in U.
+    w : array_like (K, nw) or (nw,), callable ``(k, x[k]) -> (nw,)``, or None
+        Unknown input; None means zero. A callable lets w depend on the state.
+    v : array_like (K+1, nv), a noise model (:class:`~uiest.noise.UniformNoise`,
+        :class:`~uiest.noise.GaussianNoise`) or None
+        Measurement noise; None means zero. A noise model draws all K+1 samples at once
+        from ``numpy.random.default_rng(seed)``, so the same seed gives the same numbers.
+    seed : int, optional
+        Seed of the noise draw.
+    progress : callable, optional
+        Called with the number of completed steps (for progress bars).
+
+    Returns
+    -------
+    Trajectory
+        Time-first arrays ``t (K+1,)``, ``x (K+1, nx)``, ``u (K, nu)``, ``w (K, nw)``,
+        ``v (K+1, nv)``, ``y (K+1, ny)``.
+
+    """
+    if not isinstance(system, System):
+        raise DataError(f"system: expected a uiest.System, got {type(system).__name__}")
+    steps = _check_steps(steps)
+    x_start = as_vector(x0, system.nx, "x0")
+    if not system.x.bounds.contains(x_start):
+        raise DataError(f"x0: expected a point in X = {system.x.bounds}, got {x_start.tolist()}")
+    u_source = _known_input(system, u, steps)
+    w_source = (
+        np.zeros((steps, system.nw)) if w is None else (w if callable(w) else _sequence(w, steps, system.nw, "w"))
+    )
+    rng = np.random.default_rng(seed)
+    if v is None:
+        v_arr = np.zeros((steps + 1, system.nv))
+    elif isinstance(v, NoiseModel):
+        v_arr = np.asarray(v.sample(rng, steps + 1, system.nv), dtype=float)
+    else:
+        v_arr = _sequence(v, steps + 1, system.nv, "v")
+
+    x_arr = np.empty((steps + 1, system.nx))
+    u_arr = np.empty((steps, system.nu))
+    w_arr = np.empty((steps, system.nw))
+    x_arr[0] = x_start
+    f = system.f
+    for k in range(steps):
+        u_arr[k] = _value_at(u_source, k, x_arr[k], system.nu, "u")
+        w_arr[k] = _value_at(w_source, k, x_arr[k], system.nw, "w")
+        x_next = np.asarray(f(x_arr[k], u_arr[k], w_arr[k]), dtype=float).reshape(-1)
+        if not np.all(np.isfinite(x_next)):
+            raise ModelError(f"f: non-finite state at step k={k + 1} (x[{k}]={x_arr[k].tolist()})")
+        x_arr[k + 1] = x_next
+        if progress is not None:
+            progress(k + 1)
+    if not np.all(system.u.bounds.contains(u_arr, tol=1e-12)):
+        raise DataError(f"u: expected values in U = {system.u.bounds}")
+    y_arr = system.output(x_arr, v_arr)
+    return Trajectory(
+        t=system.dt * np.arange(steps + 1),
+        x=x_arr,
+        u=u_arr,
+        w=w_arr,
+        v=v_arr,
+        y=y_arr.reshape(steps + 1, system.ny),
+        names={s.kind: s.names for s in system.signals},
+        system_name=system.name,
+        seed=seed,
+        time_unit=system.time_unit,
+    )
+
+
+def _value_at(
+    source: FloatArray | Callable[[int, FloatArray], ArrayLike], k: int, x: FloatArray, n: int, name: str
+) -> FloatArray:
+    if callable(source):
+        return as_vector(source(k, x.copy()), n, f"{name}(k={k}, x)")
+    return source[k]

@@ -1,0 +1,412 @@
+"""The system ``x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k])``.
+
+``x`` is the state, ``u`` the known input, ``w`` the unknown input (unbounded unless the user
+states a known range, which only baseline estimators may use), ``v`` the measurement noise and
+``y`` the measured output. ``f`` and ``h`` are CasADi Functions; the :class:`System` adds
+sizes, names, units, box domains X, U, V, Y, nominal scales and the sampling time.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import Box, FloatArray, as_vector
+from uiest.errors import DataError, ModelError
+from uiest.signal import Signal
+
+BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
+
+
+@dataclass(frozen=True)
+class Linearization:
+    """Jacobians of f and h at one point (x, u, w, v).
+
+    Attributes
+    ----------
+    A : ndarray, shape (nx, nx)
+        df/dx.
+    B_u : ndarray, shape (nx, nu)
+        df/du.
+    B_w : ndarray, shape (nx, nw)
+        df/dw.
+    C : ndarray, shape (ny, nx)
+        dh/dx.
+    D_v : ndarray, shape (ny, nv)
+        dh/dv.
+
+    """
+
+    A: FloatArray
+    B_u: FloatArray
+    B_w: FloatArray
+    C: FloatArray
+    D_v: FloatArray
+
+
+@contextlib.contextmanager
+def _casadi_legacy_numpy() -> Iterator[None]:
+    """Silence CasADi's numpy-interop notice while user callables are traced.
+
+    Tracing passes 1-D numpy object arrays of scalar SX symbols: numpy semantics (``@``,
+    broadcasting, ufuncs) then hold elementwise, and CasADi functions accept them too.
+    """
+    options = ca.GlobalOptions
+    if not hasattr(options, "setNumpyMode"):
+        yield
+        return
+    previous = options.getNumpyMode()
+    options.setNumpyMode(-1)
+    try:
+        yield
+    finally:
+        options.setNumpyMode(previous)
+
+
+def _symbol_array(name: str, n: int) -> tuple[ca.SX, np.ndarray]:
+    """A CasADi column symbol and the same symbols as a 1-D numpy object array."""
+    column = ca.SX.sym(name, n)
+    items = np.empty(n, dtype=object)
+    for i in range(n):
+        items[i] = column[i]
+    return column, items
+
+
+def _as_column(value: Any, name: str) -> ca.SX:
+    """Turn what a traced callable returned (SX, DM, number, sequence or object array) into a column."""
+    if isinstance(value, np.ndarray) and value.dtype == object:
+        value = list(value.ravel())
+    if isinstance(value, list | tuple):
+        parts = [_as_column(item, name) for item in value]
+        return ca.vertcat(*parts) if parts else ca.SX(0, 1)
+    if isinstance(value, np.ndarray | int | float | np.floating | np.integer):
+        value = ca.DM(np.asarray(value, dtype=float).reshape(-1, 1))
+    if not isinstance(value, ca.SX | ca.DM):
+        raise ModelError(f"{name}: expected a CasADi expression or a sequence of them, got {type(value).__name__}")
+    expr = ca.SX(value)
+    if expr.size2() != 1:
+        if expr.size1() != 1:
+            raise ModelError(f"{name}: expected a vector, got a {expr.size1()}x{expr.size2()} matrix")
+        expr = expr.T
+    return expr
+
+
+@dataclass(frozen=True, eq=False)
+class System:
+    """A discrete-time system ``x+ = f(x, u, w)``, ``y = h(x, v)`` with domains and scales.
+
+    Build it with :meth:`from_callables`, :meth:`from_expressions` or :meth:`from_functions`;
+    the constructor takes already built parts and validates them.
+
+    Attributes
+    ----------
+    f : casadi.Function
+        ``(x (nx,), u (nu,), w (nw,)) -> x_next (nx,)``.
+    h : casadi.Function
+        ``(x (nx,), v (nv,)) -> y (ny,)``.
+    x, u, w, v, y : Signal
+        Names, units, box domains X, U, W (always the whole space), V, Y and nominal scales.
+    w_range : Box or None
+        A known range of w. Only baseline estimators (the standard MHE) may use it: the unknown
+        input estimators treat w as unbounded.
+    dt : float
+        Sampling time, in ``time_unit``.
+    name : str
+        Short name of the system.
+
+    """
+
+    f: ca.Function
+    h: ca.Function
+    x: Signal
+    u: Signal
+    w: Signal
+    v: Signal
+    y: Signal
+    w_range: Box | None = None
+    dt: float = 1.0
+    time_unit: str = "s"
+    name: str = "system"
+
+    def __post_init__(self) -> None:
+        self._check_functions()
+        if self.w_range is not None and self.w_range.size != self.nw:
+            raise ModelError(f"w_range: expected dimension {self.nw}, got {self.w_range.size}")
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ModelError(f"dt: expected a positive finite sampling time, got {self.dt!r}")
+        if not self.w.bounds == Box.unbounded(self.nw):
+            raise ModelError("w: the unknown input's domain is the whole space; give a known range as w_range")
+        names = [n for s in self.signals for n in s.names]
+        duplicates = sorted({n for n in names if names.count(n) > 1})
+        if duplicates:
+            raise ModelError(f"signal names must be unique across x, u, w, v, y; repeated: {duplicates}")
+        x_next = self.f(self.x.bounds.center, self.u.bounds.center, self.nominal_w)
+        y = self.h(self.x.bounds.center, self.v.bounds.center)
+        for label, value in (("f", x_next), ("h", y)):
+            if not np.all(np.isfinite(np.asarray(value, dtype=float))):
+                raise ModelError(f"{label}: not finite at the domain centre (x={self.x.bounds.center.tolist()})")
+
+    def _check_functions(self) -> None:
+        expected = {
+            "f": (self.f, [self.nx, self.nu, self.nw], self.nx),
+            "h": (self.h, [self.nx, self.nv], self.ny),
+        }
+        for label, (fun, sizes_in, size_out) in expected.items():
+            if not isinstance(fun, ca.Function):
+                raise ModelError(f"{label}: expected a casadi.Function, got {type(fun).__name__}")
+            if fun.n_in() != len(sizes_in) or fun.n_out() != 1:
+                raise ModelError(
+                    f"{label}: expected {len(sizes_in)} inputs and 1 output, got {fun.n_in()} and {fun.n_out()}"
+                )
+            got_in = [fun.numel_in(i) for i in range(fun.n_in())]
+            if got_in != sizes_in or fun.numel_out(0) != size_out:
+                raise ModelError(
+                    f"{label}: expected input sizes {sizes_in} and output size {size_out}, "
+                    f"got {got_in} and {fun.numel_out(0)}"
+                )
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_functions(
+        cls,
+        f: ca.Function,
+        h: ca.Function,
+        *,
+        x_bounds: BoxLike = None,
+        u_bounds: BoxLike = None,
+        v_bounds: BoxLike = None,
+        y_bounds: BoxLike = None,
+        w_range: BoxLike = None,
+        x_names: Sequence[str] | None = None,
+        u_names: Sequence[str] | None = None,
+        w_names: Sequence[str] | None = None,
+        v_names: Sequence[str] | None = None,
+        y_names: Sequence[str] | None = None,
+        x_units: Sequence[str] | None = None,
+        u_units: Sequence[str] | None = None,
+        w_units: Sequence[str] | None = None,
+        v_units: Sequence[str] | None = None,
+        y_units: Sequence[str] | None = None,
+        x_scale: ArrayLike | None = None,
+        u_scale: ArrayLike | None = None,
+        w_scale: ArrayLike | None = None,
+        v_scale: ArrayLike | None = None,
+        y_scale: ArrayLike | None = None,
+        dt: float = 1.0,
+        time_unit: str = "s",
+        name: str = "system",
+    ) -> System:
+        """Build a system from CasADi Functions ``f(x, u, w)`` and ``h(x, v)``.
+
+        Sizes are read from the Functions. Bounds are a :class:`~uiest.box.Box` or a
+        ``(lower, upper)`` pair (scalars broadcast, ``±inf`` allowed, None = unbounded).
+        Scales default to the finite domain widths; for y, where Y is unbounded, to the output
+        change caused by moving x and v by their scales (first order, at the domain centre);
+        for w to the width of ``w_range`` when given; else 1.
+        """
+        for label, fun, n_in in (("f", f, 3), ("h", h, 2)):
+            if not isinstance(fun, ca.Function) or fun.n_in() != n_in:
+                raise ModelError(f"{label}: expected a casadi.Function with {n_in} inputs, got {fun!r}")
+        nx, nu, nw = (f.numel_in(i) for i in range(3))
+        nv, ny = h.numel_in(1), h.numel_out(0)
+        x = Signal.build("x", nx, bounds=x_bounds, names=x_names, units=x_units, scale=x_scale)
+        u = Signal.build("u", nu, bounds=u_bounds, names=u_names, units=u_units, scale=u_scale)
+        v = Signal.build("v", nv, bounds=v_bounds, names=v_names, units=v_units, scale=v_scale)
+        known_w = None if w_range is None else Box.coerce(w_range, nw, "w_range")
+        w = Signal.build(
+            "w",
+            nw,
+            names=w_names,
+            units=w_units,
+            scale=w_scale,
+            fallback_scale=None if known_w is None else _usable_width(known_w),
+        )
+        y_fallback = _output_scale(h, x, v)
+        y = Signal.build(
+            "y", ny, bounds=y_bounds, names=y_names, units=y_units, scale=y_scale, fallback_scale=y_fallback
+        )
+        return cls(f=f, h=h, x=x, u=u, w=w, v=v, y=y, w_range=known_w, dt=float(dt), time_unit=time_unit, name=name)
+
+    @classmethod
+    def from_expressions(
+        cls,
+        x: ca.SX,
+        u: ca.SX,
+        w: ca.SX,
+        v: ca.SX,
+        x_next: ca.SX,
+        y: ca.SX,
+        **spec: Any,
+    ) -> System:
+        """Build a system from CasADi symbols ``x, u, w, v`` and expressions ``x_next``, ``y``.
+
+        ``u`` may be an empty symbol (``ca.SX.sym("u", 0)``). Further keywords as in
+        :meth:`from_functions`.
+        """
+        f = ca.Function("f", [x, u, w], [x_next], ["x", "u", "w"], ["x_next"])
+        h = ca.Function("h", [x, v], [y], ["x", "v"], ["y"])
+        return cls.from_functions(f, h, **spec)
+
+    @classmethod
+    def from_callables(
+        cls,
+        f: Callable[[Any, Any, Any], Any],
+        h: Callable[[Any, Any], Any],
+        *,
+        nx: int,
+        nw: int,
+        nv: int,
+        nu: int = 0,
+        **spec: Any,
+    ) -> System:
+        """Build a system from Python callables ``f(x, u, w)`` and ``h(x, v)``.
+
+        The callables are traced once, each argument being a 1-D numpy object array of scalar
+        CasADi symbols (shape (nx,), (nu,), ...). They may index (``x[0]``), use numpy
+        operations (``A @ x``, ``np.exp(x)``, broadcasting) and ``casadi`` functions, and may
+        return a 1-D array, a sequence of scalar expressions or a CasADi vector. Further
+        keywords as in :meth:`from_functions`.
+        """
+        for label, value in (("nx", nx), ("nu", nu), ("nw", nw), ("nv", nv)):
+            if not isinstance(value, int | np.integer) or value < 0 or (label == "nx" and value == 0):
+                raise ModelError(f"{label}: expected a non-negative integer (nx >= 1), got {value!r}")
+        (xs, xa), (us, ua), (ws, wa), (vs, va) = (
+            _symbol_array(s, n) for s, n in (("x", nx), ("u", nu), ("w", nw), ("v", nv))
+        )
+        with _casadi_legacy_numpy():
+            try:
+                x_next = _as_column(f(xa, ua, wa), "f")
+                y = _as_column(h(xa, va), "h")
+            except ModelError:
+                raise
+            except Exception as exc:
+                raise ModelError(f"f/h: tracing with CasADi symbols failed: {exc}") from exc
+        if x_next.size1() != nx:
+            raise ModelError(f"f: expected {nx} outputs (nx), got {x_next.size1()}")
+        return cls.from_expressions(xs, us, ws, vs, x_next, y, **spec)
+
+    # ------------------------------------------------------------------ sizes
+    @property
+    def nx(self) -> int:
+        """State dimension."""
+        return self.x.size
+
+    @property
+    def nu(self) -> int:
+        """Known input dimension (may be 0)."""
+        return self.u.size
+
+    @property
+    def nw(self) -> int:
+        """Unknown input dimension."""
+        return self.w.size
+
+    @property
+    def nv(self) -> int:
+        """Measurement noise dimension."""
+        return self.v.size
+
+    @property
+    def ny(self) -> int:
+        """Output dimension."""
+        return self.y.size
+
+    @property
+    def signals(self) -> tuple[Signal, Signal, Signal, Signal, Signal]:
+        """``(x, u, w, v, y)``."""
+        return (self.x, self.u, self.w, self.v, self.y)
+
+    @property
+    def nominal_w(self) -> FloatArray:
+        """Centre of ``w_range`` if known, else zeros; shape (nw,)."""
+        return np.zeros(self.nw) if self.w_range is None else self.w_range.center
+
+    # ------------------------------------------------------------------ numerics
+    def step(self, x: ArrayLike, u: ArrayLike | None, w: ArrayLike) -> FloatArray:
+        """Evaluate ``f``: shapes (nx,), (nu,), (nw,) -> (nx,), or a batch (m, .) -> (m, nx).
+
+        ``u`` may be None when ``nu == 0``.
+        """
+        return self._evaluate(self.f, [("x", x, self.nx), ("u", u, self.nu), ("w", w, self.nw)])
+
+    def output(self, x: ArrayLike, v: ArrayLike | None = None) -> FloatArray:
+        """Evaluate ``h``: shapes (nx,), (nv,) -> (ny,), or a batch (m, .) -> (m, ny).
+
+        ``v`` None means no noise.
+        """
+        return self._evaluate(self.h, [("x", x, self.nx), ("v", v, self.nv)])
+
+    def linearize(
+        self, x: ArrayLike, u: ArrayLike | None = None, w: ArrayLike | None = None, v: ArrayLike | None = None
+    ) -> Linearization:
+        """Jacobians of f and h at one point; None stands for zeros (u, v) or ``nominal_w`` (w)."""
+        args = [
+            as_vector(x, self.nx, "x"),
+            np.zeros(0) if u is None and self.nu == 0 else as_vector(u, self.nu, "u"),
+            self.nominal_w if w is None else as_vector(w, self.nw, "w"),
+            np.zeros(self.nv) if v is None else as_vector(v, self.nv, "v"),
+        ]
+        return Linearization(*(np.asarray(m, dtype=float) for m in self.jacobian_function(*args)))
+
+    @cached_property
+    def jacobian_function(self) -> ca.Function:
+        """CasADi Function ``(x, u, w, v) -> (A, B_u, B_w, C, D_v)``; ``.map(m)`` batches it."""
+        x, u, w, v = (ca.SX.sym(s, n) for s, n in (("x", self.nx), ("u", self.nu), ("w", self.nw), ("v", self.nv)))
+        fx, hx = self.f(x, u, w), self.h(x, v)
+        return ca.Function(
+            "jacobians",
+            [x, u, w, v],
+            [ca.jacobian(fx, x), ca.jacobian(fx, u), ca.jacobian(fx, w), ca.jacobian(hx, x), ca.jacobian(hx, v)],
+            ["x", "u", "w", "v"],
+            ["A", "B_u", "B_w", "C", "D_v"],
+        )
+
+    def _evaluate(self, fun: ca.Function, args: list[tuple[str, ArrayLike | None, int]]) -> FloatArray:
+        arrays = []
+        for label, value, n in args:
+            arr = np.zeros(n) if value is None else np.asarray(value, dtype=float)
+            if arr.ndim == 0 and n == 1:
+                arr = arr.reshape(1)
+            if arr.ndim not in (1, 2) or arr.shape[-1] != n:
+                raise DataError(f"{label}: expected shape ({n},) or (m, {n}), got {arr.shape}")
+            if not np.all(np.isfinite(arr)):
+                raise DataError(f"{label}: expected finite values")
+            arrays.append(arr)
+        batch = {a.shape[0] for a in arrays if a.ndim == 2}
+        if len(batch) > 1:
+            raise DataError(f"batched arguments disagree in length: {sorted(batch)}")
+        if not batch:
+            return np.asarray(fun(*arrays), dtype=float).reshape(-1)
+        m = batch.pop()
+        columns = [np.broadcast_to(a, (m, a.shape[-1])).T for a in arrays]
+        return np.asarray(fun.map(m)(*columns), dtype=float).reshape(-1, m).T
+
+    def __repr__(self) -> str:
+        return (
+            f"System(name={self.name!r}, nx={self.nx}, nu={self.nu}, nw={self.nw}, nv={self.nv}, "
+            f"ny={self.ny}, dt={self.dt} {self.time_unit})"
+        )
+
+
+def _usable_width(box: Box) -> FloatArray:
+    width = box.width
+    return np.where(np.isfinite(width) & (width > 0), width, 1.0)
+
+
+def _output_scale(h: ca.Function, x: Signal, v: Signal) -> FloatArray:
+    """First-order output magnitude ``sqrt(sum_j (dh_i/dz_j s_j)^2)`` over z = (x, v) at the centre."""
+    xs, vs = ca.SX.sym("x", x.size), ca.SX.sym("v", v.size)
+    jac = ca.Function("jac_h", [xs, vs], [ca.jacobian(h(xs, vs), ca.vertcat(xs, vs))])
+    try:
+        sens = np.asarray(jac(x.bounds.center, v.bounds.center), dtype=float)
+    except RuntimeError as exc:
+        raise ModelError(f"h: evaluation failed at the domain centre: {exc}") from exc
+    spread = np.sqrt(((sens * np.concatenate([x.scale, v.scale])) ** 2).sum(axis=1))
+    return np.where(np.isfinite(spread) & (spread > 0), spread, 1.0)

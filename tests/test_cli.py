@@ -1,0 +1,36 @@
+import pandas as pd
+from typer.testing import CliRunner
+
+from uiest.cli import app
+
+runner = CliRunner()
+
+
+def test_models_lists_the_registry():
+    result = runner.invoke(app, ["models"])
+    assert result.exit_code == 0
+    assert "crop-growth" in result.output and "closed-form" in result.output
+
+
+def test_simulate_writes_csv_and_png(tmp_path):
+    result = runner.invoke(app, ["simulate", "crop-growth", "--steps", "25", "--seed", "4", "--out", str(tmp_path)])
+    assert result.exit_code == 0, result.output
+    frame = pd.read_csv(tmp_path / "trajectory.csv", index_col="k")
+    assert len(frame) == 26 and {"x_c", "x_d1", "x_d2", "w", "y_c", "y_d"} <= set(frame.columns)
+    assert (tmp_path / "trajectory.png").stat().st_size > 10_000
+
+
+def test_bad_input_gives_one_line_and_exit_code_2(tmp_path):
+    for args, needle in (
+        (["simulate", "no-such-model", "--out", str(tmp_path)], "unknown name"),
+        (["simulate", "crop-growth", "--steps", "-3", "--out", str(tmp_path)], "steps"),
+    ):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2
+        assert needle in result.output
+        assert len(result.output.strip().splitlines()) == 1
+
+
+def test_unknown_option_is_a_usage_error():
+    result = runner.invoke(app, ["simulate", "crop-growth", "--no-such-option", "1"])
+    assert result.exit_code == 2
