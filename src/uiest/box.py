@@ -135,7 +135,9 @@ class Box:
         arr = np.asarray(z, dtype=float)
         slack = tol * np.where(np.isfinite(self.width), self.width, 0.0)
         inside = (arr >= self.lower - slack) & (arr <= self.upper + slack)
-        return bool(inside.all()) if arr.ndim == 1 else inside.all(axis=-1)
+        if arr.ndim == 1:
+            return bool(inside.all())
+        return np.asarray(inside.all(axis=-1))
 
     def clip(self, z: ArrayLike) -> FloatArray:
         """Project ``z`` (shape (..., n)) onto the box."""

@@ -128,7 +128,7 @@ def simulate(
         raise DataError(f"u: expected values in U = {system.u.bounds}")
     y_arr = system.output(x_arr, v_arr)
     return Trajectory(
-        t=system.dt * np.arange(steps + 1),
+        t=np.arange(steps + 1, dtype=float) * system.dt,
         x=x_arr,
         u=u_arr,
         w=w_arr,

@@ -346,10 +346,10 @@ class System:
     def linearize(
         self, x: ArrayLike, u: ArrayLike | None = None, w: ArrayLike | None = None, v: ArrayLike | None = None
     ) -> Linearization:
-        """Jacobians of f and h at one point; None stands for zeros (u, v) or ``nominal_w`` (w)."""
+        """Jacobians of f and h at one point; None stands for the centre of U, ``nominal_w`` or v = 0."""
         args = [
             as_vector(x, self.nx, "x"),
-            np.zeros(0) if u is None and self.nu == 0 else as_vector(u, self.nu, "u"),
+            self.u.bounds.center if u is None else as_vector(u, self.nu, "u"),
             self.nominal_w if w is None else as_vector(w, self.nw, "w"),
             np.zeros(self.nv) if v is None else as_vector(v, self.nv, "v"),
         ]

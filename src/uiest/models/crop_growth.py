@@ -224,7 +224,8 @@ class CropScenario:
 
     def sample_x0(self, rng: np.random.Generator) -> FloatArray:
         """One initial state drawn uniformly from ``x0_box``, shape (3,)."""
-        return Box(*self.x0_box).sample(rng, 1)[0]
+        lower, upper = (np.asarray(corner, dtype=float) for corner in self.x0_box)
+        return Box(lower, upper).sample(rng, 1)[0]
 
 
 DEFAULT_SCENARIO = CropScenario()
