@@ -209,7 +209,14 @@ def _scaled_jacobians(system: System, points: FloatArray) -> _Data:
 
 
 class _Problem:
-    """The LMI of the module docstring on a fixed set of points, with mu' as a Parameter."""
+    """The LMI of the module docstring on a fixed set of points, with mu' as a Parameter.
+
+    Conditioning: with ``Y1' = Y1 + Y2`` the LMI reads ``P A - Y1' C - Y2 C (A - I)``. Slow
+    sampled systems have a tiny ``C (A - I)`` (the crop model: ~1e-5), so ``Y2`` must be huge;
+    ``Y2 = P U (C U)^+ + gamma Z~ Pi`` with ``gamma = 1 / max |C (A_i - I)|`` keeps every
+    decision variable of order one. The gain LMI bounds the scaled variables ``(Y1', Z~)``
+    (a regulariser); the true gains are recomputed from ``(Y1, Y2)`` afterwards.
+    """
 
     def __init__(self, data: _Data, basis: FloatArray, kappa_max: float) -> None:
         n, p = data.A.shape[1], data.C.shape[0]
@@ -217,24 +224,37 @@ class _Problem:
         CU = C @ basis
         CU_pinv = np.linalg.pinv(CU)
         projector = np.eye(p) - CU @ CU_pinv
+        increments = np.einsum("ij,mjk->mik", C, data.A - np.eye(n)[None])
+        self.gamma = 1.0 / max(float(np.abs(increments).max()), 1e-12)
         self.mu = cp.Parameter(nonneg=True, value=0.5)
         self.kappa_cap = cp.Parameter(nonneg=True, value=kappa_max)
         self.weight_t = cp.Parameter(nonneg=True, value=0.0)
         self.P = cp.Variable((n, n), symmetric=True)
-        self.Y1 = cp.Variable((n, p))
+        self.Y1_shifted = cp.Variable((n, p))
         self.Z = cp.Variable((n, p))
         self.kappa = cp.Variable(nonneg=True)
         self.t = cp.Variable(nonneg=True)
-        self.Y2 = self.P @ basis @ CU_pinv + self.Z @ projector
-        G = self.P - self.Y2 @ C
+        matched = self.P @ basis @ CU_pinv
         constraints = [self.P >> np.eye(n), self.P << self.kappa * np.eye(n), self.kappa <= self.kappa_cap]
-        for A in data.A:
-            PF = G @ A - self.Y1 @ C
+        for A, inc in zip(data.A, increments, strict=True):
+            PF = self.P @ A - self.Y1_shifted @ C - matched @ inc - self.Z @ (projector @ (self.gamma * inc))
             constraints.append(lmi.symmetric(cp.bmat([[self.mu * self.P, PF.T], [PF, self.P]])) >> 0)
-        Y = cp.hstack([self.Y1, self.Y2])
+        Y = cp.hstack([self.Y1_shifted, self.Z])
         constraints.append(lmi.symmetric(cp.bmat([[self.t * np.eye(2 * p), Y.T], [Y, self.P]])) >> 0)
         self.problem = cp.Problem(cp.Minimize(self.kappa + self.weight_t * self.t), constraints)
         self.C = C
+        self._basis_term = basis @ CU_pinv
+        self._projector = projector
+
+    @property
+    def Y2(self) -> FloatArray:
+        """``Y2 = P U (C U)^+ + gamma Z~ Pi`` from the solution."""
+        return self.P.value @ self._basis_term + self.gamma * self.Z.value @ self._projector
+
+    @property
+    def Y1(self) -> FloatArray:
+        """``Y1 = Y1' - Y2`` from the solution."""
+        return self.Y1_shifted.value - self.Y2
 
     def solve(self, mu: float, weight_t: float = 0.0, kappa_cap: float | None = None) -> str:
         self.mu.value = mu
@@ -249,7 +269,7 @@ class _Problem:
 
     def margins(self, data: _Data, mu: float) -> FloatArray:
         """Independent re-check: min eig of ``mu P - PF^T P^-1 PF`` per point (scaled by 1/|P|)."""
-        P, Y1, Y2 = self.P.value, self.Y1.value, self.Y2.value
+        P, Y1, Y2 = self.P.value, self.Y1, self.Y2
         G = P - Y2 @ self.C
         PF = np.einsum("ij,mjk->mik", G, data.A) - (Y1 @ self.C)[None]
         P_inv = np.linalg.inv(P)
@@ -259,7 +279,7 @@ class _Problem:
     def gain(self) -> float:
         """``max_j lambda_max(Y_j^T P^-1 Y_j)`` recomputed from the solution."""
         P_inv = np.linalg.inv(self.P.value)
-        return max(float(np.linalg.eigvalsh(Y.T @ P_inv @ Y)[-1]) for Y in (self.Y1.value, self.Y2.value))
+        return max(float(np.linalg.eigvalsh(Y.T @ P_inv @ Y)[-1]) for Y in (self.Y1, self.Y2))
 
 
 def certify_strong_detectability(
