@@ -22,6 +22,7 @@ ComplexArray = NDArray[np.complex128]
 
 _SEED = 20_240_517  # fixed seed of the random pencil compressions: results are deterministic
 _MATCH_TOL = 1e-4  # two compressions agree on a candidate z within _MATCH_TOL * (1 + |z|)
+_CONFIRM_FACTOR = 100.0  # zero iff sigma_r(P(z)) <= 100 rtol |pencil|: weakly observable modes are no zeros
 
 
 @dataclass(frozen=True, eq=False)
@@ -159,7 +160,7 @@ def _zeros(A: FloatArray, B: FloatArray, C: FloatArray, rtol: float) -> ComplexA
             continue
         unused.pop(j)
         sigma_r = np.linalg.svd(z * N - M, compute_uv=False)[r - 1]
-        if sigma_r <= math.sqrt(rtol) * (norm_M + abs(z) * norm_N):
+        if sigma_r <= _CONFIRM_FACTOR * rtol * (norm_M + abs(z) * norm_N):
             zeros.append(complex(z))
     zeros.sort(key=lambda z: (-abs(z), z.real, z.imag))
     return np.array(zeros, dtype=complex)
@@ -172,7 +173,7 @@ def invariant_zeros(A: ArrayLike, B: ArrayLike, C: ArrayLike, *, rtol: float = 1
     complex point, SVD tolerance ``rtol`` times the largest singular value). The pencil is
     compressed to r x r twice with random orthonormal ``U ((n+p), r)``, ``V ((n+q), r)`` (fixed
     seed); finite generalized eigenvalues found by both compressions are candidates, and each is
-    kept when the r-th singular value of P(z) is at most ``sqrt(rtol) * (||M|| + |z| ||N||)``.
+    kept when the r-th singular value of P(z) is at most ``100 rtol (||M|| + |z| ||N||)``.
 
     Returns
     -------
