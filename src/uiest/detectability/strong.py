@@ -390,7 +390,7 @@ def certify_strong_detectability(
         R_y=s_y * np.diag(1.0 / sy**2),
         R_v=s_y * (D.T @ D) / np.outer(sv, sv),
         tau=float(tau),
-        solver_status="optimal",
+        solver_status=status,
         solve_time=time.perf_counter() - start,
         margin=margin,
         n_active=len(active),
@@ -423,7 +423,6 @@ def _best_split(problem: _Problem, mu: float, mu_min: float) -> tuple[str, float
     mu_prime = best[1]
     problem.solve(mu_prime)
     status = problem.solve(mu_prime, weight_t=1.0, kappa_cap=2.0 * float(problem.kappa.value))
-    problem.kappa_cap.value = 1e12
     return status, mu_prime
 
 
