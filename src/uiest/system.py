@@ -98,6 +98,38 @@ def _as_column(value: Any, name: str) -> ca.SX:
     return expr
 
 
+def as_function(fun: Any, name: str, inputs: list[tuple[str, int]], n_out: int | None = None) -> ca.Function:
+    """A CasADi Function from ``fun``: a ``casadi.Function`` (sizes checked) or a Python callable.
+
+    Callables are traced once with 1-D numpy object arrays of scalar SX symbols, one per entry
+    of ``inputs`` (name, size), as in :meth:`System.from_callables`. ``n_out`` checks the size of
+    the (single) output.
+    """
+    if isinstance(fun, ca.Function):
+        sizes = [fun.numel_in(i) for i in range(fun.n_in())]
+        if sizes != [n for _, n in inputs] or fun.n_out() != 1:
+            raise ModelError(
+                f"{name}: expected a casadi.Function with inputs of sizes {[n for _, n in inputs]} and one output, "
+                f"got inputs {sizes} and {fun.n_out()} outputs"
+            )
+        function = fun
+    elif callable(fun):
+        symbols = [_symbol_array(label, n) for label, n in inputs]
+        with _casadi_legacy_numpy():
+            try:
+                out = _as_column(fun(*[arr for _, arr in symbols]), name)
+            except ModelError:
+                raise
+            except Exception as exc:
+                raise ModelError(f"{name}: tracing with CasADi symbols failed: {exc}") from exc
+        function = ca.Function(name, [col for col, _ in symbols], [out], [label for label, _ in inputs], ["out"])
+    else:
+        raise ModelError(f"{name}: expected a callable or a casadi.Function, got {type(fun).__name__}")
+    if n_out is not None and function.numel_out(0) != n_out:
+        raise ModelError(f"{name}: expected an output of size {n_out}, got {function.numel_out(0)}")
+    return function
+
+
 @dataclass(frozen=True, eq=False)
 class System:
     """A discrete-time system ``x+ = f(x, u, w)``, ``y = h(x, v)`` with domains and scales.

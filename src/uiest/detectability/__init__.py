@@ -2,16 +2,24 @@
 
 - :func:`linear_strong_detectability` (lem:UIO_LTI): matching, invariant zeros, mu_min.
 - :func:`certify_strong_detectability` (theo:Lyapunov): quadratic storage by LMIs.
+- :func:`certify_reduced_ioss` (ass:e-ioss): exponential i-IOSS of a reduced-order model.
+- :func:`certify_delta_ioss` (Schiller et al. 2023, Assumption 1): for the standard MHE.
 """
 
+from uiest.detectability.delta import DeltaIOSS, certify_delta_ioss
 from uiest.detectability.linear import LinearStrongDetectability, invariant_zeros, linear_strong_detectability
+from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.detectability.report import Verification
 from uiest.detectability.strong import StrongDetectability, certify_strong_detectability
 
 __all__ = [
+    "DeltaIOSS",
     "LinearStrongDetectability",
+    "ReducedIOSS",
     "StrongDetectability",
     "Verification",
+    "certify_delta_ioss",
+    "certify_reduced_ioss",
     "certify_strong_detectability",
     "invariant_zeros",
     "linear_strong_detectability",

@@ -129,3 +129,24 @@ def is_constant(fun: ca.Function, output: int, wrt: list[int]) -> bool:
     expr = fun(*syms)
     expr = expr[output] if isinstance(expr, tuple | list) else expr
     return not any(ca.depends_on(expr, syms[i]) for i in wrt)
+
+
+def bisect_discount(feasible: Callable[[float], bool], floor: float, tol: float, gap: float = 1e-6) -> float | None:
+    """Smallest discount mu in ``[floor, 1 - gap]`` for which ``feasible`` holds (monotone).
+
+    Bisects on ``log(1 - mu)`` so that discounts near 1 (slow sampled systems: ``1 - mu`` of
+    1e-5) are resolved to a relative tolerance of 1 % in ``1 - mu``, and stops once the bracket
+    is narrower than ``tol`` in mu as well. Returns None when ``feasible(1 - gap)`` is False.
+    """
+    if not feasible(1.0 - gap):
+        return None
+    hi, lo = np.log(gap), np.log(1.0 - floor)  # log(1 - mu): hi is feasible, lo side infeasible
+    if feasible(floor):
+        return floor
+    while abs(np.exp(hi) - np.exp(lo)) > tol or hi - lo < -0.01:
+        mid = 0.5 * (lo + hi)
+        if feasible(1.0 - float(np.exp(mid))):
+            hi = mid
+        else:
+            lo = mid
+    return 1.0 - float(np.exp(hi))

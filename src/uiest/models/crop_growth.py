@@ -64,6 +64,7 @@ from numpy.typing import ArrayLike
 from uiest.box import Box, FloatArray
 from uiest.errors import OptionError
 from uiest.noise import UniformNoise
+from uiest.reduction import ReducedModel
 from uiest.system import System
 
 NAME = "crop-growth"
@@ -182,6 +183,25 @@ def system(params: CropParameters | None = None, **overrides: Any) -> System:
         dt=p.dt,
         time_unit="s",
         name=NAME,
+    )
+
+
+def reduction(params: CropParameters | None = None, **overrides: Any) -> ReducedModel:
+    """The paper's reduction for the two-stage UISE (Section "Numerical example").
+
+    ``T(x) = (x^c, x^{d,1}, (a_d3 / a_c1) x^c + x^{d,2})`` with ``T_flat(x) = x^c`` and
+    ``psi(y, z_sharp, v) = y^c - v^c``: the unknown input cancels in the third coordinate
+    (``(a_d3 / a_c1) Delta_t a_c1 phi w = Delta_t a_d3 phi w``), so eq:ass_2 holds. Further
+    arguments as in :func:`system`.
+    """
+    p = (params or CropParameters()).with_overrides(**overrides)
+    ratio = p.a_d3 / p.a_c1
+    return ReducedModel.from_transform(
+        system(p),
+        lambda x: [x[0], x[1], ratio * x[0] + x[2]],
+        lambda z: [z[0], z[1], z[2] - ratio * z[0]],
+        lambda y, z_sharp, v: [y[0] - v[0]],
+        n_flat=1,
     )
 
 

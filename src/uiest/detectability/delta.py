@@ -1,0 +1,216 @@
+r"""delta-IOSS Lyapunov functions for the standard MHE (Schiller et al. 2023, Assumption 1, Cor. 3).
+
+Schiller, Muntwiler, Köhler, Zeilinger, Müller, "A Lyapunov function for robust stability of
+moving horizon estimation", IEEE TAC 68(12), 2023. Their Assumption 1 (eq. (4)) asks for W with
+``|x - x~|_P1^2 <= W <= |x - x~|_P2^2`` and
+
+    W(f(x,u,w), f(x~,u,w~)) <= eta W(x, x~) + |d - d~|_Q^2 + |y - y~|_R^2,
+
+the generalised disturbance ``d = (w, v)`` bounded (the standard MHE treats the unknown input as
+a bounded disturbance in its known range ``system.w_range``). With ``W = |x - x~|_P^2``
+(``P1 = P2 = P``) and ``Q = blkdiag(Q_w, Q_v)`` this is the dissipation LMI of Corollary 3,
+eq. (33), solved by :mod:`uiest.detectability.dissipation` in scaled coordinates with one weight
+per channel (``Q_w = q_w S_w^-2``, ``Q_v = q_v S_v^-2``, ``R = r S_y^-2``).
+
+Horizon, their eq. (16): the MHE is robustly stable if ``4 eta^M lambda_max(P2, P1) < 1``; with
+``P1 = P2`` the generalised eigenvalue is 1, so ``M > ln 4 / ln(1 / eta)``.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uiest.box import Box, FloatArray
+from uiest.detectability import dissipation, lmi
+from uiest.detectability.report import Verification
+from uiest.errors import CertificationError
+from uiest.system import System
+
+
+@dataclass(frozen=True, eq=False)
+class DeltaIOSS:
+    """A quadratic delta-IOSS Lyapunov function (Schiller et al. 2023, Assumption 1).
+
+    Attributes
+    ----------
+    certified : bool
+        True only when the LMIs were solved and the eigenvalue re-check holds on every point.
+    reason : str
+        Why (not) certified.
+    eta, eta_min : float
+        Discount and the smallest feasible one found by bisection.
+    P : ndarray (nx, nx)
+        ``W = |x - x~|_P^2`` in original units (``P1 = P2 = P``).
+    Q_w, Q_v, R : ndarray
+        Weights in original units (nw, nw), (nv, nv), (ny, ny).
+    structure : str
+        "full" or "identity" (``P = p I`` in scaled coordinates, the paper's "scaled identity").
+    w_box : Box
+        The range of w the certificate covers (``system.w_range`` unless given).
+
+    """
+
+    system: System = field(repr=False)
+    model: dissipation.IncrementalModel = field(repr=False)
+    solution: dissipation.Solution = field(repr=False)
+    structure: str
+    w_box: Box
+    solve_time: float
+
+    @property
+    def certified(self) -> bool:
+        """Whether the certificate holds (solved and re-checked)."""
+        return self.solution.certified
+
+    @property
+    def reason(self) -> str:
+        """Why (not) certified."""
+        return self.solution.reason
+
+    @property
+    def eta(self) -> float:
+        """Discount of Assumption 1."""
+        return self.solution.mu
+
+    @property
+    def eta_min(self) -> float:
+        """Smallest feasible discount (bisection)."""
+        return self.solution.mu_min
+
+    @property
+    def P_scaled(self) -> FloatArray:
+        """``P`` in scaled coordinates."""
+        return self.solution.P
+
+    @property
+    def P(self) -> FloatArray:
+        """``P`` in original units."""
+        s = self.system.x.scale
+        return self.solution.P / np.outer(s, s)
+
+    @property
+    def Q_w(self) -> FloatArray:
+        """Weight of the unknown input, original units."""
+        return float(self.solution.q[0]) * np.diag(1.0 / self.system.w.scale**2)
+
+    @property
+    def Q_v(self) -> FloatArray:
+        """Weight of the measurement noise, original units."""
+        return float(self.solution.q[1]) * np.diag(1.0 / self.system.v.scale**2)
+
+    @property
+    def R(self) -> FloatArray:
+        """Weight of the output, original units."""
+        return self.solution.r * np.diag(1.0 / self.system.y.scale**2)
+
+    @property
+    def condition(self) -> float:
+        """Condition number of ``P_scaled``."""
+        return self.solution.condition
+
+    def min_horizon(self) -> int:
+        """Smallest M with ``4 eta^M lambda_max(P2, P1) < 1`` (Schiller et al., eq. (16)); ``P1 = P2``.
+
+        Raises CertificationError when the certificate does not hold.
+        """
+        if not self.certified:
+            raise CertificationError(f"min_horizon: the certificate does not hold ({self.reason})")
+        return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
+
+    def verify(self, n_pairs: int = 20_000, seed: int = 0) -> Verification:
+        """Test Assumption 1's inequality on random pairs with the nonlinear f and h.
+
+        Pairs ``(x, x~)`` in X, ``(w, v)``, ``(w~, v~)`` in ``w_box x V``, a shared u.
+        """
+        if not self.certified:
+            return Verification(float("nan"), 0, 0, self.reason)
+        check = dissipation.check_pairs(self.model, self.P, self.eta, [self.Q_w, self.Q_v], self.R, n_pairs, seed)
+        return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of Schiller et al. eq. (4)")
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain-data form for JSON."""
+        ok = self.certified
+        return {
+            "kind": "delta_ioss",
+            "system": self.system.name,
+            "certified": ok,
+            "reason": self.reason,
+            "eta": self.eta,
+            "eta_min": self.eta_min,
+            "structure": self.structure,
+            "P": self.P.tolist() if ok else None,
+            "P_scaled": self.P_scaled.tolist() if ok else None,
+            "Q_w": self.Q_w.tolist() if ok else None,
+            "Q_v": self.Q_v.tolist() if ok else None,
+            "R": self.R.tolist() if ok else None,
+            "condition_scaled": self.condition if ok else None,
+            "min_horizon": self.min_horizon() if ok else None,
+            "solver_status": self.solution.status,
+            "solve_time_s": self.solve_time,
+            "margin": self.solution.margin,
+            "n_active": self.solution.n_active,
+            "n_pool": self.solution.n_pool,
+            "argument": self.solution.argument,
+            "w_box": self.w_box.to_dict(),
+        }
+
+
+def certify_delta_ioss(
+    system: System,
+    *,
+    eta: float | None = None,
+    structure: str = "full",
+    w_bounds: Box | tuple[Any, Any] | None = None,
+    w_spread: float = 100.0,
+    **options: Any,
+) -> DeltaIOSS:
+    """Certify Schiller et al.'s Assumption 1 with ``W = |x - x~|_P^2`` by their Corollary 3.
+
+    Parameters
+    ----------
+    system : System
+        Needs a bounded X. The output Jacobians should be constant (h affine, as Corollary 3
+        requires); otherwise the certificate says the pointwise LMIs are a sampled check only.
+    eta : float, optional
+        Discount to certify; None minimises it (``eta = min(2 eta_min, (1 + eta_min) / 2)``).
+    structure : {"full", "identity"}
+        "identity" restricts P to ``p I`` in scaled coordinates, as the paper does.
+    w_bounds : Box or (lower, upper), optional
+        Range of w to cover; default ``system.w_range``, else ``nominal_w +- w_spread * w.scale``.
+    w_spread : float
+        Used only without ``w_bounds`` and ``system.w_range``.
+    **options
+        Passed to :func:`uiest.detectability.dissipation.solve`.
+
+    """
+    start = time.perf_counter()
+    if not system.x.bounds.is_bounded:
+        raise CertificationError(f"certify_delta_ioss: X must be bounded to grid the Jacobians, got {system.x.bounds}")
+    if w_bounds is not None:
+        w_box = Box.coerce(w_bounds, system.nw, "w_bounds")
+    elif system.w_range is not None:
+        w_box = system.w_range
+    else:
+        w_box = lmi.sampling_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
+    v_box = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale)
+    u_box = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+    nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
+    x, u, d = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("d", nw + nv)
+    model = dissipation.IncrementalModel(
+        step=ca.Function("step", [x, u, d], [system.f(x, u, d[:nw])]),
+        output=ca.Function("output", [x, d], [system.h(x, d[nw:])]),
+        z_box=system.x.bounds,
+        u_box=u_box,
+        d_box=Box(np.concatenate([w_box.lower, v_box.lower]), np.concatenate([w_box.upper, v_box.upper])),
+        z_scale=system.x.scale,
+        d_scale=np.concatenate([system.w.scale, system.v.scale]),
+        y_scale=system.y.scale,
+        channels=(("w", nw), ("v", nv)),
+    )
+    solution = dissipation.solve(model, mu=eta, structure=structure, **options)
+    return DeltaIOSS(system, model, solution, structure, w_box, time.perf_counter() - start)

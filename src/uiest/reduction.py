@@ -1,0 +1,183 @@
+r"""Reduced-order models (sec:UISE_red): the map T, the function psi and the decoupled model.
+
+Given a diffeomorphism ``T(x) = (T_flat(x), T_sharp(x))`` with ``n_flat`` flat coordinates and
+a function ``psi`` with ``z_flat = psi(y, z_sharp, v)`` (ass, eq:ass_1), the reduced-order model
+eq:sys_red is
+
+    z_sharp+ = f_sharp(z_sharp, gamma, u, v) = T_sharp(f(T^-1(psi(gamma, z_sharp, v), z_sharp), u, w)),
+    y        = h_sharp(z_sharp, gamma, v)    = h(T^-1(psi(gamma, z_sharp, v), z_sharp), v),
+
+which must not depend on w (eq:ass_2; checked symbolically). The full state is recovered by
+eq:fullest, ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from uiest.box import Box, FloatArray
+from uiest.detectability import lmi
+from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
+from uiest.errors import ModelError
+from uiest.system import System, as_function
+
+
+@dataclass(frozen=True, eq=False)
+class ReducedModel:
+    """A system with its reduction (T, psi) and the reduced-order model eq:sys_red.
+
+    Attributes
+    ----------
+    system : System
+        The full model.
+    n_flat : int
+        Number of flat coordinates (recovered from the output by psi); ``n_sharp = nx - n_flat``.
+    T, T_inv : casadi.Function
+        ``x (nx,) -> z (nx,)`` with ``z = (z_flat, z_sharp)``, and its inverse.
+    psi : casadi.Function
+        ``(y (ny,), z_sharp (n_sharp,), v (nv,)) -> z_flat (n_flat,)``.
+    f_sharp : casadi.Function
+        ``(z_sharp, gamma (ny,), u (nu,), v (nv,)) -> z_sharp+``.
+    h_sharp : casadi.Function
+        ``(z_sharp, gamma (ny,), v (nv,)) -> y (ny,)``.
+    z_bounds : Box
+        Box containing ``T_sharp(X)`` (the projection of T(X) onto z_sharp).
+
+    """
+
+    system: System = field(repr=False)
+    n_flat: int
+    T: ca.Function = field(repr=False)
+    T_inv: ca.Function = field(repr=False)
+    psi: ca.Function = field(repr=False)
+    f_sharp: ca.Function = field(repr=False)
+    h_sharp: ca.Function = field(repr=False)
+    z_bounds: Box
+
+    @property
+    def n_sharp(self) -> int:
+        """Dimension of the reduced state."""
+        return self.system.nx - self.n_flat
+
+    @classmethod
+    def from_transform(
+        cls,
+        system: System,
+        T: Any,
+        T_inv: Any,
+        psi: Any,
+        *,
+        n_flat: int,
+        z_bounds: Box | tuple[Any, Any] | None = None,
+        check_points: int = 200,
+        seed: int = 0,
+    ) -> ReducedModel:
+        """Build the reduced-order model from T, its inverse and psi (callables or casadi Functions).
+
+        Checks, raising ModelError naming the violated condition: eq:ass_2 (f_sharp independent
+        of w, symbolically), ``T_inv(T(x)) = x`` and eq:ass_1 (``psi(h(x, v), T_sharp(x), v) =
+        T_flat(x)``) on ``check_points`` random points of X x V (rtol 1e-8 of the scales).
+        ``z_bounds`` defaults to the min/max of ``T_sharp`` over a 5-point grid of X (exact for
+        linear T, whose extremes lie at the corners).
+        """
+        nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
+        if not isinstance(n_flat, int | np.integer) or not 0 < n_flat < nx:
+            raise ModelError(f"n_flat: expected an integer in [1, {nx - 1}], got {n_flat!r}")
+        n_sharp = nx - n_flat
+        T_fun = as_function(T, "T", [("x", nx)], nx)
+        T_inv_fun = as_function(T_inv, "T_inv", [("z", nx)], nx)
+        psi_fun = as_function(psi, "psi", [("y", ny), ("z_sharp", n_sharp), ("v", nv)], n_flat)
+        z, g, u, w, v = (ca.SX.sym(s, k) for s, k in (("z", n_sharp), ("gamma", ny), ("u", nu), ("w", nw), ("v", nv)))
+        x = T_inv_fun(ca.vertcat(psi_fun(g, z, v), z))
+        z_next = T_fun(system.f(x, u, w))[n_flat:]
+        if ca.depends_on(z_next, w):
+            _check_w_free(system, ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(z_next, w)]), T_fun, n_flat, seed)
+        z_next = ca.substitute(z_next, w, ca.DM(system.nominal_w))
+        f_sharp = ca.Function("f_sharp", [z, g, u, v], [z_next], ["z_sharp", "gamma", "u", "v"], ["z_sharp_next"])
+        h_sharp = ca.Function("h_sharp", [z, g, v], [system.h(x, v)], ["z_sharp", "gamma", "v"], ["y"])
+        _check(system, T_fun, T_inv_fun, psi_fun, n_flat, check_points, seed)
+        if z_bounds is None:
+            grid = lmi.grid_points(system.x.bounds, 5)
+            zs = np.asarray(T_fun.map(len(grid))(grid.T), dtype=float).T[:, n_flat:]
+            box = Box(zs.min(axis=0), zs.max(axis=0))
+        else:
+            box = Box.coerce(z_bounds, n_sharp, "z_bounds")
+        return cls(system, int(n_flat), T_fun, T_inv_fun, psi_fun, f_sharp, h_sharp, box)
+
+    def full_state(self, y: FloatArray, z_sharp: FloatArray, v: FloatArray | None = None) -> FloatArray:
+        """eq:fullest: ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` (v defaults to the centre of V)."""
+        v = self.system.v.bounds.center if v is None else v
+        z_flat = np.asarray(self.psi(y, z_sharp, v), dtype=float).reshape(-1)
+        return np.asarray(self.T_inv(np.concatenate([z_flat, np.asarray(z_sharp, dtype=float)])), dtype=float).reshape(
+            -1
+        )
+
+    def certify(self, **options: Any) -> ReducedIOSS:
+        """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain.
+
+        gamma ranges over Y (``h(X, V)``, bounded by a grid of X x V), v over V, u over U.
+        """
+        system = self.system
+        grid = lmi.grid_points(
+            Box(np.concatenate([system.x.bounds.lower, system.v.bounds.lower]),
+                np.concatenate([system.x.bounds.upper, system.v.bounds.upper])),
+            3,
+        )  # fmt: skip
+        ys = np.asarray(system.h.map(len(grid))(grid[:, : system.nx].T, grid[:, system.nx :].T), dtype=float).T
+        u_box = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+        return certify_reduced_ioss(
+            self.f_sharp,
+            self.h_sharp,
+            z_bounds=self.z_bounds,
+            gamma_bounds=Box(ys.min(axis=0), ys.max(axis=0)),
+            v_bounds=system.v.bounds,
+            u_bounds=u_box if system.nu else None,
+            gamma_scale=system.y.scale,
+            v_scale=system.v.scale,
+            **options,
+        )
+
+
+def _check(
+    system: System, T: ca.Function, T_inv: ca.Function, psi: ca.Function, n_flat: int, count: int, seed: int
+) -> None:
+    rng = np.random.default_rng(seed)
+    x = system.x.bounds.sample(rng, count) if system.x.bounds.is_bounded else rng.standard_normal((count, system.nx))
+    v_box = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale)
+    v = v_box.sample(rng, count)
+
+    def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
+        return np.asarray(fun.map(count)(*[c.T for c in cols]), dtype=float).T
+
+    z = run(T, x)
+    scale = system.x.scale
+    back = run(T_inv, z)
+    if not np.allclose(back / scale, x / scale, rtol=0.0, atol=1e-8):
+        raise ModelError("T_inv: T_inv(T(x)) differs from x on sampled points of X")
+    y = system.output(x, v)
+    z_flat = run(psi, y, z[:, n_flat:], v)
+    z_scale = np.maximum(np.abs(z[:, :n_flat]).max(axis=0), 1e-300)
+    if not np.allclose(z_flat / z_scale, z[:, :n_flat] / z_scale, rtol=0.0, atol=1e-8):
+        raise ModelError("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x) on sampled points (eq:ass_1)")
+
+
+def _check_w_free(system: System, dz_dw: ca.Function, T: ca.Function, n_flat: int, seed: int, count: int = 200) -> None:
+    """eq:ass_2 numerically, where the cancellation is not structural: ``|dz_sharp+/dw| S_w / S_z <= 1e-9``."""
+    rng = np.random.default_rng(seed)
+    x = system.x.bounds.sample(rng, count) if system.x.bounds.is_bounded else rng.standard_normal((count, system.nx))
+    v = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale).sample(rng, count)
+    u = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, count)
+    w = system.nominal_w + system.w.scale * 10.0 ** rng.uniform(-3, 6, (count, system.nw))
+    z_sharp = np.asarray(T.map(count)(x.T), dtype=float).T[:, n_flat:]
+    jac = lmi.batched(dz_dw, [z_sharp, system.output(x, v), u, w, v])[0]
+    z_scale = np.maximum(np.abs(z_sharp).max(axis=0), 1e-300)
+    relative = np.abs(jac) * system.w.scale[None, None, :] / z_scale[None, :, None]
+    if relative.max() > 1e-9:
+        raise ModelError(
+            f"T: the reduced dynamics T_sharp(f(x, u, w)) depend on w (relative sensitivity {relative.max():.2e}), "
+            "violating eq:ass_2"
+        )

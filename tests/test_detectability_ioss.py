@@ -1,0 +1,127 @@
+"""Reduced-order e-IOSS (ass:e-ioss) and delta-IOSS (Schiller et al. 2023) certificates."""
+
+import json
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from uiest import CertificationError, ModelError, OptionError
+from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, lmi
+from uiest.models import closed_form, crop_growth, linear
+
+FAST = {"grid": 2, "pool_grid": 3, "pool_random": 200}
+
+
+def _linear_reduced(F):
+    """z+ = F z + gamma[0] (1, 1) + 0.1 v, y = gamma: the output carries no information on z."""
+    n = F.shape[0]
+    z, g, u, v = ca.SX.sym("z", n), ca.SX.sym("g", 1), ca.SX.sym("u", 0), ca.SX.sym("v", 1)
+    f = ca.Function("f", [z, g, u, v], [ca.DM(F) @ z + g[0] * np.ones(n) + 0.1 * v[0]])
+    h = ca.Function("h", [z, g, v], [g])
+    return f, h, {"z_bounds": (-np.ones(n), np.ones(n)), "gamma_bounds": (-1, 1), "v_bounds": (-0.1, 0.1)}
+
+
+@pytest.mark.parametrize(
+    ("F", "expected"),
+    [
+        (np.array([[0.5, 0.0], [0.0, 0.3]]), 0.25),
+        (np.array([[0.5, 2.0], [0.0, 0.3]]), 0.25),  # non-normal: needs a non-identity P
+        (np.array([[0.0, -0.6], [0.6, 0.0]]), 0.36),  # complex pair 0.6 e^(+-i pi/2)
+    ],
+)
+def test_reduced_linear_mu_min_is_spectral_radius_squared(F, expected):
+    f, h, bounds = _linear_reduced(F)
+    cert = certify_reduced_ioss(f, h, **bounds, **FAST)
+    assert cert.certified, cert.reason
+    assert cert.mu_min == pytest.approx(expected, abs=1e-3)
+    assert cert.verify(5000, seed=1).holds
+
+
+def test_reduced_unstable_model_is_not_certified():
+    f, h, bounds = _linear_reduced(np.array([[1.2, 0.0], [0.0, 0.3]]))
+    cert = certify_reduced_ioss(f, h, **bounds, **FAST)
+    assert not cert.certified and "infeasible" in cert.reason
+    with pytest.raises(CertificationError):
+        cert.min_horizon()
+    assert np.isnan(cert.verify().worst_ratio)
+
+
+def test_reduced_closed_form_certifies_with_its_contraction_rate():
+    # the closed-form model's reduced model (module docstring): z+ = a(gamma - v) z + u, y = gamma
+    a0, a1 = 0.5, 0.3
+    z, g, u, v = (ca.SX.sym(s, 1) for s in "zguv")
+    f = ca.Function("f", [z, g, u, v], [(a0 + a1 * ca.tanh(g - v)) * z + u])
+    h = ca.Function("h", [z, g, v], [g])
+    cert = certify_reduced_ioss(
+        f, h, z_bounds=(-10, 10), gamma_bounds=(-10, 10), v_bounds=(-1e-2, 1e-2), u_bounds=(-1, 1)
+    )
+    assert cert.certified, cert.reason
+    assert cert.mu_min == pytest.approx((a0 + abs(a1)) ** 2, abs=1e-3)
+    n = cert.min_horizon()
+    assert 4 * cert.c_x * cert.mu**n < 1 <= 4 * cert.c_x * cert.mu ** (n - 1)
+    assert cert.verify(20_000, seed=3).holds
+    # the constants of eq:p-eioss_quadratic are the scaled weights over mu lambda_min(P)
+    lam = np.linalg.eigvalsh(cert.P_scaled)[0]
+    assert cert.c_v == pytest.approx(cert.solution.q[1] / (cert.mu * lam))
+    data = json.loads(json.dumps(cert.to_dict()))
+    assert data["kind"] == "reduced_eioss" and data["min_horizon"] == n
+
+
+def test_reduced_given_mu_and_bad_input():
+    f, h, bounds = _linear_reduced(np.diag([0.5, 0.3]))
+    assert certify_reduced_ioss(f, h, **bounds, mu=0.5, **FAST).mu == 0.5
+    below = certify_reduced_ioss(f, h, **bounds, mu=0.1, **FAST)
+    assert not below.certified and "below" in below.reason
+    with pytest.raises(OptionError, match="mu"):
+        certify_reduced_ioss(f, h, **bounds, mu=1.0)
+    with pytest.raises(ModelError, match="h_sharp"):
+        certify_reduced_ioss(f, f, **bounds)
+    with pytest.raises(ModelError, match="z_bounds"):
+        certify_reduced_ioss(f, h, **{**bounds, "z_bounds": (-np.inf, 1.0)})
+
+
+def test_delta_ioss_unobservable_mode_sets_eta_min():
+    # x1 (mode 0.6) is not measured, x2 (mode 0.3) is: eta_min = 0.6^2
+    system = linear.linear_system(
+        np.diag([0.6, 0.3]), [[1.0], [0.0]], [[0.0, 1.0]], x_bounds=(-1, 1), v_bounds=(-1e-2, 1e-2)
+    )
+    for structure in ("full", "identity"):
+        cert = certify_delta_ioss(system, w_bounds=(-1, 1), structure=structure, **FAST)
+        assert cert.certified, cert.reason
+        assert cert.eta_min == pytest.approx(0.36, abs=1e-3)
+        assert cert.verify(5000, seed=2).holds
+    n = cert.min_horizon()
+    assert 4 * cert.eta**n < 1 <= 4 * cert.eta ** (n - 1)
+    with pytest.raises(OptionError, match="structure"):
+        certify_delta_ioss(system, structure="diagonal")
+
+
+def test_delta_ioss_closed_form():
+    cert = certify_delta_ioss(closed_form.system(), w_bounds=(-1, 1))
+    assert cert.certified, cert.reason
+    assert cert.eta_min == pytest.approx(0.64, abs=1e-3)
+    assert cert.verify(20_000, seed=4).holds
+    assert cert.Q_w.shape == (1, 1) and cert.R.shape == (1, 1)
+    data = json.loads(json.dumps(cert.to_dict()))
+    assert data["kind"] == "delta_ioss" and data["structure"] == "full"
+
+
+def test_crop_certificates_hold_with_discounts_near_one():
+    system = crop_growth.system()
+    delta = certify_delta_ioss(system)  # w over the known range [0.965, 1]
+    assert delta.certified, delta.reason
+    assert 0.99 < delta.eta < 1.0 and delta.w_box == system.w_range
+    assert delta.verify(5000).holds
+    reduced = crop_growth.reduction().certify()
+    assert reduced.certified, reduced.reason
+    assert 0.99 < reduced.mu < 1.0
+    assert reduced.verify(5000).holds
+
+
+def test_bisect_discount_resolves_discounts_near_one():
+    for threshold in (0.3, 0.99, 1.0 - 3e-5):
+        found = lmi.bisect_discount(lambda mu, t=threshold: mu >= t, 1e-4, 1e-4)
+        assert found >= threshold
+        assert found - threshold <= max(1e-4, 0.011 * (1.0 - threshold))
+    assert lmi.bisect_discount(lambda mu: False, 1e-4, 1e-4) is None

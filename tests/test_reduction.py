@@ -1,0 +1,42 @@
+"""Reduced-order models (sec:UISE_red): checks of ass and the crop model's reduction."""
+
+import numpy as np
+import pytest
+
+from uiest import ModelError
+from uiest.models import crop_growth
+from uiest.reduction import ReducedModel
+
+
+def test_crop_reduction_recovers_the_state_and_matches_the_model():
+    reduced = crop_growth.reduction()
+    system = reduced.system
+    rng = np.random.default_rng(0)
+    x = system.x.bounds.sample(rng, 1)[0]
+    u, w, v = np.array([25.0]), np.array([0.97]), np.array([1e-6, -2e-6])
+    z = np.asarray(reduced.T(x), dtype=float).ravel()
+    y = system.output(x, v)
+    # eq:fullest recovers x from y and z_sharp
+    np.testing.assert_allclose(reduced.full_state(y, z[1:], v), x, rtol=1e-12)
+    # the reduced model reproduces T_sharp of the full model's step and the output
+    z_next = np.asarray(reduced.f_sharp(z[1:], y, u, v), dtype=float).ravel()
+    expected = np.asarray(reduced.T(system.step(x, u, w)), dtype=float).ravel()[1:]
+    np.testing.assert_allclose(z_next, expected, rtol=1e-12)
+    np.testing.assert_allclose(np.asarray(reduced.h_sharp(z[1:], y, v), dtype=float).ravel(), y, rtol=1e-12)
+    assert reduced.n_sharp == 2 and reduced.z_bounds.contains(z[1:])
+
+
+def test_reduction_rejects_maps_that_violate_the_assumption():
+    system = crop_growth.system()
+    identity = (lambda x: x, lambda z: z)
+    with pytest.raises(ModelError, match="eq:ass_2"):  # x^{d,2} sees w
+        ReducedModel.from_transform(system, *identity, lambda y, z, v: [y[0] - v[0]], n_flat=1)
+    ratio = 0.8 * 4.1
+    T = lambda x: [x[0], x[1], ratio * x[0] + x[2]]  # noqa: E731
+    with pytest.raises(ModelError, match="T_inv"):
+        ReducedModel.from_transform(system, T, lambda z: z, lambda y, z, v: [y[0] - v[0]], n_flat=1)
+    T_inv = lambda z: [z[0], z[1], z[2] - ratio * z[0]]  # noqa: E731
+    with pytest.raises(ModelError, match="psi"):
+        ReducedModel.from_transform(system, T, T_inv, lambda y, z, v: [y[1]], n_flat=1)
+    with pytest.raises(ModelError, match="n_flat"):
+        ReducedModel.from_transform(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=3)
