@@ -34,3 +34,19 @@ def test_bad_input_gives_one_line_and_exit_code_2(tmp_path):
 def test_unknown_option_is_a_usage_error():
     result = runner.invoke(app, ["simulate", "crop-growth", "--no-such-option", "1"])
     assert result.exit_code == 2
+
+
+def test_certify_prints_the_table_and_writes_json(tmp_path):
+    import json
+
+    out = tmp_path / "certs.json"
+    result = runner.invoke(app, ["certify", "closed-form", "--out", str(out), "--verify", "500"])
+    assert result.exit_code == 0, result.output
+    assert "min horizon" in result.output and "e-IOSS" in result.output
+    data = json.loads(out.read_text())
+    kinds = [c["kind"] for c in data["certificates"]]
+    assert kinds == ["strong_detectability", "reduced_eioss", "delta_ioss"]
+    assert all(c["certified"] for c in data["certificates"])
+    assert all(c["verify_worst_ratio"] <= 1.0 for c in data["certificates"])
+    bad = runner.invoke(app, ["certify", "closed-form", "--structure", "diagonal", "--out", str(out)])
+    assert bad.exit_code == 2 and "structure" in bad.output

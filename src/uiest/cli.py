@@ -104,6 +104,90 @@ def simulate(
 
 @app.command()
 @_user_errors
+def certify(
+    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`).")],
+    out: Annotated[Path, typer.Option(help="JSON file for the certificates.")] = Path("out/certify/certificates.json"),
+    structure: Annotated[str, typer.Option(help="P of the delta-IOSS certificate: full or identity.")] = "full",
+    verify: Annotated[int, typer.Option(help="Random pairs for each certificate's sampled verification.")] = 5000,
+    seed: Annotated[int, typer.Option(help="Seed of the pools and the verification.")] = 0,
+) -> None:
+    """Certify a registered model: strong detectability, reduced-order e-IOSS, delta-IOSS."""
+    import json
+    import time
+
+    from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+
+    entry = models.get(model)
+    system = entry.build()
+    jobs: list[tuple[str, Callable[[], Any]]] = [
+        ("strong detectability", lambda: certify_strong_detectability(system, seed=seed)),
+    ]
+    if entry.reduction is not None:
+        reduction = entry.reduction
+        jobs.append(("reduced-order e-IOSS", lambda: reduction().certify(seed=seed)))
+    jobs.append(
+        (
+            f"delta-IOSS (P {structure})",
+            lambda: certify_delta_ioss(system, structure=structure, seed=seed),
+        )
+    )
+    records = []
+    with console.status("certifying") as status:
+        for label, job in jobs:
+            status.update(f"certifying: {label}")
+            start = time.perf_counter()
+            cert = job()
+            check = cert.verify(verify, seed=seed)
+            elapsed = time.perf_counter() - start
+            record = {"certificate": label, **cert.to_dict(), "verify_worst_ratio": check.worst_ratio,
+                      "verify_pairs": check.pairs_used, "time_s": elapsed}  # fmt: skip
+            records.append(record)
+    table = Table(title=f"certificates of {model}")
+    table.add_column("")
+    for record in records:
+        table.add_column(record["certificate"])
+    cells = [[*_certificate_cells(record), f"{record['time_s']:.1f} s"] for record in records]
+    for i, name in enumerate(ROWS):
+        table.add_row(name, *[column[i] for column in cells])
+    console.print(table)
+    for record in records:
+        if not record["certified"]:
+            console.print(f"{record['certificate']}: {record['reason']}", highlight=False, soft_wrap=True)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"model": model, "certificates": records}, indent=2, default=float))
+    console.print(f"wrote {out}")
+
+
+ROWS = ("holds", "mu (eta)", "mu_min", "cond(P) (c_x)", "gains", "min horizon", "verify: max ratio", "solver",
+        "time")  # fmt: skip
+
+
+def _certificate_cells(record: dict[str, Any]) -> list[str]:
+    """Table cells of one certificate record, in the order of ``ROWS`` without the time."""
+    kind = record["kind"]
+    mu = record.get("mu", record.get("eta"))
+    mu_min = record.get("mu_min", record.get("eta_min"))
+    if not record["certified"]:
+        return ["no", "-", _number(mu_min), "-", "-", "-", "-", str(record["solver_status"])]
+    if kind == "strong_detectability":
+        cond, gains = record["condition_scaled"], f"sigma_y {record['sigma_y']:.3g}\nsigma_v {record['sigma_v']:.3g}"
+    elif kind == "reduced_eioss":
+        cond = record["c_x"]
+        gains = f"c_y {record['c_y']:.3g}\nc_v {record['c_v']:.3g}\nc_gamma {record['c_gamma']:.3g}"
+    else:
+        cond = record["condition_scaled"]
+        gains = "Q_w, Q_v, R: see JSON"
+    ratio = record["verify_worst_ratio"]
+    return ["yes", _number(mu), _number(mu_min), f"{cond:.3g}", gains, str(record["min_horizon"]),
+            f"{ratio:.3g}", str(record["solver_status"])]  # fmt: skip
+
+
+def _number(value: Any) -> str:
+    return "-" if value is None or value != value else f"{value:.6g}"
+
+
+@app.command()
+@_user_errors
 def reproduce(
     study: Annotated[str, typer.Argument(help="Study to reproduce (crop-growth).")] = "crop-growth",
 ) -> None:

@@ -14,6 +14,7 @@ from uiest.box import FloatArray
 from uiest.errors import OptionError
 from uiest.models import closed_form, crop_growth, linear
 from uiest.noise import NoiseModel, UniformNoise
+from uiest.reduction import ReducedModel
 from uiest.simulate import InputLike
 from uiest.system import System
 
@@ -37,6 +38,7 @@ class ModelEntry:
     summary: str
     build: Callable[[], System]
     setup: Callable[[], SimulationSetup]
+    reduction: Callable[[], ReducedModel] | None = None
 
 
 def _crop_setup() -> SimulationSetup:
@@ -84,12 +86,14 @@ _REGISTRY: dict[str, ModelEntry] = {
             "The paper's simplified crop-growth process (CO2, two crop weights; w = 1 - exp(-45 x_d2))",
             crop_growth.system,
             _crop_setup,
+            crop_growth.reduction,
         ),
         ModelEntry(
             closed_form.NAME,
             "Nonlinear 2-state system whose unknown-input estimation error has a closed form",
             closed_form.system,
             _closed_form_setup,
+            closed_form.reduction,
         ),
         ModelEntry(
             "linear-example",

@@ -39,6 +39,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import ModelError
+from uiest.reduction import ReducedModel
 from uiest.system import System
 
 NAME = "closed-form"
@@ -73,6 +74,16 @@ def system(
         v_names=("v",),
         y_names=("y",),
         name=name,
+    )
+
+
+def reduction(**kwargs: Any) -> ReducedModel:
+    """The reduction of the module docstring: ``T = id``, ``z_flat = x1 = psi(y, v) = y - v``.
+
+    Keywords as in :func:`system`.
+    """
+    return ReducedModel.from_transform(
+        system(**kwargs), lambda x: x, lambda z: z, lambda y, z_sharp, v: [y[0] - v[0]], n_flat=1
     )
 
 
