@@ -30,13 +30,13 @@ def test_reduction_rejects_maps_that_violate_the_assumption():
     system = crop_growth.system()
     identity = (lambda x: x, lambda z: z)
     with pytest.raises(ModelError, match="eq:ass_2"):  # x^{d,2} sees w
-        ReducedModel.from_transform(system, *identity, lambda y, z, v: [y[0] - v[0]], n_flat=1)
+        ReducedModel.from_maps(system, *identity, lambda y, z, v: [y[0] - v[0]], n_flat=1)
     ratio = 0.8 * 4.1
     T = lambda x: [x[0], x[1], ratio * x[0] + x[2]]  # noqa: E731
     with pytest.raises(ModelError, match="T_inv"):
-        ReducedModel.from_transform(system, T, lambda z: z, lambda y, z, v: [y[0] - v[0]], n_flat=1)
+        ReducedModel.from_maps(system, T, lambda z: z, lambda y, z, v: [y[0] - v[0]], n_flat=1)
     T_inv = lambda z: [z[0], z[1], z[2] - ratio * z[0]]  # noqa: E731
     with pytest.raises(ModelError, match="psi"):
-        ReducedModel.from_transform(system, T, T_inv, lambda y, z, v: [y[1]], n_flat=1)
+        ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[1]], n_flat=1)
     with pytest.raises(ModelError, match="n_flat"):
-        ReducedModel.from_transform(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=3)
+        ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=3)

@@ -64,7 +64,7 @@ class ReducedModel:
         return self.system.nx - self.n_flat
 
     @classmethod
-    def from_transform(
+    def from_maps(
         cls,
         system: System,
         T: Any,

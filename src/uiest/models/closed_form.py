@@ -82,7 +82,7 @@ def reduction(**kwargs: Any) -> ReducedModel:
 
     Keywords as in :func:`system`.
     """
-    return ReducedModel.from_transform(
+    return ReducedModel.from_maps(
         system(**kwargs), lambda x: x, lambda z: z, lambda y, z_sharp, v: [y[0] - v[0]], n_flat=1
     )
 

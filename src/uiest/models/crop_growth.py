@@ -196,7 +196,7 @@ def reduction(params: CropParameters | None = None, **overrides: Any) -> Reduced
     """
     p = (params or CropParameters()).with_overrides(**overrides)
     ratio = p.a_d3 / p.a_c1
-    return ReducedModel.from_transform(
+    return ReducedModel.from_maps(
         system(p),
         lambda x: [x[0], x[1], ratio * x[0] + x[2]],
         lambda z: [z[0], z[1], z[2] - ratio * z[0]],
