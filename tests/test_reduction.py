@@ -40,3 +40,41 @@ def test_reduction_rejects_maps_that_violate_the_assumption():
         ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[1]], n_flat=1)
     with pytest.raises(ModelError, match="n_flat"):
         ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=3)
+
+
+def test_automatic_reduction_of_the_crop_model_agrees_with_the_papers_map():
+    from uiest.reduction import reduce_quasi_state_affine
+
+    paper = crop_growth.reduction()
+    auto = reduce_quasi_state_affine(crop_growth.system())
+    assert auto.n_flat == paper.n_flat == 1
+    # z_sharp of the two constructions differ by a linear change K: z_auto = K z_paper
+    rng = np.random.default_rng(1)
+    system = paper.system
+    x = system.x.bounds.sample(rng, 10)
+    z_paper = np.array([np.asarray(paper.T(xi), dtype=float).ravel()[1:] for xi in x])
+    z_auto = np.array([np.asarray(auto.T(xi), dtype=float).ravel()[1:] for xi in x])
+    K = np.linalg.lstsq(z_paper, z_auto, rcond=None)[0].T
+    np.testing.assert_allclose(z_paper @ K.T, z_auto, rtol=1e-10, atol=1e-14)
+    # the same reduced dynamics and output at random (z, gamma, u, v), not only on trajectories
+    for _ in range(5):
+        z = paper.z_bounds.sample(rng, 1)[0]
+        gamma = system.output(system.x.bounds.sample(rng, 1)[0], np.zeros(2)) + rng.uniform(-1e-4, 1e-4, 2)
+        u, v = np.array([25.0]), rng.uniform(-3e-6, 3e-6, 2)
+        f_paper = np.asarray(paper.f_sharp(z, gamma, u, v), dtype=float).ravel()
+        f_auto = np.asarray(auto.f_sharp(K @ z, gamma, u, v), dtype=float).ravel()
+        np.testing.assert_allclose(K @ f_paper, f_auto, rtol=1e-10)
+        h_paper = np.asarray(paper.h_sharp(z, gamma, v), dtype=float).ravel()
+        np.testing.assert_allclose(np.asarray(auto.h_sharp(K @ z, gamma, v), dtype=float).ravel(), h_paper, rtol=1e-10)
+
+
+def test_automatic_reduction_refuses_without_matching():
+    from uiest.models import linear
+    from uiest.reduction import reduce_quasi_state_affine
+
+    system = linear.linear_system(np.array([[0.5, 1.0], [0.0, 0.3]]), [[0.0], [1.0]], [[1.0, 0.0]],
+                                  x_bounds=(-1, 1), v_bounds=(-0.1, 0.1))  # fmt: skip
+    with pytest.raises(ModelError, match=r"rank\(C B\) = 0 != rank\(B\) = 1"):
+        reduce_quasi_state_affine(system)
+    with pytest.raises(ModelError, match="phi"):
+        reduce_quasi_state_affine(system, phi=lambda x: x)

@@ -85,8 +85,8 @@ class ReducedModel:
         linear T, whose extremes lie at the corners).
         """
         nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
-        if not isinstance(n_flat, int | np.integer) or not 0 < n_flat < nx:
-            raise ModelError(f"n_flat: expected an integer in [1, {nx - 1}], got {n_flat!r}")
+        if not isinstance(n_flat, int | np.integer) or not 0 <= n_flat <= nx:
+            raise ModelError(f"n_flat: expected an integer in [0, {nx}], got {n_flat!r}")
         n_sharp = nx - n_flat
         T_fun = as_function(T, "T", [("x", nx)], nx)
         T_inv_fun = as_function(T_inv, "T_inv", [("z", nx)], nx)
@@ -100,7 +100,9 @@ class ReducedModel:
         f_sharp = ca.Function("f_sharp", [z, g, u, v], [z_next], ["z_sharp", "gamma", "u", "v"], ["z_sharp_next"])
         h_sharp = ca.Function("h_sharp", [z, g, v], [system.h(x, v)], ["z_sharp", "gamma", "v"], ["y"])
         _check(system, T_fun, T_inv_fun, psi_fun, n_flat, check_points, seed)
-        if z_bounds is None:
+        if z_bounds is None and n_sharp == 0:
+            box = Box(np.zeros(0), np.zeros(0))
+        elif z_bounds is None:
             grid = lmi.grid_points(system.x.bounds, 5)
             zs = np.asarray(T_fun.map(len(grid))(grid.T), dtype=float).T[:, n_flat:]
             box = Box(zs.min(axis=0), zs.max(axis=0))
@@ -181,3 +183,126 @@ def _check_w_free(system: System, dz_dw: ca.Function, T: ca.Function, n_flat: in
             f"T: the reduced dynamics T_sharp(f(x, u, w)) depend on w (relative sensitivity {relative.max():.2e}), "
             "violating eq:ass_2"
         )
+
+
+def reduce_quasi_state_affine(
+    system: System,
+    *,
+    B: Any = None,
+    C: Any = None,
+    phi: Any = None,
+    phi_inv: Any = None,
+    rtol: float = 1e-9,
+    w_spread: float = 100.0,
+    **options: Any,
+) -> ReducedModel:
+    """The reduction of prop:special_case for systems of the form eq:sys_spec.
+
+    ``x_bar = phi(x)`` with ``x_bar+ = f_1(x_bar, u) + B f_2(w, x_bar, u)`` and
+    ``y = C x_bar + g(v)``. With ``r = rank(C B) = rank(B)``: ``S_flat`` selects the first r
+    outputs (in their order) whose rows of ``C B`` are independent, so ``S_flat C B`` has full
+    row rank r and z_flat are measured quantities (for the crop model ``z_flat = x^c``, the
+    paper's choice; any S of the proof is valid, a selection keeps psi interpretable and makes
+    gamma enter the reduced model only through the selected outputs), M the orthonormal basis of
+    the orthogonal complement of im(B) as rows (``ker M = im B``), ``L = col(S_flat C, M)``
+    (nonsingular), ``T(x) = L phi(x)``, ``T^-1(z) = phi^-1(L^-1 z)`` and
+    ``psi(y, z_sharp, v) = S_flat (y - g(v))`` with ``g(v) = h(x_0, v) - C phi(x_0)`` at the
+    centre x_0 of X (the checks of :meth:`ReducedModel.from_maps` confirm that h has this form).
+
+    Parameters
+    ----------
+    system : System
+        The model.
+    B : array_like (nx, s), optional
+        Default (only with phi = identity): an orthonormal basis of the span of ``df/dw``
+        sampled over X x U x (nominal w +- w_spread scales).
+    C : array_like (ny, nx), optional
+        Default (only with phi = identity): the output Jacobian ``dh/dx``, which must be constant.
+    phi, phi_inv : callable or casadi.Function, optional
+        The diffeomorphism to quasi-state-affine coordinates and its inverse (default: identity).
+    rtol : float
+        Relative tolerance of the SVD ranks.
+    w_spread : float
+        Range of the w samples for the default B.
+    **options
+        Passed to :meth:`ReducedModel.from_maps`.
+
+    Raises
+    ------
+    ModelError
+        When ``rank(C B) != rank(B)``, or defaults are asked for in non-identity coordinates.
+
+    """
+    nx = system.nx
+    if (phi is None) != (phi_inv is None):
+        raise ModelError("phi, phi_inv: give both or neither")
+    identity = phi is None
+    phi_f = as_function(phi if phi is not None else (lambda x: x), "phi", [("x", nx)], nx)
+    phi_inv_f = as_function(phi_inv if phi_inv is not None else (lambda z: z), "phi_inv", [("x_bar", nx)], nx)
+    if (B is None or C is None) and not identity:
+        raise ModelError("B, C: give both when phi is not the identity (the defaults are read from f and h)")
+    if C is None:
+        if not lmi.is_constant(system.jacobian_function, 3, [0, 1, 2, 3]):
+            raise ModelError("C: dh/dx varies over the domain, so h is not C x + g(v); pass C and phi")
+        C = np.asarray(system.linearize(system.x.bounds.center).C, dtype=float)
+    C = np.asarray(C, dtype=float)
+    if C.shape != (system.ny, nx):
+        raise ModelError(f"C: expected shape ({system.ny}, {nx}), got {C.shape}")
+    B = _default_B(system, w_spread, rtol) if B is None else np.asarray(B, dtype=float).reshape(nx, -1)
+    rank_B = _rank(B, rtol)
+    rank_CB = _rank(C @ B, rtol)
+    if rank_CB != rank_B:
+        raise ModelError(
+            f"rank(C B) = {rank_CB} != rank(B) = {rank_B}: prop:special_case needs the unknown input to reach "
+            "the output within one step (matching condition); no reduction of this form exists"
+        )
+    r = rank_B
+    S_flat = np.eye(system.ny)[_independent_rows(C @ B, r, rtol)]
+    U_B = np.linalg.svd(B)[0] if B.size else np.eye(nx)
+    M = U_B[:, r:].T
+    L = np.vstack([S_flat @ C, M])
+    L_inv = np.linalg.inv(L)
+    x0 = system.x.bounds.center if system.x.bounds.is_bounded else np.zeros(nx)
+    v = ca.SX.sym("v", system.nv)
+    g = system.h(ca.DM(x0), v) - ca.DM(C @ np.asarray(phi_f(x0), dtype=float).reshape(-1))
+    g_fun = ca.Function("g", [v], [g])
+    x, z, y, zs = ca.SX.sym("x", nx), ca.SX.sym("z", nx), ca.SX.sym("y", system.ny), ca.SX.sym("zs", nx - r)
+    T = ca.Function("T", [x], [ca.DM(L) @ phi_f(x)])
+    T_inv = ca.Function("T_inv", [z], [phi_inv_f(ca.DM(L_inv) @ z)])
+    psi = ca.Function("psi", [y, zs, v], [ca.DM(S_flat) @ (y - g_fun(v))])
+    return ReducedModel.from_maps(system, T, T_inv, psi, n_flat=r, **options)
+
+
+def _independent_rows(M: FloatArray, r: int, rtol: float) -> list[int]:
+    """The first r row indices of M, in order, whose rows are linearly independent (greedy)."""
+    chosen: list[int] = []
+    threshold = rtol * max(float(np.linalg.norm(M, 2)), 1e-300)
+    for i in range(M.shape[0]):
+        if len(chosen) == r:
+            break
+        s = np.linalg.svd(M[[*chosen, i]], compute_uv=False)
+        if int((s > threshold).sum()) > len(chosen):
+            chosen.append(i)
+    return chosen
+
+
+def _rank(M: FloatArray, rtol: float) -> int:
+    if M.size == 0:
+        return 0
+    s = np.linalg.svd(M, compute_uv=False)
+    return int((s > rtol * max(s[0], 1e-300)).sum()) if s[0] > 0 else 0
+
+
+def _default_B(system: System, w_spread: float, rtol: float) -> FloatArray:
+    """Orthonormal basis (nx, s) of the span of df/dw over sampled X x U x W."""
+    rng = np.random.default_rng(0)
+    x = system.x.bounds.sample(rng, 200) if system.x.bounds.is_bounded else rng.standard_normal((200, system.nx))
+    u = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, 200)
+    w_box = lmi.sampling_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
+    w = w_box.sample(rng, 200)
+    v = np.broadcast_to(system.v.bounds.center if system.v.bounds.is_bounded else np.zeros(system.nv), (200, system.nv))
+    B_w = lmi.batched(system.jacobian_function, [x, u, w, v])[2]
+    stacked = np.concatenate(list(B_w), axis=1)
+    U, s, _ = np.linalg.svd(stacked, full_matrices=False)
+    rank = int((s > rtol * s[0]).sum()) if s.size and s[0] > 0 else 0
+    return U[:, :rank]
