@@ -39,7 +39,7 @@ def test_reduction_rejects_maps_that_violate_the_assumption():
     with pytest.raises(ModelError, match="psi"):
         ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[1]], n_flat=1)
     with pytest.raises(ModelError, match="n_flat"):
-        ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=3)
+        ReducedModel.from_maps(system, T, T_inv, lambda y, z, v: [y[0]], n_flat=4)
 
 
 def test_automatic_reduction_of_the_crop_model_agrees_with_the_papers_map():
