@@ -78,3 +78,12 @@ def test_automatic_reduction_refuses_without_matching():
         reduce_quasi_state_affine(system)
     with pytest.raises(ModelError, match="phi"):
         reduce_quasi_state_affine(system, phi=lambda x: x)
+
+
+def test_assumption_report_of_the_crop_reduction():
+    report = crop_growth.reduction().check_assumptions(n_points=300)
+    assert report.holds and report.points == 300
+    assert report.inverse_error < 1e-12 and report.psi_error < 1e-12 and report.w_sensitivity < 1e-12
+    # dh_T/dz_flat: y^c -> 1, y^d -> -a_d3/a_c1 (x^{d,2} = z_2 - (a_d3/a_c1) x^c): the best margin is 3.28
+    assert report.dominance_outputs == (1,)
+    assert report.dominance_margin == pytest.approx(0.8 * 4.1)

@@ -13,6 +13,7 @@ eq:fullest, ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -24,6 +25,46 @@ from uiest.detectability import lmi
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
+
+ASSUMPTION_TOL = 1e-8
+"""Largest relative violation of eq:ass_1, eq:ass_2 and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
+
+
+@dataclass(frozen=True)
+class AssumptionReport:
+    """Largest violations of Assumption ass found on sampled points of X x U x W x V.
+
+    Attributes
+    ----------
+    inverse_error : float
+        ``max |T_inv(T(x)) - x| / scale_x``.
+    psi_error : float
+        eq:ass_1: ``max |psi(h(x, v), T_sharp(x), v) - T_flat(x)| / |T_flat|``.
+    w_sensitivity : float
+        eq:ass_2: ``max |d z_sharp+ / dw| scale_w / |z_sharp|`` (w up to 1e6 scales).
+    dominance_margin : float
+        The remark after ass: ``d = min (|dh^i/dz_flat^i| - sum_(j != i) |dh^i/dz_flat^j|)`` over
+        the samples for the best choice of distinct outputs; ``d > 0`` on all of the domain is the
+        sufficient condition (global implicit function theorem) for a psi to exist. NaN if
+        ``n_flat > ny``; inf if ``n_flat = 0``.
+    dominance_outputs : tuple of int
+        The outputs ``i_1, ..., i_n_flat`` paired with the flat coordinates.
+    points : int
+        Number of sampled points.
+
+    """
+
+    inverse_error: float
+    psi_error: float
+    w_sensitivity: float
+    dominance_margin: float
+    dominance_outputs: tuple[int, ...]
+    points: int
+
+    @property
+    def holds(self) -> bool:
+        """All three violations within ``ASSUMPTION_TOL``."""
+        return max(self.inverse_error, self.psi_error, self.w_sensitivity) <= ASSUMPTION_TOL
 
 
 @dataclass(frozen=True, eq=False)
@@ -78,9 +119,9 @@ class ReducedModel:
     ) -> ReducedModel:
         """Build the reduced-order model from T, its inverse and psi (callables or casadi Functions).
 
-        Checks, raising ModelError naming the violated condition: eq:ass_2 (f_sharp independent
-        of w, symbolically), ``T_inv(T(x)) = x`` and eq:ass_1 (``psi(h(x, v), T_sharp(x), v) =
-        T_flat(x)``) on ``check_points`` random points of X x V (rtol 1e-8 of the scales).
+        Checks (see :meth:`check_assumptions`), raising ModelError naming the violated condition
+        and the largest violation when it exceeds ``ASSUMPTION_TOL``: eq:ass_2 (f_sharp
+        independent of w), ``T_inv(T(x)) = x`` and eq:ass_1 on ``check_points`` random points.
         ``z_bounds`` defaults to the min/max of ``T_sharp`` over a 5-point grid of X (exact for
         linear T, whose extremes lie at the corners).
         """
@@ -94,12 +135,20 @@ class ReducedModel:
         z, g, u, w, v = (ca.SX.sym(s, k) for s, k in (("z", n_sharp), ("gamma", ny), ("u", nu), ("w", nw), ("v", nv)))
         x = T_inv_fun(ca.vertcat(psi_fun(g, z, v), z))
         z_next = T_fun(system.f(x, u, w))[n_flat:]
-        if ca.depends_on(z_next, w):
-            _check_w_free(system, ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(z_next, w)]), T_fun, n_flat, seed)
+        dz_dw = ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(z_next, w)])
+        report = _assumption_report(system, T_fun, T_inv_fun, psi_fun, dz_dw, n_flat, check_points, seed)
+        for label, value, condition in (
+            ("T: the reduced dynamics T_sharp(f(x, u, w)) depend on w", report.w_sensitivity, "eq:ass_2"),
+            ("T_inv: T_inv(T(x)) differs from x", report.inverse_error, "T_inv o T = id"),
+            ("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x)", report.psi_error, "eq:ass_1"),
+        ):
+            if value > ASSUMPTION_TOL:
+                raise ModelError(
+                    f"{label} (largest relative violation {value:.2e} on sampled points), violating {condition}"
+                )
         z_next = ca.substitute(z_next, w, ca.DM(system.nominal_w))
         f_sharp = ca.Function("f_sharp", [z, g, u, v], [z_next], ["z_sharp", "gamma", "u", "v"], ["z_sharp_next"])
         h_sharp = ca.Function("h_sharp", [z, g, v], [system.h(x, v)], ["z_sharp", "gamma", "v"], ["y"])
-        _check(system, T_fun, T_inv_fun, psi_fun, n_flat, check_points, seed)
         if z_bounds is None and n_sharp == 0:
             box = Box(np.zeros(0), np.zeros(0))
         elif z_bounds is None:
@@ -109,6 +158,14 @@ class ReducedModel:
         else:
             box = Box.coerce(z_bounds, n_sharp, "z_bounds")
         return cls(system, int(n_flat), T_fun, T_inv_fun, psi_fun, f_sharp, h_sharp, box)
+
+    def check_assumptions(self, n_points: int = 1000, seed: int = 0) -> AssumptionReport:
+        """Largest violations of Assumption ass on random points, and the remark's dominance margin d."""
+        z, g, u, w, v = (ca.SX.sym(s, k) for s, k in (("z", self.n_sharp), ("gamma", self.system.ny),
+                         ("u", self.system.nu), ("w", self.system.nw), ("v", self.system.nv)))  # fmt: skip
+        x = self.T_inv(ca.vertcat(self.psi(g, z, v), z))
+        dz_dw = ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(self.T(self.system.f(x, u, w))[self.n_flat :], w)])
+        return _assumption_report(self.system, self.T, self.T_inv, self.psi, dz_dw, self.n_flat, n_points, seed)
 
     def full_state(self, y: FloatArray, z_sharp: FloatArray, v: FloatArray | None = None) -> FloatArray:
         """eq:fullest: ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` (v defaults to the centre of V)."""
@@ -144,45 +201,59 @@ class ReducedModel:
         )
 
 
-def _check(
-    system: System, T: ca.Function, T_inv: ca.Function, psi: ca.Function, n_flat: int, count: int, seed: int
-) -> None:
-    rng = np.random.default_rng(seed)
-    x = system.x.bounds.sample(rng, count) if system.x.bounds.is_bounded else rng.standard_normal((count, system.nx))
-    v_box = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale)
-    v = v_box.sample(rng, count)
-
-    def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
-        return np.asarray(fun.map(count)(*[c.T for c in cols]), dtype=float).T
-
-    z = run(T, x)
-    scale = system.x.scale
-    back = run(T_inv, z)
-    if not np.allclose(back / scale, x / scale, rtol=0.0, atol=1e-8):
-        raise ModelError("T_inv: T_inv(T(x)) differs from x on sampled points of X")
-    y = system.output(x, v)
-    z_flat = run(psi, y, z[:, n_flat:], v)
-    z_scale = np.maximum(np.abs(z[:, :n_flat]).max(axis=0), 1e-300)
-    if not np.allclose(z_flat / z_scale, z[:, :n_flat] / z_scale, rtol=0.0, atol=1e-8):
-        raise ModelError("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x) on sampled points (eq:ass_1)")
-
-
-def _check_w_free(system: System, dz_dw: ca.Function, T: ca.Function, n_flat: int, seed: int, count: int = 200) -> None:
-    """eq:ass_2 numerically, where the cancellation is not structural: ``|dz_sharp+/dw| S_w / S_z <= 1e-9``."""
+def _assumption_report(
+    system: System,
+    T: ca.Function,
+    T_inv: ca.Function,
+    psi: ca.Function,
+    dz_dw: ca.Function,
+    n_flat: int,
+    count: int,
+    seed: int,
+) -> AssumptionReport:
     rng = np.random.default_rng(seed)
     x = system.x.bounds.sample(rng, count) if system.x.bounds.is_bounded else rng.standard_normal((count, system.nx))
     v = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale).sample(rng, count)
     u = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, count)
-    w = system.nominal_w + system.w.scale * 10.0 ** rng.uniform(-3, 6, (count, system.nw))
-    z_sharp = np.asarray(T.map(count)(x.T), dtype=float).T[:, n_flat:]
-    jac = lmi.batched(dz_dw, [z_sharp, system.output(x, v), u, w, v])[0]
-    z_scale = np.maximum(np.abs(z_sharp).max(axis=0), 1e-300)
-    relative = np.abs(jac) * system.w.scale[None, None, :] / z_scale[None, :, None]
-    if relative.max() > 1e-9:
-        raise ModelError(
-            f"T: the reduced dynamics T_sharp(f(x, u, w)) depend on w (relative sensitivity {relative.max():.2e}), "
-            "violating eq:ass_2"
-        )
+    w = system.nominal_w + system.w.scale * 10.0 ** rng.uniform(-3, 6, (count, system.nw)) * rng.choice(
+        [-1, 1], (count, system.nw)
+    )
+
+    def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
+        return np.asarray(fun.map(count)(*[c.T for c in cols]), dtype=float).reshape(-1, count).T
+
+    z = run(T, x)
+    inverse = float((np.abs(run(T_inv, z) - x) / system.x.scale).max())
+    y = system.output(x, v)
+    z_flat, z_sharp = z[:, :n_flat], z[:, n_flat:]
+    flat_scale = np.maximum(np.abs(z_flat).max(axis=0), 1e-300) if n_flat else np.ones(0)
+    psi_error = float((np.abs(run(psi, y, z_sharp, v) - z_flat) / flat_scale).max(initial=0.0))
+    sharp_scale = np.maximum(np.abs(z_sharp).max(axis=0), 1e-300) if z_sharp.size else np.ones(0)
+    jac = lmi.batched(dz_dw, [z_sharp, y, u, w, v])[0]
+    w_sens = float((np.abs(jac) * system.w.scale[None, None, :] / sharp_scale[None, :, None]).max(initial=0.0))
+    margin, outputs = _dominance(system, T_inv, z, v, n_flat)
+    return AssumptionReport(inverse, psi_error, w_sens, margin, outputs, count)
+
+
+def _dominance(
+    system: System, T_inv: ca.Function, z: FloatArray, v: FloatArray, n_flat: int
+) -> tuple[float, tuple[int, ...]]:
+    """The remark's diagonal-dominance margin d of ``dh_T / dz_flat`` for the best output choice."""
+    if n_flat == 0:
+        return float("inf"), ()
+    if n_flat > system.ny:
+        return float("nan"), ()
+    zs, vs = ca.SX.sym("z", system.nx), ca.SX.sym("v", system.nv)
+    jac = ca.Function("dhT", [zs, vs], [ca.jacobian(system.h(T_inv(zs), vs), zs[:n_flat])])
+    H = lmi.batched(jac, [z, v])[0]  # (m, ny, n_flat)
+    best = (-np.inf, ())
+    for outputs in itertools.permutations(range(system.ny), n_flat):
+        rows = np.abs(H[:, list(outputs), :])  # (m, n_flat, n_flat)
+        diagonal = np.diagonal(rows, axis1=1, axis2=2)
+        margin = float((2.0 * diagonal - rows.sum(axis=2)).min())
+        if margin > best[0]:
+            best = (margin, tuple(outputs))
+    return best
 
 
 def reduce_quasi_state_affine(
