@@ -1,0 +1,31 @@
+"""The moving-window least-squares problem shared by every optimisation-based estimator.
+
+- :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
+  simple bounds; the window data are parameters, so it is built once per window length.
+- :func:`make_solver`: backends (``"ipopt"``, the reference) returning :class:`WindowSolution`.
+"""
+
+from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
+from uiest.window.solvers import (
+    BACKENDS,
+    IPOPT_DEFAULTS,
+    IPOPT_WARM_START,
+    IpoptSolver,
+    WindowSolution,
+    WindowSolver,
+    make_solver,
+)
+
+__all__ = [
+    "BACKENDS",
+    "IPOPT_DEFAULTS",
+    "IPOPT_WARM_START",
+    "IpoptSolver",
+    "WindowProblem",
+    "WindowSolution",
+    "WindowSolver",
+    "WindowTrajectory",
+    "WindowWeights",
+    "make_solver",
+    "sqrt_psd",
+]
