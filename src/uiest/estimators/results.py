@@ -5,6 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -14,7 +15,7 @@ from uiest.box import FloatArray
 from uiest.errors import DataError
 
 
-def _frozen(value: object, dtype: object) -> NDArray:
+def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
     arr = np.array(value, dtype=dtype)
     arr.setflags(write=False)
     return arr

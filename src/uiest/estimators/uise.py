@@ -60,6 +60,8 @@ def resolve_uise_weights(
     system: System, certificate: StrongCertificate | None, weights: UISEWeights | None
 ) -> tuple[UISEWeights, StrongCertificate | None]:
     """Weights from exactly one of ``certificate=`` and ``weights=``; checked against ``system``."""
+    if not isinstance(system, System):
+        raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
     if (certificate is None) == (weights is None):
         raise OptionError("certificate, weights: expected exactly one of them")
     if weights is not None and not isinstance(weights, UISEWeights):
