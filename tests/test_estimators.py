@@ -157,8 +157,8 @@ def test_crop_noise_free_uise_converges_standard_mhe_does_not():
     e_uise, e_mhe = np.abs(uise.error(traj.x)), np.abs(mhe.error(traj.x))
     assert uise.failures == 0 and mhe.failures == 0
     assert e_uise[0, 1] > 1e-4  # the prior of x^{d,1} is off ...
-    assert e_uise[30:, 1].max() < 1e-7  # ... and one full window later the error is at solver precision
-    assert np.abs(uise.w_hat[30:] - traj.w[30:]).max() < 1e-7  # unknown input reconstructed
+    assert e_uise[30:, 1].max() < 2e-7  # ... and one full window later the error is at solver precision
+    assert np.abs(uise.w_hat[30:] - traj.w[30:]).max() < 2e-7  # unknown input reconstructed
     assert e_mhe[30:, 1].min() > 1e-3
     # the standard MHE keeps its unknown-input estimates in the known range; the UISE's are free
     w_range = system.w_range

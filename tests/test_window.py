@@ -8,9 +8,12 @@ from uiest.models import crop_growth, linear
 from uiest.window import (
     IPOPT_DEFAULTS,
     WindowProblem,
+    WindowSolution,
     WindowTrajectory,
     WindowWeights,
     make_solver,
+    predicted_guess,
+    shifted_guess,
     sqrt_psd,
 )
 
@@ -216,3 +219,43 @@ def test_sqrt_psd():
         sqrt_psd(np.diag([1.0, -1.0]), "M")
     with pytest.raises(OptionError, match="square"):
         sqrt_psd(np.ones((2, 3)), "M")
+
+
+def test_shifted_guess_maps_nodes_by_time_and_predicts_new_ones():
+    system = small_system()
+    W3 = WindowWeights(prior=np.eye(2), y=np.ones((4, 1, 1)), v=np.ones((4, 1, 1)))
+    W4 = WindowWeights(prior=np.eye(2), y=np.ones((5, 1, 1)), v=np.ones((5, 1, 1)))
+    old = WindowProblem(system, 3, [0, 1, 2, 3], W3)
+    rng = np.random.default_rng(1)
+    # a model trajectory over times 0..4
+    u = rng.standard_normal((4, 1))
+    w = rng.standard_normal((4, 1))
+    x = [rng.standard_normal(2)]
+    for i in range(4):
+        x.append(system.step(x[-1], u[i], w[i]))
+    x = np.array(x)
+    v = rng.standard_normal((5, 1))
+    z_old = old.pack(WindowTrajectory(x[:4], w[:3], v[:4]))
+    sol = WindowSolution(
+        z_old, np.arange(old.n_var, dtype=float), np.arange(old.n_con, dtype=float), 0.0, "", True, 0, 0
+    )
+    # sliding: window 1..4 of the same length; the new transition reuses the last w estimate
+    z, (lam_x, lam_g) = shifted_guess(old, sol, old, 1, u[1:4], np.zeros(1), np.zeros(1), duals=True)
+    guess = old.unpack(z)
+    np.testing.assert_allclose(guess.x[:3], x[1:4])
+    np.testing.assert_allclose(guess.x[3], system.step(x[3], u[3], w[2]))
+    np.testing.assert_allclose(guess.w[:2], w[1:3])
+    np.testing.assert_allclose(guess.v[:3], v[1:4])
+    np.testing.assert_allclose(guess.v[3], 0.0)
+    np.testing.assert_array_equal(lam_x[old.x_index[0]], sol.lam_x[old.x_index[1]])
+    np.testing.assert_array_equal(lam_x[old.x_index[3]], 0.0)
+    np.testing.assert_array_equal(lam_g[:4], sol.lam_g[2:6])  # dynamics rows of transitions 1, 2
+    # growing: window 0..4, one node more, same start
+    grown = WindowProblem(system, 4, [0, 1, 2, 3, 4], W4)
+    z, duals = shifted_guess(old, sol, grown, 0, u, np.zeros(1), np.zeros(1), duals=False)
+    assert duals is None
+    np.testing.assert_allclose(grown.unpack(z).x[:4], x[:4])
+    # no common node: None; a prediction from the prior instead
+    assert shifted_guess(old, sol, old, 4, u[:3], np.zeros(1), np.zeros(1), duals=False) is None
+    cold = old.unpack(predicted_guess(old, x[0], u[:3], w[0], np.zeros(1)))
+    np.testing.assert_allclose(cold.x[1], system.step(x[0], u[0], w[0]))

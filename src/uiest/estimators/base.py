@@ -25,17 +25,12 @@ from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.errors import DataError, OptionError, SolverError
+from uiest.estimators.checks import check_horizon, check_run_data, check_u_prev, check_y, window_bounds
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import WindowProblem, WindowSolution, WindowSolver, WindowTrajectory, WindowWeights, make_solver
 from uiest.window.solvers import BACKENDS
-
-
-def check_horizon(N: Any) -> int:
-    """Return N as an int >= 1 or raise OptionError naming ``N``."""
-    if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 1:
-        raise OptionError(f"N: expected an integer horizon >= 1, got {N!r}")
-    return int(N)
+from uiest.window.warmstart import predicted_guess, shifted_guess
 
 
 @dataclass
@@ -165,33 +160,6 @@ class WindowEstimator:
             entry.cold = make_solver(self.solver, entry.problem, warm_start=False, options=self.solver_options)
         return entry.cold
 
-    # ------------------------------------------------------------------ input checks
-    def _check_u_prev(self, u_prev: ArrayLike | None, k: int) -> FloatArray:
-        nu = self.system.nu
-        if k == 0:
-            if u_prev is not None and np.size(u_prev) != 0:
-                raise DataError("u_prev: expected None at k = 0 (no transition precedes the first measurement)")
-            return np.zeros(nu)
-        if u_prev is None:
-            if nu == 0:
-                return np.zeros(0)
-            raise DataError(f"u_prev: expected the known input u[{k - 1}] of shape ({nu},), got None")
-        return as_vector(u_prev, nu, "u_prev")
-
-    def _check_y(self, y: ArrayLike) -> FloatArray:
-        ny = self.system.ny
-        try:
-            arr = np.asarray(y, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"y: expected {ny} real numbers (NaN = missing), got {y!r}") from exc
-        if arr.ndim == 0 and ny == 1:
-            arr = arr.reshape(1)
-        if arr.shape != (ny,):
-            raise DataError(f"y: expected shape ({ny},), got shape {arr.shape}")
-        if np.any(np.isinf(arr)):
-            raise DataError(f"y: expected finite values or NaN (missing), got {arr.tolist()}")
-        return arr.copy()
-
     # ------------------------------------------------------------------ one step
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
         """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]``.
@@ -213,17 +181,15 @@ class WindowEstimator:
         if self._x0_prior is None:
             raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
         k = self._k
-        u_vec = self._check_u_prev(u_prev, k)
-        y_vec = self._check_y(y)
-        length = k if self.N is None else min(self.N, k)
-        start = k - length
+        u_vec = check_u_prev(self.system, u_prev, k)
+        y_vec = check_y(self.system, y)
+        length, start, last = window_bounds(k, self.N, self.one_step_ahead)
         stored_u = list(self._u)
         u_win = np.array([*stored_u[len(stored_u) - length + 1 :], u_vec] if length else [], dtype=float)
         u_win = u_win.reshape(length, self.system.nu)
         past = list(self._y)[len(self._y) - length :] if length else []
         y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
         if y_win.size and np.all(np.isnan(y_win)):
-            last = k - 1 if self.one_step_ahead else k
             raise DataError(f"y: every measurement in the window {start}..{last} of step k={k} is missing (NaN)")
         prior = self._x0_prior if start == 0 else self._priors[0]
 
@@ -244,7 +210,8 @@ class WindowEstimator:
             z0, duals = self._guess(problem, start, prior, u_win)
             attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
             if not attempts[-1].success:
-                attempts.append(self._cold(entry).solve(self._cold_guess(problem, prior, u_win), p))
+                cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior)
+                attempts.append(self._cold(entry).solve(cold_guess, p))
             solution = attempts[-1]
             iterations = sum(a.iterations for a in attempts)
             solve_time = sum(a.solve_time for a in attempts)
@@ -299,118 +266,36 @@ class WindowEstimator:
         """After a failed solve: ``x_hat[k] = f(x_hat[k-1], u[k-1], w_last)`` clipped to X (the prior at k = 0)."""
         if k == 0 or self._x_last is None:
             return self._x0_prior.copy(), None, None  # type: ignore[union-attr]
-        w = self._w_last if self._w_last is not None else self._w_bar()
+        w = self._w_guess()
         x = self.system.x.bounds.clip(self.system.step(self._x_last, u_prev, w))
         lag = 2 if self.one_step_ahead else 1
         return x, (w.copy() if k - lag >= 0 else None), (k - lag if k - lag >= 0 else None)
 
     # ------------------------------------------------------------------ guesses
-    def _predict(self, problem: WindowProblem, x: FloatArray, w: FloatArray, u_win: FloatArray, first: int) -> None:
-        """Fill ``x[first+1:]`` by simulating from ``x[first]`` (clipped into X)."""
-        box = problem.x_box
-        for i in range(first, problem.length):
-            nxt = np.asarray(self.system.f(x[i], u_win[i], w[i]), dtype=float).reshape(-1)
-            x[i + 1] = box.clip(nxt) if np.all(np.isfinite(nxt)) else x[i]
-
-    def _cold_guess(self, problem: WindowProblem, prior: FloatArray, u_win: FloatArray) -> FloatArray:
-        nx = self.system.nx
-        x = np.empty((problem.length + 1, nx))
-        x[0] = prior
-        w_guess = self._w_last if self._w_last is not None else self._w_bar()
-        w = np.tile(w_guess, (problem.length, 1))
-        if problem.w_box is not None:
-            w = problem.w_box.clip(w)
-        self._predict(problem, x, w, u_win, 0)
-        v = np.tile(self.v_prior, (problem.n_meas, 1))
-        return problem.pack(WindowTrajectory(x, w, v))
+    def _w_guess(self) -> FloatArray:
+        return self._w_last if self._w_last is not None else self._w_bar()
 
     def _guess(
         self, problem: WindowProblem, start: int, prior: FloatArray, u_win: FloatArray
     ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
-        """The previous solution shifted to the new window (new nodes predicted), and shifted multipliers."""
-        last = self._last
-        if last is None:
-            return self._cold_guess(problem, prior, u_win), None
-        old_start, old_problem, old_solution = last
-        d = start - old_start
-        n_x = min(old_problem.length + 1 - d, problem.length + 1)  # state nodes both windows hold
-        if d < 0 or n_x < 1:
-            return self._cold_guess(problem, prior, u_win), None
-        old = old_problem.unpack(old_solution.z)
-        L, M = problem.length, problem.n_meas
-        n_w = min(max(n_x - 1, 0), L)
-        n_v = min(max(old_problem.n_meas - d, 0), M)
-        x = np.empty((L + 1, self.system.nx))
-        x[:n_x] = old.x[d : d + n_x]
-        w_fill = old.w[-1] if old_problem.length else (self._w_last if self._w_last is not None else self._w_bar())
-        w = np.tile(w_fill, (L, 1))
-        w[:n_w] = old.w[d : d + n_w]
-        v = np.tile(self.v_prior, (M, 1))
-        v[:n_v] = old.v[d : d + n_v]
-        self._predict(problem, x, w, u_win, n_x - 1)
-        z0 = problem.pack(WindowTrajectory(x, w, v))
-        if not self.warm_start:
-            return z0, None
-        lam_x = np.zeros(problem.n_var)
-        for new_index, old_index, count in (
-            (problem.x_index, old_problem.x_index, n_x),
-            (problem.w_index, old_problem.w_index, n_w),
-            (problem.v_index, old_problem.v_index, n_v),
-        ):
-            if count:
-                lam_x[new_index[:count]] = old_solution.lam_x[old_index[d : d + count]]
-        nx, ny = self.system.nx, self.system.ny
-        lam_g = np.zeros(problem.n_con)
-        old_dyn = old_solution.lam_g[: old_problem.n_dyn].reshape(old_problem.length, nx)
-        lam_g[: n_w * nx] = old_dyn[d : d + n_w].ravel()
-        if problem.has_output_constraints and old_problem.has_output_constraints and n_v:
-            old_out = old_solution.lam_g[old_problem.n_dyn :].reshape(old_problem.n_meas, ny)
-            lam_g[problem.n_dyn : problem.n_dyn + n_v * ny] = old_out[d : d + n_v].ravel()
-        return z0, (lam_x, lam_g)
+        """The last successful solution shifted onto the new window, else a prediction from the prior."""
+        if self._last is not None:
+            old_start, old_problem, old_solution = self._last
+            shifted = shifted_guess(
+                old_problem,
+                old_solution,
+                problem,
+                start - old_start,
+                u_win,
+                self._w_guess(),
+                self.v_prior,
+                duals=self.warm_start,
+            )
+            if shifted is not None:
+                return shifted
+        return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior), None
 
     # ------------------------------------------------------------------ batch
-    def _check_run_data(self, u: ArrayLike | None, y: ArrayLike) -> tuple[FloatArray, FloatArray]:
-        s = self.system
-        try:
-            y_arr = np.asarray(y, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"y: expected an array of shape (K+1, {s.ny}), got {type(y).__name__}") from exc
-        if y_arr.ndim != 2 or y_arr.shape[1] != s.ny or y_arr.shape[0] < 1:
-            raise DataError(f"y: expected shape (K+1, {s.ny}) with K+1 >= 1, got {y_arr.shape}")
-        if np.any(np.isinf(y_arr)):
-            raise DataError("y: expected finite values or NaN (missing), got +-inf")
-        K = y_arr.shape[0] - 1
-        if u is None:
-            if s.nu:
-                raise DataError(f"u: required, the system has nu={s.nu} known inputs; expected shape ({K}, {s.nu})")
-            u_arr = np.zeros((K, 0))
-        else:
-            try:
-                u_arr = np.asarray(u, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise DataError(f"u: expected an array of shape ({K}, {s.nu}), got {type(u).__name__}") from exc
-            if u_arr.size == 0 and s.nu == 0:
-                u_arr = np.zeros((K, 0))
-            if u_arr.ndim != 2 or u_arr.shape[1] != s.nu:
-                raise DataError(f"u: expected shape (K, {s.nu}), got {u_arr.shape}")
-            if u_arr.shape[0] != K:
-                raise DataError(
-                    f"u, y: length mismatch, u has {u_arr.shape[0]} rows and y has {K + 1}; "
-                    f"expected u (K, nu) with y (K+1, ny)"
-                )
-            if not np.all(np.isfinite(u_arr)):
-                bad = int(np.argwhere(~np.isfinite(u_arr))[0][0])
-                raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
-        # every window must hold a measurement
-        has = (~np.isnan(y_arr)).any(axis=1).astype(int)
-        counts = np.concatenate([[0], np.cumsum(has)])
-        for k in range(K + 1):
-            length = k if self.N is None else min(self.N, k)
-            first, last = k - length, (k - 1 if self.one_step_ahead else k)
-            if last >= first and counts[last + 1] - counts[first] == 0:
-                raise DataError(f"y: every measurement in the window {first}..{last} of step k={k} is missing (NaN)")
-        return u_arr, y_arr
-
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
         """Estimate ``x[0..K]`` from ``u (K, nu)`` and ``y (K+1, ny)``, starting from a reset.
 
@@ -428,7 +313,7 @@ class WindowEstimator:
         EstimationResult
 
         """
-        u_arr, y_arr = self._check_run_data(u, y)
+        u_arr, y_arr = check_run_data(self.system, u, y, self.N, self.one_step_ahead)
         self.reset(x0_prior)
         K = y_arr.shape[0] - 1
         s = self.system

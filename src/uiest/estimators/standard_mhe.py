@@ -33,7 +33,8 @@ from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.errors import DataError, OptionError
-from uiest.estimators.base import WindowEstimator, check_horizon
+from uiest.estimators.base import WindowEstimator
+from uiest.estimators.checks import check_horizon
 from uiest.estimators.weights import DeltaCertificate, MHEWeights
 from uiest.system import System
 from uiest.window import WindowWeights

@@ -35,7 +35,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.errors import OptionError
-from uiest.estimators.base import WindowEstimator, check_horizon
+from uiest.estimators.base import WindowEstimator
+from uiest.estimators.checks import check_horizon
 from uiest.estimators.weights import StrongCertificate, UISEWeights
 from uiest.system import System
 from uiest.window import WindowWeights

@@ -3,6 +3,7 @@
 - :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
   simple bounds; the window data are parameters, so it is built once per window length.
 - :func:`make_solver`: backends (``"ipopt"``, the reference) returning :class:`WindowSolution`.
+- :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """
 
 from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
@@ -15,6 +16,7 @@ from uiest.window.solvers import (
     WindowSolver,
     make_solver,
 )
+from uiest.window.warmstart import predicted_guess, shifted_guess
 
 __all__ = [
     "BACKENDS",
@@ -27,5 +29,7 @@ __all__ = [
     "WindowTrajectory",
     "WindowWeights",
     "make_solver",
+    "predicted_guess",
+    "shifted_guess",
     "sqrt_psd",
 ]
