@@ -40,6 +40,19 @@ class LinearDeltaIOSS:
         return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
 
 
+class UncertifiedDelta:
+    """Like an uncertified DeltaIOSS: reading P fails."""
+
+    certified, eta, reason, Q_w, Q_v, R = False, 0.5, "infeasible", None, None, None
+
+    @property
+    def P(self):
+        raise TypeError("no solution")
+
+    def min_horizon(self):
+        raise CertificationError("not certified")
+
+
 def linear_delta_ioss(A, B, C, eta=0.5):
     n, q, p = A.shape[0], B.shape[1], C.shape[0]
     P = cp.Variable((n, n), symmetric=True)
@@ -236,6 +249,8 @@ def test_certificate_and_weight_errors(linear_case):
     )
     with pytest.raises(CertificationError, match="not certified"):
         UISE(system, certificate=unproven)
+    with pytest.raises(CertificationError, match="not certified"):
+        StandardMHE(system, certificate=UncertifiedDelta())  # its P is never read
     with pytest.raises(OptionError, match="certificate"):
         UISE(system, certificate=delta)  # a delta-IOSS certificate is not a strong-detectability one
     with pytest.raises(OptionError, match="certificate"):

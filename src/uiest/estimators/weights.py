@@ -58,6 +58,12 @@ class DeltaCertificate(Protocol):
         ...
 
 
+def _missing_attributes(certificate: object, names: tuple[str, ...]) -> list[str]:
+    """Names ``certificate`` lacks, checked without evaluating properties (an uncertified one may fail to)."""
+    own = getattr(certificate, "__dict__", {})
+    return [n for n in names if n not in own and not hasattr(type(certificate), n)]
+
+
 def _discount(value: float, name: str) -> float:
     try:
         out = float(value)
@@ -120,10 +126,11 @@ class UISEWeights:
     @classmethod
     def from_certificate(cls, certificate: StrongCertificate) -> UISEWeights:
         """The certificate's ``mu, P, R_y, R_v``; raises CertificationError if it does not hold."""
-        if not isinstance(certificate, StrongCertificate):
+        missing = _missing_attributes(certificate, ("certified", "mu", "P", "R_y", "R_v", "min_horizon"))
+        if missing:
             raise OptionError(
                 "certificate: expected a StrongDetectability certificate (certified, mu, P, R_y, R_v, "
-                f"min_horizon()), got {type(certificate).__name__}"
+                f"min_horizon()), got {type(certificate).__name__} without {missing}"
             )
         if not certificate.certified:
             reason = getattr(certificate, "reason", "")
@@ -197,10 +204,11 @@ class MHEWeights:
     @classmethod
     def from_certificate(cls, certificate: DeltaCertificate) -> MHEWeights:
         """The certificate's ``eta, P, Q_w, Q_v, R``; raises CertificationError if it does not hold."""
-        if not isinstance(certificate, DeltaCertificate):
+        missing = _missing_attributes(certificate, ("certified", "eta", "P", "Q_w", "Q_v", "R", "min_horizon"))
+        if missing:
             raise OptionError(
                 "certificate: expected a DeltaIOSS certificate (certified, eta, P, Q_w, Q_v, R, min_horizon()), "
-                f"got {type(certificate).__name__}"
+                f"got {type(certificate).__name__} without {missing}"
             )
         if not certificate.certified:
             reason = getattr(certificate, "reason", "")
