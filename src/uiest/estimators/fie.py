@@ -39,8 +39,13 @@ from uiest.window import WindowWeights
 class FIE(WindowEstimator):
     r"""Full information estimator (lem:FIE): growing window from time 0, cost eq:cost_FIE_full.
 
-    ``x_hat[k]`` estimates ``x[k]`` from ``x_bar_0``, ``u[0 .. k-1]`` and ``y[0 .. k]``;
-    ``w_hat[k-1] = w^*_{k-1|k}``. Parameters as for :class:`~uiest.estimators.UISE`, without N.
+    Index convention::
+
+        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = k
+        x_hat[k]   = x^*_{k|k}    from x_bar_0, u[0 .. k-1], y[0 .. k]
+        w_hat[k-1] = w^*_{k-1|k}
+
+    Parameters as for :class:`~uiest.estimators.UISE`, without N.
     """
 
     estimator_name = "FIE"

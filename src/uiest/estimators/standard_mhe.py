@@ -60,9 +60,13 @@ def mhe_window_weights(weights: MHEWeights, length: int) -> WindowWeights:
 class StandardMHE(WindowEstimator):
     r"""Robust MHE of Schiller et al. 2023 (eq. (6)), one-step-ahead; the unknown input is a bounded disturbance.
 
-    ``x_hat[k]`` estimates ``x[k]`` from ``u[k-N_k .. k-1]`` and ``y[k-N_k .. k-1]``;
-    ``w_hat[k-2] = w^*_{k-2|k}`` (``w_{k-1|k}`` is informed by no measurement and equals its prior);
-    ``N_k = min(N, k)``. See the module docstring for the cost.
+    Index convention::
+
+        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = min(N, k)
+        x_hat[k]   = x^*_{k|k}    from u[k-N_k .. k-1], y[k-N_k .. k-1]  (y[k] not used)
+        w_hat[k-2] = w^*_{k-2|k}  (w_{k-1|k} is informed by no measurement; w_hat[K-1] is NaN)
+
+    See the module docstring for the cost.
 
     Parameters
     ----------
