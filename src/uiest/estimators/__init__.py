@@ -1,0 +1,32 @@
+"""Estimators: ``reset(x0_prior)``, ``step(u_prev, y) -> StepEstimate``, ``run(u, y) -> EstimationResult``.
+
+- :class:`UISE`: MHE-based unknown input state estimator (theo:MHE_full).
+- :class:`FIE`: full information estimator (lem:FIE), growing window.
+- :class:`StandardMHE`: robust MHE of Schiller et al. 2023, one-step-ahead (baseline).
+
+Index convention: ``u[k]``, ``w[k]`` act between k and k+1; ``x_hat[k]`` estimates ``x[k]``;
+the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
+covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
+"""
+
+from uiest.estimators.base import WindowEstimator
+from uiest.estimators.fie import FIE
+from uiest.estimators.results import EstimationResult, StepEstimate
+from uiest.estimators.standard_mhe import StandardMHE, mhe_window_weights
+from uiest.estimators.uise import UISE, uise_window_weights
+from uiest.estimators.weights import DeltaCertificate, MHEWeights, StrongCertificate, UISEWeights
+
+__all__ = [
+    "FIE",
+    "UISE",
+    "DeltaCertificate",
+    "EstimationResult",
+    "MHEWeights",
+    "StandardMHE",
+    "StepEstimate",
+    "StrongCertificate",
+    "UISEWeights",
+    "WindowEstimator",
+    "mhe_window_weights",
+    "uise_window_weights",
+]

@@ -1,0 +1,170 @@
+r"""The MHE-based unknown input state estimator with the full-order model (theo:MHE_full).
+
+Index convention (every array time-first)::
+
+    x[k+1] = f(x[k], u[k], w[k]),   y[k] = h(x[k], v[k])
+    x_hat[k] = x^*_{k|k}  from  u[k-N_k .. k-1], y[k-N_k .. k]   (current measurement included)
+    w_hat[k-1] = w^*_{k-1|k}                                        (from the window ending at k)
+    N_k = min(N, k)
+
+Cost (eq:cost_MHE_full with quadratic functions; node time ``k-j``, ``j = 0 .. N_k``)::
+
+    J = mu^{N_k} 4 |x_{k-N_k|k} - x_hat_{k-N_k}|_P^2
+        + sum_{j=0}^{N_k} mu^{j-1} ( 8 |v_{k-j|k} - v_bar|_{R_v}^2 + 2 |y_{k-j} - h(x_{k-j|k}, v_{k-j|k})|_{R_y}^2 )
+
+subject to ``x_{j+1|k} = f(x_{j|k}, u_j, w_{j|k})``, ``x_{j|k}`` in X at every node, ``v_{j|k}`` in V,
+``w_{j|k}`` free (unbounded), and the prior rule eq:prior_rule: ``x_hat_{k-N_k}`` is the
+estimate delivered at time ``k-N_k`` (``x_bar_0`` when ``k-N_k = 0``).
+
+Where the numbers come from: the paper's ``alpha_2(2 r)`` term. The certificate's storage is
+``V(x, x~) = |x - x~|_P^2 <= alpha_2(|x - x~|)`` with ``alpha_2(r) = lambda_max(P) r^2``. We use
+the quadratic form of P itself, ``4 |.|_P^2 = V(2 .)``, instead of ``4 lambda_max(P) |.|^2``: the
+proof of theo:MHE_full only needs ``V(x_{k-N}, x^*) <= |2 (x - prior)|_P^2 + |2 (x^* - prior)|_P^2``,
+which holds for the P-norm (``|a + b|_P <= 2 max(|a|_P, |b|_P)``), and its last step then needs
+``8 mu^N < 1``, weaker than ``8 mu^N lambda_max / lambda_min < 1`` which ``min_horizon()`` checks.
+So the certificate's horizon still suffices, and the prior is not over-weighted in the directions
+where P is small. ``sigma_v(2 r) = 4 |r|_{R_v}^2`` gives the factor 8 of the noise term.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.errors import OptionError
+from uiest.estimators.base import WindowEstimator
+from uiest.estimators.checks import check_horizon
+from uiest.estimators.weights import StrongCertificate, UISEWeights
+from uiest.system import System
+from uiest.window import WindowWeights
+
+
+def uise_window_weights(weights: UISEWeights, length: int) -> WindowWeights:
+    """Residual weights of eq:cost_MHE_full for a window of ``length`` transitions (all nodes measured).
+
+    Node ``i`` (time ``k - length + i``) has ``j = length - i``: output weight ``2 mu^{j-1} R_y``,
+    noise weight ``8 mu^{j-1} R_v``; the prior weight is ``4 mu^length P``.
+    """
+    mu = weights.mu
+    discounts = mu ** (length - np.arange(length + 1) - 1.0)
+    return WindowWeights(
+        prior=4.0 * mu**length * weights.P,
+        y=2.0 * discounts[:, None, None] * weights.R_y,
+        v=8.0 * discounts[:, None, None] * weights.R_v,
+    )
+
+
+def resolve_uise_weights(
+    system: System, certificate: StrongCertificate | None, weights: UISEWeights | None
+) -> tuple[UISEWeights, StrongCertificate | None]:
+    """Weights from exactly one of ``certificate=`` and ``weights=``; checked against ``system``."""
+    if not isinstance(system, System):
+        raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
+    if (certificate is None) == (weights is None):
+        raise OptionError("certificate, weights: expected exactly one of them")
+    if weights is not None and not isinstance(weights, UISEWeights):
+        raise OptionError(f"weights: expected a UISEWeights, got {type(weights).__name__}")
+    resolved = UISEWeights.from_certificate(certificate) if certificate is not None else weights
+    assert resolved is not None  # for mypy; exactly one was given
+    resolved.check(system)
+    return resolved, certificate
+
+
+class UISE(WindowEstimator):
+    r"""MHE-based UISE (theo:MHE_full) with the cost eq:cost_MHE_full and the prior rule eq:prior_rule.
+
+    Index convention::
+
+        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = min(N, k)
+        x_hat[k]   = x^*_{k|k}    from u[k-N_k .. k-1], y[k-N_k .. k]  (current measurement used)
+        w_hat[k-1] = w^*_{k-1|k}  (the window ending at k)
+
+    See the module docstring for the cost and the choice of P for ``alpha_2``.
+
+    Parameters
+    ----------
+    system : System
+    certificate : StrongDetectability, optional
+        Gives ``mu, P, R_y, R_v`` and the default horizon ``min_horizon()``.
+    weights : UISEWeights, optional
+        Explicit weights instead of a certificate (e.g. :meth:`UISEWeights.from_scales`); then
+        N is required and :attr:`guarantee` says that theo:MHE_full does not apply.
+    N : int, optional
+        Horizon >= 1; default ``certificate.min_horizon()``.
+    x0_prior : array_like (nx,), optional
+        Prior ``x_bar_0`` in X (or give it to :meth:`reset` / :meth:`run`).
+    v_prior : array_like (nv,), optional
+        Noise prior ``v_bar`` in V (default 0).
+    solver : str
+        Window backend, ``"ipopt"``.
+    solver_options : mapping, optional
+        IPOPT options overriding :data:`uiest.window.IPOPT_DEFAULTS`.
+    warm_start : bool
+        Primal-dual warm start from the shifted previous solution (default True).
+    strict : bool
+        Raise :class:`~uiest.errors.SolverError` when a window problem is not solved, instead of
+        propagating the previous estimate and recording the status.
+
+    """
+
+    estimator_name = "UISE"
+
+    def __init__(
+        self,
+        system: System,
+        *,
+        certificate: StrongCertificate | None = None,
+        weights: UISEWeights | None = None,
+        N: int | None = None,
+        x0_prior: ArrayLike | None = None,
+        v_prior: ArrayLike | None = None,
+        solver: str = "ipopt",
+        solver_options: Mapping[str, Any] | None = None,
+        warm_start: bool = True,
+        strict: bool = False,
+    ) -> None:
+        self.weights, self.certificate = resolve_uise_weights(system, certificate, weights)
+        if N is None:
+            if self.certificate is None:
+                raise OptionError("N: required with explicit weights (no certificate to take min_horizon() from)")
+            N = self.certificate.min_horizon()
+        check_horizon(N)
+        super().__init__(
+            system,
+            N=N,
+            x0_prior=x0_prior,
+            v_prior=v_prior,
+            solver=solver,
+            solver_options=solver_options,
+            warm_start=warm_start,
+            strict=strict,
+        )
+
+    def _window_weights(self, length: int) -> WindowWeights:
+        return uise_window_weights(self.weights, length)
+
+    @property
+    def guaranteed(self) -> bool:
+        """True when a certified certificate gave the weights and ``N >= min_horizon()``."""
+        horizon = self.N
+        return self.certificate is not None and horizon is not None and horizon >= self.certificate.min_horizon()
+
+    @property
+    def guarantee(self) -> str:
+        """Which guarantee holds (theo:MHE_full) or why none does."""
+        if self.certificate is None:
+            return "none: explicit weights without a strong-detectability certificate, theo:MHE_full does not apply"
+        n_min = self.certificate.min_horizon()
+        horizon = self.N
+        if horizon is not None and horizon < n_min:
+            return f"none: N={self.N} < min_horizon()={n_min} (eq:MHE_full_horizon), theo:MHE_full does not apply"
+        return (
+            f"theo:MHE_full: strongly detectable with mu={self.weights.mu:.4g}, N={self.N} >= "
+            f"min_horizon()={n_min}; the error converges under convergent noise whatever the unknown input"
+        )
+
+    def __repr__(self) -> str:
+        return f"UISE(system={self.system.name!r}, N={self.N}, mu={self.weights.mu:.4g}, guaranteed={self.guaranteed})"

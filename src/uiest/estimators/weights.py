@@ -1,0 +1,244 @@
+r"""Cost weights of the estimators and where they come from (certificates or the user).
+
+- :class:`UISEWeights` ``(mu, P, R_y, R_v)``: the strong-detectability storage
+  ``V = |x - x~|_P^2`` and ``sigma_y(dy) = |dy|_{R_y}^2``, ``sigma_v(dv) = |dv|_{R_v}^2``
+  (theo:Lyapunov), from a :class:`~uiest.detectability.StrongDetectability` certificate or given.
+- :class:`MHEWeights` ``(eta, P, Q_w, Q_v, R)``: the delta-IOSS Lyapunov function of Schiller et
+  al. 2023, Assumption 1 (``W = |x - x~|_P^2``,
+  ``W+ <= eta W + |dw|_{Q_w}^2 + |dv|_{Q_v}^2 + |dy|_R^2``), from a ``DeltaIOSS`` certificate
+  or given.
+
+Certificates are duck-typed (:class:`StrongCertificate`, :class:`DeltaCertificate`): any object
+with those attributes works, so the estimators do not depend on how a certificate was computed.
+All matrices are in original units.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray
+from uiest.errors import CertificationError, OptionError
+from uiest.system import System
+from uiest.window.problem import sqrt_psd
+
+
+@runtime_checkable
+class StrongCertificate(Protocol):
+    """What the UISE and the FIE read from a strong-detectability certificate."""
+
+    certified: bool
+    mu: float
+    P: FloatArray
+    R_y: FloatArray
+    R_v: FloatArray
+
+    def min_horizon(self) -> int:
+        """Smallest horizon satisfying eq:MHE_full_horizon."""
+        ...
+
+
+@runtime_checkable
+class DeltaCertificate(Protocol):
+    """What the standard MHE reads from a delta-IOSS certificate (Schiller et al. 2023)."""
+
+    certified: bool
+    eta: float
+    P: FloatArray
+    Q_w: FloatArray
+    Q_v: FloatArray
+    R: FloatArray
+
+    def min_horizon(self) -> int:
+        """Smallest horizon M with ``4 eta^M lambda_max(P2, P1) < 1`` (their eq. (16))."""
+        ...
+
+
+def _missing_attributes(certificate: object, names: tuple[str, ...]) -> list[str]:
+    """Names ``certificate`` lacks, checked without evaluating properties (an uncertified one may fail to)."""
+    own = getattr(certificate, "__dict__", {})
+    return [n for n in names if n not in own and not hasattr(type(certificate), n)]
+
+
+def _discount(value: float, name: str) -> float:
+    try:
+        out = float(value)
+    except (TypeError, ValueError) as exc:
+        raise OptionError(f"{name}: expected a number in (0, 1), got {value!r}") from exc
+    if not 0.0 < out < 1.0:
+        raise OptionError(f"{name}: expected a number in (0, 1), got {value!r}")
+    return out
+
+
+def _psd(value: ArrayLike, n: int, name: str) -> FloatArray:
+    arr = np.array(value, dtype=float)
+    if arr.ndim == 0 and n == 1:
+        arr = arr.reshape(1, 1)
+    if arr.shape != (n, n):
+        raise OptionError(f"{name}: expected shape ({n}, {n}), got {arr.shape}")
+    sqrt_psd(arr, name)  # symmetric, PSD and finite, else OptionError
+    arr = 0.5 * (arr + arr.T)
+    arr.setflags(write=False)
+    return arr
+
+
+def _diag_scaled(weight: ArrayLike, scale: FloatArray, name: str) -> FloatArray:
+    """``diag(weight / scale^2)``: a weight of ``weight`` per scaled unit; ``weight`` scalar or (n,)."""
+    w = np.broadcast_to(np.asarray(weight, dtype=float), scale.shape)
+    if not np.all(np.isfinite(w)) or np.any(w < 0):
+        raise OptionError(f"{name}: expected non-negative finite weights, got {np.asarray(weight).tolist()}")
+    return np.diag(w / scale**2)
+
+
+@dataclass(frozen=True)
+class UISEWeights:
+    r"""Weights of eq:cost_MHE_full (and eq:cost_FIE_full) with quadratic functions.
+
+    Attributes
+    ----------
+    mu : float
+        Discount in (0, 1).
+    P : ndarray (nx, nx)
+        Storage matrix, ``V(x, x~) = |x - x~|_P^2`` (plays ``alpha_2``, see :class:`~uiest.estimators.UISE`).
+    R_y : ndarray (ny, ny)
+        ``sigma_y(dy) = |dy|_{R_y}^2``.
+    R_v : ndarray (nv, nv)
+        ``sigma_v(dv) = |dv|_{R_v}^2``.
+
+    """
+
+    mu: float
+    P: FloatArray
+    R_y: FloatArray
+    R_v: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mu", _discount(self.mu, "weights.mu"))
+        for name in ("P", "R_y", "R_v"):
+            arr = np.array(getattr(self, name), dtype=float)
+            n = 1 if arr.ndim == 0 else arr.shape[0]
+            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+
+    @classmethod
+    def from_certificate(cls, certificate: StrongCertificate) -> UISEWeights:
+        """The certificate's ``mu, P, R_y, R_v``; raises CertificationError if it does not hold."""
+        missing = _missing_attributes(certificate, ("certified", "mu", "P", "R_y", "R_v", "min_horizon"))
+        if missing:
+            raise OptionError(
+                "certificate: expected a StrongDetectability certificate (certified, mu, P, R_y, R_v, "
+                f"min_horizon()), got {type(certificate).__name__} without {missing}"
+            )
+        if not certificate.certified:
+            reason = getattr(certificate, "reason", "")
+            raise CertificationError(
+                f"certificate: strong detectability is not certified ({reason}); pass weights= to run the "
+                "estimator without the theorem's guarantee"
+            )
+        return cls(mu=certificate.mu, P=certificate.P, R_y=certificate.R_y, R_v=certificate.R_v)
+
+    @classmethod
+    def from_scales(
+        cls,
+        system: System,
+        mu: float,
+        *,
+        prior: ArrayLike = 1.0,
+        output: ArrayLike = 1.0,
+        noise: ArrayLike = 1.0,
+    ) -> UISEWeights:
+        """Diagonal weights per *scaled* unit: ``P = diag(prior / s_x^2)``, ``R_y = diag(output / s_y^2)``, ...
+
+        ``s`` are the signals' nominal scales (``system.x.scale`` etc.). For models without a
+        certificate (the crop model: the paper uses ``mu = 0.48``); scalars or per-component.
+        """
+        return cls(
+            mu=mu,
+            P=_diag_scaled(prior, system.x.scale, "prior"),
+            R_y=_diag_scaled(output, system.y.scale, "output"),
+            R_v=_diag_scaled(noise, system.v.scale, "noise"),
+        )
+
+    def check(self, system: System) -> None:
+        """Raise OptionError unless the shapes fit ``system``."""
+        for name, n in (("P", system.nx), ("R_y", system.ny), ("R_v", system.nv)):
+            if getattr(self, name).shape != (n, n):
+                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")
+
+
+@dataclass(frozen=True)
+class MHEWeights:
+    r"""Weights of the standard MHE's cost (Schiller et al. 2023, eq. (6)).
+
+    Attributes
+    ----------
+    eta : float
+        Discount in (0, 1).
+    P : ndarray (nx, nx)
+        ``W(x, x~) = |x - x~|_P^2`` (their ``P_2``; ``P_1 = P_2 = P``).
+    Q_w : ndarray (nw, nw)
+        Weight of the unknown input, treated as a bounded disturbance.
+    Q_v : ndarray (nv, nv)
+        Weight of the measurement noise (part of their generalised disturbance).
+    R : ndarray (ny, ny)
+        Output weight.
+
+    """
+
+    eta: float
+    P: FloatArray
+    Q_w: FloatArray
+    Q_v: FloatArray
+    R: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "eta", _discount(self.eta, "weights.eta"))
+        for name in ("P", "Q_w", "Q_v", "R"):
+            arr = np.array(getattr(self, name), dtype=float)
+            n = 1 if arr.ndim == 0 else arr.shape[0]
+            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+
+    @classmethod
+    def from_certificate(cls, certificate: DeltaCertificate) -> MHEWeights:
+        """The certificate's ``eta, P, Q_w, Q_v, R``; raises CertificationError if it does not hold."""
+        missing = _missing_attributes(certificate, ("certified", "eta", "P", "Q_w", "Q_v", "R", "min_horizon"))
+        if missing:
+            raise OptionError(
+                "certificate: expected a DeltaIOSS certificate (certified, eta, P, Q_w, Q_v, R, min_horizon()), "
+                f"got {type(certificate).__name__} without {missing}"
+            )
+        if not certificate.certified:
+            reason = getattr(certificate, "reason", "")
+            raise CertificationError(
+                f"certificate: delta-IOSS is not certified ({reason}); pass weights= to run without the guarantee"
+            )
+        return cls(eta=certificate.eta, P=certificate.P, Q_w=certificate.Q_w, Q_v=certificate.Q_v, R=certificate.R)
+
+    @classmethod
+    def from_scales(
+        cls,
+        system: System,
+        eta: float,
+        *,
+        prior: ArrayLike = 1.0,
+        disturbance: ArrayLike = 1.0,
+        noise: ArrayLike = 1.0,
+        output: ArrayLike = 1.0,
+    ) -> MHEWeights:
+        """Diagonal weights per *scaled* unit (``Q_w = diag(disturbance / s_w^2)`` etc.)."""
+        return cls(
+            eta=eta,
+            P=_diag_scaled(prior, system.x.scale, "prior"),
+            Q_w=_diag_scaled(disturbance, system.w.scale, "disturbance"),
+            Q_v=_diag_scaled(noise, system.v.scale, "noise"),
+            R=_diag_scaled(output, system.y.scale, "output"),
+        )
+
+    def check(self, system: System) -> None:
+        """Raise OptionError unless the shapes fit ``system``."""
+        for name, n in (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)):
+            if getattr(self, name).shape != (n, n):
+                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")

@@ -1,0 +1,35 @@
+"""The moving-window least-squares problem shared by every optimisation-based estimator.
+
+- :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
+  simple bounds; the window data are parameters, so it is built once per window length.
+- :func:`make_solver`: backends (``"ipopt"``, the reference) returning :class:`WindowSolution`.
+- :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
+"""
+
+from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
+from uiest.window.solvers import (
+    BACKENDS,
+    IPOPT_DEFAULTS,
+    IPOPT_WARM_START,
+    IpoptSolver,
+    WindowSolution,
+    WindowSolver,
+    make_solver,
+)
+from uiest.window.warmstart import predicted_guess, shifted_guess
+
+__all__ = [
+    "BACKENDS",
+    "IPOPT_DEFAULTS",
+    "IPOPT_WARM_START",
+    "IpoptSolver",
+    "WindowProblem",
+    "WindowSolution",
+    "WindowSolver",
+    "WindowTrajectory",
+    "WindowWeights",
+    "make_solver",
+    "predicted_guess",
+    "shifted_guess",
+    "sqrt_psd",
+]

@@ -1,0 +1,390 @@
+r"""The moving-window weighted nonlinear least-squares problem shared by every optimisation estimator.
+
+A window of ``L`` transitions covers the times ``s .. s+L`` (node ``i`` is time ``s+i``). Its
+decision variables, stacked stage by stage as ``[x_0, v_0, w_0, x_1, v_1, w_1, ..., x_L, v_L]``
+(``v_i`` only at measured nodes), are in **scaled coordinates**
+
+    x_i = c_x + S_x x~_i,   w_i = c_w + S_w w~_i,   v_i = c_v + S_v v~_i,
+
+with ``S = diag(signal.scale)`` and ``c`` the centre of the signal's domain (``Box.center``;
+for w the centre of the range the problem is given, else ``system.nominal_w``). Multiple
+shooting: the dynamics are equality constraints
+
+    g_i = (f(x_i, u_i, w_i) - x_{i+1}) / s_x = 0,        i = 0 .. L-1,
+
+so the state box X is a simple bound on every node. The cost is ``J = |r|^2`` with the
+residual vector
+
+    r = [ Wp^{1/2} (x_0 - prior) / s_x ;
+          for each measured node m:  Wy_m^{1/2} (mask_m * (y_m - h(x_m, v_m)) / s_y) ;
+                                     Wv_m^{1/2} (v_m - v_bar_m) / s_v ;
+          for each transition i:     Ww_i^{1/2} (w_i - w_bar_i) / s_w      (only if Ww given) ]
+
+where the weights ``W`` are given in original units and converted to scaled ones
+(``W~ = S W S``); ``M^{1/2}`` is the symmetric square root. ``mask`` (0/1 per output channel)
+drops missing measurements. Outputs constrained to a box Y with finite sides add
+``(h(x_m, v_m) - c_y) / s_y`` to g with bounds.
+
+Everything that changes from one step to the next is a parameter ``p``:
+``[prior (nx), u (L, nu), y (M, ny), mask (M, ny), v_bar (M, nv), w_bar (L, nw)]`` (row-major),
+so the problem is built once per window length and re-solved. A Gauss-Newton backend needs
+only :attr:`WindowProblem.residual_function`, :attr:`WindowProblem.constraint_function` and
+the bounds; IPOPT uses :meth:`WindowProblem.nlp`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import Box, FloatArray
+from uiest.errors import DataError, OptionError
+from uiest.system import System
+
+
+def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
+    """Symmetric square root of a symmetric positive semidefinite matrix.
+
+    Parameters
+    ----------
+    matrix : array_like, shape (n, n)
+        Symmetric, eigenvalues >= -1e-10 * largest (tiny negative ones are set to zero).
+    name : str
+        Argument name used in error messages.
+
+    Returns
+    -------
+    ndarray, shape (n, n)
+        ``M`` with ``M = M^T`` and ``M @ M = matrix``.
+
+    """
+    arr = np.asarray(matrix, dtype=float)
+    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
+        raise OptionError(f"{name}: expected a square matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise OptionError(f"{name}: expected finite entries")
+    if arr.size == 0:
+        return arr.copy()
+    scale = max(1.0, float(np.abs(arr).max()))
+    if not np.allclose(arr, arr.T, rtol=1e-8, atol=1e-12 * scale):
+        raise OptionError(f"{name}: expected a symmetric matrix")
+    eigval, eigvec = np.linalg.eigh(0.5 * (arr + arr.T))
+    if eigval.min() < -1e-10 * max(1e-300, abs(eigval).max()):
+        raise OptionError(f"{name}: expected a positive semidefinite matrix, smallest eigenvalue {eigval.min():.3g}")
+    root: FloatArray = (eigvec * np.sqrt(np.clip(eigval, 0.0, None))) @ eigvec.T
+    return root
+
+
+@dataclass(frozen=True, eq=False)
+class WindowWeights:
+    """Weights of one window's residuals, in original units.
+
+    Attributes
+    ----------
+    prior : ndarray (nx, nx)
+        Weight of ``|x_0 - prior|^2``.
+    y : ndarray (M, ny, ny)
+        Output weight at each measured node (M = number of measured nodes).
+    v : ndarray (M, nv, nv)
+        Noise weight ``|v - v_bar|^2`` at each measured node.
+    w : ndarray (L, nw, nw) or None
+        Unknown-input weight ``|w - w_bar|^2`` per transition; None: w is not penalised.
+
+    """
+
+    prior: FloatArray
+    y: FloatArray
+    v: FloatArray
+    w: FloatArray | None = None
+
+
+@dataclass(frozen=True)
+class WindowTrajectory:
+    """A window's variables in original units: ``x (L+1, nx)``, ``w (L, nw)``, ``v (M, nv)``."""
+
+    x: FloatArray
+    w: FloatArray
+    v: FloatArray
+
+
+class WindowProblem:
+    """One window's weighted nonlinear least-squares problem, built once with data as parameters.
+
+    Parameters
+    ----------
+    system : System
+    length : int
+        Number of transitions L >= 0 (the window has L+1 state nodes).
+    measured : sequence of int
+        Node indices (0..L) that carry a measurement; increasing.
+    weights : WindowWeights
+        Residual weights (original units); shapes must match ``measured`` and ``length``.
+    x_box : Box, optional
+        Bound on every state node (default: ``system.x.bounds``).
+    v_box : Box, optional
+        Bound on every noise estimate (default: ``system.v.bounds``).
+    w_box : Box, optional
+        Bound on every unknown-input estimate (default: unbounded; the standard MHE passes
+        ``system.w_range``).
+    output_constraints : bool
+        Constrain ``h(x_m, v_m)`` to ``system.y.bounds`` at measured nodes when Y has a finite side.
+
+    """
+
+    def __init__(
+        self,
+        system: System,
+        length: int,
+        measured: ArrayLike,
+        weights: WindowWeights,
+        *,
+        x_box: Box | None = None,
+        v_box: Box | None = None,
+        w_box: Box | None = None,
+        output_constraints: bool = True,
+    ) -> None:
+        if isinstance(length, bool) or not isinstance(length, int | np.integer) or length < 0:
+            raise OptionError(f"length: expected a non-negative integer, got {length!r}")
+        self.system = system
+        self.length = L = int(length)
+        nodes = np.asarray(measured, dtype=int).reshape(-1)
+        if nodes.size and (nodes.min() < 0 or nodes.max() > L or np.any(np.diff(nodes) <= 0)):
+            raise OptionError(f"measured: expected increasing node indices in 0..{L}, got {nodes.tolist()}")
+        self.measured = nodes
+        self.n_meas = M = int(nodes.size)
+        nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
+        self.x_box = system.x.bounds if x_box is None else x_box
+        self.v_box = system.v.bounds if v_box is None else v_box
+        self.w_box = Box.unbounded(nw) if w_box is None else w_box
+        for label, box, n in (("x_box", self.x_box, nx), ("v_box", self.v_box, nv), ("w_box", self.w_box, nw)):
+            if box.size != n:
+                raise OptionError(f"{label}: expected dimension {n}, got {box.size}")
+        self._check_weights(weights)
+        self.weights = weights
+
+        # scaling: z = c + s * z~
+        self.x_center, self.x_scale = self.x_box.center, system.x.scale
+        self.v_center, self.v_scale = self.v_box.center, system.v.scale
+        self.w_center = self.w_box.center if self.w_box != Box.unbounded(nw) else system.nominal_w
+        self.w_scale = system.w.scale
+        self.y_center, self.y_scale = system.y.bounds.center, system.y.scale
+
+        # index layout, stage-wise [x_i, v_i (if measured), w_i (if i < L)]
+        x_index = np.empty((L + 1, nx), dtype=int)
+        w_index = np.empty((L, nw), dtype=int)
+        v_index = np.empty((M, nv), dtype=int)
+        pos, m = 0, 0
+        for i in range(L + 1):
+            x_index[i] = np.arange(pos, pos + nx)
+            pos += nx
+            if m < M and nodes[m] == i:
+                v_index[m] = np.arange(pos, pos + nv)
+                pos += nv
+                m += 1
+            if i < L:
+                w_index[i] = np.arange(pos, pos + nw)
+                pos += nw
+        self.x_index, self.w_index, self.v_index = x_index, w_index, v_index
+        self.n_var = pos
+        y_lo, y_hi = system.y.bounds.lower, system.y.bounds.upper
+        self.has_output_constraints = bool(
+            output_constraints and M > 0 and (np.isfinite(y_lo).any() or np.isfinite(y_hi).any())
+        )
+        self.n_dyn = L * nx
+        self.n_con = self.n_dyn + (M * ny if self.has_output_constraints else 0)
+        sizes = {"prior": nx, "u": L * nu, "y": M * ny, "mask": M * ny, "v_bar": M * nv, "w_bar": L * nw}
+        self.parameter_slices: dict[str, slice] = {}
+        start = 0
+        for key, size in sizes.items():
+            self.parameter_slices[key] = slice(start, start + size)
+            start += size
+        self.n_par = start
+        self._build()
+
+    # ------------------------------------------------------------------ construction
+    def _check_weights(self, weights: WindowWeights) -> None:
+        s = self.system
+        L, M = self.length, self.n_meas
+        expected = {
+            "prior": (weights.prior, (s.nx, s.nx)),
+            "y": (weights.y, (M, s.ny, s.ny)),
+            "v": (weights.v, (M, s.nv, s.nv)),
+        }
+        if weights.w is not None:
+            expected["w"] = (weights.w, (L, s.nw, s.nw))
+        for label, (value, shape) in expected.items():
+            if np.shape(value) != shape:
+                raise OptionError(f"weights.{label}: expected shape {shape}, got {np.shape(value)}")
+
+    def _build(self) -> None:
+        s = self.system
+        nx, nu, nw, nv, ny = s.nx, s.nu, s.nw, s.nv, s.ny
+        L, M = self.length, self.n_meas
+        z = ca.SX.sym("z", self.n_var)
+        p = ca.SX.sym("p", self.n_par)
+
+        def take(index: np.ndarray) -> ca.SX:
+            return z[[int(i) for i in index]] if index.size else ca.SX(0, 1)
+
+        def par(key: str, row: int, width: int) -> ca.SX:
+            start = self.parameter_slices[key].start + row * width
+            return p[start : start + width] if width else ca.SX(0, 1)
+
+        xs = [ca.DM(self.x_center) + ca.DM(self.x_scale) * take(self.x_index[i]) for i in range(L + 1)]
+        ws = [ca.DM(self.w_center) + ca.DM(self.w_scale) * take(self.w_index[i]) for i in range(L)]
+        vs = [ca.DM(self.v_center) + ca.DM(self.v_scale) * take(self.v_index[m]) for m in range(M)]
+        weights = self.weights
+
+        def scaled_root(W: FloatArray, scale: FloatArray, name: str) -> ca.DM:
+            return ca.DM(sqrt_psd(np.outer(scale, scale) * np.asarray(W, dtype=float), name))
+
+        residuals = [
+            ca.mtimes(
+                scaled_root(weights.prior, self.x_scale, "weights.prior"),
+                (xs[0] - par("prior", 0, nx)) / ca.DM(self.x_scale),
+            )
+        ]
+        outputs = []
+        for m, node in enumerate(self.measured):
+            y_hat = s.h(xs[int(node)], vs[m])
+            outputs.append(y_hat)
+            diff = par("mask", m, ny) * (par("y", m, ny) - y_hat) / ca.DM(self.y_scale)
+            residuals.append(ca.mtimes(scaled_root(weights.y[m], self.y_scale, f"weights.y[{m}]"), diff))
+            residuals.append(
+                ca.mtimes(
+                    scaled_root(weights.v[m], self.v_scale, f"weights.v[{m}]"),
+                    (vs[m] - par("v_bar", m, nv)) / ca.DM(self.v_scale),
+                )
+            )
+        if weights.w is not None:
+            for i in range(L):
+                residuals.append(
+                    ca.mtimes(
+                        scaled_root(weights.w[i], self.w_scale, f"weights.w[{i}]"),
+                        (ws[i] - par("w_bar", i, nw)) / ca.DM(self.w_scale),
+                    )
+                )
+        r = ca.vertcat(*residuals)
+        dynamics = [(s.f(xs[i], par("u", i, nu), ws[i]) - xs[i + 1]) / ca.DM(self.x_scale) for i in range(L)]
+        constraints = list(dynamics)
+        if self.has_output_constraints:
+            constraints += [(y_hat - ca.DM(self.y_center)) / ca.DM(self.y_scale) for y_hat in outputs]
+        g = ca.vertcat(*constraints) if constraints else ca.SX(0, 1)
+        self.z, self.p, self.r, self.g = z, p, r, g
+        self.n_res = int(r.numel())
+
+        lbx = np.empty(self.n_var)
+        ubx = np.empty(self.n_var)
+        for index, box, center, scale in (
+            (self.x_index, self.x_box, self.x_center, self.x_scale),
+            (self.w_index, self.w_box, self.w_center, s.w.scale),
+            (self.v_index, self.v_box, self.v_center, self.v_scale),
+        ):
+            if index.size:
+                lbx[index] = (box.lower - center) / scale
+                ubx[index] = (box.upper - center) / scale
+        self.lbx, self.ubx = lbx, ubx
+        lbg = np.zeros(self.n_con)
+        ubg = np.zeros(self.n_con)
+        if self.has_output_constraints:
+            lo = (s.y.bounds.lower - self.y_center) / self.y_scale
+            hi = (s.y.bounds.upper - self.y_center) / self.y_scale
+            lbg[self.n_dyn :] = np.tile(lo, M)
+            ubg[self.n_dyn :] = np.tile(hi, M)
+        self.lbg, self.ubg = lbg, ubg
+
+    @cached_property
+    def residual_function(self) -> ca.Function:
+        """CasADi Function ``(z (n_var,), p (n_par,)) -> r (n_res,)``; the cost is ``|r|^2``."""
+        return ca.Function("window_residual", [self.z, self.p], [self.r], ["z", "p"], ["r"])
+
+    @cached_property
+    def constraint_function(self) -> ca.Function:
+        """CasADi Function ``(z, p) -> g (n_con,)`` with ``lbg <= g <= ubg`` (dynamics: ``g = 0``)."""
+        return ca.Function("window_constraints", [self.z, self.p], [self.g], ["z", "p"], ["g"])
+
+    @cached_property
+    def cost_function(self) -> ca.Function:
+        """CasADi Function ``(z, p) -> J = |r|^2``."""
+        return ca.Function("window_cost", [self.z, self.p], [ca.sumsqr(self.r)], ["z", "p"], ["J"])
+
+    def nlp(self) -> dict[str, ca.SX]:
+        """The NLP ``{x: z, p: p, f: |r|^2, g: g}`` for ``casadi.nlpsol``."""
+        return {"x": self.z, "p": self.p, "f": ca.sumsqr(self.r), "g": self.g}
+
+    # ------------------------------------------------------------------ data in and out
+    def parameters(
+        self,
+        prior: ArrayLike,
+        u: ArrayLike,
+        y: ArrayLike,
+        v_bar: ArrayLike | None = None,
+        w_bar: ArrayLike | None = None,
+    ) -> FloatArray:
+        """Pack a window's data into the parameter vector ``p``.
+
+        Parameters
+        ----------
+        prior : array_like (nx,)
+            Prior of the window's first state.
+        u : array_like (L, nu)
+            Known inputs of the window's transitions.
+        y : array_like (M, ny)
+            Measurements at the measured nodes; NaN entries are missing (masked out).
+        v_bar : array_like (M, nv), optional
+            Noise priors (default: zeros).
+        w_bar : array_like (L, nw), optional
+            Unknown-input priors (default: ``system.nominal_w``); used only if w is weighted.
+
+        """
+        s = self.system
+        L, M = self.length, self.n_meas
+        y_arr = np.asarray(y, dtype=float).reshape(M, s.ny)
+        mask = np.isfinite(y_arr)
+        parts = {
+            "prior": np.asarray(prior, dtype=float).reshape(s.nx),
+            "u": np.asarray(u, dtype=float).reshape(L, s.nu),
+            "y": np.where(mask, y_arr, 0.0),
+            "mask": mask.astype(float),
+            "v_bar": np.zeros((M, s.nv)) if v_bar is None else np.asarray(v_bar, dtype=float).reshape(M, s.nv),
+            "w_bar": (
+                np.broadcast_to(s.nominal_w, (L, s.nw))
+                if w_bar is None
+                else np.asarray(w_bar, dtype=float).reshape(L, s.nw)
+            ),
+        }
+        p = np.empty(self.n_par)
+        for key, value in parts.items():
+            if not np.all(np.isfinite(value)):
+                raise DataError(f"{key}: expected finite window data, got {np.asarray(value).tolist()}")
+            p[self.parameter_slices[key]] = np.ravel(value)
+        return p
+
+    def pack(self, trajectory: WindowTrajectory) -> FloatArray:
+        """Scaled decision vector from a trajectory in original units."""
+        z = np.empty(self.n_var)
+        z[self.x_index] = (np.asarray(trajectory.x).reshape(self.length + 1, -1) - self.x_center) / self.x_scale
+        if self.length:
+            z[self.w_index] = (np.asarray(trajectory.w).reshape(self.length, -1) - self.w_center) / self.w_scale
+        if self.n_meas:
+            z[self.v_index] = (np.asarray(trajectory.v).reshape(self.n_meas, -1) - self.v_center) / self.v_scale
+        return z
+
+    def unpack(self, z: ArrayLike) -> WindowTrajectory:
+        """Trajectory in original units from a scaled decision vector."""
+        vec = np.asarray(z, dtype=float).reshape(self.n_var)
+        return WindowTrajectory(
+            x=self.x_center + self.x_scale * vec[self.x_index],
+            w=self.w_center + self.w_scale * vec[self.w_index],
+            v=self.v_center + self.v_scale * vec[self.v_index],
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"WindowProblem(system={self.system.name!r}, length={self.length}, measured={self.n_meas}, "
+            f"n_var={self.n_var}, n_con={self.n_con}, n_res={self.n_res})"
+        )

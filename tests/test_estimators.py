@@ -1,0 +1,398 @@
+"""Estimators against known answers: linear systems with huge unknown inputs, the closed-form system,
+FIE == UISE while k <= N, the crop model; weights, guarantees, streaming, warm starts, failures."""
+
+from dataclasses import dataclass
+
+import cvxpy as cp
+import numpy as np
+import pytest
+
+from uiest import CertificationError, OptionError, SolverError, UniformNoise, simulate
+from uiest.detectability import certify_strong_detectability
+from uiest.estimators import (
+    FIE,
+    UISE,
+    EstimationResult,
+    MHEWeights,
+    StandardMHE,
+    UISEWeights,
+    mhe_window_weights,
+    uise_window_weights,
+)
+from uiest.estimators import base as base_module
+from uiest.models import closed_form, crop_growth, get, linear
+
+# ---------------------------------------------------------------------------------------------- helpers
+
+
+@dataclass(frozen=True)
+class LinearDeltaIOSS:
+    """A delta-IOSS certificate (Schiller et al. 2023, Corollary 3) for x+ = Ax + Bw, y = Cx + v."""
+
+    certified: bool
+    eta: float
+    P: np.ndarray
+    Q_w: np.ndarray
+    Q_v: np.ndarray
+    R: np.ndarray
+
+    def min_horizon(self) -> int:
+        return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
+
+
+class UncertifiedDelta:
+    """Like an uncertified DeltaIOSS: reading P fails."""
+
+    certified, eta, reason, Q_w, Q_v, R = False, 0.5, "infeasible", None, None, None
+
+    @property
+    def P(self):
+        raise TypeError("no solution")
+
+    def min_horizon(self):
+        raise CertificationError("not certified")
+
+
+def linear_delta_ioss(A, B, C, eta=0.5):
+    n, q, p = A.shape[0], B.shape[1], C.shape[0]
+    P = cp.Variable((n, n), symmetric=True)
+    qw, qv, r = cp.Variable(nonneg=True), cp.Variable(nonneg=True), cp.Variable(nonneg=True)
+    Bd = np.hstack([B, np.zeros((n, p))])  # generalised disturbance d = (w, v)
+    Dd = np.hstack([np.zeros((p, q)), np.eye(p)])
+    Q = cp.bmat([[qw * np.eye(q), np.zeros((q, p))], [np.zeros((p, q)), qv * np.eye(p)]])
+    CD = np.hstack([C, Dd])
+    block = cp.bmat([[eta * P, np.zeros((n, q + p))], [np.zeros((q + p, n)), Q]]) + r * CD.T @ CD
+    AB = np.hstack([A, Bd])
+    lmi = cp.bmat([[block, AB.T @ P], [P @ AB, P]])
+    problem = cp.Problem(cp.Minimize(qw + qv + r), [P >> np.eye(n), 0.5 * (lmi + lmi.T) >> 0])
+    problem.solve(solver=cp.CLARABEL)
+    assert problem.status == "optimal"
+    return LinearDeltaIOSS(True, eta, P.value, qw.value * np.eye(q), qv.value * np.eye(p), r.value * np.eye(p))
+
+
+@pytest.fixture(scope="module")
+def linear_case():
+    """Zeros {0.5, 0.2}; X unbounded (the states follow w up to 1e6); certificates for both estimators."""
+    bounded, A, B, C = linear.with_invariant_zeros([0.5, 0.2], seed=1, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))
+    cert = certify_strong_detectability(bounded, grid=2, pool_grid=2, pool_random=10)  # LTI: constant Jacobians
+    assert cert.certified and cert.mu_min == pytest.approx(0.25, abs=1e-3)
+    system = linear.linear_system(A, B, C, v_bounds=(-1e-3, 1e-3))
+    return system, cert, linear_delta_ioss(A, B, C)
+
+
+K_LIN = 60
+UNKNOWN_INPUTS = {
+    "constant 1e6": np.full((K_LIN, 1), 1e6),
+    "ramp": (1e4 * np.arange(K_LIN) + 1e3 * np.sin(np.arange(K_LIN)))[:, None],
+}
+
+
+# ---------------------------------------------------------------------------------------------- known answers
+
+
+@pytest.mark.parametrize("w_name", list(UNKNOWN_INPUTS))
+def test_linear_uise_exact_despite_huge_unknown_input_standard_mhe_not(linear_case, w_name):
+    system, cert, delta = linear_case
+    x0 = np.array([1.0, -1.0, 0.5])
+    for noisy in (False, True):
+        traj = simulate(
+            system, x0, K_LIN, w=UNKNOWN_INPUTS[w_name], v=UniformNoise.symmetric(1e-3) if noisy else None, seed=0
+        )
+        uise = UISE(system, certificate=cert, N=10, x0_prior=np.zeros(3)).run(None, traj.y)
+        mhe = StandardMHE(system, certificate=delta, x0_prior=np.zeros(3)).run(None, traj.y)
+        assert uise.failures == 0 and mhe.failures == 0
+        e_uise = np.linalg.norm(uise.error(traj.x), axis=1)
+        e_mhe = np.linalg.norm(mhe.error(traj.x), axis=1)
+        w_err = np.abs(uise.w_hat - traj.w)[:, 0]
+        if noisy:  # bounded by a noise-proportional level (|v| <= 1e-3)
+            assert e_uise[20:].max() < 1e-2
+            assert w_err[20:].max() < 1e-2
+        else:  # the hidden error decays with the invariant zero 0.5, down to solver precision (|x| ~ 1e6)
+            assert e_uise[20] < 1e-4 * e_uise[0]
+            assert e_uise[45:].max() < 1e-6
+            assert w_err[45:].max() < 1e-5
+        assert e_mhe[20:].min() > 1e3  # the bounded-disturbance MHE cannot follow w
+
+
+def test_closed_form_error_follows_the_closed_form():
+    system = closed_form.system()
+    cert = certify_strong_detectability(system, grid=2, pool_grid=3, pool_random=50)
+    assert cert.certified
+    setup = get("closed-form").setup()
+    traj = simulate(system, setup.x0, 50, u=setup.u, w=setup.w)
+    prior = np.array([traj.y[0, 0], 0.0])  # x1 from the first measurement, x2 off by 1
+    est = UISE(system, certificate=cert, N=12, x0_prior=prior)
+    assert not est.guaranteed and "does not apply" in est.guarantee  # N below min_horizon(): no claim
+    result = est.run(traj.u, traj.y)
+    e1, e2 = (traj.x - result.x_hat).T
+    expected = closed_form.noise_free_error(traj.x[:, 0], traj.x[0, 1] - prior[1])
+    assert np.abs(e1).max() < 1e-9
+    np.testing.assert_allclose(e2, expected, atol=1e-9)
+    # w[k-1] = x1[k] - x1[k-1] - beta sin(x2[k-1]): its error is -beta (sin x2 - sin x2_hat)
+    beta = 0.5
+    w_expected_err = -beta * (np.sin(traj.x[:-1, 1]) - np.sin(result.x_hat[:-1, 1]))
+    np.testing.assert_allclose(traj.w[:, 0] - result.w_hat[:, 0], w_expected_err, atol=1e-8)
+
+
+def test_fie_and_uise_agree_while_k_le_N():
+    system = closed_form.system()
+    weights = UISEWeights(mu=0.8, P=np.diag([0.06, 0.0025]), R_y=[[1.4]], R_v=[[1.4]])
+    setup = get("closed-form").setup()
+    traj = simulate(system, setup.x0, 14, u=setup.u, w=setup.w, v=UniformNoise.symmetric(1e-2), seed=4)
+    prior = np.array([0.0, 0.0])
+    # independent solve paths: cold-started FIE against the warm-started UISE
+    fie = FIE(system, weights=weights, x0_prior=prior, warm_start=False).run(traj.u, traj.y)
+    uise = UISE(system, weights=weights, N=14, x0_prior=prior).run(traj.u, traj.y)
+    np.testing.assert_allclose(fie.x_hat, uise.x_hat, atol=1e-7)
+    np.testing.assert_allclose(fie.w_hat, uise.w_hat, atol=1e-6)
+    assert fie.horizon is None and fie.window.tolist() == list(range(15))
+    # past N the UISE's window slides while the FIE's keeps growing
+    short = UISE(system, weights=weights, N=5, x0_prior=prior).run(traj.u, traj.y)
+    np.testing.assert_allclose(short.x_hat[:6], fie.x_hat[:6], atol=1e-7)
+    assert short.window.max() == 5
+
+
+def crop_weights(system):
+    """Paper's mu = 0.48, identity prior in scaled units, outputs weighted 1e6 against it."""
+    uise = UISEWeights.from_scales(system, 0.48, prior=1.0, output=1e6, noise=1.0)
+    mhe = MHEWeights.from_scales(system, 0.48, prior=1.0, disturbance=1.0, noise=1.0, output=1e6)
+    return uise, mhe
+
+
+def test_crop_noise_free_uise_converges_standard_mhe_does_not():
+    system = crop_growth.system()
+    scenario = crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 60, w=crop_growth.UnknownInputLaw())
+    prior = scenario.prior(traj.y[0])
+    w_uise, w_mhe = crop_weights(system)
+    uise = UISE(system, weights=w_uise, N=30, x0_prior=prior).run(traj.u, traj.y)
+    mhe = StandardMHE(system, weights=w_mhe, N=30, x0_prior=prior).run(traj.u, traj.y)
+    e_uise, e_mhe = np.abs(uise.error(traj.x)), np.abs(mhe.error(traj.x))
+    assert uise.failures == 0 and mhe.failures == 0
+    assert e_uise[0, 1] > 1e-4  # the prior of x^{d,1} is off ...
+    assert e_uise[30:, 1].max() < 2e-7  # ... and one full window later the error is at solver precision
+    assert np.abs(uise.w_hat[30:] - traj.w[30:]).max() < 2e-7  # unknown input reconstructed
+    assert e_mhe[30:, 1].min() > 1e-3
+    # the standard MHE keeps its unknown-input estimates in the known range; the UISE's are free
+    w_range = system.w_range
+    mhe_w = mhe.w_hat[~np.isnan(mhe.w_hat[:, 0])]
+    assert np.all(w_range.contains(mhe_w, tol=1e-9))
+    assert np.isnan(mhe.w_hat[-1, 0]) and not np.isnan(uise.w_hat).any()
+
+
+def test_crop_noisy_estimates_stay_in_X():
+    system = crop_growth.system()
+    scenario = crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 40, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    w_uise, w_mhe = crop_weights(system)
+    for est in (UISE(system, weights=w_uise, N=10), StandardMHE(system, weights=w_mhe, N=10)):
+        result = est.run(traj.u, traj.y, x0_prior=scenario.prior(traj.y[0]))
+        assert result.failures == 0
+        assert np.all(system.x.bounds.contains(result.x_hat, tol=1e-9))
+        assert np.abs(result.error(traj.x)[:, 0]).max() < 2e-5  # x^c: measured, noise 3e-6
+
+
+# ---------------------------------------------------------------------------------------------- weights, guarantees
+
+
+def test_window_weights_are_the_papers_formulas():
+    P, R_y, R_v = np.diag([2.0, 3.0]), np.array([[5.0]]), np.array([[7.0]])
+    mu, L = 0.5, 3
+    W = uise_window_weights(UISEWeights(mu=mu, P=P, R_y=R_y, R_v=R_v), L)
+    np.testing.assert_allclose(W.prior, 4 * mu**L * P)  # mu^N alpha_2(2 r) with V's P
+    for i in range(L + 1):  # node i is time k - j with j = L - i
+        j = L - i
+        np.testing.assert_allclose(W.y[i], 2 * mu ** (j - 1) * R_y)
+        np.testing.assert_allclose(W.v[i], 8 * mu ** (j - 1) * R_v)  # 2 sigma_v(2 r)
+    assert W.w is None
+    eta = 0.6
+    M = mhe_window_weights(MHEWeights(eta=eta, P=P, Q_w=[[11.0]], Q_v=[[13.0]], R=[[17.0]]), L)
+    np.testing.assert_allclose(M.prior, 2 * eta**L * P)
+    assert M.y.shape == (L, 1, 1)  # one-step-ahead: y[k-L .. k-1]
+    for i in range(L):
+        j = L - i
+        np.testing.assert_allclose(M.y[i], eta ** (j - 1) * 17.0)
+        np.testing.assert_allclose(M.w[i], 2 * eta ** (j - 1) * 11.0)
+        np.testing.assert_allclose(M.v[i], 2 * eta ** (j - 1) * 13.0)
+
+
+def test_certificate_gives_weights_horizon_and_guarantee(linear_case):
+    system, cert, delta = linear_case
+    est = UISE(system, certificate=cert)
+    assert cert.min_horizon() == est.N and est.guaranteed and est.guarantee.startswith("theo:MHE_full")
+    assert est.weights.mu == cert.mu
+    np.testing.assert_allclose(est.weights.P, cert.P)
+    explicit = UISE(system, weights=est.weights, N=5)
+    assert not explicit.guaranteed and "does not apply" in explicit.guarantee
+    assert FIE(system, certificate=cert).guaranteed
+    mhe = StandardMHE(system, certificate=delta)
+    assert delta.min_horizon() == mhe.N and mhe.guaranteed and "does not converge" in mhe.guarantee
+    assert not StandardMHE(system, certificate=delta, N=1).guaranteed
+    result = UISE(system, weights=est.weights, N=3).run(None, np.zeros((3, 1)), x0_prior=np.zeros(3))
+    assert "does not apply" in result.guarantee
+
+
+def test_certificate_and_weight_errors(linear_case):
+    system, cert, delta = linear_case
+    weights = UISEWeights.from_certificate(cert)
+    with pytest.raises(OptionError, match="exactly one"):
+        UISE(system, certificate=cert, weights=weights)
+    with pytest.raises(OptionError, match="exactly one"):
+        UISE(system)
+    with pytest.raises(OptionError, match="N"):
+        UISE(system, weights=weights)
+    unproven = certify_strong_detectability(
+        linear.with_invariant_zeros([1.5], seed=3, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))[0],
+        grid=2,
+        pool_grid=2,
+        pool_random=10,
+    )
+    with pytest.raises(CertificationError, match="not certified"):
+        UISE(system, certificate=unproven)
+    with pytest.raises(CertificationError, match="not certified"):
+        StandardMHE(system, certificate=UncertifiedDelta())  # its P is never read
+    with pytest.raises(OptionError, match="certificate"):
+        UISE(system, certificate=delta)  # a delta-IOSS certificate is not a strong-detectability one
+    with pytest.raises(OptionError, match="certificate"):
+        StandardMHE(system, certificate=cert)
+    with pytest.raises(OptionError, match=r"weights\.P"):
+        UISE(system, weights=UISEWeights(mu=0.5, P=np.eye(2), R_y=[[1.0]], R_v=[[1.0]]), N=3)
+    with pytest.raises(OptionError, match=r"weights\.mu"):
+        UISEWeights(mu=1.0, P=np.eye(3), R_y=[[1.0]], R_v=[[1.0]])
+    with pytest.raises(OptionError, match=r"weights\.R_y"):
+        UISEWeights(mu=0.5, P=np.eye(3), R_y=[[-1.0]], R_v=[[1.0]])
+    with pytest.raises(OptionError, match=r"weights\.eta"):
+        MHEWeights(eta=0.0, P=np.eye(3), Q_w=[[1.0]], Q_v=[[1.0]], R=[[1.0]])
+    with pytest.raises(OptionError, match="weights"):
+        StandardMHE(system, weights=weights, N=3)
+
+
+# ---------------------------------------------------------------------------------------------- streaming and runs
+
+
+@pytest.fixture(scope="module")
+def closed_form_case():
+    system = closed_form.system()
+    weights = UISEWeights(mu=0.8, P=np.diag([0.06, 0.0025]), R_y=[[1.4]], R_v=[[1.4]])
+    setup = get("closed-form").setup()
+    traj = simulate(system, setup.x0, 30, u=setup.u, w=setup.w, v=UniformNoise.symmetric(1e-2), seed=2)
+    return system, weights, traj
+
+
+def test_streaming_equals_run_with_bounded_memory(closed_form_case):
+    system, weights, traj = closed_form_case
+    N = 5
+    est = UISE(system, weights=weights, N=N, x0_prior=[0.0, 0.0])
+    result = est.run(traj.u, traj.y)
+    est.reset()
+    assert est.k == 0
+    for k in range(traj.steps + 1):
+        step = est.step(None if k == 0 else traj.u[k - 1], traj.y[k])
+        assert step.k == k and step.window == min(N, k)
+        np.testing.assert_array_equal(step.x_hat, result.x_hat[k])
+        if k:
+            assert step.w_index == k - 1
+            np.testing.assert_array_equal(step.w_hat, result.w_hat[k - 1])
+        assert len(est._u) <= N and len(est._y) <= N and len(est._priors) <= N
+    assert len(est._cache) == N + 1  # one window problem per length 0..N
+
+
+def test_warm_start_does_not_change_the_answer(closed_form_case):
+    system, weights, traj = closed_form_case
+    warm = UISE(system, weights=weights, N=6, x0_prior=[0.0, 0.0]).run(traj.u, traj.y)
+    cold = UISE(system, weights=weights, N=6, x0_prior=[0.0, 0.0], warm_start=False).run(traj.u, traj.y)
+    np.testing.assert_allclose(warm.x_hat, cold.x_hat, atol=1e-7)
+    np.testing.assert_allclose(warm.w_hat, cold.w_hat, atol=1e-6)
+
+
+def test_one_step_ahead_mhe_ignores_the_current_measurement(closed_form_case):
+    system, _, traj = closed_form_case
+    weights = MHEWeights(eta=0.5, P=np.eye(2), Q_w=[[1.0]], Q_v=[[1e4]], R=[[1e2]])
+    y = traj.y.copy()
+    first = StandardMHE(system, weights=weights, N=4, x0_prior=[0.0, 0.0]).run(traj.u, y)
+    y[-1] += 5.0
+    second = StandardMHE(system, weights=weights, N=4, x0_prior=[0.0, 0.0]).run(traj.u, y)
+    np.testing.assert_array_equal(first.x_hat, second.x_hat)
+    assert first.status[0] == "prior" and np.array_equal(first.x_hat[0], [0.0, 0.0])
+    assert np.isnan(first.w_hat[-1]).all() and not np.isnan(first.w_hat[:-1]).any()
+
+
+class FailingSolver:
+    """Wraps a backend and fails while the estimator is at one of the given steps."""
+
+    def __init__(self, inner, estimator_ref, fail_steps):
+        self.inner, self.problem = inner, inner.problem
+        self.estimator_ref, self.fail_steps = estimator_ref, fail_steps
+
+    def solve(self, z0, p, lam_x0=None, lam_g0=None):
+        solution = self.inner.solve(z0, p, lam_x0, lam_g0)
+        if self.estimator_ref[0].k in self.fail_steps:
+            return type(solution)(**{**solution.__dict__, "status": "Injected_Failure", "success": False})
+        return solution
+
+
+def test_failed_solve_propagates_and_strict_raises(closed_form_case, monkeypatch):
+    system, weights, traj = closed_form_case
+    ref = []
+    real = base_module.make_solver
+    monkeypatch.setattr(base_module, "make_solver", lambda *a, **kw: FailingSolver(real(*a, **kw), ref, {7, 8}))
+    est = UISE(system, weights=weights, N=4, x0_prior=[0.0, 0.0])
+    ref.append(est)
+    result = est.run(traj.u, traj.y)
+    assert result.status[7] == "propagated (Injected_Failure)" and not result.success[7]
+    assert result.failures == 2 and result.success[9] and np.isnan(result.cost[7])
+    x7 = system.x.bounds.clip(system.step(result.x_hat[6], traj.u[6], result.w_hat[5]))
+    np.testing.assert_allclose(result.x_hat[7], x7)
+    np.testing.assert_allclose(result.w_hat[6], result.w_hat[5])  # held
+    assert np.all(np.isfinite(result.x_hat))
+    strict = UISE(system, weights=weights, N=4, x0_prior=[0.0, 0.0], strict=True)
+    ref[0] = strict
+    with pytest.raises(SolverError, match="k=7"):
+        strict.run(traj.u, traj.y)
+    assert strict.k == 7  # the failed step was not committed
+
+
+def test_real_solver_failure_is_recorded(closed_form_case):
+    system, weights, traj = closed_form_case
+    est = UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver_options={"max_iter": 1})
+    result = est.run(traj.u[:5], traj.y[:6])
+    assert result.failures > 0
+    assert all(s.startswith("propagated (Maximum_Iterations_Exceeded)") for s in result.status[~result.success])
+    with pytest.raises(SolverError):
+        UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver_options={"max_iter": 1}, strict=True).run(
+            traj.u[:5], traj.y[:6]
+        )
+
+
+def test_missing_measurements_are_dropped_and_recorded():
+    system = crop_growth.system()
+    scenario = crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 20, w=crop_growth.UnknownInputLaw())
+    y = traj.y.copy()
+    y[5, 1] = np.nan  # one channel
+    y[9:11] = np.nan  # whole samples
+    w_uise, _ = crop_weights(system)
+    result = UISE(system, weights=w_uise, N=5).run(traj.u, y, x0_prior=traj.x[0])
+    assert result.failures == 0
+    np.testing.assert_array_equal(result.missing, np.isnan(y))
+    assert result.to_pandas()["missing"].tolist()[5] == 1
+    # noise-free and started at the truth: exact wherever y[k] has the x^c channel; where a whole sample is
+    # missing, x^c[k] is free (w is unbounded) and stays at its model prediction, inside X
+    error = np.abs(result.error(traj.x)[:, 0])
+    measured = ~np.isnan(y[:, 0])
+    assert error[measured].max() < 1e-9
+    assert np.all(system.x.bounds.contains(result.x_hat[~measured]))
+
+
+def test_result_is_frozen_and_tabulates(closed_form_case):
+    system, weights, traj = closed_form_case
+    result = UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0]).run(traj.u[:6], traj.y[:7])
+    assert isinstance(result, EstimationResult)
+    assert result.x_hat.shape == (7, 2) and result.w_hat.shape == (6, 1) and result.status.shape == (7,)
+    assert result.iterations.dtype == np.int64 and np.all(result.solve_time > 0)
+    with pytest.raises(ValueError):
+        result.x_hat[0, 0] = 1.0
+    frame = result.to_pandas()
+    assert len(frame) == 7 and frame.index.name == "k"
+    assert {"t", "x1_hat", "x2_hat", "w_hat", "status", "iterations", "solve_time", "cost"} <= set(frame.columns)
+    assert np.isnan(frame["w_hat"].iloc[-1])

@@ -1,0 +1,179 @@
+"""Bad input gives typed errors naming the argument; property tests for shapes and missing data."""
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from uiest import DataError, OptionError, simulate
+from uiest.estimators import FIE, UISE, MHEWeights, StandardMHE, UISEWeights
+from uiest.models import closed_form, crop_growth, linear
+
+SYSTEM = linear.example()  # nx=3, nu=0, nw=1, ny=nv=1, X = [-10, 10]^3
+WEIGHTS = UISEWeights(mu=0.5, P=np.eye(3) / 400.0, R_y=[[0.05]], R_v=[[0.05]])
+MHE_WEIGHTS = MHEWeights(eta=0.5, P=np.eye(3), Q_w=[[1.0]], Q_v=[[1.0]], R=[[1.0]])
+TRAJ = simulate(SYSTEM, [0.5, -0.5, 0.25], 12, w=np.sin(np.arange(12.0))[:, None])
+N_SMALL = 3
+# built once: hypothesis re-runs them (run() resets)
+UISE_EST = UISE(SYSTEM, weights=WEIGHTS, N=N_SMALL, x0_prior=np.zeros(3))
+MHE_EST = StandardMHE(SYSTEM, weights=MHE_WEIGHTS, N=N_SMALL, x0_prior=np.zeros(3))
+CF_SYSTEM = closed_form.system()
+CF_EST = UISE(CF_SYSTEM, weights=UISEWeights(mu=0.8, P=np.eye(2), R_y=[[1.0]], R_v=[[1.0]]), N=2, x0_prior=[0.0, 0.0])
+
+
+@pytest.mark.parametrize(
+    ("u", "y", "match"),
+    [
+        (None, TRAJ.y[:, 0], r"y: expected shape \(K\+1, 1\)"),  # 1-D y
+        (None, np.hstack([TRAJ.y, TRAJ.y]), r"y: expected shape"),  # wrong ny
+        (None, np.zeros((0, 1)), r"K\+1 >= 1"),
+        (None, np.where(np.arange(13)[:, None] == 4, np.inf, TRAJ.y), "y: expected finite values or NaN"),
+        (None, "text", "y: expected"),
+        (np.zeros((12, 1)), TRAJ.y, r"u: expected shape \(K, 0\)"),  # nu = 0 system given an input
+    ],
+)
+def test_bad_run_data(u, y, match):
+    with pytest.raises(DataError, match=match):
+        UISE_EST.run(u, y)
+
+
+def test_bad_known_inputs():
+    y = np.zeros((6, 1))
+    with pytest.raises(DataError, match="u, y: length mismatch"):
+        CF_EST.run(np.zeros((4, 1)), y)
+    with pytest.raises(DataError, match="u: expected finite values"):
+        CF_EST.run(np.array([[0.0], [np.nan], [0.0], [0.0], [0.0]]), y)
+    with pytest.raises(DataError, match=r"u: expected shape \(K, 1\)"):
+        CF_EST.run(np.zeros(5), y)
+    with pytest.raises(DataError, match="u: required"):
+        CF_EST.run(None, y)
+
+
+def test_all_nan_window_is_rejected():
+    y = TRAJ.y.copy()
+    y[4 : 4 + N_SMALL + 1] = np.nan  # the UISE's whole window k-3..k at k = 7
+    with pytest.raises(DataError, match=r"y: every measurement in the window 4\.\.7 of step k=7"):
+        UISE_EST.run(None, y)
+    y = TRAJ.y.copy()
+    y[0] = np.nan
+    with pytest.raises(DataError, match=r"window 0\.\.0 of step k=0"):
+        UISE_EST.run(None, y)
+    # the one-step-ahead MHE needs y[k-N..k-1]: a missing y[0] only matters at k = 1
+    with pytest.raises(DataError, match=r"window 0\.\.0 of step k=1"):
+        MHE_EST.run(None, y)
+    # streaming: the step is refused and nothing is committed
+    est = UISE(SYSTEM, weights=WEIGHTS, N=1, x0_prior=np.zeros(3))
+    est.step(None, [0.1])
+    est.step(None, [np.nan])
+    with pytest.raises(DataError, match="missing"):
+        est.step(None, [np.nan])
+    assert est.k == 2
+
+
+def test_bad_priors_and_options():
+    with pytest.raises(DataError, match="x0_prior: expected a point in X"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, x0_prior=[11.0, 0.0, 0.0])
+    with pytest.raises(DataError, match="x0_prior: expected shape"):
+        UISE_EST.run(None, TRAJ.y, x0_prior=[0.0, 0.0])
+    with pytest.raises(DataError, match="x0_prior: expected finite"):
+        UISE_EST.reset([np.nan, 0.0, 0.0])
+    with pytest.raises(OptionError, match="x0_prior: required"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3).run(None, TRAJ.y)
+    with pytest.raises(OptionError, match="x0_prior: required"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3).step(None, [0.0])
+    for bad in (0, -2, 1.5, True, "3"):
+        with pytest.raises(OptionError, match="N: expected an integer horizon >= 1"):
+            UISE(SYSTEM, weights=WEIGHTS, N=bad)
+    with pytest.raises(OptionError, match="N: expected"):
+        StandardMHE(SYSTEM, weights=MHE_WEIGHTS, N=0)
+    with pytest.raises(OptionError, match="solver: unknown backend"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, solver="fatrop")
+    with pytest.raises(OptionError, match="solver_options"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, solver_options=[("tol", 1)])
+    with pytest.raises(DataError, match="v_prior: expected a point in V"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, v_prior=[1.0])
+    with pytest.raises(OptionError, match="system"):
+        UISE("crop", weights=WEIGHTS, N=3)
+    with pytest.raises(TypeError):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, horizon=4)  # unknown keywords raise
+    crop = crop_growth.system()
+    crop_weights = MHEWeights.from_scales(crop, 0.48)
+    with pytest.raises(DataError, match="w_prior: expected a point in the known range"):
+        StandardMHE(crop, weights=crop_weights, N=3, w_prior=[0.5])
+    assert StandardMHE(crop, weights=crop_weights, N=3, w_prior=[0.5], use_w_range=False).w_range is None
+
+
+def test_bad_step_arguments():
+    est = UISE(CF_SYSTEM, weights=UISEWeights(mu=0.8, P=np.eye(2), R_y=[[1.0]], R_v=[[1.0]]), N=2, x0_prior=[0, 0])
+    with pytest.raises(DataError, match="u_prev: expected None at k = 0"):
+        est.step([0.0], [0.0])
+    with pytest.raises(DataError, match=r"y: expected shape \(1,\)"):
+        est.step(None, [0.0, 1.0])
+    with pytest.raises(DataError, match="y: expected finite values or NaN"):
+        est.step(None, [np.inf])
+    est.step(None, [0.0])
+    with pytest.raises(DataError, match=r"u_prev: expected the known input u\[0\]"):
+        est.step(None, [0.0])
+    with pytest.raises(DataError, match="u_prev: expected finite"):
+        est.step([np.nan], [0.0])
+    assert est.step([0.0], 0.0).k == 1  # a scalar y for ny = 1
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(steps=st.integers(0, 8), which=st.sampled_from(["uise", "mhe"]))
+def test_result_shapes(steps, which):
+    est = UISE_EST if which == "uise" else MHE_EST
+    result = est.run(None, TRAJ.y[: steps + 1])
+    assert result.x_hat.shape == (steps + 1, 3) and result.w_hat.shape == (steps, 1)
+    for name in ("status", "success", "iterations", "solve_time", "cost", "window", "t"):
+        assert getattr(result, name).shape == (steps + 1,)
+    assert result.missing.shape == (steps + 1, 1)
+    assert result.window.tolist() == [min(N_SMALL, k) for k in range(steps + 1)]
+    assert np.all(np.isfinite(result.x_hat)) and result.failures == 0
+    assert len(result.to_pandas()) == steps + 1
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    steps=st.integers(1, 10),
+    extra=st.integers(-3, 3).filter(lambda n: n != 0),
+)
+def test_length_mismatch_names_u(steps, extra):
+    u = np.zeros((steps + extra, 1)) if steps + extra >= 0 else np.zeros((0, 1))
+    if u.shape[0] == steps:
+        return
+    with pytest.raises(DataError, match="u, y: length mismatch"):
+        CF_EST.run(u, np.zeros((steps + 1, 1)))
+
+
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    mask=st.lists(st.sampled_from([False, False, False, True]), min_size=13, max_size=13),
+    which=st.sampled_from(["uise", "mhe", "fie"]),
+)
+def test_missing_data(mask, which):
+    missing = np.array(mask)
+    y = np.where(missing[:, None], np.nan, TRAJ.y)
+    if which == "fie":
+        est, y = FIE(SYSTEM, weights=WEIGHTS, x0_prior=np.zeros(3)), y[:7]
+        missing = missing[:7]
+        horizon = None
+    else:
+        est, horizon = (UISE_EST if which == "uise" else MHE_EST), N_SMALL
+    one_step = which == "mhe"
+    K = len(y) - 1
+    empty_window = False
+    for k in range(K + 1):
+        length = k if horizon is None else min(horizon, k)
+        first, last = k - length, (k - 1 if one_step else k)
+        if last >= first and missing[first : last + 1].all():
+            empty_window = True
+            break
+    if empty_window:
+        with pytest.raises(DataError, match="y: every measurement in the window"):
+            est.run(None, y)
+        return
+    result = est.run(None, y)
+    np.testing.assert_array_equal(result.missing[:, 0], missing)
+    assert result.failures == 0 and np.all(np.isfinite(result.x_hat))
+    assert np.all(SYSTEM.x.bounds.contains(result.x_hat, tol=1e-9))
