@@ -1,14 +1,11 @@
 """Estimators against known answers: linear systems with huge unknown inputs, the closed-form system,
 FIE == UISE while k <= N, the crop model; weights, guarantees, streaming, warm starts, failures."""
 
-from dataclasses import dataclass
-
-import cvxpy as cp
 import numpy as np
 import pytest
 
 from uiest import CertificationError, OptionError, SolverError, UniformNoise, simulate
-from uiest.detectability import certify_strong_detectability
+from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 from uiest.estimators import (
     FIE,
     UISE,
@@ -25,21 +22,6 @@ from uiest.models import closed_form, crop_growth, get, linear
 # ---------------------------------------------------------------------------------------------- helpers
 
 
-@dataclass(frozen=True)
-class LinearDeltaIOSS:
-    """A delta-IOSS certificate (Schiller et al. 2023, Corollary 3) for x+ = Ax + Bw, y = Cx + v."""
-
-    certified: bool
-    eta: float
-    P: np.ndarray
-    Q_w: np.ndarray
-    Q_v: np.ndarray
-    R: np.ndarray
-
-    def min_horizon(self) -> int:
-        return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
-
-
 class UncertifiedDelta:
     """Like an uncertified DeltaIOSS: reading P fails."""
 
@@ -53,23 +35,6 @@ class UncertifiedDelta:
         raise CertificationError("not certified")
 
 
-def linear_delta_ioss(A, B, C, eta=0.5):
-    n, q, p = A.shape[0], B.shape[1], C.shape[0]
-    P = cp.Variable((n, n), symmetric=True)
-    qw, qv, r = cp.Variable(nonneg=True), cp.Variable(nonneg=True), cp.Variable(nonneg=True)
-    Bd = np.hstack([B, np.zeros((n, p))])  # generalised disturbance d = (w, v)
-    Dd = np.hstack([np.zeros((p, q)), np.eye(p)])
-    Q = cp.bmat([[qw * np.eye(q), np.zeros((q, p))], [np.zeros((p, q)), qv * np.eye(p)]])
-    CD = np.hstack([C, Dd])
-    block = cp.bmat([[eta * P, np.zeros((n, q + p))], [np.zeros((q + p, n)), Q]]) + r * CD.T @ CD
-    AB = np.hstack([A, Bd])
-    lmi = cp.bmat([[block, AB.T @ P], [P @ AB, P]])
-    problem = cp.Problem(cp.Minimize(qw + qv + r), [P >> np.eye(n), 0.5 * (lmi + lmi.T) >> 0])
-    problem.solve(solver=cp.CLARABEL)
-    assert problem.status == "optimal"
-    return LinearDeltaIOSS(True, eta, P.value, qw.value * np.eye(q), qv.value * np.eye(p), r.value * np.eye(p))
-
-
 @pytest.fixture(scope="module")
 def linear_case():
     """Zeros {0.5, 0.2}; X unbounded (the states follow w up to 1e6); certificates for both estimators."""
@@ -77,7 +42,10 @@ def linear_case():
     cert = certify_strong_detectability(bounded, grid=2, pool_grid=2, pool_random=10)  # LTI: constant Jacobians
     assert cert.certified and cert.mu_min == pytest.approx(0.25, abs=1e-3)
     system = linear.linear_system(A, B, C, v_bounds=(-1e-3, 1e-3))
-    return system, cert, linear_delta_ioss(A, B, C)
+    # delta-IOSS at eta = 0.5 (Schiller et al., Cor. 3); for an LTI system the LMI does not depend on the domain
+    delta = certify_delta_ioss(bounded, eta=0.5, w_bounds=(-1.0, 1.0), grid=2, pool_grid=2, pool_random=10)
+    assert delta.certified
+    return system, cert, delta
 
 
 K_LIN = 60
