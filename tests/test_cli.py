@@ -50,3 +50,14 @@ def test_certify_prints_the_table_and_writes_json(tmp_path):
     assert all(c["verify_worst_ratio"] <= 1.0 for c in data["certificates"])
     bad = runner.invoke(app, ["certify", "closed-form", "--structure", "diagonal", "--out", str(out)])
     assert bad.exit_code == 2 and "structure" in bad.output
+
+
+def test_reproduce_runs_a_scenario_file(tmp_path):
+    from test_experiments import tiny
+
+    path = tiny().with_overrides(runs=1, cases=("noise-free",)).to_toml(tmp_path / "tiny.toml")
+    result = runner.invoke(app, ["reproduce", "--scenario", str(path), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "out" / "report.md").exists() and "UISE (measured)" in result.output
+    bad = runner.invoke(app, ["reproduce", "no-such-study", "--out", str(tmp_path)])
+    assert bad.exit_code == 2 and "study" in bad.output

@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from uiest import models
-from uiest.errors import UiestError
+from uiest.errors import OptionError, UiestError
 
 app = typer.Typer(
     name="uiest",
@@ -189,16 +189,48 @@ def _number(value: Any) -> str:
 @app.command()
 @_user_errors
 def reproduce(
-    study: Annotated[str, typer.Argument(help="Study to reproduce (crop-growth).")] = "crop-growth",
+    study: Annotated[
+        str, typer.Argument(help="Study to reproduce: crop-growth (ignored with --scenario).")
+    ] = "crop-growth",
+    quick: Annotated[bool, typer.Option(help="2 runs instead of 20 (a check in under 2 minutes).")] = False,
+    runs: Annotated[int | None, typer.Option(help="Monte Carlo runs per case.")] = None,
+    steps: Annotated[int | None, typer.Option(help="Steps K per run.")] = None,
+    solver: Annotated[str, typer.Option(help="Window solver backend.")] = "ipopt",
+    scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
+    out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
 ) -> None:
-    """Reproduce the paper's crop-growth study (arrives with issue 6; not available yet)."""
-    error_console.print(
-        f"`uiest reproduce {study}` is not available yet: it arrives with the estimators (issues 3-6). "
-        "Today `uiest simulate crop-growth` simulates the paper's model.",
-        highlight=False,
-        soft_wrap=True,
-    )
-    raise typer.Exit(code=1)
+    """Reproduce the paper's crop-growth study: figures, Table 1, report.md (or run a scenario file)."""
+    import time
+
+    from rich.progress import SpinnerColumn
+
+    from uiest.experiments import Scenario, crop_growth_scenario, run_study, write_report
+
+    if scenario is not None:
+        setting = Scenario.from_toml(scenario)
+    elif study == "crop-growth":
+        setting = crop_growth_scenario()
+    else:
+        raise OptionError(f"study: expected 'crop-growth' or --scenario FILE.toml, got {study!r}")
+    setting = setting.with_overrides(runs=2 if quick and runs is None else runs, steps=steps)
+    folder = out if out is not None else Path("out") / setting.name
+    total = setting.runs * len(setting.cases) * len(setting.estimators)
+    start = time.perf_counter()
+    with Progress(
+        SpinnerColumn(),
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    ) as bar:
+        task = bar.add_task(f"{setting.name}", total=total)
+        result = run_study(
+            setting, solver=solver, progress=lambda label: bar.update(task, advance=1, description=label)
+        )
+    manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
+    console.print((folder / "table1.md").read_text(), highlight=False)
+    console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})")
 
 
 def main() -> None:

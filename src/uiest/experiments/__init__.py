@@ -1,0 +1,17 @@
+"""Studies: scenarios (TOML), a runner over runs and estimators, metrics and reports."""
+
+from uiest.experiments.metrics import accuracy, timing
+from uiest.experiments.report import write_report
+from uiest.experiments.runner import StudyResult, run_study
+from uiest.experiments.scenario import EstimatorSpec, Scenario, crop_growth_scenario
+
+__all__ = [
+    "EstimatorSpec",
+    "Scenario",
+    "StudyResult",
+    "accuracy",
+    "crop_growth_scenario",
+    "run_study",
+    "timing",
+    "write_report",
+]

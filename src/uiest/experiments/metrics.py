@@ -1,0 +1,82 @@
+"""Accuracy and timing metrics of a study (per case and estimator)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from uiest.experiments.runner import StudyResult
+
+
+def accuracy(study: StudyResult) -> pd.DataFrame:
+    """Accuracy per (case, estimator, state) over all runs.
+
+    RMSE and max |error| after ``settle``, the mean final |error|, and the error growth (mean
+    |error| over the last quarter of the run divided by the mean over the quarter after
+    ``settle``; > 1: the error grows over the run).
+    """
+    frame = study.steps
+    if frame.empty:
+        return pd.DataFrame()
+    scenario = study.scenario
+    x_names = state_names(study)
+    settled = frame[frame["k"] >= scenario.settle]
+    span = scenario.steps - scenario.settle
+    early = frame[(frame["k"] >= scenario.settle) & (frame["k"] < scenario.settle + max(1, span // 4))]
+    late = frame[frame["k"] > scenario.steps - max(1, span // 4)]
+    final = frame[frame["k"] == scenario.steps]
+    rows = []
+    for (case, name), group in settled.groupby(["case", "estimator"], sort=False):
+        for state in x_names:
+            err = np.abs(group[state] - group[f"{state}_hat"])
+
+            def mean_abs(part: pd.DataFrame, state: str = state, case: str = case, name: str = name) -> float:
+                sel = part[(part["case"] == case) & (part["estimator"] == name)]
+                return float(np.abs(sel[state] - sel[f"{state}_hat"]).mean())
+
+            rows.append(
+                {
+                    "case": case,
+                    "estimator": name,
+                    "state": state,
+                    "rmse": float(np.sqrt((err**2).mean())),
+                    "max_abs_error": float(err.max()),
+                    "final_abs_error": mean_abs(final),
+                    "growth": mean_abs(late) / max(mean_abs(early), 1e-300),
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def timing(study: StudyResult) -> pd.DataFrame:
+    """Solve time per sample in ms per (case, estimator).
+
+    Mean, median, p95 and max over all samples, and the paper's ``t_max``: the maximal (over
+    runs) average (over samples) computation time.
+    """
+    frame = study.steps
+    if frame.empty:
+        return pd.DataFrame()
+    rows = []
+    for (case, name), group in frame.groupby(["case", "estimator"], sort=False):
+        ms = 1e3 * group["solve_time"].to_numpy()
+        per_run = 1e3 * group.groupby("run")["solve_time"].mean()
+        rows.append(
+            {
+                "case": case,
+                "estimator": name,
+                "mean_ms": float(ms.mean()),
+                "median_ms": float(np.median(ms)),
+                "p95_ms": float(np.percentile(ms, 95)),
+                "max_ms": float(ms.max()),
+                "t_max_ms": float(per_run.max()),
+                "failed_steps": int((~group["success"].astype(bool)).sum()),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def state_names(study: StudyResult) -> list[str]:
+    """Names of the states, as used in the columns of ``study.steps``."""
+    truth = next(iter(study.truths.values()))
+    return list(truth.names.get("x") or tuple(f"x{i}" for i in range(truth.x.shape[1])))

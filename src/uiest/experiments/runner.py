@@ -1,0 +1,177 @@
+"""Run a :class:`~uiest.experiments.scenario.Scenario`: simulate, estimate, record everything.
+
+Every run and estimator is recorded even when a solve fails (the estimators propagate and
+record the status); an estimator that raises on a run is recorded with the error message and
+the study goes on.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from uiest import models
+from uiest.box import FloatArray
+from uiest.errors import OptionError, UiestError
+from uiest.estimators import FIE, UISE, EstimationResult, MHEWeights, StandardMHE, UISEWeights
+from uiest.experiments.scenario import EstimatorSpec, Scenario
+from uiest.results import Trajectory
+from uiest.simulate import simulate
+from uiest.system import System
+
+Builder = Callable[[System, EstimatorSpec, FloatArray, str], object]
+
+
+def _uise(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    weights = UISEWeights.from_scales(
+        system, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
+    )
+    return UISE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
+
+
+def _fie(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    weights = UISEWeights.from_scales(
+        system, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
+    )
+    return FIE(system, weights=weights, x0_prior=prior, solver=solver)
+
+
+def _standard_mhe(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    weights = MHEWeights.from_scales(
+        system,
+        spec.mu,
+        prior=spec.prior_weight,
+        output=spec.output_weight,
+        noise=spec.noise_weight,
+        disturbance=spec.disturbance_weight,
+    )
+    return StandardMHE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
+
+
+BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe}
+"""Estimator factories by ``EstimatorSpec.kind``."""
+
+
+@dataclass(frozen=True)
+class StudyResult:
+    """Everything a study produced, as tables (no pickles).
+
+    Attributes
+    ----------
+    scenario : Scenario
+    steps : pandas.DataFrame
+        One row per (case, run, estimator, k): ``t``, true and estimated states
+        (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time``, ``status``.
+    runs : pandas.DataFrame
+        One row per (case, run, estimator): ``x0``, wall time, failures, ``error`` (message if
+        the estimator raised, else empty).
+    truths : dict
+        ``(case, run) -> Trajectory`` of the simulated truth.
+    results : dict
+        ``(case, run, estimator) -> EstimationResult``.
+
+    """
+
+    scenario: Scenario
+    steps: pd.DataFrame
+    runs: pd.DataFrame
+    truths: dict[tuple[str, int], Trajectory]
+    results: dict[tuple[str, int, str], EstimationResult]
+
+
+def initial_state(scenario: Scenario, default: FloatArray, run: int) -> FloatArray:
+    """x0 of run ``run``: the nominal x0 for run 0, else uniform in ``[x0_lower, x0_upper]``."""
+    nominal = np.asarray(scenario.x0 if scenario.x0 else default, dtype=float)
+    if run == 0 or not scenario.x0_lower:
+        return nominal
+    rng = np.random.default_rng([scenario.seed, run, 17])
+    return rng.uniform(np.asarray(scenario.x0_lower), np.asarray(scenario.x0_upper))
+
+
+def prior_for(scenario: Scenario, system: System, y0: FloatArray) -> FloatArray:
+    """The estimators' prior: ``scenario.prior`` with NaNs filled from ``y0`` (``prior_from_output``)."""
+    prior = np.asarray(scenario.prior if scenario.prior else system.x.bounds.center, dtype=float).copy()
+    if prior.shape != (system.nx,):
+        raise OptionError(f"prior: expected {system.nx} values, got {prior.shape}")
+    for state, output in scenario.prior_from_output:
+        prior[state] = y0[output]
+    if not np.all(np.isfinite(prior)):
+        raise OptionError(f"prior: NaN entries not filled by prior_from_output: {prior.tolist()}")
+    return prior
+
+
+def run_study(
+    scenario: Scenario,
+    *,
+    solver: str = "ipopt",
+    progress: Callable[[str], None] | None = None,
+) -> StudyResult:
+    """Simulate every (case, run) and run every estimator on it.
+
+    ``progress(label)`` is called after each estimator run (for progress bars).
+    """
+    entry = models.get(scenario.model)
+    system = entry.build()
+    setup = entry.setup()
+    for spec in scenario.estimators:
+        if spec.kind not in BUILDERS:
+            raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
+    step_frames, run_rows = [], []
+    truths: dict[tuple[str, int], Trajectory] = {}
+    results: dict[tuple[str, int, str], EstimationResult] = {}
+    for case in scenario.cases:
+        for run in range(scenario.runs):
+            x0 = initial_state(scenario, setup.x0, run)
+            noise = setup.noise if case == "noisy" else None
+            truth = simulate(system, x0, scenario.steps, u=setup.u, w=setup.w, v=noise, seed=scenario.seed + run)
+            truths[(case, run)] = truth
+            prior = prior_for(scenario, system, truth.y[0])
+            for spec in scenario.estimators:
+                start = time.perf_counter()
+                error = ""
+                try:
+                    estimator = BUILDERS[spec.kind](system, spec, prior, solver)
+                    result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+                except (UiestError, RuntimeError) as exc:  # recorded; the study goes on
+                    error = f"{type(exc).__name__}: {exc}"
+                    result = None
+                wall = time.perf_counter() - start
+                if result is not None:
+                    results[(case, run, spec.name)] = result
+                    step_frames.append(_step_frame(case, run, spec.name, truth, result))
+                run_rows.append(
+                    {
+                        "case": case,
+                        "run": run,
+                        "estimator": spec.name,
+                        "x0": list(map(float, x0)),
+                        "wall_time_s": wall,
+                        "failures": result.failures if result is not None else -1,
+                        "error": error,
+                    }
+                )
+                if progress is not None:
+                    progress(f"{case} run {run + 1}/{scenario.runs}: {spec.name}")
+    steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
+    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results)
+
+
+def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
+    x_names = truth.names.get("x") or tuple(f"x{i}" for i in range(truth.x.shape[1]))
+    w_names = truth.names.get("w") or tuple(f"w{i}" for i in range(truth.w.shape[1]))
+    data: dict[str, object] = {"case": case, "run": run, "estimator": name, "k": np.arange(truth.x.shape[0]),
+                               "t": truth.t}  # fmt: skip
+    for i, label in enumerate(x_names):
+        data[label] = truth.x[:, i]
+        data[f"{label}_hat"] = result.x_hat[:, i]
+    for i, label in enumerate(w_names):
+        data[label] = np.append(truth.w[:, i], np.nan)
+        data[f"{label}_hat"] = np.append(result.w_hat[:, i], np.nan)
+    data["solve_time"] = result.solve_time
+    data["status"] = result.status
+    data["success"] = result.success
+    return pd.DataFrame(data)

@@ -1,0 +1,97 @@
+"""The study runner, metrics and report files on a tiny scenario."""
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from uiest import OptionError
+from uiest.experiments import (
+    EstimatorSpec,
+    Scenario,
+    accuracy,
+    crop_growth_scenario,
+    run_study,
+    timing,
+    write_report,
+)
+from uiest.experiments import runner as runner_module
+
+
+def tiny():
+    return Scenario(
+        name="tiny",
+        model="closed-form",
+        steps=12,
+        runs=2,
+        x0_lower=(0.0, 0.5),
+        x0_upper=(1.0, 1.5),
+        prior=(math.nan, 0.0),
+        prior_from_output=((0, 0),),
+        settle=4,
+        focus_state=1,
+        estimators=(
+            EstimatorSpec("UISE", "uise", N=4, mu=0.64, output_weight=1e4),
+            EstimatorSpec("standard MHE", "standard-mhe", N=4, mu=0.64),
+        ),
+    )
+
+
+def test_scenario_round_trips_through_toml(tmp_path):
+    scenario = crop_growth_scenario()
+    path = scenario.to_toml(tmp_path / "s.toml")
+    back = Scenario.from_toml(path)
+    assert back.to_dict() == scenario.to_dict()
+    assert math.isnan(back.prior[0]) and back.estimators == scenario.estimators
+    assert scenario.with_overrides(runs=3, steps=None).runs == 3
+    with pytest.raises(OptionError, match="unknown"):
+        scenario.with_overrides(nonsense=1)
+    with pytest.raises(OptionError, match="kind"):
+        EstimatorSpec("x", "kalman")
+    (tmp_path / "bad.toml").write_text('name = "x"\nmodel = "closed-form"\ncolour = 3\n')
+    with pytest.raises(OptionError, match="colour"):
+        Scenario.from_toml(tmp_path / "bad.toml")
+
+
+def test_runner_metrics_and_report(tmp_path):
+    scenario = tiny()
+    labels = []
+    study = run_study(scenario, progress=labels.append)
+    assert len(labels) == 2 * 2 * 2 and study.runs["error"].eq("").all()
+    # run 0 uses the nominal x0 (model default), run 1 a random one in the box
+    assert study.truths[("noise-free", 0)].x[0].tolist() == [0.5, 1.0]
+    x1 = study.truths[("noise-free", 1)].x[0]
+    assert np.all((x1 >= [0.0, 0.5]) & (x1 <= [1.0, 1.5]))
+    # the prior takes x1 from y0
+    steps = study.steps
+    assert len(steps) == 2 * 2 * 2 * 13 and {"x1", "x1_hat", "w", "w_hat", "solve_time", "status"} <= set(steps.columns)
+    acc = accuracy(study)
+    uise = acc[(acc.case == "noise-free") & (acc.estimator == "UISE") & (acc.state == "x1")]
+    frame = steps[(steps.case == "noise-free") & (steps.estimator == "UISE") & (steps.k >= 4)]
+    expected = np.sqrt(((frame.x1 - frame.x1_hat) ** 2).mean())
+    assert float(uise.rmse.iloc[0]) == pytest.approx(expected)
+    times = timing(study)
+    per_run = steps[(steps.case == "noisy") & (steps.estimator == "standard MHE")].groupby("run").solve_time.mean()
+    row = times[(times.case == "noisy") & (times.estimator == "standard MHE")]
+    assert float(row.t_max_ms.iloc[0]) == pytest.approx(1e3 * per_run.max())
+    manifest = write_report(study, tmp_path, wall_time=1.0)
+    for name in ("report.md", "table1.md", "table1.csv", "figure1_states.png", "figure2_errors.pdf",
+                 "figure3_unknown_input.png", "steps.parquet", "manifest.json", "scenario.toml"):  # fmt: skip
+        assert (tmp_path / name).stat().st_size > 0, name
+    assert pd.read_parquet(tmp_path / "steps.parquet").shape == steps.shape
+    data = json.loads((tmp_path / "manifest.json").read_text())
+    assert data["versions"]["casadi"] and data["scenario"]["name"] == "tiny" and manifest["files"]
+    assert "Claims of the paper" in (tmp_path / "report.md").read_text()
+
+
+def test_an_estimator_that_raises_is_recorded_and_the_study_goes_on(monkeypatch):
+    def broken(*args):
+        raise OptionError("broken on purpose")
+
+    monkeypatch.setitem(runner_module.BUILDERS, "standard-mhe", broken)
+    study = run_study(tiny().with_overrides(runs=1, cases=("noise-free",)))
+    errors = study.runs.set_index("estimator")["error"]
+    assert errors["standard MHE"] == "OptionError: broken on purpose" and errors["UISE"] == ""
+    assert set(study.steps.estimator) == {"UISE"}
