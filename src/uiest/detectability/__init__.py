@@ -4,9 +4,11 @@
 - :func:`certify_strong_detectability` (theo:Lyapunov): quadratic storage by LMIs.
 - :func:`certify_reduced_ioss` (ass:e-ioss): exponential i-IOSS of a reduced-order model.
 - :func:`certify_delta_ioss` (Schiller et al. 2023, Assumption 1): for the standard MHE.
+- :func:`window_information`: the smallest state difference one window's data can resolve.
 """
 
 from uiest.detectability.delta import DeltaIOSS, certify_delta_ioss
+from uiest.detectability.information import InformationBound, window_information
 from uiest.detectability.linear import LinearStrongDetectability, invariant_zeros, linear_strong_detectability
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.detectability.report import Verification
@@ -14,6 +16,7 @@ from uiest.detectability.strong import StrongDetectability, certify_strong_detec
 
 __all__ = [
     "DeltaIOSS",
+    "InformationBound",
     "LinearStrongDetectability",
     "ReducedIOSS",
     "StrongDetectability",
@@ -23,4 +26,5 @@ __all__ = [
     "certify_strong_detectability",
     "invariant_zeros",
     "linear_strong_detectability",
+    "window_information",
 ]

@@ -205,6 +205,54 @@ def claims(study: StudyResult, acc: pd.DataFrame, times: pd.DataFrame) -> list[s
     return lines
 
 
+def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.DataFrame:
+    """The window information bound of the focus state along the noisy run beside the measured errors.
+
+    For each estimator with a horizon N and discount mu: the median over windows ending at
+    ``k = max(N, settle), ..., K`` (every ``stride``) of the Cramer-Rao standard deviation and of
+    the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
+    standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
+    """
+    from uiest import models
+    from uiest.detectability import window_information
+    from uiest.noise import UniformNoise
+
+    scenario = study.scenario
+    if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
+        return pd.DataFrame()
+    entry = models.get(scenario.model)
+    noise = entry.setup().noise
+    if not isinstance(noise, UniformNoise):
+        return pd.DataFrame()
+    system = entry.build()
+    truth = study.truths[("noisy", run)]
+    std = np.maximum(np.abs(noise.lower), np.abs(noise.upper)) / np.sqrt(3.0)
+    focus = scenario.focus_state
+    acc = accuracy(study)
+    name_focus = state_names(study)[focus]
+    rows = []
+    for spec in scenario.estimators:
+        if spec.kind == "fie":
+            continue
+        ks = range(max(spec.N, scenario.settle), scenario.steps + 1, stride)
+        bounds = [
+            window_information(system, truth.x, truth.u, truth.w, k=k, N=spec.N, noise_std=std, mu=spec.mu) for k in ks
+        ]
+        measured = acc[(acc["case"] == "noisy") & (acc["estimator"] == spec.name) & (acc["state"] == name_focus)]
+        rows.append(
+            {
+                "estimator": spec.name,
+                "N": spec.N,
+                "mu": spec.mu,
+                "bound_std (median)": float(np.median([b.std_bound[focus] for b in bounds])),
+                "discounted_std (median)": float(np.median([b.std_discounted[focus] for b in bounds])),
+                "measured_rmse": float(measured["rmse"].iloc[0]) if len(measured) else float("nan"),
+                "X_width": float(system.x.bounds.width[focus]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -226,6 +274,26 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     written.append(out / "scenario.toml")
     focus = state_names(study)[scenario.focus_state]
     failures = study.runs[study.runs["error"] != ""]
+    info = information_table(study)
+    info.to_csv(out / "information.csv", index=False)
+    written.append(out / "information.csv")
+    info_section = (
+        [
+            f"## Information in the data: is the noisy {focus} error a limit of the estimator or of the data?",
+            "",
+            _markdown(info),
+            "",
+            f"`bound_std` is the Cramer-Rao standard deviation of {focus} at the end of one window (N transitions, "
+            "the unknown input free, noise std b/sqrt(3)); `discounted_std` the same for a least-squares estimator "
+            "with the discount mu on its output weights (see `uiest.detectability.window_information`). Where "
+            "these are comparable to or larger than the measured RMSE (or to X's width), the data of a window "
+            "cannot resolve the state any better: the error is then held by the prior and the constraints of X, "
+            "not by the estimator.",
+            "",
+        ]
+        if not info.empty
+        else []
+    )
     report = [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
@@ -250,6 +318,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "All states: `accuracy.csv`; timing details (mean, median, p95, max per sample): `timing.csv`; every "
         "step of every run: `steps.parquet`.",
         "",
+        *info_section,
         "## Figures",
         "",
         "![Figure 1](figure1_states.png)",
