@@ -16,7 +16,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from uiest.experiments.metrics import accuracy, state_names, timing
-from uiest.experiments.runner import StudyResult
+from uiest.experiments.runner import StudyResult, noise_model
 
 PAPER_T_MAX_MS = {
     "noise-free": {"standard MHE": 51.9, "UISE": 59.4, "two-stage UISE": 26.0},
@@ -221,7 +221,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
     entry = models.get(scenario.model)
-    noise = entry.setup().noise
+    noise = noise_model(scenario, entry.setup().noise)
     if not isinstance(noise, UniformNoise):
         return pd.DataFrame()
     system = entry.build()

@@ -19,6 +19,7 @@ from uiest.box import FloatArray
 from uiest.errors import OptionError, UiestError
 from uiest.estimators import FIE, UISE, EstimationResult, MHEWeights, StandardMHE, UISEWeights
 from uiest.experiments.scenario import EstimatorSpec, Scenario
+from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
 from uiest.simulate import simulate
 from uiest.system import System
@@ -104,6 +105,45 @@ def prior_for(scenario: Scenario, system: System, y0: FloatArray) -> FloatArray:
     return prior
 
 
+def noise_model(scenario: Scenario, noise: NoiseModel | None) -> NoiseModel | None:
+    """The model's noise scaled by ``scenario.noise_scale``."""
+    factor = scenario.noise_scale
+    if noise is None or factor == 1.0:
+        return noise
+    if isinstance(noise, UniformNoise):
+        return UniformNoise(
+            np.asarray(noise.lower, dtype=float) * factor, np.asarray(noise.upper, dtype=float) * factor
+        )
+    if isinstance(noise, GaussianNoise):
+        return GaussianNoise(np.asarray(noise.std, dtype=float) * factor, np.asarray(noise.mean, dtype=float) * factor)
+    raise OptionError(f"noise_scale: cannot scale a {type(noise).__name__}")
+
+
+def simulate_run(scenario: Scenario, case: str, run: int) -> tuple[System, Trajectory, FloatArray]:
+    """The system, the simulated truth and the estimators' prior of run ``run`` of ``case``.
+
+    Seeds depend only on (scenario.seed, run): the noise of run r is the same in every case and
+    every design point of a sweep (common random numbers).
+    """
+    entry = models.get(scenario.model)
+    system = entry.build()
+    setup = entry.setup()
+    x0 = initial_state(scenario, setup.x0, run)
+    noise = noise_model(scenario, setup.noise) if case == "noisy" else None
+    w = setup.w
+    if scenario.w_gain != 1.0:
+        law, gain = setup.w, scenario.w_gain
+        w = (lambda k, x: gain * np.asarray(law(k, x), dtype=float)) if callable(law) else gain * np.asarray(law)
+    truth = simulate(system, x0, scenario.steps, u=setup.u, w=w, v=noise, seed=scenario.seed + run)
+    prior = prior_for(scenario, system, truth.y[0])
+    if not np.isnan(scenario.initial_error):
+        rng = np.random.default_rng([scenario.seed, run, 29])
+        prior = x0 + scenario.initial_error * system.x.scale * rng.choice([-1.0, 1.0], size=system.nx)
+        for state, output in scenario.prior_from_output:
+            prior[state] = truth.y[0][output]
+    return system, truth, prior
+
+
 def run_study(
     scenario: Scenario,
     *,
@@ -114,9 +154,6 @@ def run_study(
 
     ``progress(label)`` is called after each estimator run (for progress bars).
     """
-    entry = models.get(scenario.model)
-    system = entry.build()
-    setup = entry.setup()
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
@@ -125,11 +162,9 @@ def run_study(
     results: dict[tuple[str, int, str], EstimationResult] = {}
     for case in scenario.cases:
         for run in range(scenario.runs):
-            x0 = initial_state(scenario, setup.x0, run)
-            noise = setup.noise if case == "noisy" else None
-            truth = simulate(system, x0, scenario.steps, u=setup.u, w=setup.w, v=noise, seed=scenario.seed + run)
+            system, truth, prior = simulate_run(scenario, case, run)
             truths[(case, run)] = truth
-            prior = prior_for(scenario, system, truth.y[0])
+            x0 = truth.x[0]
             for spec in scenario.estimators:
                 start = time.perf_counter()
                 error = ""

@@ -90,6 +90,14 @@ class Scenario:
         Steps after which accuracy metrics are computed.
     focus_state : int
         The state shown in Figure 1 and named in the report (the paper: x^{d,1}).
+    noise_scale : float
+        Factor on the model's noise in the noisy case.
+    w_gain : float
+        Factor on the model's unknown input (``w = w_gain * law(k, x)``).
+    initial_error : float
+        NaN: the estimators' prior is ``prior``. Otherwise the prior is the true x0 plus
+        ``initial_error * x.scale`` with random signs (seeded by the run), then
+        ``prior_from_output`` applies.
     estimators : tuple of EstimatorSpec
 
     """
@@ -107,6 +115,9 @@ class Scenario:
     prior_from_output: tuple[tuple[int, int], ...] = ()
     settle: int = 30
     focus_state: int = 0
+    noise_scale: float = 1.0
+    w_gain: float = 1.0
+    initial_error: float = math.nan
     estimators: tuple[EstimatorSpec, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
@@ -125,6 +136,10 @@ class Scenario:
             raise OptionError("x0_lower, x0_upper: expected the same length")
         if not 0 <= self.settle < self.steps:
             raise OptionError(f"settle: expected 0 <= settle < steps = {self.steps}, got {self.settle}")
+        if not (self.noise_scale >= 0.0 and math.isfinite(self.noise_scale)):
+            raise OptionError(f"noise_scale: expected a finite number >= 0, got {self.noise_scale!r}")
+        if not math.isfinite(self.w_gain):
+            raise OptionError(f"w_gain: expected a finite number, got {self.w_gain!r}")
 
     def with_overrides(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (None values are ignored); unknown names raise OptionError."""
@@ -138,6 +153,7 @@ class Scenario:
         """Plain data (TOML has no null or NaN: NaN priors are written as the string "nan")."""
         data = asdict(self)
         data["prior"] = ["nan" if math.isnan(v) else v for v in self.prior]
+        data["initial_error"] = "nan" if math.isnan(self.initial_error) else self.initial_error
         data["prior_from_output"] = [list(pair) for pair in self.prior_from_output]
         return data
 
@@ -166,6 +182,9 @@ class Scenario:
         for key in ("cases", "x0", "x0_lower", "x0_upper"):
             if key in values:
                 values[key] = tuple(values[key])
+        for key in ("noise_scale", "w_gain", "initial_error"):
+            if key in values:
+                values[key] = float(values[key])
         if "prior" in values:
             values["prior"] = tuple(float(v) for v in values["prior"])
         if "prior_from_output" in values:

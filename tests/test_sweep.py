@@ -1,0 +1,84 @@
+"""Sweeps: the same numbers serially, in local processes and on a Dask LocalCluster; resume; failures."""
+
+import math
+
+import pandas as pd
+import pytest
+
+from uiest import OptionError
+from uiest.experiments import EstimatorSpec, Scenario
+from uiest.experiments import runner as runner_module
+from uiest.experiments.sweep import Sweep, sweep
+
+
+def design():
+    scenario = Scenario(
+        name="tiny-sweep",
+        model="closed-form",
+        steps=10,
+        runs=2,
+        cases=("noisy",),
+        prior=(math.nan, 0.0),
+        prior_from_output=((0, 0),),
+        settle=3,
+        focus_state=1,
+        estimators=(EstimatorSpec("UISE", "uise", N=3, mu=0.64, output_weight=1e4),),
+    )
+    return Sweep(scenario, grid={"N": (2, 4), "noise_scale": (0.5,)})
+
+
+def numbers(frame):
+    """Everything but timings, in a canonical order."""
+    cols = [c for c in frame.columns if not c.endswith("_ms")]
+    return frame[cols].sort_values(["key", "estimator"]).reset_index(drop=True)
+
+
+def test_serial_processes_and_dask_agree_bit_for_bit(tmp_path):
+    serial = sweep(design(), tmp_path / "serial", workers=1)
+    assert len(serial) == 4 and set(serial["N"]) == {2, 4} and (serial["error"] == "").all()
+    processes = sweep(design(), tmp_path / "processes", workers=2)
+    pd.testing.assert_frame_equal(numbers(serial), numbers(processes))
+    dask = sweep(design(), tmp_path / "dask", workers=2, scheduler="local")
+    pd.testing.assert_frame_equal(numbers(serial), numbers(dask))
+    assert (tmp_path / "serial" / "summary.csv").exists() and (tmp_path / "serial" / "sweep_N.png").exists()
+
+
+def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
+    first = sweep(design(), tmp_path, workers=1, max_tasks=2)
+    assert len(first) == 2
+    stored = {p.name: p.stat().st_mtime_ns for p in (tmp_path / "runs").glob("*.parquet")}
+    seen = []
+    full = sweep(design(), tmp_path, workers=1, progress=seen.append)
+    assert len(full) == 4 and full["key"].is_unique
+    assert len(seen) == 2 and seen[-1].skipped == 2 and seen[-1].remaining == 0
+    for name, mtime in stored.items():
+        assert (tmp_path / "runs" / name).stat().st_mtime_ns == mtime
+
+
+def test_a_failing_estimator_is_recorded_and_the_sweep_goes_on(tmp_path, monkeypatch):
+    calls = {"n": 0}
+    real = runner_module.BUILDERS["uise"]
+
+    def flaky(system, spec, prior, solver):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OptionError("broken on purpose")
+        return real(system, spec, prior, solver)
+
+    monkeypatch.setitem(runner_module.BUILDERS, "uise", flaky)
+    results = sweep(design(), tmp_path, workers=1)
+    assert len(results) == 4 and (results["error"] == "OptionError: broken on purpose").sum() == 1
+
+
+def test_bad_designs_are_refused(tmp_path):
+    base = design().scenario
+    with pytest.raises(OptionError, match="cannot be swept"):
+        Sweep(base, grid={"colour": (1,)})
+    with pytest.raises(OptionError, match="estimator"):
+        Sweep(base, grid={"estimator": ("Kalman",)})
+    random = Sweep(base, random=3, ranges={"N": (2, 5), "output_weight": (1e2, 1e6)})
+    points = random.points()
+    assert len(points) == 3 and all(2 <= p["N"] <= 5 and 1e2 <= p["output_weight"] <= 1e6 for p in points)
+    (tmp_path / "s.toml").write_text("[scenario]\nname='x'\nmodel='closed-form'\n[sweep]\ngrid={N=[2]}\nextra=1\n")
+    with pytest.raises(OptionError, match="extra"):
+        Sweep.from_toml(tmp_path / "s.toml")
