@@ -61,3 +61,18 @@ def test_reproduce_runs_a_scenario_file(tmp_path):
     assert (tmp_path / "out" / "report.md").exists() and "UISE (measured)" in result.output
     bad = runner.invoke(app, ["reproduce", "no-such-study", "--out", str(tmp_path)])
     assert bad.exit_code == 2 and "study" in bad.output
+
+
+def test_sweep_command_runs_and_resumes(tmp_path):
+    design = tmp_path / "sweep.toml"
+    design.write_text(
+        "[scenario]\nname = 'cli-sweep'\nmodel = 'closed-form'\nsteps = 8\nruns = 1\ncases = ['noise-free']\n"
+        "settle = 2\n[[scenario.estimators]]\nname = 'UISE'\nkind = 'uise'\nN = 3\nmu = 0.64\n"
+        "[sweep]\ngrid = { N = [2, 3] }\n"
+    )
+    args = ["sweep", str(design), "--out", str(tmp_path / "out"), "--workers", "1"]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    assert "2 rows (0 failed)" in result.output
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0 and "2 rows" in again.output

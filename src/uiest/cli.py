@@ -233,6 +233,43 @@ def reproduce(
     console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})")
 
 
+@app.command()
+@_user_errors
+def sweep(
+    design: Annotated[Path, typer.Argument(help="Sweep TOML: [scenario] and [sweep] (grid, random, ranges).")],
+    out: Annotated[Path, typer.Option(help="Output folder (results are appended; re-running resumes).")] = Path(
+        "out/sweep"
+    ),
+    workers: Annotated[int | None, typer.Option(help="Worker processes (default: all cores).")] = None,
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
+    ] = None,
+    solver: Annotated[str, typer.Option(help="Default window solver backend.")] = "ipopt",
+) -> None:
+    """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
+    from uiest.experiments.sweep import Sweep, SweepProgress
+    from uiest.experiments.sweep import sweep as run_sweep
+
+    plan = Sweep.from_toml(design)
+    total = len(plan.tasks(solver))
+    with Progress(
+        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console
+    ) as bar:
+        task = bar.add_task("sweep", total=total)
+
+        def update(state: SweepProgress) -> None:
+            bar.update(
+                task,
+                completed=state.skipped + state.done,
+                description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
+                f"remaining {state.remaining}",
+            )
+
+        results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update)
+    failed = int((results["error"] != "").sum()) if not results.empty else 0
+    console.print(f"{len(results)} rows ({failed} failed) in {out / 'results.parquet'}; summary: {out / 'summary.csv'}")
+
+
 def main() -> None:
     """Entry point for ``python -m uiest``."""
     app()

@@ -13,6 +13,7 @@ tasks already stored, so an interrupted sweep resumes without recomputation or d
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
@@ -208,6 +209,23 @@ def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
     os.replace(tmp, folder / f"{key}.parquet")
 
 
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """One BLAS/OpenMP thread in spawned worker processes (they inherit the environment at spawn)."""
+    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+    previous = {name: os.environ.get(name) for name in names}
+    for name in names:
+        os.environ.setdefault(name, "1")
+    try:
+        yield
+    finally:
+        for name, value in previous.items():
+            if value is None:
+                os.environ.pop(name, None)
+            else:
+                os.environ[name] = value
+
+
 def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | None) -> Iterator[pd.DataFrame]:
     """Run tasks and yield their frames as they finish (serial, processes or Dask)."""
     if scheduler is None and workers == 1:
@@ -215,16 +233,27 @@ def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | N
             yield run_task(task)
         return
     if scheduler is None:
-        with ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=get_context("spawn")) as pool:
+        with (
+            _single_threaded_children(),
+            ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=get_context("spawn")) as pool,
+        ):
             futures: list[Future[pd.DataFrame]] = [pool.submit(run_task, task) for task in tasks]
             for future in as_completed(futures):
                 yield future.result()
         return
+    import dask
     from distributed import Client, LocalCluster
     from distributed import as_completed as dask_completed
 
-    cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True) if (
-        scheduler == "local") else None  # fmt: skip
+    cluster = None
+    if scheduler == "local":
+        # Dask's default worker environment sets MALLOC_TRIM_THRESHOLD_=65536, which makes the
+        # allocation-heavy CasADi/IPOPT window solves about 3x slower (measured: 7.2 s against
+        # 2.2 s per crop run); keep its thread limits, drop the malloc setting.
+        environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
+        environ.pop("MALLOC_TRIM_THRESHOLD_", None)
+        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
+            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True)
     try:
         with Client(cluster if cluster is not None else scheduler) as client:
             dask_futures = client.map(run_task, tasks, pure=False)
