@@ -82,3 +82,10 @@ def test_bad_designs_are_refused(tmp_path):
     (tmp_path / "s.toml").write_text("[scenario]\nname='x'\nmodel='closed-form'\n[sweep]\ngrid={N=[2]}\nextra=1\n")
     with pytest.raises(OptionError, match="extra"):
         Sweep.from_toml(tmp_path / "s.toml")
+
+
+def test_the_readme_example_sweep_file_parses():
+    from pathlib import Path
+
+    design = Sweep.from_toml(Path(__file__).parents[1] / "examples" / "crop_sweep.toml")
+    assert len(design.points()) == 6 and len(design.tasks()) == 6 * design.scenario.runs
