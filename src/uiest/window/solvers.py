@@ -206,7 +206,7 @@ class IpoptSolver:
         return worst
 
 
-BACKENDS = ("ipopt",)
+BACKENDS = ("ipopt", "gn", "rti")
 """Names accepted as ``solver=``."""
 
 
@@ -216,4 +216,14 @@ def make_solver(
     """Build the backend ``name`` for ``problem``; unknown names raise :class:`OptionError`."""
     if name == "ipopt":
         return IpoptSolver(problem, warm_start=warm_start, options=options)
+    if name in ("gn", "rti"):
+        from uiest.window.gauss_newton import GaussNewtonSolver
+
+        settings = dict(options or {})
+        if name == "rti":
+            settings["max_iter"] = 1
+        try:
+            return GaussNewtonSolver(problem, **settings)
+        except TypeError as exc:
+            raise OptionError(f"solver_options: {exc}") from exc
     raise OptionError(f"solver: unknown backend {name!r}; expected one of {list(BACKENDS)}")
