@@ -11,7 +11,8 @@ optimum to about ``eps * cond(J)``:
     min_d |r + J d|^2   s.t.   c_E + G_E d = 0,   d_i = 0 for variables at a bound,
 
 with ``E`` the dynamics and the inequality rows that are active (within ``active_tol`` of a
-bound; those are held at the bound). The null space of ``G_E`` (SVD) turns this into an
+bound; those are held at the bound; variables are first clipped into their bounds, which IPOPT
+relaxes by ~1e-8). The null space of ``G_E`` (SVD) turns this into an
 unconstrained linear least-squares problem (``lstsq``). A step is shortened to keep the free
 variables in their bounds and accepted only if the inequality constraints still hold (to 1e-9,
 scaled), the equality violation does not grow past ``max(old, 1e-9)`` and either the cost does
@@ -96,7 +97,7 @@ def refine(
     """
     fun = _evaluator(problem)
     lbx, ubx, lbg, ubg = problem.lbx, problem.ubx, problem.lbg, problem.ubg
-    z = np.array(z, dtype=float)
+    z = np.clip(np.asarray(z, dtype=float), lbx, ubx)  # IPOPT relaxes bounds by ~1e-8: snap onto them
     r, J, g, G = fun(z, p)
     cost = float(r @ r)
     accepted = 0
