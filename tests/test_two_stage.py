@@ -48,8 +48,11 @@ def linear_case():
 
 def crop_weights(reduced, mu=0.48, output=1e6):
     """The paper's mu = 0.48; per scaled unit: prior 1, noise 1, outputs 1e6 (as the full-order UISE's)."""
-    est_scale = TwoStageUISE(reduced, weights=TwoStageWeights.from_scales(np.ones(2), reduced.system, 0.5), N=1)
-    return TwoStageWeights.from_scales(est_scale.z_scale, reduced.system, mu, output=output)
+    weights = TwoStageWeights.from_scales(reduced, mu, output=output)
+    s_z = reduced.z_bounds.width
+    np.testing.assert_allclose(weights.prior, np.diag(1 / s_z**2))
+    np.testing.assert_allclose(weights.R_y, np.diag(output / reduced.system.y.scale**2))
+    return weights
 
 
 # ---------------------------------------------------------------------------------------------- known answers
@@ -150,7 +153,7 @@ def test_n_flat_zero_is_a_one_step_ahead_mhe():
     system = linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))
     reduced = ReducedModel.from_maps(system, lambda x: x, lambda z: z, lambda y, z, v: np.zeros(0), n_flat=0)
     traj = simulate(system, [1.0, -2.0], 30, w=np.zeros((30, 1)))
-    weights = TwoStageWeights.from_scales(np.full(2, 20.0), system, 0.5, output=1e4)
+    weights = TwoStageWeights.from_scales(reduced, 0.5, output=1e4)
     est = TwoStageUISE(reduced, weights=weights, N=5, x0_prior=[0.0, 0.0])
     first = est.run(None, traj.y)
     assert first.failures == 0 and np.abs(first.error(traj.x))[20:].max() < 1e-9

@@ -10,7 +10,12 @@ failure (``strict=True`` raises :class:`~uiest.errors.SolverError` instead).
 
 Subclasses say which nodes carry a measurement (all of ``k-N_k .. k`` for the UISE and the
 FIE, ``k-N_k .. k-1`` for the one-step-ahead standard MHE), which weights the residuals get,
-and which box bounds ``w``.
+and which box bounds ``w``. The two-stage UISE replaces the problem (:meth:`_build_problem`: its
+reduced model as a :class:`~uiest.window.WindowModel`) and :meth:`step`, and reuses the cache,
+the warm-started solve with cold retry (:meth:`_solve_window`), :meth:`reset` and :meth:`run`.
+:func:`collect_run` gathers an :class:`EstimationResult` from any object with ``step`` (the
+linear UIO uses it too). ``polish = True`` (attribute, set before running) refines every window
+solution by Gauss-Newton steps (:mod:`uiest.window.polish`).
 """
 
 from __future__ import annotations

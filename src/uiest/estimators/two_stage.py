@@ -200,8 +200,8 @@ class TwoStageUISE(WindowEstimator):
     certificate : ReducedIOSS, optional
         Gives ``mu, c_x, R_y, R_v`` and the default horizon ``min_horizon()`` (eq:N_cond).
     weights : TwoStageWeights, optional
-        Explicit weights instead (e.g. :meth:`TwoStageWeights.from_scales` with
-        :attr:`z_scale`); then N is required and :attr:`guarantee` says theo:stab does not apply.
+        Explicit weights instead (e.g. :meth:`TwoStageWeights.from_scales`); then N is required
+        and :attr:`guarantee` says theo:stab does not apply.
         Neither is needed (nor accepted) when ``n_sharp = 0``.
     N : int, optional
         Horizon >= 1; default ``certificate.min_horizon()``.
@@ -306,6 +306,7 @@ class TwoStageUISE(WindowEstimator):
 
     def _clear(self) -> None:
         super()._clear()
+        self.projection.used = 0
         self._gamma: deque[FloatArray] = deque(maxlen=self.N)
         self._w_full: FloatArray | None = None
         self.z_hat: FloatArray | None = None

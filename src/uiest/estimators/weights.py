@@ -26,7 +26,9 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import CertificationError, OptionError
+from uiest.reduction import ReducedModel
 from uiest.system import System
+from uiest.window.model import box_scale
 from uiest.window.problem import sqrt_psd
 
 
@@ -335,23 +337,24 @@ class TwoStageWeights:
     @classmethod
     def from_scales(
         cls,
-        z_scale: ArrayLike,
-        system: System,
+        reduced: ReducedModel,
         mu: float,
         *,
         prior: ArrayLike = 1.0,
         output: ArrayLike = 1.0,
         noise: ArrayLike = 1.0,
     ) -> TwoStageWeights:
-        """Diagonal weights per *scaled* unit: ``prior = diag(prior / z_scale^2)``, ``R_y = diag(output / s_y^2)``, ...
+        """Diagonal weights per *scaled* unit: ``prior = diag(prior / s_z^2)``, ``R_y = diag(output / s_y^2)``, ...
 
-        ``z_scale`` are the reduced state's scales (``TwoStageUISE.z_scale``: the widths of
-        ``z_bounds``), ``s_y``, ``s_v`` the system's output and noise scales.
+        ``s_z`` are the reduced state's scales (the widths of ``reduced.z_bounds`` where finite
+        and positive, else 1, as the two-stage UISE's window uses), ``s_y``, ``s_v`` the system's
+        output and noise scales. For models without a certificate (the crop model, whose
+        certificate only gives mu ~ 0.9995: the paper uses mu = 0.48); scalars or per-component.
         """
-        scale = np.asarray(z_scale, dtype=float).reshape(-1)
+        system = reduced.system
         return cls(
             mu=mu,
-            prior=_diag_scaled(prior, scale, "prior"),
+            prior=_diag_scaled(prior, box_scale(reduced.z_bounds), "prior"),
             R_y=_diag_scaled(output, system.y.scale, "output"),
             R_v=_diag_scaled(noise, system.v.scale, "noise"),
         )

@@ -162,9 +162,10 @@ class WindowModel:
         return bool(self.nv) and bool(ca.depends_on(self.f(*syms), syms[3]))
 
     # ------------------------------------------------------------------ numerics
-    def step(self, x: ArrayLike, u: ArrayLike, w: ArrayLike, v: ArrayLike, d: ArrayLike) -> FloatArray:
+    def step(self, x: FloatArray, u: FloatArray, w: FloatArray, v: FloatArray, d: FloatArray) -> FloatArray:
         """``f`` at one point, as a 1-D array."""
-        return np.asarray(self.f(x, u, w, v, d), dtype=float).reshape(-1)
+        out: FloatArray = np.asarray(self.f(x, u, w, v, d), dtype=float).reshape(-1)
+        return out
 
     @classmethod
     def from_system(cls, system: System) -> WindowModel:

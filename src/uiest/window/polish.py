@@ -48,10 +48,10 @@ class _Evaluator:
         self.out = [np.zeros(max(rows * cols, 1)) for rows, cols in self.shapes]
         self.buffer: Any
         self.buffer, self.call = fun.buffer()
-        self.buffer.set_arg(0, memoryview(self.z))
-        self.buffer.set_arg(1, memoryview(self.p))
+        self.buffer.set_arg(0, self.z.data)
+        self.buffer.set_arg(1, self.p.data)
         for i, arr in enumerate(self.out):
-            self.buffer.set_res(i, memoryview(arr))
+            self.buffer.set_res(i, arr.data)
 
     def __call__(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
         self.z[:] = z
