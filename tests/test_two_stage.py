@@ -17,7 +17,8 @@ from uiest.estimators import (
     two_stage_window_weights,
 )
 from uiest.estimators import base as base_module
-from uiest.estimators.two_stage import Projection, reduced_window_model
+from uiest.estimators.projection import Projection
+from uiest.estimators.two_stage import reduced_window_model
 from uiest.models import closed_form, crop_growth, get, linear
 from uiest.reduction import ReducedModel, reduce_quasi_state_affine
 from uiest.window import WindowModel, WindowProblem, WindowWeights, make_solver

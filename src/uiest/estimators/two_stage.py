@@ -72,23 +72,19 @@ from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
-import scipy.optimize
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
-from uiest.detectability import lmi
 from uiest.errors import OptionError, SolverError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.checks import check_horizon, check_u_prev, check_y
 from uiest.estimators.input_fit import InputFit
+from uiest.estimators.projection import PROJECTIONS, Projection
 from uiest.estimators.results import StepEstimate
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights
 from uiest.reduction import ReducedModel
 from uiest.window import WindowModel, WindowProblem, WindowWeights
 from uiest.window.model import box_scale
-
-PROJECTIONS = ("clip", "exact", "none")
-"""Values accepted as ``projection=`` (see the module docstring)."""
 
 
 def two_stage_window_weights(weights: TwoStageWeights, length: int) -> WindowWeights:
@@ -139,46 +135,6 @@ def reduced_window_model(reduced: ReducedModel, *, state_constraints: bool = Tru
         node_scale=s.x.scale if node is not None else None,
         name=f"{s.name} (reduced)",
     )
-
-
-class Projection:
-    """The projection of eq:fullest_new (``"clip"``, ``"exact"`` or ``"none"``; see the module docstring)."""
-
-    def __init__(self, reduced: ReducedModel, mode: str) -> None:
-        if mode not in PROJECTIONS:
-            raise OptionError(f"projection: expected one of {list(PROJECTIONS)}, got {mode!r}")
-        self.mode = mode
-        self.box = reduced.system.x.bounds
-        self.used = 0  # how many estimates the projection changed
-        if mode == "exact":
-            x = ca.SX.sym("x", reduced.system.nx)
-            grid = lmi.grid_points(lmi.sampling_box(self.box, self.box.center, reduced.system.x.scale), 5)
-            zs = np.asarray(reduced.T.map(len(grid))(grid.T), dtype=float).T
-            spread = zs.max(axis=0) - zs.min(axis=0)
-            self.scale = np.where(np.isfinite(spread) & (spread > 0), spread, 1.0)
-            Tx = reduced.T(x) / ca.DM(self.scale)
-            self._T = ca.Function("T_scaled", [x], [Tx, ca.jacobian(Tx, x)])
-
-    def __call__(self, x: FloatArray) -> FloatArray:
-        """Project ``x = T^-1(z)`` (computed by eq:fullest) onto X as described for the mode."""
-        if self.mode == "none" or self.box.contains(x):
-            return x
-        self.used += 1
-        start = self.box.clip(x)
-        if self.mode == "clip":
-            return start
-        target = np.asarray(self._T(x)[0], dtype=float).reshape(-1)
-
-        def residual(p: FloatArray) -> FloatArray:
-            return np.asarray(self._T(p)[0], dtype=float).reshape(-1) - target
-
-        def jacobian(p: FloatArray) -> FloatArray:
-            return np.asarray(self._T(p)[1], dtype=float)
-
-        result = scipy.optimize.least_squares(
-            residual, start, jac=jacobian, bounds=(self.box.lower, self.box.upper), xtol=1e-15, ftol=1e-15, gtol=1e-15
-        )
-        return self.box.clip(np.asarray(result.x, dtype=float))
 
 
 class TwoStageUISE(WindowEstimator):
