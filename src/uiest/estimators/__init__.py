@@ -3,6 +3,8 @@
 - :class:`UISE`: MHE-based unknown input state estimator (theo:MHE_full).
 - :class:`FIE`: full information estimator (lem:FIE), growing window.
 - :class:`StandardMHE`: robust MHE of Schiller et al. 2023, one-step-ahead (baseline).
+- :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (theo:stab).
+- :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
 
 Index convention: ``u[k]``, ``w[k]`` act between k and k+1; ``x_hat[k]`` estimates ``x[k]``;
 the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
@@ -11,22 +13,38 @@ covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.fie import FIE
+from uiest.estimators.input_fit import InputFit
+from uiest.estimators.linear_uio import LinearUIO
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.standard_mhe import StandardMHE, mhe_window_weights
+from uiest.estimators.two_stage import TwoStageUISE, two_stage_window_weights
 from uiest.estimators.uise import UISE, uise_window_weights
-from uiest.estimators.weights import DeltaCertificate, MHEWeights, StrongCertificate, UISEWeights
+from uiest.estimators.weights import (
+    DeltaCertificate,
+    MHEWeights,
+    ReducedCertificate,
+    StrongCertificate,
+    TwoStageWeights,
+    UISEWeights,
+)
 
 __all__ = [
     "FIE",
     "UISE",
     "DeltaCertificate",
     "EstimationResult",
+    "InputFit",
+    "LinearUIO",
     "MHEWeights",
+    "ReducedCertificate",
     "StandardMHE",
     "StepEstimate",
     "StrongCertificate",
+    "TwoStageUISE",
+    "TwoStageWeights",
     "UISEWeights",
     "WindowEstimator",
     "mhe_window_weights",
+    "two_stage_window_weights",
     "uise_window_weights",
 ]

@@ -10,7 +10,12 @@ failure (``strict=True`` raises :class:`~uiest.errors.SolverError` instead).
 
 Subclasses say which nodes carry a measurement (all of ``k-N_k .. k`` for the UISE and the
 FIE, ``k-N_k .. k-1`` for the one-step-ahead standard MHE), which weights the residuals get,
-and which box bounds ``w``.
+and which box bounds ``w``. The two-stage UISE replaces the problem (:meth:`_build_problem`: its
+reduced model as a :class:`~uiest.window.WindowModel`) and :meth:`step`, and reuses the cache,
+the warm-started solve with cold retry (:meth:`_solve_window`), :meth:`reset` and :meth:`run`.
+:func:`collect_run` gathers an :class:`EstimationResult` from any object with ``step`` (the
+linear UIO uses it too). ``polish = True`` (attribute, set before running) refines every window
+solution by Gauss-Newton steps (:mod:`uiest.window.polish`).
 """
 
 from __future__ import annotations
@@ -52,6 +57,8 @@ class WindowEstimator:
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
     """True: the window at time k uses ``y[k-N_k .. k-1]`` (the estimate is a one-step prediction)."""
+    require_measurements: ClassVar[bool] = True
+    """True: :meth:`run` refuses data where a window holds no measurement at all."""
 
     def __init__(
         self,
@@ -77,6 +84,8 @@ class WindowEstimator:
         self.solver_options = dict(solver_options or {})
         self.warm_start = bool(warm_start)
         self.strict = bool(strict)
+        self.polish = getattr(self, "polish", False)
+        """Refine window solutions by Gauss-Newton steps (:func:`uiest.window.polish.refine`); set before running."""
         v_bar = np.zeros(system.nv) if v_prior is None else as_vector(v_prior, system.nv, "v_prior")
         if not system.v.bounds.contains(v_bar):
             raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {v_bar.tolist()}")
@@ -143,21 +152,27 @@ class WindowEstimator:
         self._clear()
 
     # ------------------------------------------------------------------ problems
+    def _build_problem(self, length: int) -> WindowProblem:
+        """The window problem with ``length`` transitions (built once per length and cached)."""
+        measured = range(length) if self.one_step_ahead else range(length + 1)
+        return WindowProblem(self.system, length, list(measured), self._window_weights(length), w_box=self._w_box())
+
     def _cached(self, length: int) -> _Cached:
         entry = self._cache.get(length)
         if entry is None:
-            measured = range(length) if self.one_step_ahead else range(length + 1)
-            problem = WindowProblem(
-                self.system, length, list(measured), self._window_weights(length), w_box=self._w_box()
+            problem = self._build_problem(length)
+            solver = make_solver(
+                self.solver, problem, warm_start=self.warm_start, options=self.solver_options, polish=self.polish
             )
-            solver = make_solver(self.solver, problem, warm_start=self.warm_start, options=self.solver_options)
             entry = _Cached(problem, solver, None if self.warm_start else solver)
             self._cache[length] = entry
         return entry
 
     def _cold(self, entry: _Cached) -> WindowSolver:
         if entry.cold is None:
-            entry.cold = make_solver(self.solver, entry.problem, warm_start=False, options=self.solver_options)
+            entry.cold = make_solver(
+                self.solver, entry.problem, warm_start=False, options=self.solver_options, polish=self.polish
+            )
         return entry.cold
 
     # ------------------------------------------------------------------ one step
@@ -198,20 +213,8 @@ class WindowEstimator:
             status, success, iterations, solve_time, cost = "prior", True, 0, 0.0, 0.0
             solution = None
         else:
-            entry = self._cached(length)
+            entry, attempts = self._solve_window(length, start, prior, u_win, y_win)
             problem = entry.problem
-            p = problem.parameters(
-                prior,
-                u_win,
-                y_win,
-                v_bar=np.tile(self.v_prior, (problem.n_meas, 1)),
-                w_bar=np.tile(self._w_bar(), (length, 1)),
-            )
-            z0, duals = self._guess(problem, start, prior, u_win)
-            attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
-            if not attempts[-1].success:
-                cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior)
-                attempts.append(self._cold(entry).solve(cold_guess, p))
             solution = attempts[-1]
             iterations = sum(a.iterations for a in attempts)
             solve_time = sum(a.solve_time for a in attempts)
@@ -271,12 +274,42 @@ class WindowEstimator:
         lag = 2 if self.one_step_ahead else 1
         return x, (w.copy() if k - lag >= 0 else None), (k - lag if k - lag >= 0 else None)
 
+    def _solve_window(
+        self,
+        length: int,
+        start: int,
+        prior: FloatArray,
+        u_win: FloatArray,
+        y_win: FloatArray,
+        data: FloatArray | None = None,
+    ) -> tuple[_Cached, list[WindowSolution]]:
+        """Solve the window ``start .. start+length``: warm start from the shifted last solution, one cold retry.
+
+        Returns the cached problem entry and the attempts (the last one counts).
+        """
+        entry = self._cached(length)
+        problem = entry.problem
+        p = problem.parameters(
+            prior,
+            u_win,
+            y_win,
+            v_bar=np.tile(self.v_prior, (problem.n_meas, 1)),
+            w_bar=np.tile(self._w_bar(), (length, 1)),
+            data=data,
+        )
+        z0, duals = self._guess(problem, start, prior, u_win, data)
+        attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
+        if not attempts[-1].success:
+            cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)
+            attempts.append(self._cold(entry).solve(cold_guess, p))
+        return entry, attempts
+
     # ------------------------------------------------------------------ guesses
     def _w_guess(self) -> FloatArray:
         return self._w_last if self._w_last is not None else self._w_bar()
 
     def _guess(
-        self, problem: WindowProblem, start: int, prior: FloatArray, u_win: FloatArray
+        self, problem: WindowProblem, start: int, prior: FloatArray, u_win: FloatArray, data: FloatArray | None = None
     ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
         """The last successful solution shifted onto the new window, else a prediction from the prior."""
         if self._last is not None:
@@ -290,10 +323,11 @@ class WindowEstimator:
                 self._w_guess(),
                 self.v_prior,
                 duals=self.warm_start,
+                data=data,
             )
             if shifted is not None:
                 return shifted
-        return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior), None
+        return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None
 
     # ------------------------------------------------------------------ batch
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
@@ -313,40 +347,51 @@ class WindowEstimator:
         EstimationResult
 
         """
-        u_arr, y_arr = check_run_data(self.system, u, y, self.N, self.one_step_ahead)
-        self.reset(x0_prior)
-        K = y_arr.shape[0] - 1
-        s = self.system
-        x_hat = np.empty((K + 1, s.nx))
-        w_hat = np.full((K, s.nw), np.nan)
-        status: list[str] = []
-        success = np.zeros(K + 1, dtype=bool)
-        iterations = np.zeros(K + 1, dtype=np.int64)
-        solve_time = np.zeros(K + 1)
-        cost = np.zeros(K + 1)
-        window = np.zeros(K + 1, dtype=np.int64)
-        for k in range(K + 1):
-            est = self.step(None if k == 0 else u_arr[k - 1], y_arr[k])
-            x_hat[k] = est.x_hat
-            if est.w_hat is not None and est.w_index is not None:
-                w_hat[est.w_index] = est.w_hat
-            status.append(est.status)
-            success[k], iterations[k], solve_time[k] = est.success, est.iterations, est.solve_time
-            cost[k], window[k] = est.cost, est.window
-        return EstimationResult(
-            t=np.arange(K + 1) * s.dt,
-            x_hat=x_hat,
-            w_hat=w_hat,
-            status=np.array(status),
-            success=success,
-            iterations=iterations,
-            solve_time=solve_time,
-            cost=cost,
-            window=window,
-            missing=np.isnan(y_arr),
-            estimator=self.estimator_name,
-            horizon=self.N,
-            guarantee=self.guarantee,
-            names={"x": s.x.names, "w": s.w.names},
-            time_unit=s.time_unit,
+        u_arr, y_arr = check_run_data(
+            self.system, u, y, self.N, self.one_step_ahead, require_measurements=self.require_measurements
         )
+        self.reset(x0_prior)
+        return collect_run(self, u_arr, y_arr)
+
+
+def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> EstimationResult:
+    """Call ``estimator.step`` for k = 0..K on checked data and gather an :class:`EstimationResult`.
+
+    ``estimator`` needs ``system``, ``step(u_prev, y) -> StepEstimate``, ``estimator_name``, ``N``
+    and ``guarantee``; the caller has reset it.
+    """
+    K = y_arr.shape[0] - 1
+    s = estimator.system
+    x_hat = np.empty((K + 1, s.nx))
+    w_hat = np.full((K, s.nw), np.nan)
+    status: list[str] = []
+    success = np.zeros(K + 1, dtype=bool)
+    iterations = np.zeros(K + 1, dtype=np.int64)
+    solve_time = np.zeros(K + 1)
+    cost = np.zeros(K + 1)
+    window = np.zeros(K + 1, dtype=np.int64)
+    for k in range(K + 1):
+        est = estimator.step(None if k == 0 else u_arr[k - 1], y_arr[k])
+        x_hat[k] = est.x_hat
+        if est.w_hat is not None and est.w_index is not None:
+            w_hat[est.w_index] = est.w_hat
+        status.append(est.status)
+        success[k], iterations[k], solve_time[k] = est.success, est.iterations, est.solve_time
+        cost[k], window[k] = est.cost, est.window
+    return EstimationResult(
+        t=np.arange(K + 1) * s.dt,
+        x_hat=x_hat,
+        w_hat=w_hat,
+        status=np.array(status),
+        success=success,
+        iterations=iterations,
+        solve_time=solve_time,
+        cost=cost,
+        window=window,
+        missing=np.isnan(y_arr),
+        estimator=estimator.estimator_name,
+        horizon=estimator.N,
+        guarantee=estimator.guarantee,
+        names={"x": s.x.names, "w": s.w.names},
+        time_unit=s.time_unit,
+    )

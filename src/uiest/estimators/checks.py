@@ -56,9 +56,18 @@ def window_bounds(k: int, N: int | None, one_step_ahead: bool) -> tuple[int, int
 
 
 def check_run_data(
-    system: System, u: ArrayLike | None, y: ArrayLike, N: int | None, one_step_ahead: bool
+    system: System,
+    u: ArrayLike | None,
+    y: ArrayLike,
+    N: int | None,
+    one_step_ahead: bool,
+    *,
+    require_measurements: bool = True,
 ) -> tuple[FloatArray, FloatArray]:
-    """Check ``u (K, nu)`` and ``y (K+1, ny)`` for a run; every window must hold a measurement."""
+    """Check ``u (K, nu)`` and ``y (K+1, ny)`` for a run.
+
+    With ``require_measurements`` every window (``window_bounds``) must hold a measurement.
+    """
     try:
         y_arr = np.asarray(y, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -90,6 +99,8 @@ def check_run_data(
         if not np.all(np.isfinite(u_arr)):
             bad = int(np.argwhere(~np.isfinite(u_arr))[0][0])
             raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
+    if not require_measurements:
+        return u_arr, y_arr
     has = (~np.isnan(y_arr)).any(axis=1).astype(int)
     counts = np.concatenate([[0], np.cumsum(has)])
     for k in range(K + 1):

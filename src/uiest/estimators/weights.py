@@ -7,8 +7,11 @@ r"""Cost weights of the estimators and where they come from (certificates or the
   al. 2023, Assumption 1 (``W = |x - x~|_P^2``,
   ``W+ <= eta W + |dw|_{Q_w}^2 + |dv|_{Q_v}^2 + |dy|_R^2``), from a ``DeltaIOSS`` certificate
   or given.
+- :class:`TwoStageWeights` ``(mu, prior, R_y, R_v)``: the constants of eq:p-eioss_quadratic of a
+  reduced-order model (ass:e-ioss), from a :class:`~uiest.detectability.ReducedIOSS` or given.
 
-Certificates are duck-typed (:class:`StrongCertificate`, :class:`DeltaCertificate`): any object
+Certificates are duck-typed (:class:`StrongCertificate`, :class:`DeltaCertificate`,
+:class:`ReducedCertificate`): any object
 with those attributes works, so the estimators do not depend on how a certificate was computed.
 All matrices are in original units.
 """
@@ -23,7 +26,9 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import CertificationError, OptionError
+from uiest.reduction import ReducedModel
 from uiest.system import System
+from uiest.window.model import box_scale
 from uiest.window.problem import sqrt_psd
 
 
@@ -240,5 +245,122 @@ class MHEWeights:
     def check(self, system: System) -> None:
         """Raise OptionError unless the shapes fit ``system``."""
         for name, n in (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)):
+            if getattr(self, name).shape != (n, n):
+                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")
+
+
+@runtime_checkable
+class ReducedCertificate(Protocol):
+    """What the two-stage UISE reads from a reduced-order i-IOSS certificate (ass:e-ioss).
+
+    ``c_x`` is in scaled norms ``|S_z^-1 dz|``; the scales are ``model.z_scale`` (as in
+    :class:`~uiest.detectability.ReducedIOSS`) or an attribute ``z_scale``.
+    """
+
+    certified: bool
+    mu: float
+    c_x: float
+    R_y: FloatArray
+    R_v: FloatArray
+
+    def min_horizon(self) -> int:
+        """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
+        ...
+
+
+def certificate_z_scale(certificate: object) -> FloatArray | None:
+    """The z scales of a reduced certificate (``z_scale`` or ``model.z_scale``), None if it has none."""
+    scale = getattr(certificate, "z_scale", None)
+    if scale is None:
+        scale = getattr(getattr(certificate, "model", None), "z_scale", None)
+    return None if scale is None else np.asarray(scale, dtype=float).reshape(-1)
+
+
+@dataclass(frozen=True)
+class TwoStageWeights:
+    r"""Weights of the two-stage UISE's cost eq:cost_MHE, in original units.
+
+    The window cost at time k (``N_k`` transitions, node times ``k-j``, ``j = 1 .. N_k``) is::
+
+        J = 2 mu^{N_k} |z_{k-N_k|k} - z_hat_{k-N_k}|_{prior}^2
+            + sum_{j=1}^{N_k} mu^j ( 2 |v_{k-j|k} - v_bar|_{R_v}^2
+                                     + |y_{k-j} - h_sharp(z_{k-j|k}, y_{k-j}, v_{k-j|k})|_{R_y}^2 ).
+
+    From a certificate: ``prior = c_x diag(1 / z_scale^2)`` (the constant ``c_x`` of
+    eq:p-eioss_quadratic, which holds in the scaled norm ``|S_z^-1 dz|``, written as a matrix in
+    original units), ``R_v = c_v diag(1 / v_scale^2)`` and ``R_y = c_y diag(1 / y_scale^2)``
+    (the certificate's ``R_v``, ``R_y``).
+
+    Attributes
+    ----------
+    mu : float
+        Discount in (0, 1).
+    prior : ndarray (n_sharp, n_sharp)
+    R_y : ndarray (ny, ny)
+    R_v : ndarray (nv, nv)
+
+    """
+
+    mu: float
+    prior: FloatArray
+    R_y: FloatArray
+    R_v: FloatArray
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "mu", _discount(self.mu, "weights.mu"))
+        for name in ("prior", "R_y", "R_v"):
+            arr = np.array(getattr(self, name), dtype=float)
+            n = 1 if arr.ndim == 0 else arr.shape[0]
+            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+
+    @classmethod
+    def from_certificate(cls, certificate: ReducedCertificate) -> TwoStageWeights:
+        """``mu``, ``c_x diag(1 / z_scale^2)``, ``R_y``, ``R_v``; CertificationError if it does not hold."""
+        missing = _missing_attributes(certificate, ("certified", "mu", "c_x", "R_y", "R_v", "min_horizon"))
+        if missing:
+            raise OptionError(
+                "certificate: expected a ReducedIOSS certificate (certified, mu, c_x, R_y, R_v, min_horizon()), "
+                f"got {type(certificate).__name__} without {missing}"
+            )
+        if not certificate.certified:
+            reason = getattr(certificate, "reason", "")
+            raise CertificationError(
+                f"certificate: the reduced model's i-IOSS (ass:e-ioss) is not certified ({reason}); pass weights= "
+                "to run the two-stage UISE without the guarantee of theo:stab"
+            )
+        z_scale = certificate_z_scale(certificate)
+        if z_scale is None:
+            raise OptionError("certificate: expected z scales (model.z_scale or z_scale) to express c_x as a matrix")
+        prior = float(certificate.c_x) * np.diag(1.0 / z_scale**2)
+        return cls(mu=certificate.mu, prior=prior, R_y=certificate.R_y, R_v=certificate.R_v)
+
+    @classmethod
+    def from_scales(
+        cls,
+        reduced: ReducedModel,
+        mu: float,
+        *,
+        prior: ArrayLike = 1.0,
+        output: ArrayLike = 1.0,
+        noise: ArrayLike = 1.0,
+    ) -> TwoStageWeights:
+        """Diagonal weights per *scaled* unit: ``prior = diag(prior / s_z^2)``, ``R_y = diag(output / s_y^2)``, ...
+
+        ``s_z`` are the reduced state's scales (the widths of ``reduced.z_bounds`` where finite
+        and positive, else 1, as the two-stage UISE's window uses), ``s_y``, ``s_v`` the system's
+        output and noise scales. For models without a certificate (the crop model, whose
+        certificate only gives mu ~ 0.9995: the paper uses mu = 0.48); scalars or per-component.
+        """
+        system = reduced.system
+        return cls(
+            mu=mu,
+            prior=_diag_scaled(prior, box_scale(reduced.z_bounds), "prior"),
+            R_y=_diag_scaled(output, system.y.scale, "output"),
+            R_v=_diag_scaled(noise, system.v.scale, "noise"),
+        )
+
+    def check(self, system: System, n_sharp: int) -> None:
+        """Raise OptionError unless the shapes fit ``system`` and the reduced state's size."""
+        for name, n in (("prior", n_sharp), ("R_y", system.ny), ("R_v", system.nv)):
             if getattr(self, name).shape != (n, n):
                 raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")

@@ -1,11 +1,14 @@
 """The moving-window least-squares problem shared by every optimisation-based estimator.
 
+- :class:`WindowModel`: what a problem needs from a model (a System, or the two-stage UISE's
+  reduced model with node data and node constraints).
 - :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
   simple bounds; the window data are parameters, so it is built once per window length.
 - :func:`make_solver`: backends (``"ipopt"``, the reference) returning :class:`WindowSolution`.
 - :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """
 
+from uiest.window.model import WindowModel
 from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
 from uiest.window.solvers import (
     BACKENDS,
@@ -23,6 +26,7 @@ __all__ = [
     "IPOPT_DEFAULTS",
     "IPOPT_WARM_START",
     "IpoptSolver",
+    "WindowModel",
     "WindowProblem",
     "WindowSolution",
     "WindowSolver",

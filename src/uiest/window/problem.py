@@ -1,5 +1,9 @@
 r"""The moving-window weighted nonlinear least-squares problem shared by every optimisation estimator.
 
+The problem is posed on a :class:`~uiest.window.model.WindowModel` (``x+ = f(x, u, w, v, d)``,
+``y = h(x, v, d)``, optional node constraints); a :class:`~uiest.system.System` is wrapped by
+:meth:`WindowModel.from_system` (``f(x, u, w)``, ``h(x, v)``). Below, "system" means the model.
+
 A window of ``L`` transitions covers the times ``s .. s+L`` (node ``i`` is time ``s+i``). Its
 decision variables, stacked stage by stage as ``[x_0, v_0, w_0, x_1, v_1, w_1, ..., x_L, v_L]``
 (``v_i`` only at measured nodes), are in **scaled coordinates**
@@ -10,7 +14,9 @@ with ``S = diag(signal.scale)`` and ``c`` the centre of the signal's domain (``B
 for w the centre of the range the problem is given, else ``system.nominal_w``). Multiple
 shooting: the dynamics are equality constraints
 
-    g_i = (f(x_i, u_i, w_i) - x_{i+1}) / s_x = 0,        i = 0 .. L-1,
+    g_i = (f(x_i, u_i, w_i, v_i, d_i) - x_{i+1}) / s_x = 0,        i = 0 .. L-1,
+
+(``v_i`` is node i's noise estimate, used only when f depends on v; ``d_i`` node i's data),
 
 so the state box X is a simple bound on every node. The cost is ``J = |r|^2`` with the
 residual vector
@@ -23,10 +29,12 @@ residual vector
 where the weights ``W`` are given in original units and converted to scaled ones
 (``W~ = S W S``); ``M^{1/2}`` is the symmetric square root. ``mask`` (0/1 per output channel)
 drops missing measurements. Outputs constrained to a box Y with finite sides add
-``(h(x_m, v_m) - c_y) / s_y`` to g with bounds.
+``(h(x_m, v_m) - c_y) / s_y`` to g with bounds; node constraints ``c(x_m, v_m, d_m)`` of the
+model add ``(c - c_c) / s_c`` at measured nodes (components with a finite side only).
 
 Everything that changes from one step to the next is a parameter ``p``:
-``[prior (nx), u (L, nu), y (M, ny), mask (M, ny), v_bar (M, nv), w_bar (L, nw)]`` (row-major),
+``[prior (nx), u (L, nu), y (M, ny), mask (M, ny), v_bar (M, nv), w_bar (L, nw), data (L+1, nd)]``
+(row-major),
 so the problem is built once per window length and re-solved. A Gauss-Newton backend needs
 only :attr:`WindowProblem.residual_function`, :attr:`WindowProblem.constraint_function` and
 the bounds; IPOPT uses :meth:`WindowProblem.nlp`.
@@ -44,6 +52,7 @@ from numpy.typing import ArrayLike
 from uiest.box import Box, FloatArray
 from uiest.errors import DataError, OptionError
 from uiest.system import System
+from uiest.window.model import WindowModel
 
 
 def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
@@ -116,7 +125,8 @@ class WindowProblem:
 
     Parameters
     ----------
-    system : System
+    system : System or WindowModel
+        The model (a System is wrapped by :meth:`WindowModel.from_system`).
     length : int
         Number of transitions L >= 0 (the window has L+1 state nodes).
     measured : sequence of int
@@ -124,20 +134,28 @@ class WindowProblem:
     weights : WindowWeights
         Residual weights (original units); shapes must match ``measured`` and ``length``.
     x_box : Box, optional
-        Bound on every state node (default: ``system.x.bounds``).
+        Bound on every state node (default: the model's ``x_bounds``).
     v_box : Box, optional
-        Bound on every noise estimate (default: ``system.v.bounds``).
+        Bound on every noise estimate (default: the model's ``v_bounds``).
     w_box : Box, optional
         Bound on every unknown-input estimate (default: unbounded; the standard MHE passes
         ``system.w_range``).
     output_constraints : bool
         Constrain ``h(x_m, v_m)`` to ``system.y.bounds`` at measured nodes when Y has a finite side.
+    node_constraints : bool
+        Impose the model's node constraints (if it has any) at measured nodes.
+
+    Attributes
+    ----------
+    model : WindowModel
+    system : System or None
+        The System the problem was built from (None for other window models).
 
     """
 
     def __init__(
         self,
-        system: System,
+        system: System | WindowModel,
         length: int,
         measured: ArrayLike,
         weights: WindowWeights,
@@ -146,19 +164,34 @@ class WindowProblem:
         v_box: Box | None = None,
         w_box: Box | None = None,
         output_constraints: bool = True,
+        node_constraints: bool = True,
     ) -> None:
         if isinstance(length, bool) or not isinstance(length, int | np.integer) or length < 0:
             raise OptionError(f"length: expected a non-negative integer, got {length!r}")
-        self.system = system
+        if isinstance(system, System):
+            self.system: System | None = system
+            self.model = WindowModel.from_system(system)
+        elif isinstance(system, WindowModel):
+            self.system, self.model = None, system
+        else:
+            raise OptionError(f"system: expected a System or a WindowModel, got {type(system).__name__}")
+        model = self.model
         self.length = L = int(length)
         nodes = np.asarray(measured, dtype=int).reshape(-1)
         if nodes.size and (nodes.min() < 0 or nodes.max() > L or np.any(np.diff(nodes) <= 0)):
             raise OptionError(f"measured: expected increasing node indices in 0..{L}, got {nodes.tolist()}")
         self.measured = nodes
         self.n_meas = M = int(nodes.size)
-        nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
-        self.x_box = system.x.bounds if x_box is None else x_box
-        self.v_box = system.v.bounds if v_box is None else v_box
+        nx, nu, nw, nv, ny, nd = model.nx, model.nu, model.nw, model.nv, model.ny, model.nd
+        self.f_uses_v = model.f_uses_v
+        missing = sorted(set(range(L)) - set(nodes.tolist()))
+        if self.f_uses_v and missing:
+            raise OptionError(
+                f"measured: the dynamics depend on the noise, so every node 0..{L - 1} needs a noise estimate; "
+                f"nodes {missing} are not measured"
+            )
+        self.x_box = model.x_bounds if x_box is None else x_box
+        self.v_box = model.v_bounds if v_box is None else v_box
         self.w_box = Box.unbounded(nw) if w_box is None else w_box
         for label, box, n in (("x_box", self.x_box, nx), ("v_box", self.v_box, nv), ("w_box", self.w_box, nw)):
             if box.size != n:
@@ -167,11 +200,11 @@ class WindowProblem:
         self.weights = weights
 
         # scaling: z = c + s * z~
-        self.x_center, self.x_scale = self.x_box.center, system.x.scale
-        self.v_center, self.v_scale = self.v_box.center, system.v.scale
-        self.w_center = self.w_box.center if self.w_box != Box.unbounded(nw) else system.nominal_w
-        self.w_scale = system.w.scale
-        self.y_center, self.y_scale = system.y.bounds.center, system.y.scale
+        self.x_center, self.x_scale = self.x_box.center, model.x_scale
+        self.v_center, self.v_scale = self.v_box.center, model.v_scale
+        self.w_center = self.w_box.center if self.w_box != Box.unbounded(nw) else model.nominal_w
+        self.w_scale = model.w_scale
+        self.y_center, self.y_scale = model.y_bounds.center, model.y_scale
 
         # index layout, stage-wise [x_i, v_i (if measured), w_i (if i < L)]
         x_index = np.empty((L + 1, nx), dtype=int)
@@ -190,13 +223,28 @@ class WindowProblem:
                 pos += nw
         self.x_index, self.w_index, self.v_index = x_index, w_index, v_index
         self.n_var = pos
-        y_lo, y_hi = system.y.bounds.lower, system.y.bounds.upper
+        y_lo, y_hi = model.y_bounds.lower, model.y_bounds.upper
         self.has_output_constraints = bool(
             output_constraints and M > 0 and (np.isfinite(y_lo).any() or np.isfinite(y_hi).any())
         )
+        if node_constraints and model.node_bounds is not None and M > 0:
+            finite = np.isfinite(model.node_bounds.lower) | np.isfinite(model.node_bounds.upper)
+            self.node_rows = np.flatnonzero(finite)
+        else:
+            self.node_rows = np.zeros(0, dtype=int)
         self.n_dyn = L * nx
-        self.n_con = self.n_dyn + (M * ny if self.has_output_constraints else 0)
-        sizes = {"prior": nx, "u": L * nu, "y": M * ny, "mask": M * ny, "v_bar": M * nv, "w_bar": L * nw}
+        self.n_out_con = M * ny if self.has_output_constraints else 0
+        self.n_node_con = M * self.node_rows.size
+        self.n_con = self.n_dyn + self.n_out_con + self.n_node_con
+        sizes = {
+            "prior": nx,
+            "u": L * nu,
+            "y": M * ny,
+            "mask": M * ny,
+            "v_bar": M * nv,
+            "w_bar": L * nw,
+            "data": (L + 1) * nd,
+        }
         self.parameter_slices: dict[str, slice] = {}
         start = 0
         for key, size in sizes.items():
@@ -207,7 +255,7 @@ class WindowProblem:
 
     # ------------------------------------------------------------------ construction
     def _check_weights(self, weights: WindowWeights) -> None:
-        s = self.system
+        s = self.model
         L, M = self.length, self.n_meas
         expected = {
             "prior": (weights.prior, (s.nx, s.nx)),
@@ -221,8 +269,8 @@ class WindowProblem:
                 raise OptionError(f"weights.{label}: expected shape {shape}, got {np.shape(value)}")
 
     def _build(self) -> None:
-        s = self.system
-        nx, nu, nw, nv, ny = s.nx, s.nu, s.nw, s.nv, s.ny
+        s = self.model
+        nx, nu, nw, nv, ny, nd = s.nx, s.nu, s.nw, s.nv, s.ny, s.nd
         L, M = self.length, self.n_meas
         z = ca.SX.sym("z", self.n_var)
         p = ca.SX.sym("p", self.n_par)
@@ -237,6 +285,9 @@ class WindowProblem:
         xs = [ca.DM(self.x_center) + ca.DM(self.x_scale) * take(self.x_index[i]) for i in range(L + 1)]
         ws = [ca.DM(self.w_center) + ca.DM(self.w_scale) * take(self.w_index[i]) for i in range(L)]
         vs = [ca.DM(self.v_center) + ca.DM(self.v_scale) * take(self.v_index[m]) for m in range(M)]
+        ds = [par("data", i, nd) for i in range(L + 1)]
+        node_of = {int(node): m for m, node in enumerate(self.measured)}
+        v_nominal = ca.DM(self.v_center)
         weights = self.weights
 
         def scaled_root(W: FloatArray, scale: FloatArray, name: str) -> ca.DM:
@@ -250,7 +301,7 @@ class WindowProblem:
         ]
         outputs = []
         for m, node in enumerate(self.measured):
-            y_hat = s.h(xs[int(node)], vs[m])
+            y_hat = s.h(xs[int(node)], vs[m], ds[int(node)])
             outputs.append(y_hat)
             diff = par("mask", m, ny) * (par("y", m, ny) - y_hat) / ca.DM(self.y_scale)
             residuals.append(ca.mtimes(scaled_root(weights.y[m], self.y_scale, f"weights.y[{m}]"), diff))
@@ -269,10 +320,22 @@ class WindowProblem:
                     )
                 )
         r = ca.vertcat(*residuals)
-        dynamics = [(s.f(xs[i], par("u", i, nu), ws[i]) - xs[i + 1]) / ca.DM(self.x_scale) for i in range(L)]
+        dynamics = [
+            (s.f(xs[i], par("u", i, nu), ws[i], vs[node_of[i]] if i in node_of else v_nominal, ds[i]) - xs[i + 1])
+            / ca.DM(self.x_scale)
+            for i in range(L)
+        ]
         constraints = list(dynamics)
         if self.has_output_constraints:
             constraints += [(y_hat - ca.DM(self.y_center)) / ca.DM(self.y_scale) for y_hat in outputs]
+        rows = [int(r) for r in self.node_rows]
+        if rows:
+            assert s.node_constraint is not None and s.node_bounds is not None and s.node_scale is not None
+            c_center = s.node_bounds.center[rows]
+            c_scale = s.node_scale[rows]
+            for m, node in enumerate(self.measured):
+                c = s.node_constraint(xs[int(node)], vs[m], ds[int(node)])[rows]
+                constraints.append((c - ca.DM(c_center)) / ca.DM(c_scale))
         g = ca.vertcat(*constraints) if constraints else ca.SX(0, 1)
         self.z, self.p, self.r, self.g = z, p, r, g
         self.n_res = int(r.numel())
@@ -281,7 +344,7 @@ class WindowProblem:
         ubx = np.empty(self.n_var)
         for index, box, center, scale in (
             (self.x_index, self.x_box, self.x_center, self.x_scale),
-            (self.w_index, self.w_box, self.w_center, s.w.scale),
+            (self.w_index, self.w_box, self.w_center, self.w_scale),
             (self.v_index, self.v_box, self.v_center, self.v_scale),
         ):
             if index.size:
@@ -291,10 +354,16 @@ class WindowProblem:
         lbg = np.zeros(self.n_con)
         ubg = np.zeros(self.n_con)
         if self.has_output_constraints:
-            lo = (s.y.bounds.lower - self.y_center) / self.y_scale
-            hi = (s.y.bounds.upper - self.y_center) / self.y_scale
-            lbg[self.n_dyn :] = np.tile(lo, M)
-            ubg[self.n_dyn :] = np.tile(hi, M)
+            lo = (s.y_bounds.lower - self.y_center) / self.y_scale
+            hi = (s.y_bounds.upper - self.y_center) / self.y_scale
+            lbg[self.n_dyn : self.n_dyn + self.n_out_con] = np.tile(lo, M)
+            ubg[self.n_dyn : self.n_dyn + self.n_out_con] = np.tile(hi, M)
+        if rows:
+            assert s.node_bounds is not None and s.node_scale is not None
+            c_center, c_scale = s.node_bounds.center[rows], s.node_scale[rows]
+            start = self.n_dyn + self.n_out_con
+            lbg[start:] = np.tile((s.node_bounds.lower[rows] - c_center) / c_scale, M)
+            ubg[start:] = np.tile((s.node_bounds.upper[rows] - c_center) / c_scale, M)
         self.lbg, self.ubg = lbg, ubg
 
     @cached_property
@@ -312,6 +381,17 @@ class WindowProblem:
         """CasADi Function ``(z, p) -> J = |r|^2``."""
         return ca.Function("window_cost", [self.z, self.p], [ca.sumsqr(self.r)], ["z", "p"], ["J"])
 
+    @cached_property
+    def gauss_newton_function(self) -> ca.Function:
+        """CasADi Function ``(z, p) -> (r, dr/dz, g, dg/dz)``, dense outputs (for Gauss-Newton steps)."""
+        return ca.Function(
+            "window_gauss_newton",
+            [self.z, self.p],
+            [self.r, ca.densify(ca.jacobian(self.r, self.z)), self.g, ca.densify(ca.jacobian(self.g, self.z))],
+            ["z", "p"],
+            ["r", "J", "g", "G"],
+        )
+
     def nlp(self) -> dict[str, ca.SX]:
         """The NLP ``{x: z, p: p, f: |r|^2, g: g}`` for ``casadi.nlpsol``."""
         return {"x": self.z, "p": self.p, "f": ca.sumsqr(self.r), "g": self.g}
@@ -324,6 +404,7 @@ class WindowProblem:
         y: ArrayLike,
         v_bar: ArrayLike | None = None,
         w_bar: ArrayLike | None = None,
+        data: ArrayLike | None = None,
     ) -> FloatArray:
         """Pack a window's data into the parameter vector ``p``.
 
@@ -339,10 +420,14 @@ class WindowProblem:
             Noise priors (default: zeros).
         w_bar : array_like (L, nw), optional
             Unknown-input priors (default: ``system.nominal_w``); used only if w is weighted.
+        data : array_like (L+1, nd), optional
+            Node data of the model (required when ``nd > 0``).
 
         """
-        s = self.system
+        s = self.model
         L, M = self.length, self.n_meas
+        if data is None and s.nd:
+            raise DataError(f"data: the model takes node data, expected shape ({L + 1}, {s.nd}), got None")
         y_arr = np.asarray(y, dtype=float).reshape(M, s.ny)
         mask = np.isfinite(y_arr)
         parts = {
@@ -356,6 +441,7 @@ class WindowProblem:
                 if w_bar is None
                 else np.asarray(w_bar, dtype=float).reshape(L, s.nw)
             ),
+            "data": np.zeros((L + 1, 0)) if data is None else np.asarray(data, dtype=float).reshape(L + 1, s.nd),
         }
         p = np.empty(self.n_par)
         for key, value in parts.items():
@@ -385,6 +471,6 @@ class WindowProblem:
 
     def __repr__(self) -> str:
         return (
-            f"WindowProblem(system={self.system.name!r}, length={self.length}, measured={self.n_meas}, "
+            f"WindowProblem(model={self.model.name!r}, length={self.length}, measured={self.n_meas}, "
             f"n_var={self.n_var}, n_con={self.n_con}, n_res={self.n_res})"
         )

@@ -5,7 +5,8 @@ started at ``old_start`` to one that starts ``d = start - old_start >= 0`` steps
 state node, transition and noise estimate both windows hold (and their multipliers, for
 primal-dual warm starts) and predicts the new nodes with the model. This covers the sliding
 window (same length, ``d = 1``), the growing one (length + 1, ``d = 0``) and gaps after a failed
-solve (the last successful solution is older).
+solve (the last successful solution is older). Models with node data (the two-stage UISE's
+reduced model) need the window's ``data (L+1, nd)`` to predict.
 """
 
 from __future__ import annotations
@@ -17,24 +18,52 @@ from uiest.window.problem import WindowProblem, WindowTrajectory
 from uiest.window.solvers import WindowSolution
 
 
-def predict_states(problem: WindowProblem, x: FloatArray, w: FloatArray, u: FloatArray, first: int) -> None:
-    """Fill ``x[first+1:]`` in place by ``x[i+1] = f(x[i], u[i], w[i])``, clipped into the state box."""
-    f, box = problem.system.f, problem.x_box
+def _node_data(problem: WindowProblem, data: FloatArray | None) -> FloatArray:
+    if data is None:
+        return np.zeros((problem.length + 1, problem.model.nd))
+    return np.asarray(data, dtype=float).reshape(problem.length + 1, problem.model.nd)
+
+
+def predict_states(
+    problem: WindowProblem,
+    x: FloatArray,
+    w: FloatArray,
+    u: FloatArray,
+    first: int,
+    v: FloatArray | None = None,
+    data: FloatArray | None = None,
+) -> None:
+    """Fill ``x[first+1:]`` in place by ``x[i+1] = f(x[i], u[i], w[i], v_i, d_i)``, clipped into the state box.
+
+    ``v`` holds the noise estimates of the measured nodes (M, nv) (default: the box centre);
+    ``data`` the node data (L+1, nd).
+    """
+    model, box = problem.model, problem.x_box
+    d = _node_data(problem, data)
+    v_node = np.tile(problem.v_center, (problem.length + 1, 1))
+    if v is not None and problem.n_meas:
+        v_node[problem.measured] = np.asarray(v, dtype=float).reshape(problem.n_meas, model.nv)
     for i in range(first, problem.length):
-        nxt = np.asarray(f(x[i], u[i], w[i]), dtype=float).reshape(-1)
+        nxt = model.step(x[i], u[i], w[i], v_node[i], d[i])
         x[i + 1] = box.clip(nxt) if np.all(np.isfinite(nxt)) else x[i]
 
 
 def predicted_guess(
-    problem: WindowProblem, prior: FloatArray, u: FloatArray, w_guess: FloatArray, v_guess: FloatArray
+    problem: WindowProblem,
+    prior: FloatArray,
+    u: FloatArray,
+    w_guess: FloatArray,
+    v_guess: FloatArray,
+    data: FloatArray | None = None,
 ) -> FloatArray:
     """Scaled guess from the prior simulated forward with a constant ``w_guess`` (clipped to the w box)."""
     L = problem.length
-    x = np.empty((L + 1, problem.system.nx))
-    x[0] = prior
+    x = np.empty((L + 1, problem.model.nx))
+    x[0] = problem.x_box.clip(prior)
     w = problem.w_box.clip(np.tile(w_guess, (L, 1)))
-    predict_states(problem, x, w, u, 0)
-    return problem.pack(WindowTrajectory(x, w, np.tile(v_guess, (problem.n_meas, 1))))
+    v = np.tile(v_guess, (problem.n_meas, 1))
+    predict_states(problem, x, w, u, 0, v, data)
+    return problem.pack(WindowTrajectory(x, w, v))
 
 
 def shifted_guess(
@@ -47,6 +76,7 @@ def shifted_guess(
     v_fill: FloatArray,
     *,
     duals: bool,
+    data: FloatArray | None = None,
 ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None] | None:
     """The old solution moved ``shift`` steps forward onto ``problem``; None when the windows share no node.
 
@@ -65,6 +95,8 @@ def shifted_guess(
         input's fill is replaced by the old window's last estimate when it has one).
     duals : bool
         Also shift the multipliers (new entries 0).
+    data : ndarray (L+1, nd), optional
+        The new window's node data (models with node data).
 
     Returns
     -------
@@ -78,13 +110,13 @@ def shifted_guess(
     old = old_problem.unpack(old_solution.z)
     n_w = min(n_x - 1, L)
     n_v = min(max(old_problem.n_meas - shift, 0), M)
-    x = np.empty((L + 1, problem.system.nx))
+    x = np.empty((L + 1, problem.model.nx))
     x[:n_x] = old.x[shift : shift + n_x]
     w = np.tile(old.w[-1] if old_problem.length else w_fill, (L, 1))
     w[:n_w] = old.w[shift : shift + n_w]
     v = np.tile(v_fill, (M, 1))
     v[:n_v] = old.v[shift : shift + n_v]
-    predict_states(problem, x, w, u, n_x - 1)
+    predict_states(problem, x, w, u, n_x - 1, v, data)
     z0 = problem.pack(WindowTrajectory(x, w, v))
     if not duals:
         return z0, None
@@ -96,11 +128,17 @@ def shifted_guess(
     ):
         if count:
             lam_x[new_index[:count]] = old_solution.lam_x[old_index[shift : shift + count]]
-    nx, ny = problem.system.nx, problem.system.ny
+    nx, ny = problem.model.nx, problem.model.ny
     lam_g = np.zeros(problem.n_con)
     old_dyn = old_solution.lam_g[: old_problem.n_dyn].reshape(old_problem.length, nx)
     lam_g[: n_w * nx] = old_dyn[shift : shift + n_w].ravel()
     if problem.has_output_constraints and old_problem.has_output_constraints and n_v:
-        old_out = old_solution.lam_g[old_problem.n_dyn :].reshape(old_problem.n_meas, ny)
+        old_out = old_solution.lam_g[old_problem.n_dyn : old_problem.n_dyn + old_problem.n_out_con]
+        old_out = old_out.reshape(old_problem.n_meas, ny)
         lam_g[problem.n_dyn : problem.n_dyn + n_v * ny] = old_out[shift : shift + n_v].ravel()
+    nc = problem.node_rows.size
+    if nc and np.array_equal(problem.node_rows, old_problem.node_rows) and n_v:
+        old_node = old_solution.lam_g[old_problem.n_dyn + old_problem.n_out_con :].reshape(old_problem.n_meas, nc)
+        start = problem.n_dyn + problem.n_out_con
+        lam_g[start : start + n_v * nc] = old_node[shift : shift + n_v].ravel()
     return z0, (lam_x, lam_g)

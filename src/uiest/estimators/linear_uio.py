@@ -1,0 +1,289 @@
+r"""The classical full-order unknown input observer for LTI systems (Chen, Patton, Zhang 1996).
+
+For ``x+ = A x + B_u u + B w (+ f_0)``, ``y = C x + D v (+ h_0)`` (offsets allowed; see
+``shared/notes/references.md`` section 3)::
+
+    H = B (C B)^+,   T = I - H C,   F = T A - K1 C  (Schur stable),   K = K1 + F H
+    z[k+1] = F z[k] + T (B_u u[k] + f_0) + K y'[k],     x_hat[k] = z[k] + H y'[k]
+    y'[k]  = y[k] - h_0 - D v_bar,                        z[0] = T x_bar_0
+
+so that ``e[k+1] = F e[k]`` for ``e = T x - z`` whatever w: ``T B = 0`` needs the matching
+condition ``rank(C B) = rank(B)`` (checked; :class:`~uiest.errors.ModelError` otherwise), and a
+Schur stable F needs every invariant zero strictly inside the unit disk (they are eigenvalues of
+F for every gain). ``x_hat[k] - x[k] = -e[k] - H D (v[k] - v_bar)`` (with ``e[0]`` from the prior),
+so noise-free the error decays like ``F^k``.
+
+Index convention::
+
+    x_hat[k]   = z[k] + H y'[k]                       (current measurement used)
+    w_hat[k-1] = B^+ (x_hat[k] - A x_hat[k-1] - B_u u[k-1] - f_0)   (least squares, minimum norm)
+
+The gain K1: the DARE of the dual pair ``((T A)^T, C^T)`` with Q = R = I (default), pole
+placement (``poles=``) or given (``gain=``). Missing channels of ``y[k]`` are replaced by the
+predicted output ``C x_pred + h_0 + D v_bar`` with ``x_pred = A x_hat[k-1] + B_u u[k-1] + B w_hat + f_0``
+(the last unknown-input estimate): the observer cannot be exact across such a step.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+import scipy.linalg
+import scipy.signal
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray, as_vector
+from uiest.detectability import lmi
+from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
+from uiest.errors import DataError, ModelError, OptionError
+from uiest.estimators.base import collect_run
+from uiest.estimators.checks import check_run_data, check_u_prev, check_y
+from uiest.estimators.results import EstimationResult, StepEstimate
+from uiest.system import System
+
+
+def _dare_gain(E: FloatArray, C: FloatArray) -> FloatArray:
+    """``K1 = E P C^T (C P C^T + I)^-1`` with P from the DARE of ``(E^T, C^T)``, Q = R = I."""
+    n, p = E.shape[0], C.shape[0]
+    if p == 0:
+        return np.zeros((n, 0))
+    P = scipy.linalg.solve_discrete_are(E.T, C.T, np.eye(n), np.eye(p))
+    return np.asarray(E @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(p)), dtype=float)
+
+
+class LinearUIO:
+    r"""Chen-Patton-Zhang unknown input observer (see the module docstring).
+
+    Parameters
+    ----------
+    system : System
+        A linear (affine) system: constant Jacobians of f and h (checked); its matrices come from
+        ``system.linearize``. See :meth:`from_matrices` to start from matrices.
+    poles : sequence of complex, optional
+        The nx eigenvalues of F, placed by scipy's ``place_poles`` on ``((T A)^T, C^T)``. The
+        invariant zeros are eigenvalues of F for every gain, so they must be among the poles.
+    gain : array_like (nx, ny), optional
+        K1 given (F = T A - K1 C must be Schur stable).
+    x0_prior : array_like (nx,), optional
+        Prior of x[0] (or give it to :meth:`reset` / :meth:`run`).
+    v_prior : array_like (nv,), optional
+        Noise prior ``v_bar`` (default 0).
+    rtol : float
+        Rank tolerance of the matching test (:func:`~uiest.detectability.linear_strong_detectability`).
+
+    Attributes
+    ----------
+    A, B_u, B, C, D : ndarray
+        The system's matrices (B: unknown input, D: noise).
+    H, T, F, K1, K : ndarray
+        The observer's matrices.
+    detectability : LinearStrongDetectability
+        The Hautus test of ``(A, B, C)`` (matching, invariant zeros).
+
+    """
+
+    estimator_name = "LinearUIO"
+    N = None
+
+    def __init__(
+        self,
+        system: System,
+        *,
+        poles: Sequence[complex] | None = None,
+        gain: ArrayLike | None = None,
+        x0_prior: ArrayLike | None = None,
+        v_prior: ArrayLike | None = None,
+        rtol: float = 1e-9,
+    ) -> None:
+        if not isinstance(system, System):
+            raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
+        jac = system.jacobian_function
+        names = ("A", "B_u", "B", "C", "D")
+        varying = [name for i, name in enumerate(names) if not lmi.is_constant(jac, i, [0, 1, 2, 3])]
+        if varying:
+            raise ModelError(
+                f"system: expected a linear (affine) system with constant Jacobians, but {varying} vary with x, u, w "
+                "or v; the linear UIO needs x+ = A x + B_u u + B w, y = C x + D v"
+            )
+        self.system = system
+        nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
+        lin = system.linearize(np.zeros(nx), np.zeros(nu), np.zeros(nw), np.zeros(nv))
+        self.A, self.B_u, self.B, self.C, self.D = (np.asarray(m, dtype=float) for m in (lin.A, lin.B_u, lin.B_w,
+                                                                                        lin.C, lin.D_v))  # fmt: skip
+        self.f0 = system.step(np.zeros(nx), np.zeros(nu), np.zeros(nw))
+        self.h0 = system.output(np.zeros(nx), np.zeros(nv))
+        self.detectability: LinearStrongDetectability = linear_strong_detectability(self.A, self.B, self.C, rtol=rtol)
+        det = self.detectability
+        if not det.matching:
+            raise ModelError(f"system: no unknown input observer exists: {det.reason}")
+        if not det.strongly_detectable:
+            raise ModelError(f"system: no stable unknown input observer exists: {det.reason}")
+        CB = self.C @ self.B
+        self.H = self.B @ np.linalg.pinv(CB, rcond=rtol) if self.B.size else np.zeros((nx, system.ny))
+        self.T = np.eye(nx) - self.H @ self.C
+        E = self.T @ self.A
+        if poles is not None and gain is not None:
+            raise OptionError("poles, gain: give at most one of them")
+        if gain is not None:
+            K1 = np.asarray(gain, dtype=float)
+            if K1.shape != (nx, system.ny):
+                raise OptionError(f"gain: expected shape ({nx}, {system.ny}), got {K1.shape}")
+        elif poles is not None:
+            wanted = np.asarray(poles, dtype=complex).reshape(-1)
+            if wanted.size != nx:
+                raise OptionError(f"poles: expected {nx} poles, got {wanted.size}")
+            gaps = [np.min(np.abs(wanted - z), initial=np.inf) / (1 + abs(z)) for z in det.invariant_zeros]
+            absent = [z for z, gap in zip(det.invariant_zeros, gaps, strict=True) if gap > 1e-6]
+            if absent:
+                raise OptionError(
+                    f"poles: the invariant zeros {np.round(absent, 6).tolist()} are eigenvalues of F for every gain; "
+                    f"include them among the poles, got {np.round(wanted, 6).tolist()}"
+                )
+            try:
+                K1 = scipy.signal.place_poles(E.T, self.C.T, wanted).gain_matrix.T
+            except ValueError as exc:
+                raise OptionError(f"poles: pole placement on (T A, C) failed: {exc}") from exc
+        else:
+            K1 = _dare_gain(E, self.C)
+        self.K1 = np.asarray(K1, dtype=float)
+        self.F = E - self.K1 @ self.C
+        self.spectral_radius = float(np.max(np.abs(np.linalg.eigvals(self.F)), initial=0.0))
+        if not self.spectral_radius < 1.0:
+            raise OptionError(
+                f"gain: F = T A - K1 C has spectral radius {self.spectral_radius:.6g} >= 1; expected a Schur stable F"
+            )
+        self.K = self.K1 + self.F @ self.H
+        self.v_prior = np.zeros(nv) if v_prior is None else as_vector(v_prior, nv, "v_prior")
+        if not system.v.bounds.contains(self.v_prior):
+            raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {self.v_prior.tolist()}")
+        self._x0_prior: FloatArray | None = None
+        self._clear()
+        if x0_prior is not None:
+            self.reset(x0_prior)
+
+    @classmethod
+    def from_matrices(
+        cls,
+        A: ArrayLike,
+        B: ArrayLike,
+        C: ArrayLike,
+        *,
+        B_u: ArrayLike | None = None,
+        system_options: dict[str, Any] | None = None,
+        **options: Any,
+    ) -> LinearUIO:
+        """The observer of ``x+ = A x + B_u u + B w``, ``y = C x + v``.
+
+        ``system_options`` go to :func:`uiest.models.linear.linear_system` (bounds, names, dt);
+        further keywords to the constructor.
+        """
+        from uiest.models.linear import linear_system
+
+        return cls(linear_system(A, B, C, B_u=B_u, **(system_options or {})), **options)
+
+    # ------------------------------------------------------------------ state
+    def _clear(self) -> None:
+        self._k = 0
+        self._z: FloatArray | None = None
+        self._y_last: FloatArray | None = None
+        self._x_last: FloatArray | None = None
+        self._w_last: FloatArray | None = None
+
+    @property
+    def k(self) -> int:
+        """Time index of the next call to :meth:`step`."""
+        return self._k
+
+    @property
+    def x0_prior(self) -> FloatArray | None:
+        """The prior of x[0]."""
+        return self._x0_prior
+
+    def reset(self, x0_prior: ArrayLike | None = None) -> None:
+        """Start over at k = 0 with the prior ``x0_prior`` (shape (nx,), in X; None: keep the current one)."""
+        if x0_prior is None:
+            if self._x0_prior is None:
+                raise OptionError("x0_prior: required (no prior of x[0] was given before)")
+        else:
+            prior = as_vector(x0_prior, self.system.nx, "x0_prior")
+            if not self.system.x.bounds.contains(prior):
+                raise DataError(f"x0_prior: expected a point in X = {self.system.x.bounds}, got {prior.tolist()}")
+            self._x0_prior = prior
+        self._clear()
+
+    # ------------------------------------------------------------------ steps
+    def _offset_output(self, y: FloatArray, u_prev: FloatArray) -> FloatArray:
+        """``y' = y - h_0 - D v_bar`` with missing channels predicted (module docstring)."""
+        missing = np.isnan(y)
+        if missing.any():
+            if self._x_last is None:
+                x_pred = self._x0_prior
+            else:
+                w = self._w_last if self._w_last is not None else self.system.nominal_w
+                x_pred = self.A @ self._x_last + self.B_u @ u_prev + self.B @ w + self.f0
+            y = np.where(missing, self.C @ x_pred + self.h0 + self.D @ self.v_prior, y)
+        return y - self.h0 - self.D @ self.v_prior
+
+    def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
+        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]`` (status ``"linear"``)."""
+        if self._x0_prior is None:
+            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
+        start = time.perf_counter()
+        k = self._k
+        u_vec = check_u_prev(self.system, u_prev, k)
+        y_vec = check_y(self.system, y)
+        y_eff = self._offset_output(y_vec, u_vec)
+        if k == 0:
+            z = self.T @ self._x0_prior
+        else:
+            assert self._z is not None and self._y_last is not None
+            z = self.F @ self._z + self.T @ (self.B_u @ u_vec + self.f0) + self.K @ self._y_last
+        x_hat = z + self.H @ y_eff
+        w_hat, w_index = None, None
+        if k > 0 and self._x_last is not None:
+            rhs = x_hat - self.A @ self._x_last - self.B_u @ u_vec - self.f0
+            w_hat, w_index = np.linalg.lstsq(self.B, rhs, rcond=None)[0], k - 1
+        self._z, self._y_last, self._x_last = z, y_eff, x_hat
+        if w_hat is not None:
+            self._w_last = w_hat
+        self._k = k + 1
+        return StepEstimate(
+            k=k,
+            x_hat=x_hat,
+            w_hat=w_hat,
+            w_index=w_index,
+            status="linear",
+            success=True,
+            iterations=0,
+            solve_time=time.perf_counter() - start,
+            cost=0.0,
+            window=0,
+            missing=np.isnan(y_vec),
+        )
+
+    def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
+        """Estimate ``x[0..K]`` from ``u (K, nu)`` and ``y (K+1, ny)``, starting from a reset."""
+        u_arr, y_arr = check_run_data(self.system, u, y, None, False, require_measurements=False)
+        self.reset(x0_prior)
+        return collect_run(self, u_arr, y_arr)
+
+    # ------------------------------------------------------------------ guarantee
+    @property
+    def guaranteed(self) -> bool:
+        """Always True: construction fails unless F is Schur stable and the matching condition holds."""
+        return True
+
+    @property
+    def guarantee(self) -> str:
+        """lem:UIO_LTI with the numbers of this observer."""
+        zeros = self.detectability.invariant_zeros
+        return (
+            f"lem:UIO_LTI (Chen-Patton-Zhang observer): e+ = F e with spectral radius {self.spectral_radius:.4g} < 1 "
+            f"whatever the unknown input; invariant zeros {np.round(zeros, 6).tolist()} are eigenvalues of F"
+        )
+
+    def __repr__(self) -> str:
+        return f"LinearUIO(system={self.system.name!r}, spectral_radius={self.spectral_radius:.4g})"
