@@ -17,7 +17,16 @@ import pandas as pd
 from uiest import models
 from uiest.box import FloatArray
 from uiest.errors import OptionError, UiestError
-from uiest.estimators import FIE, UISE, EstimationResult, MHEWeights, StandardMHE, UISEWeights
+from uiest.estimators import (
+    FIE,
+    UISE,
+    EstimationResult,
+    MHEWeights,
+    StandardMHE,
+    TwoStageUISE,
+    TwoStageWeights,
+    UISEWeights,
+)
 from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
@@ -53,7 +62,18 @@ def _standard_mhe(system: System, spec: EstimatorSpec, prior: FloatArray, solver
     return StandardMHE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe}
+def _two_stage(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    entry = models.get(system.name)
+    if entry.reduction is None:
+        raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {system.name!r} registers none")
+    reduced = entry.reduction()
+    weights = TwoStageWeights.from_scales(
+        reduced, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
+    )
+    return TwoStageUISE(reduced, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
+
+
+BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe, "two-stage": _two_stage}
 """Estimator factories by ``EstimatorSpec.kind``."""
 
 
