@@ -76,3 +76,20 @@ def test_sweep_command_runs_and_resumes(tmp_path):
     assert "2 rows (0 failed)" in result.output
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and "2 rows" in again.output
+
+
+def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
+    import json
+
+    out = tmp_path / "bench.json"
+    result = runner.invoke(app, ["bench", "--quick", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    records = json.loads(out.read_text())
+    keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt"}
+    assert len(records) == 9 and all(keys <= set(r) for r in records)
+    assert {(r["estimator"], r["solver"]) for r in records if r["max_dev_vs_ipopt"] == 0.0} >= {
+        ("UISE", "ipopt"),
+        ("two-stage UISE", "ipopt"),
+        ("standard MHE", "ipopt"),
+    }
+    assert all(r["failures"] == 0 for r in records if r["solver"] != "rti")

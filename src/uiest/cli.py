@@ -270,6 +270,35 @@ def sweep(
     console.print(f"{len(results)} rows ({failed} failed) in {out / 'results.parquet'}; summary: {out / 'summary.csv'}")
 
 
+@app.command()
+@_user_errors
+def bench(
+    quick: Annotated[bool, typer.Option(help="N = 30 only, 100 samples (under a minute).")] = False,
+    json_file: Annotated[Path | None, typer.Option("--json", help="Write the records as JSON.")] = None,
+) -> None:
+    """Window solver backends (ipopt, gn, rti) x estimators x N on the noisy crop scenario."""
+    import json
+
+    from uiest.experiments.solver_bench import bench_window_solvers
+
+    table = Table(title="window solvers, noisy crop scenario (ms per sample after N warm-up samples)")
+    columns = ("estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
+               "failures")  # fmt: skip
+    for column in columns:
+        table.add_column(column)
+    with console.status("benchmarking") as status:
+        records = bench_window_solvers(
+            quick=quick, report=lambda r: status.update(f"benchmarking: {r['estimator']} {r['solver']} N={r['N']}")
+        )
+    for record in records:
+        table.add_row(*[f"{record[c]:.3g}" if isinstance(record[c], float) else str(record[c]) for c in columns])
+    console.print(table)
+    if json_file is not None:
+        json_file.parent.mkdir(parents=True, exist_ok=True)
+        json_file.write_text(json.dumps(records, indent=2))
+        console.print(f"wrote {json_file}")
+
+
 def main() -> None:
     """Entry point for ``python -m uiest``."""
     app()
