@@ -33,7 +33,7 @@ from uiest.system import System
 
 
 @dataclass(frozen=True, eq=False)
-class DeltaIOSS:
+class DeltaIOSS(dissipation.SolvedCertificate):
     """A quadratic delta-IOSS Lyapunov function (Schiller et al. 2023, Assumption 1).
 
     Attributes
@@ -61,16 +61,6 @@ class DeltaIOSS:
     structure: str
     w_box: Box
     solve_time: float
-
-    @property
-    def certified(self) -> bool:
-        """Whether the certificate holds (solved and re-checked)."""
-        return self.solution.certified
-
-    @property
-    def reason(self) -> str:
-        """Why (not) certified."""
-        return self.solution.reason
 
     @property
     def eta(self) -> float:

@@ -170,6 +170,22 @@ class Solution:
         return float(eig[-1] / eig[0])
 
 
+class SolvedCertificate:
+    """The accessors every certificate built on a :class:`Solution` shares (it holds ``solution``)."""
+
+    solution: Solution
+
+    @property
+    def certified(self) -> bool:
+        """Whether the certificate holds (solved and re-checked)."""
+        return self.solution.certified
+
+    @property
+    def reason(self) -> str:
+        """Why (not) certified."""
+        return self.solution.reason
+
+
 class _Problem:
     """The LMI ``M(J_i, G_i) >= t I`` on a fixed set of points, normalised by ``P <= I``.
 

@@ -31,7 +31,7 @@ from uiest.errors import CertificationError, ModelError
 
 
 @dataclass(frozen=True, eq=False)
-class ReducedIOSS:
+class ReducedIOSS(dissipation.SolvedCertificate):
     """An exponential i-IOSS certificate of a reduced-order model (ass:e-ioss).
 
     Attributes
@@ -57,16 +57,6 @@ class ReducedIOSS:
     model: dissipation.IncrementalModel = field(repr=False)
     solution: dissipation.Solution = field(repr=False)
     solve_time: float
-
-    @property
-    def certified(self) -> bool:
-        """Whether the certificate holds (solved and re-checked)."""
-        return self.solution.certified
-
-    @property
-    def reason(self) -> str:
-        """Why (not) certified."""
-        return self.solution.reason
 
     @property
     def mu(self) -> float:

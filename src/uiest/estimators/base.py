@@ -115,8 +115,13 @@ class WindowEstimator:
 
     @property
     def guaranteed(self) -> bool:
-        """Whether the guarantee named in :attr:`guarantee` applies."""
-        return False
+        """Whether the guarantee named in :attr:`guarantee` applies.
+
+        A certified certificate gave the weights and ``N >= certificate.min_horizon()``.
+        """
+        certificate = getattr(self, "certificate", None)
+        horizon = self.N
+        return certificate is not None and horizon is not None and certificate.min_horizon() <= horizon
 
     # ------------------------------------------------------------------ state
     def _clear(self) -> None:

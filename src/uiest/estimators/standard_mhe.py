@@ -152,12 +152,6 @@ class StandardMHE(WindowEstimator):
         return self.w_prior
 
     @property
-    def guaranteed(self) -> bool:
-        """True when a certified delta-IOSS certificate gave the weights and ``N >= min_horizon()``."""
-        horizon = self.N
-        return self.certificate is not None and horizon is not None and horizon >= self.certificate.min_horizon()
-
-    @property
     def guarantee(self) -> str:
         """What Schiller et al.'s theorem gives here, or why it does not apply."""
         if self.certificate is None:

@@ -396,10 +396,7 @@ class TwoStageUISE(WindowEstimator):
     @property
     def guaranteed(self) -> bool:
         """True for n_sharp = 0, or when a certified certificate gave the weights and ``N >= min_horizon()``."""
-        if self.reduced.n_sharp == 0:
-            return True
-        horizon = self.N
-        return self.certificate is not None and horizon is not None and horizon >= self.certificate.min_horizon()
+        return self.reduced.n_sharp == 0 or super().guaranteed
 
     @property
     def guarantee(self) -> str:

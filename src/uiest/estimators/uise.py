@@ -147,12 +147,6 @@ class UISE(WindowEstimator):
         return uise_window_weights(self.weights, length)
 
     @property
-    def guaranteed(self) -> bool:
-        """True when a certified certificate gave the weights and ``N >= min_horizon()``."""
-        horizon = self.N
-        return self.certificate is not None and horizon is not None and horizon >= self.certificate.min_horizon()
-
-    @property
     def guarantee(self) -> str:
         """Which guarantee holds (theo:MHE_full) or why none does."""
         if self.certificate is None:

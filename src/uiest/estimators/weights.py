@@ -69,6 +69,28 @@ def _missing_attributes(certificate: object, names: tuple[str, ...]) -> list[str
     return [n for n in names if n not in own and not hasattr(type(certificate), n)]
 
 
+def _validate(weights: object, discount: str, matrices: tuple[str, ...]) -> None:
+    """Check and freeze the discount and the PSD weight matrices of a frozen weights dataclass."""
+    object.__setattr__(weights, discount, _discount(getattr(weights, discount), f"weights.{discount}"))
+    for name in matrices:
+        arr = np.array(getattr(weights, name), dtype=float)
+        n = 1 if arr.ndim == 0 else arr.shape[0]
+        object.__setattr__(weights, name, _psd(arr, n, f"weights.{name}"))
+
+
+def _require_certified(certificate: object, names: tuple[str, ...], expected: str, not_certified: str) -> None:
+    """OptionError when ``certificate`` lacks ``names``; CertificationError when it does not hold."""
+    missing = _missing_attributes(certificate, names)
+    if missing:
+        raise OptionError(
+            f"certificate: expected a {expected} certificate ({', '.join(names)}), "
+            f"got {type(certificate).__name__} without {missing}"
+        )
+    if not certificate.certified:  # type: ignore[attr-defined]
+        reason = getattr(certificate, "reason", "")
+        raise CertificationError(f"certificate: {not_certified.format(reason=reason)}")
+
+
 def _discount(value: float, name: str) -> float:
     try:
         out = float(value)
@@ -122,27 +144,18 @@ class UISEWeights:
     R_v: FloatArray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mu", _discount(self.mu, "weights.mu"))
-        for name in ("P", "R_y", "R_v"):
-            arr = np.array(getattr(self, name), dtype=float)
-            n = 1 if arr.ndim == 0 else arr.shape[0]
-            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+        _validate(self, "mu", ("P", "R_y", "R_v"))
 
     @classmethod
     def from_certificate(cls, certificate: StrongCertificate) -> UISEWeights:
         """The certificate's ``mu, P, R_y, R_v``; raises CertificationError if it does not hold."""
-        missing = _missing_attributes(certificate, ("certified", "mu", "P", "R_y", "R_v", "min_horizon"))
-        if missing:
-            raise OptionError(
-                "certificate: expected a StrongDetectability certificate (certified, mu, P, R_y, R_v, "
-                f"min_horizon()), got {type(certificate).__name__} without {missing}"
-            )
-        if not certificate.certified:
-            reason = getattr(certificate, "reason", "")
-            raise CertificationError(
-                f"certificate: strong detectability is not certified ({reason}); pass weights= to run the "
-                "estimator without the theorem's guarantee"
-            )
+        _require_certified(
+            certificate,
+            ("certified", "mu", "P", "R_y", "R_v", "min_horizon"),
+            "StrongDetectability",
+            "strong detectability is not certified ({reason}); pass weights= to run the estimator without the "
+            "theorem's guarantee",
+        )
         return cls(mu=certificate.mu, P=certificate.P, R_y=certificate.R_y, R_v=certificate.R_v)
 
     @classmethod
@@ -200,26 +213,17 @@ class MHEWeights:
     R: FloatArray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "eta", _discount(self.eta, "weights.eta"))
-        for name in ("P", "Q_w", "Q_v", "R"):
-            arr = np.array(getattr(self, name), dtype=float)
-            n = 1 if arr.ndim == 0 else arr.shape[0]
-            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+        _validate(self, "eta", ("P", "Q_w", "Q_v", "R"))
 
     @classmethod
     def from_certificate(cls, certificate: DeltaCertificate) -> MHEWeights:
         """The certificate's ``eta, P, Q_w, Q_v, R``; raises CertificationError if it does not hold."""
-        missing = _missing_attributes(certificate, ("certified", "eta", "P", "Q_w", "Q_v", "R", "min_horizon"))
-        if missing:
-            raise OptionError(
-                "certificate: expected a DeltaIOSS certificate (certified, eta, P, Q_w, Q_v, R, min_horizon()), "
-                f"got {type(certificate).__name__} without {missing}"
-            )
-        if not certificate.certified:
-            reason = getattr(certificate, "reason", "")
-            raise CertificationError(
-                f"certificate: delta-IOSS is not certified ({reason}); pass weights= to run without the guarantee"
-            )
+        _require_certified(
+            certificate,
+            ("certified", "eta", "P", "Q_w", "Q_v", "R", "min_horizon"),
+            "DeltaIOSS",
+            "delta-IOSS is not certified ({reason}); pass weights= to run without the guarantee",
+        )
         return cls(eta=certificate.eta, P=certificate.P, Q_w=certificate.Q_w, Q_v=certificate.Q_v, R=certificate.R)
 
     @classmethod
@@ -307,27 +311,18 @@ class TwoStageWeights:
     R_v: FloatArray
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "mu", _discount(self.mu, "weights.mu"))
-        for name in ("prior", "R_y", "R_v"):
-            arr = np.array(getattr(self, name), dtype=float)
-            n = 1 if arr.ndim == 0 else arr.shape[0]
-            object.__setattr__(self, name, _psd(arr, n, f"weights.{name}"))
+        _validate(self, "mu", ("prior", "R_y", "R_v"))
 
     @classmethod
     def from_certificate(cls, certificate: ReducedCertificate) -> TwoStageWeights:
         """``mu``, ``c_x diag(1 / z_scale^2)``, ``R_y``, ``R_v``; CertificationError if it does not hold."""
-        missing = _missing_attributes(certificate, ("certified", "mu", "c_x", "R_y", "R_v", "min_horizon"))
-        if missing:
-            raise OptionError(
-                "certificate: expected a ReducedIOSS certificate (certified, mu, c_x, R_y, R_v, min_horizon()), "
-                f"got {type(certificate).__name__} without {missing}"
-            )
-        if not certificate.certified:
-            reason = getattr(certificate, "reason", "")
-            raise CertificationError(
-                f"certificate: the reduced model's i-IOSS (ass:e-ioss) is not certified ({reason}); pass weights= "
-                "to run the two-stage UISE without the guarantee of theo:stab"
-            )
+        _require_certified(
+            certificate,
+            ("certified", "mu", "c_x", "R_y", "R_v", "min_horizon"),
+            "ReducedIOSS",
+            "the reduced model's i-IOSS (ass:e-ioss) is not certified ({reason}); pass weights= to run the "
+            "two-stage UISE without the guarantee of theo:stab",
+        )
         z_scale = certificate_z_scale(certificate)
         if z_scale is None:
             raise OptionError("certificate: expected z scales (model.z_scale or z_scale) to express c_x as a matrix")

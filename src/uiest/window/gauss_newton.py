@@ -81,9 +81,14 @@ class GaussNewtonSolver:
         self._ipopt: IpoptSolver | None = None
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
+        self._at_z: tuple[FloatArray, FloatArray] = (np.zeros(0), np.zeros(0))
 
     def _merit(self, z: FloatArray, p: FloatArray, nu: float) -> float:
         r, g = (np.asarray(v, dtype=float).reshape(-1) for v in self._merit_parts(z, p))
+        return self._merit_value(r, g, nu)
+
+    def _merit_value(self, r: FloatArray, g: FloatArray, nu: float) -> float:
+        """``|r|^2 + nu |violation of lbg <= g <= ubg|_1``."""
         prob = self.problem
         violation = np.maximum(prob.lbg - g, 0.0).sum() + np.maximum(g - prob.ubg, 0.0).sum() if g.size else 0.0
         return float(r @ r + nu * violation)
@@ -99,11 +104,15 @@ class GaussNewtonSolver:
     def _step(
         self, z: FloatArray, p: FloatArray, regularise: float
     ) -> tuple[FloatArray | None, FloatArray, float, float]:
-        """One QP: returns (dz or None, lam_g, cost |r|^2, gradient norm)."""
+        """One QP: returns (dz or None, lam_g, cost |r|^2, predicted decrease of |r|^2).
+
+        Keeps ``(r, g)`` at ``z`` in ``self._at_z`` so that the line search need not evaluate them again.
+        """
         prob = self.problem
         r, grad, H, g, G = self._linearisation(z, p)
         r_arr = np.asarray(r, dtype=float).reshape(-1)
         g_arr = np.asarray(g, dtype=float).reshape(-1)
+        self._at_z = (r_arr, g_arr)
         if regularise:
             H = H + regularise * ca.DM.eye(prob.n_var)
         out = self._qp(
@@ -155,7 +164,7 @@ class GaussNewtonSolver:
                 status = "QP_failed"
                 break
             nu = 2.0 * float(np.abs(lam_g).max(initial=0.0)) + 1.0
-            merit0 = self._merit(z, p, nu)
+            merit0 = self._merit_value(*self._at_z, nu)
             alpha = 1.0
             if self.max_iter > 1:
                 while alpha > 1e-4 and self._merit(z + alpha * dz, p, nu) > merit0 * (1.0 + 1e-12) + 1e-300:
