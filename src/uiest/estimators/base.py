@@ -47,7 +47,43 @@ class _Cached:
     cold: WindowSolver | None = None
 
 
-class WindowEstimator:
+class StreamingEstimator:
+    """Time index, prior of x[0] and ``reset``, shared by every estimator.
+
+    Subclasses hold ``system``, ``_x0_prior`` and ``_k`` and implement ``_clear()``.
+    """
+
+    system: System
+    _x0_prior: FloatArray | None
+    _k: int
+
+    def _clear(self) -> None:
+        raise NotImplementedError
+
+    @property
+    def k(self) -> int:
+        """Time index of the next call to :meth:`step`."""
+        return self._k
+
+    @property
+    def x0_prior(self) -> FloatArray | None:
+        """The prior of x[0] set by the constructor or :meth:`reset`."""
+        return self._x0_prior
+
+    def reset(self, x0_prior: ArrayLike | None = None) -> None:
+        """Start over at k = 0 with the prior ``x0_prior`` (shape (nx,), in X; None: keep the current one)."""
+        if x0_prior is None:
+            if self._x0_prior is None:
+                raise OptionError("x0_prior: required (no prior of x[0] was given before)")
+        else:
+            prior = as_vector(x0_prior, self.system.nx, "x0_prior")
+            if not self.system.x.bounds.contains(prior):
+                raise DataError(f"x0_prior: expected a point in X = {self.system.x.bounds}, got {prior.tolist()}")
+            self._x0_prior = prior
+        self._clear()
+
+
+class WindowEstimator(StreamingEstimator):
     """Base class: streaming ``step``, batch ``run``, failure handling, warm starts.
 
     Not used directly; see :class:`~uiest.estimators.UISE`, :class:`~uiest.estimators.FIE` and
@@ -133,28 +169,6 @@ class WindowEstimator:
         self._last: tuple[int, WindowProblem, WindowSolution] | None = None
         self._x_last: FloatArray | None = None
         self._w_last: FloatArray | None = None
-
-    @property
-    def k(self) -> int:
-        """Time index of the next call to :meth:`step`."""
-        return self._k
-
-    @property
-    def x0_prior(self) -> FloatArray | None:
-        """The prior of x[0] set by the constructor or :meth:`reset`."""
-        return self._x0_prior
-
-    def reset(self, x0_prior: ArrayLike | None = None) -> None:
-        """Start over at k = 0 with the prior ``x0_prior`` (shape (nx,), in X; None: keep the current one)."""
-        if x0_prior is None:
-            if self._x0_prior is None:
-                raise OptionError("x0_prior: required (no prior of x[0] was given before)")
-        else:
-            prior = as_vector(x0_prior, self.system.nx, "x0_prior")
-            if not self.system.x.bounds.contains(prior):
-                raise DataError(f"x0_prior: expected a point in X = {self.system.x.bounds}, got {prior.tolist()}")
-            self._x0_prior = prior
-        self._clear()
 
     # ------------------------------------------------------------------ problems
     def _build_problem(self, length: int) -> WindowProblem:

@@ -39,7 +39,7 @@ from uiest.box import FloatArray, as_vector
 from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
-from uiest.estimators.base import collect_run
+from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.estimators.checks import check_run_data, check_u_prev, check_y
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.system import System
@@ -54,7 +54,7 @@ def _dare_gain(E: FloatArray, C: FloatArray) -> FloatArray:
     return np.asarray(E @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(p)), dtype=float)
 
 
-class LinearUIO:
+class LinearUIO(StreamingEstimator):
     r"""Chen-Patton-Zhang unknown input observer (see the module docstring).
 
     Parameters
@@ -191,28 +191,6 @@ class LinearUIO:
         self._y_last: FloatArray | None = None
         self._x_last: FloatArray | None = None
         self._w_last: FloatArray | None = None
-
-    @property
-    def k(self) -> int:
-        """Time index of the next call to :meth:`step`."""
-        return self._k
-
-    @property
-    def x0_prior(self) -> FloatArray | None:
-        """The prior of x[0]."""
-        return self._x0_prior
-
-    def reset(self, x0_prior: ArrayLike | None = None) -> None:
-        """Start over at k = 0 with the prior ``x0_prior`` (shape (nx,), in X; None: keep the current one)."""
-        if x0_prior is None:
-            if self._x0_prior is None:
-                raise OptionError("x0_prior: required (no prior of x[0] was given before)")
-        else:
-            prior = as_vector(x0_prior, self.system.nx, "x0_prior")
-            if not self.system.x.bounds.contains(prior):
-                raise DataError(f"x0_prior: expected a point in X = {self.system.x.bounds}, got {prior.tolist()}")
-            self._x0_prior = prior
-        self._clear()
 
     # ------------------------------------------------------------------ steps
     def _offset_output(self, y: FloatArray, u_prev: FloatArray) -> FloatArray:
