@@ -7,18 +7,23 @@ convex QP
     min_dz  1/2 dz^T (J^T J + lambda I) dz + (J^T r)^T dz
     s.t.    lbg - g <= G dz <= ubg - g,     lbx - z <= dz <= ubx - z,
 
-with ``J = dr/dz``, ``G = dg/dz`` (one CasADi Function gives r, J, g and G), solved by CasADi's
-active-set QP solver ``qrqp`` on the sparse matrices. The step is accepted by a backtracking
-line search on the exact penalty merit ``|r|^2 + nu |violation of g|_1`` (``nu`` from the QP
-multipliers); ``lambda`` (Levenberg-Marquardt) is 0 and raised only when a QP fails.
+with ``J = dr/dz``, ``G = dg/dz``. One CasADi Function gives ``r``, ``J^T r``, ``J^T J``, ``g``
+and ``G`` (sparse), and the QP is solved by CasADi's active-set solver ``qrqp``; both are called
+through CasADi's buffer interface, so no ``DM`` is built per call (a plain call costs about
+60 us per Function, more than the evaluation itself). qrqp starts cold at the first iteration
+of a sample and from the previous iteration's active set afterwards (cold again if that fails).
+The step is accepted by a backtracking line search on the exact penalty merit
+``|r|^2 + nu |violation of g|_1`` (``nu`` from the QP multipliers); ``lambda``
+(Levenberg-Marquardt) is 0 and raised only when the QP fails.
 
 Stopping: ``|dz|_inf <= step_tol`` (scaled units) or a predicted cost decrease below
 ``cost_tol (1 + |r|^2)``, with the constraints satisfied to ``FEASIBILITY_TOL``; or ``max_iter``.
 RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is not the
-optimum but the first Gauss-Newton iterate from the shifted previous solution.
+optimum but the first Gauss-Newton iterate from the shifted previous solution (exact for
+linear models, whose window problem is a QP).
 
-Reliability: a failed QP (or NaN) is retried with ``lambda = 1e-6 |J^T J|``; if that fails too
-and ``fallback=True``, the sample is solved by IPOPT and the status says so.
+Reliability: a failed QP (or NaN) is retried with ``lambda = 1e-6 max|J^T J|``; if that fails
+too and ``fallback=True``, the sample is solved by IPOPT and the status says so.
 """
 
 from __future__ import annotations
@@ -30,10 +35,17 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
 
 QP_OPTIONS: dict[str, Any] = {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False}
+
+ACCEPT_RATIO = 1e-4
+"""Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
+
+DAMPING_FLOOR = 1e-9
+"""Smallest non-zero Levenberg-Marquardt damping, relative to ``max |J^T J|``."""
 
 
 class GaussNewtonSolver:
@@ -62,80 +74,97 @@ class GaussNewtonSolver:
         step_tol: float = 1e-10,
         cost_tol: float = 1e-14,
         fallback: bool = True,
+        min_damping: float = 0.0,
     ) -> None:
         self.problem = problem
         self.max_iter = int(max_iter)
         self.step_tol = float(step_tol)
         self.cost_tol = float(cost_tol)
         self.fallback = fallback
-        z = ca.SX.sym("z", problem.n_var)
-        p = ca.SX.sym("p", problem.n_par)
-        r = problem.residual_function(z, p)
-        g = problem.constraint_function(z, p)
-        J = ca.jacobian(r, z)
-        G = ca.jacobian(g, z)
-        H = ca.mtimes(J.T, J)
-        self._linearisation = ca.Function("gn_linearisation", [z, p], [r, ca.mtimes(J.T, r), H, g, G])
-        self._merit_parts = ca.Function("gn_merit", [z, p], [r, g])
-        self._qp = ca.conic("gn_qp", "qrqp", {"h": H.sparsity(), "a": G.sparsity()}, dict(QP_OPTIONS))
+        self.min_damping = float(min_damping)
+        z, p = problem.z, problem.p
+        J = ca.jacobian(problem.r, z)
+        G = ca.jacobian(problem.g, z)
+        # J^T J with its whole diagonal structurally present (Levenberg-Marquardt adds to it)
+        H = ca.project(ca.mtimes(J.T, J), ca.mtimes(J.T, J).sparsity() + ca.Sparsity.diag(problem.n_var))
+        self._h_sparsity, self._a_sparsity = H.sparsity(), G.sparsity()
+        self._h_rows, self._h_cols = (np.asarray(index) for index in self._h_sparsity.get_triplet())
+        self._h_diagonal = np.flatnonzero(self._h_rows == self._h_cols)
+        self._linearisation = BufferedFunction(
+            ca.Function(
+                "gn_linearisation",
+                [z, p],
+                [ca.densify(problem.r), ca.densify(ca.mtimes(J.T, problem.r)), H, ca.densify(problem.g), G],
+            )
+        )
+        self._residuals = BufferedFunction(
+            ca.Function("gn_merit", [z, p], [ca.densify(problem.r), ca.densify(problem.g)])
+        )
+        self._qrqp = BufferedFunction(
+            ca.conic("gn_qp", "qrqp", {"h": self._h_sparsity, "a": self._a_sparsity}, dict(QP_OPTIONS))
+        )
         self._ipopt: IpoptSolver | None = None
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
-        self._at_z: tuple[FloatArray, FloatArray] = (np.zeros(0), np.zeros(0))
 
-    def _merit(self, z: FloatArray, p: FloatArray, nu: float) -> float:
-        r, g = (np.asarray(v, dtype=float).reshape(-1) for v in self._merit_parts(z, p))
-        return self._merit_value(r, g, nu)
+    # ------------------------------------------------------------------ evaluations
+    def _r_g(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray]:
+        r, g = self._residuals(z, p)
+        return r.copy(), g[: self.problem.n_con].copy()
 
-    def _merit_value(self, r: FloatArray, g: FloatArray, nu: float) -> float:
-        """``|r|^2 + nu |violation of lbg <= g <= ubg|_1``."""
+    def _violation_l1(self, g: FloatArray) -> float:
+        """``|violation of lbg <= g <= ubg|_1``."""
         prob = self.problem
-        violation = np.maximum(prob.lbg - g, 0.0).sum() + np.maximum(g - prob.ubg, 0.0).sum() if g.size else 0.0
-        return float(r @ r + nu * violation)
+        return float(np.maximum(prob.lbg - g, 0.0).sum() + np.maximum(g - prob.ubg, 0.0).sum()) if g.size else 0.0
 
-    def _violation(self, z: FloatArray, p: FloatArray) -> float:
+    def _violation(self, z: FloatArray, g: FloatArray) -> float:
         prob = self.problem
         worst = float(np.max(np.maximum(prob.lbx - z, z - prob.ubx), initial=0.0))
-        if prob.n_con:
-            g = np.asarray(self._merit_parts(z, p)[1], dtype=float).reshape(-1)
+        if g.size:
             worst = max(worst, float(np.max(np.maximum(prob.lbg - g, g - prob.ubg), initial=0.0)))
         return worst
 
-    def _step(
-        self, z: FloatArray, p: FloatArray, regularise: float
-    ) -> tuple[FloatArray | None, FloatArray, float, float]:
-        """One QP: returns (dz or None, lam_g, cost |r|^2, predicted decrease of |r|^2).
+    # ------------------------------------------------------------------ QP
+    def _qp(
+        self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], warm: bool
+    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
+        """``(dz, lam_x, lam_a)`` of the QP by qrqp, or None; ``warm``: start from the last QP's active set."""
+        n, m = self.problem.n_var, self.problem.n_con
+        lam_x0, lam_a0 = (self._lam_x, self._lam_a) if warm else (np.zeros(n), np.zeros(m))
+        # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
+        x, _, lam_a, lam_x = self._qrqp(h, q, a, *bounds, np.zeros(n), lam_x0, lam_a0, np.zeros(0), np.zeros(0))
+        if not (self._qrqp.stats().get("success", False) and np.all(np.isfinite(x))):
+            return None
+        return x.copy(), lam_x.copy(), lam_a[:m].copy()
 
-        Keeps ``(r, g)`` at ``z`` in ``self._at_z`` so that the line search need not evaluate them again.
+    def _linearise(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, ...]:
+        """``(r, q = J^T r, nonzeros of J^T J, g, nonzeros of G)`` at ``z`` (copies)."""
+        r, q, h, g, a = (arr.copy() for arr in self._linearisation(z, p))
+        return r, q, h, g[: self.problem.n_con], a
+
+    def _step(
+        self, z: FloatArray, linearisation: tuple[FloatArray, ...], damping: float, warm: bool
+    ) -> tuple[FloatArray, float] | None:
+        """The QP step ``dz`` with ``damping`` added to ``J^T J``, and the decrease of ``|r|^2`` it predicts.
+
+        ``warm``: qrqp starts from the previous QP's active set, and from scratch if that fails.
+        None if the QP fails.
         """
         prob = self.problem
-        r, grad, H, g, G = self._linearisation(z, p)
-        r_arr = np.asarray(r, dtype=float).reshape(-1)
-        g_arr = np.asarray(g, dtype=float).reshape(-1)
-        self._at_z = (r_arr, g_arr)
-        if regularise:
-            H = H + regularise * ca.DM.eye(prob.n_var)
-        out = self._qp(
-            h=H,
-            g=grad,
-            a=G,
-            lba=prob.lbg - g_arr,
-            uba=prob.ubg - g_arr,
-            lbx=prob.lbx - z,
-            ubx=prob.ubx - z,
-            lam_x0=self._lam_x,
-            lam_a0=self._lam_a,
-        )
-        dz = np.asarray(out["x"], dtype=float).reshape(-1)
-        ok = bool(self._qp.stats().get("success", False)) and np.all(np.isfinite(dz))
-        lam_g = np.asarray(out["lam_a"], dtype=float).reshape(-1)
-        if ok:  # the active set of this QP starts the next one (qrqp is an active-set method)
-            self._lam_x = np.asarray(out["lam_x"], dtype=float).reshape(-1)
-            self._lam_a = lam_g
-        # predicted decrease of |r|^2 by the Gauss-Newton model: -2 (grad^T dz + dz^T H dz / 2)
-        predicted = -2.0 * float(out["cost"]) if ok else float("nan")
-        return (dz if ok else None), lam_g, float(r_arr @ r_arr), predicted
+        _, q, h, g, a = linearisation
+        if damping:
+            h = h.copy()
+            h[self._h_diagonal] += damping
+        bounds = (prob.lbg - g, prob.ubg - g, prob.lbx - z, prob.ubx - z)
+        solved = (warm and self._qp(h, q, a, bounds, warm=True)) or self._qp(h, q, a, bounds, warm=False)
+        if not solved:
+            return None
+        dz, self._lam_x, self._lam_a = solved
+        # decrease of |r|^2 predicted by the undamped Gauss-Newton model: -2 (q^T dz + dz^T J^T J dz / 2)
+        h_dz = np.bincount(self._h_rows, weights=linearisation[2] * dz[self._h_cols], minlength=prob.n_var)
+        return dz, -2.0 * float(q @ dz + 0.5 * dz @ h_dz)
 
+    # ------------------------------------------------------------------ the solve
     def solve(
         self,
         z0: FloatArray,
@@ -147,39 +176,57 @@ class GaussNewtonSolver:
         prob = self.problem
         start = time.perf_counter()
         z = np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx)
-        lam_g = np.zeros(prob.n_con)
-        # qrqp starts cold at the first iteration (the shifted multipliers of the previous window
-        # made a few QPs take 10x longer: UISE p95 20 ms against 4.6 ms) and from the previous
-        # iteration's active set afterwards
+        p = np.asarray(p, dtype=float)
         self._lam_x = np.zeros(prob.n_var)
         self._lam_a = np.zeros(prob.n_con)
         status, converged, iterations, regularised = "Maximum_Iterations_Exceeded", False, 0, False
-        for iterations in range(1, self.max_iter + 1):  # noqa: B007 (iterations is reported)
-            dz, lam_g, cost, predicted = self._step(z, p, 0.0)
-            if dz is None:
-                scale = float(np.abs(np.asarray(self._linearisation(z, p)[2].nonzeros())).max(initial=1.0))
-                dz, lam_g, cost, predicted = self._step(z, p, 1e-6 * scale)
-                regularised = True
-            if dz is None:
+        linearisation = self._linearise(z, p)
+        r, g = linearisation[0], linearisation[3]
+        h_max = float(np.abs(linearisation[2]).max(initial=1.0))
+        damping_floor = DAMPING_FLOOR * h_max
+        damping_min = self.min_damping * h_max
+        damping, warm = damping_min, False
+        for iterations in range(1, self.max_iter + 1):
+            step = self._step(z, linearisation, damping, warm)
+            if step is None and damping <= damping_min:  # a singular or failed QP: Levenberg-Marquardt step
+                damping, regularised = 1e4 * damping_floor, True
+                step = self._step(z, linearisation, damping, warm=False)
+            if step is None:
                 status = "QP_failed"
                 break
-            nu = 2.0 * float(np.abs(lam_g).max(initial=0.0)) + 1.0
-            merit0 = self._merit_value(*self._at_z, nu)
-            alpha = 1.0
-            if self.max_iter > 1:
-                while alpha > 1e-4 and self._merit(z + alpha * dz, p, nu) > merit0 * (1.0 + 1e-12) + 1e-300:
-                    alpha *= 0.5
-            z = np.clip(z + alpha * dz, prob.lbx, prob.ubx)
-            small_step = alpha * np.abs(dz).max(initial=0.0) <= self.step_tol
-            no_progress = predicted <= self.cost_tol * (1.0 + cost)
-            if small_step or no_progress:
-                feasible = self._violation(z, p) <= FEASIBILITY_TOL
-                if feasible:
-                    status, converged = "Converged", True
-                    break
+            dz, predicted = step
+            warm = True
+            cost = float(r @ r)
+            violation = self._violation_l1(g)
+            nu = 2.0 * float(np.abs(self._lam_a).max(initial=0.0)) + 1.0
+            z_new = np.clip(z + dz, prob.lbx, prob.ubx)
+            r_new, g_new = self._r_g(z_new, p)
+            # the QP step satisfies the linearised constraints: the model predicts the violation gone
+            predicted_merit = predicted + nu * violation
+            actual_merit = cost + nu * violation - float(r_new @ r_new) - nu * self._violation_l1(g_new)
+            ratio = actual_merit / predicted_merit if predicted_merit > 0.0 else (1.0 if actual_merit >= 0 else -1.0)
+            small_step = np.abs(dz).max(initial=0.0) <= self.step_tol
+            if ratio > ACCEPT_RATIO or self.max_iter == 1:
+                z, r, g = z_new, r_new, g_new
+                if ratio > 0.75:
+                    damping = damping_min if damping <= damping_floor else damping / 10.0
+                elif ratio < 0.25:
+                    damping = max(4.0 * damping, damping_floor)
+                if small_step or predicted <= self.cost_tol * (1.0 + cost):
+                    if self._violation(z, g) <= FEASIBILITY_TOL:
+                        status, converged = "Converged", True
+                        break
+                    if small_step:
+                        status = "Infeasible_Stationary_Point"
+                        break
+                if iterations < self.max_iter:
+                    linearisation = self._linearise(z, p)
+            else:  # rejected: damp more, same linearisation
                 if small_step:
-                    status = "Infeasible_Stationary_Point"
+                    converged = self._violation(z, g) <= FEASIBILITY_TOL
+                    status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
+                damping = max(4.0 * damping, damping_floor)
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.all(np.isfinite(z)))
@@ -200,7 +247,6 @@ class GaussNewtonSolver:
                 iterations + fallback.iterations,
                 elapsed + fallback.solve_time,
             )
-        r = np.asarray(self._merit_parts(z, p)[0], dtype=float).reshape(-1)
         return WindowSolution(
             z=z,
             lam_x=self._lam_x.copy(),
