@@ -85,7 +85,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     result = runner.invoke(app, ["bench", "--quick", "--json", str(out)])
     assert result.exit_code == 0, result.output
     records = json.loads(out.read_text())
-    keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt"}
+    keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
+            "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt"}  # fmt: skip
     assert len(records) == 9 and all(keys <= set(r) for r in records)
     assert {(r["estimator"], r["solver"]) for r in records if r["max_dev_vs_ipopt"] == 0.0} >= {
         ("UISE", "ipopt"),
@@ -93,3 +94,5 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
         ("standard MHE", "ipopt"),
     }
     assert all(r["failures"] == 0 for r in records if r["solver"] != "rti")
+    # on the same windows, the Gauss-Newton optimum is at least as good as IPOPT's
+    assert all(r["max_cost_excess_vs_ipopt"] <= 1e-7 for r in records if r["solver"] == "gn")

@@ -83,3 +83,26 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     result = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
     assert all(s.startswith("gn QP failed -> ipopt") for s in result.status[1:])
     assert result.failures == 0
+
+
+@pytest.mark.parametrize("estimator", ["uise", "fie", "mhe"])
+def test_gauss_newton_equals_ipopt_on_the_noisy_linear_example(estimator):
+    from uiest.estimators import FIE
+
+    entry = get("linear-example")
+    system, setup = entry.build(), entry.setup()
+    traj = simulate(system, setup.x0, 40, w=setup.w, v=setup.noise, seed=3)
+    runs = {}
+    for solver in ("ipopt", "gn"):
+        if estimator == "mhe":
+            weights = MHEWeights.from_scales(system, 0.5, output=1e4)
+            est = StandardMHE(system, weights=weights, N=6, x0_prior=np.zeros(3), solver=solver)
+        else:
+            weights = UISEWeights.from_scales(system, 0.5, output=1e4)
+            cls = UISE if estimator == "uise" else FIE
+            kwargs = {"N": 6} if estimator == "uise" else {}
+            est = cls(system, weights=weights, x0_prior=np.zeros(3), solver=solver, **kwargs)
+        runs[solver] = est.run(None, traj.y)
+    gn, ipopt = runs["gn"], runs["ipopt"]
+    assert gn.failures == 0 and ipopt.failures == 0
+    assert np.abs((gn.x_hat - ipopt.x_hat) / system.x.scale).max() < 1e-6

@@ -282,8 +282,8 @@ def bench(
     from uiest.experiments.solver_bench import bench_window_solvers
 
     table = Table(title="window solvers, noisy crop scenario (ms per sample after N warm-up samples)")
-    columns = ("estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
-               "failures")  # fmt: skip
+    columns = ("estimator", "solver", "N", "median_ms", "speedup_vs_ipopt", "p95_ms", "max_ms", "iterations",
+               "max_dev_vs_ipopt", "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "failures")  # fmt: skip
     for column in columns:
         table.add_column(column)
     with console.status("benchmarking") as status:

@@ -116,7 +116,7 @@ class WindowEstimator(StreamingEstimator):
             raise OptionError(f"solver: unknown backend {solver!r}; expected one of {list(BACKENDS)}")
         self.solver = solver
         if solver_options is not None and not isinstance(solver_options, Mapping):
-            raise OptionError(f"solver_options: expected a mapping of IPOPT options, got {solver_options!r}")
+            raise OptionError(f"solver_options: expected a mapping of backend options, got {solver_options!r}")
         self.solver_options = dict(solver_options or {})
         self.warm_start = bool(warm_start)
         self.strict = bool(strict)

@@ -4,7 +4,8 @@
   reduced model with node data and node constraints).
 - :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
   simple bounds; the window data are parameters, so it is built once per window length.
-- :func:`make_solver`: backends (``"ipopt"``, the reference) returning :class:`WindowSolution`.
+- :func:`make_solver`: backends ``"ipopt"`` (the reference), ``"gn"`` (Gauss-Newton SQP) and
+  ``"rti"`` (real-time iteration), returning :class:`WindowSolution`.
 - :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """
 

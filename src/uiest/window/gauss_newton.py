@@ -39,7 +39,14 @@ from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
 
-QP_OPTIONS: dict[str, Any] = {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False}
+QP_OPTIONS: dict[str, Any] = {
+    "print_iter": False,
+    "print_header": False,
+    "print_info": False,
+    "error_on_fail": False,
+    "max_iter": 200,
+}
+"""qrqp options; ``max_iter`` bounds one QP (a failed QP is retried damped, then by IPOPT)."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""

@@ -23,11 +23,10 @@ crop model's two-stage UISE: the noise-free x^{d,1} error drops from ~1e-7 to ~1
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 
 ACTIVE_TOL = 1e-6
@@ -38,28 +37,17 @@ FEASIBILITY_TOL = 1e-9
 
 
 class _Evaluator:
-    """``(r, J, g, G)`` of a problem through CasADi's buffer interface (no DM conversions: ~25x faster)."""
+    """``(r, J, g, G)`` of a problem, dense, through CasADi's buffer interface."""
 
     def __init__(self, problem: WindowProblem) -> None:
         fun = problem.gauss_newton_function
         self.shapes = [(fun.size1_out(i), fun.size2_out(i)) for i in range(4)]
-        self.z = np.zeros(problem.n_var)
-        self.p = np.zeros(problem.n_par)
-        self.out = [np.zeros(max(rows * cols, 1)) for rows, cols in self.shapes]
-        self.buffer: Any
-        self.buffer, self.call = fun.buffer()
-        self.buffer.set_arg(0, self.z.data)
-        self.buffer.set_arg(1, self.p.data)
-        for i, arr in enumerate(self.out):
-            self.buffer.set_res(i, arr.data)
+        self.call = BufferedFunction(fun)
 
     def __call__(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
-        self.z[:] = z
-        self.p[:] = p
-        self.call()
         r, J, g, G = (
-            arr[: rows * cols].reshape((rows, cols), order="F").copy()
-            for arr, (rows, cols) in zip(self.out, self.shapes, strict=True)
+            arr.reshape((rows, cols), order="F").copy()
+            for arr, (rows, cols) in zip(self.call(z, p), self.shapes, strict=True)
         )
         return r.ravel(), J, g.ravel(), G
 

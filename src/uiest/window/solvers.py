@@ -1,9 +1,9 @@
 """Backends that solve a :class:`~uiest.window.problem.WindowProblem`.
 
-Only ``"ipopt"`` (the reference) exists today. A backend is built once per window problem and
-called at every step with a guess and the window's parameters; it returns a
-:class:`WindowSolution`. A later fast backend (Gauss-Newton SQP / RTI) plugs in behind the same
-``solve`` signature, using the problem's residual and constraint functions and bounds.
+``"ipopt"`` (the reference, :class:`IpoptSolver`), ``"gn"`` (Gauss-Newton SQP) and ``"rti"``
+(one Gauss-Newton step per sample; both :class:`~uiest.window.gauss_newton.GaussNewtonSolver`).
+A backend is built once per window problem and called at every step with a guess and the
+window's parameters; it returns a :class:`WindowSolution`.
 """
 
 from __future__ import annotations
