@@ -84,7 +84,7 @@ def bench_window_solvers(
     this one), p95_ms, max_ms (solve time per sample after a warm-up of N samples), iterations
     (mean), max_dev_vs_ipopt, max_cost_excess_vs_ipopt and closed_loop_dev_vs_ipopt (see the
     module docstring), failures.
-    ``quick``: N = 30 only, 100 samples (else N in {10, 30, 100}, 300 samples, 200 for N = 100). ``report(record)``
+    ``quick``: N = 30 only, 100 samples (else N in {10, 30, 100}, 300 samples, 150 for N = 100). ``report(record)``
     is called as records appear.
     """
     system = crop_growth.system()
@@ -94,7 +94,7 @@ def bench_window_solvers(
     prior = scenario.prior(traj.y[0])
     records: list[dict[str, object]] = []
     for N in (30,) if quick else (10, 30, 100):
-        steps = 100 if quick else (300 if N <= 30 else 200)
+        steps = 100 if quick else (300 if N <= 30 else 150)
 
         def uise(solver: str, N: int = N) -> UISE:
             weights = UISEWeights.from_scales(system, 0.48, output=1e6)
