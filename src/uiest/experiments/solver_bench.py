@@ -83,9 +83,8 @@ def bench_window_solvers(
     Keys: estimator, solver, N, median_ms, speedup_vs_ipopt (the IPOPT backend's median over
     this one), p95_ms, max_ms (solve time per sample after a warm-up of N samples), iterations
     (mean), max_dev_vs_ipopt, max_cost_excess_vs_ipopt and closed_loop_dev_vs_ipopt (see the
-    module docstring), failures.
-    ``quick``: N = 30 only, 100 samples (else N in {10, 30, 100}, 300 samples, 150 for N = 100). ``report(record)``
-    is called as records appear.
+    module docstring), failures. ``quick``: N = 30 only, 100 samples (else N in {10, 30, 100},
+    300 samples, 150 for N = 100). ``report(record)`` is called as records appear.
     """
     system = crop_growth.system()
     reduced = crop_growth.reduction()

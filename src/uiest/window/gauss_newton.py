@@ -44,7 +44,7 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
-from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
+from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution, largest_violation
 
 QP_OPTIONS: dict[str, Any] = {
     "print_iter": False,
@@ -60,6 +60,15 @@ ACCEPT_RATIO = 1e-4
 
 DAMPING_FLOOR = 1e-9
 """Smallest non-zero Levenberg-Marquardt damping, relative to ``max |J^T J|``."""
+
+ACTIVE_TOL = 1e-12
+"""Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
+
+
+def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> FloatArray:
+    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0."""
+    at_upper, at_lower = value >= upper - ACTIVE_TOL, value <= lower + ACTIVE_TOL
+    return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
 
 
 class GaussNewtonSolver:
@@ -136,13 +145,6 @@ class GaussNewtonSolver:
         prob = self.problem
         return float(np.maximum(prob.lbg - g, 0.0).sum() + np.maximum(g - prob.ubg, 0.0).sum()) if g.size else 0.0
 
-    def _violation(self, z: FloatArray, g: FloatArray) -> float:
-        prob = self.problem
-        worst = float(np.max(np.maximum(prob.lbx - z, z - prob.ubx), initial=0.0))
-        if g.size:
-            worst = max(worst, float(np.max(np.maximum(prob.lbg - g, g - prob.ubg), initial=0.0)))
-        return worst
-
     def _stationary(self, z: FloatArray, linearisation: tuple[FloatArray, ...]) -> bool:
         """KKT stationarity at ``z`` with the last QP's constraint multipliers, to ``kkt_tol``.
 
@@ -211,8 +213,6 @@ class GaussNewtonSolver:
         start = time.perf_counter()
         z = np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx)
         p = np.asarray(p, dtype=float)
-        self._lam_x = np.zeros(prob.n_var)
-        self._lam_a = np.zeros(prob.n_con)
         status, converged, iterations, regularised = "Maximum_Iterations_Exceeded", False, 0, False
         linearisation = self._linearise(z, p)
         r, g = linearisation[0], linearisation[3]
@@ -220,11 +220,9 @@ class GaussNewtonSolver:
         damping_floor = DAMPING_FLOOR * h_max
         damping_min = self.min_damping * h_max
         damping, warm = damping_min, True
-        # first QP: the bounds the starting point sits on start active (the shifted previous optimum)
-        self._lam_x = np.where(z >= prob.ubx - 1e-12, 1e-12, np.where(z <= prob.lbx + 1e-12, -1e-12, 0.0))
-        self._lam_a = np.where(g >= prob.ubg - 1e-12, 1e-12, np.where(g <= prob.lbg + 1e-12, -1e-12, 0.0)) * (
-            prob.lbg < prob.ubg
-        )
+        # the first QP starts with the bounds and inequalities the starting point sits on active
+        self._lam_x = _on_bounds(z, prob.lbx, prob.ubx)
+        self._lam_a = _on_bounds(g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
         for iterations in range(1, self.max_iter + 1):  # noqa: B007 (iterations is reported)
             step = self._step(z, linearisation, damping, warm)
             if step is None and damping <= damping_min:  # a singular or failed QP: Levenberg-Marquardt step
@@ -255,7 +253,7 @@ class GaussNewtonSolver:
                 linearisation = trial
                 stationary = small_step or predicted <= self.cost_tol * (1.0 + cost) or self._stationary(z, trial)
                 if stationary:
-                    if self._violation(z, g) <= FEASIBILITY_TOL:
+                    if largest_violation(prob, z, g) <= FEASIBILITY_TOL:
                         status, converged = "Converged", True
                         break
                     if small_step:
@@ -263,7 +261,7 @@ class GaussNewtonSolver:
                         break
             else:  # rejected: damp more, same linearisation
                 if small_step:
-                    converged = self._violation(z, g) <= FEASIBILITY_TOL
+                    converged = largest_violation(prob, z, g) <= FEASIBILITY_TOL
                     status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
                 damping = max(4.0 * damping, damping_floor)

@@ -215,11 +215,16 @@ class IpoptSolver:
     def violation(self, z: FloatArray, p: FloatArray) -> float:
         """Largest violation of ``lbg <= g(z, p) <= ubg`` and ``lbx <= z <= ubx`` (scaled units)."""
         prob = self.problem
-        worst = float(np.max(np.maximum(prob.lbx - z, z - prob.ubx), initial=0.0))
-        if prob.n_con:
-            g = np.asarray(prob.constraint_function(z, p), dtype=float).reshape(-1)
-            worst = max(worst, float(np.max(np.maximum(prob.lbg - g, g - prob.ubg), initial=0.0)))
-        return worst
+        g = np.asarray(prob.constraint_function(z, p), dtype=float).reshape(-1) if prob.n_con else np.zeros(0)
+        return largest_violation(prob, z, g)
+
+
+def largest_violation(problem: WindowProblem, z: FloatArray, g: FloatArray) -> float:
+    """Largest violation of ``lbx <= z <= ubx`` and ``lbg <= g <= ubg`` (scaled units), ``g`` given."""
+    worst = float(np.max(np.maximum(problem.lbx - z, z - problem.ubx), initial=0.0))
+    if g.size:
+        worst = max(worst, float(np.max(np.maximum(problem.lbg - g, g - problem.ubg), initial=0.0)))
+    return worst
 
 
 BACKENDS = ("ipopt", "gn", "rti")
