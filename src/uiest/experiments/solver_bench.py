@@ -11,6 +11,13 @@ Two deviations from the IPOPT backend are reported, both in the window problem's
   excess lies along a direction in which the cost is flat to IPOPT's tolerance);
 - ``closed_loop_dev_vs_ipopt``: ``|x_hat - x_hat_ipopt| / x.scale`` of two whole runs, where
   each estimator's priors come from its own earlier estimates, so differences carry over.
+
+When the optional peer do-mpc imports (``pip install uiest[peers]``), the standard MHE gets one
+more record per N, solver ``"do-mpc"``: the same window problem posed in do-mpc's MHE
+(:mod:`uiest.experiments.dompc_peer`), run from k = N on with our IPOPT run's estimates for
+k < N. Its ``max_dev_vs_ipopt`` and ``max_cost_excess_vs_ipopt`` are NaN (do-mpc's windows are
+not re-solved by our IPOPT backend); ``closed_loop_dev_vs_ipopt`` is its closed-loop deviation
+over k >= N; ``iterations`` is the mean IPOPT iteration count.
 """
 
 from __future__ import annotations
@@ -75,6 +82,37 @@ def same_window_deviation(recorder: _Recorder) -> tuple[float, float]:
     return deviation, float(excess) if np.isfinite(excess) else 0.0
 
 
+def _dompc_available() -> bool:
+    """Whether the optional peer do-mpc imports (``pip install uiest[peers]``)."""
+    try:
+        import do_mpc  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _dompc_record(system: Any, N: int, traj: Any, steps: int, reference: Any, reference_ms: float) -> dict[str, object]:
+    """The do-mpc peer's record for the standard MHE (see :mod:`uiest.experiments.dompc_peer`)."""
+    from uiest.experiments.dompc_peer import run_dompc_standard_mhe
+
+    weights = MHEWeights.from_scales(system, 0.48, output=1e6)
+    peer = run_dompc_standard_mhe(system, weights, N, traj.u[:steps], traj.y[: steps + 1], reference.x_hat)
+    return {
+        "estimator": "standard MHE",
+        "solver": "do-mpc",
+        "N": N,
+        "median_ms": peer.median_ms,
+        "speedup_vs_ipopt": reference_ms / peer.median_ms,
+        "p95_ms": peer.p95_ms,
+        "max_ms": peer.max_ms,
+        "iterations": float(peer.iterations[N:].mean()),
+        "max_dev_vs_ipopt": float("nan"),
+        "max_cost_excess_vs_ipopt": float("nan"),
+        "closed_loop_dev_vs_ipopt": peer.max_dev_vs_ipopt,
+        "failures": peer.failures,
+    }
+
+
 def bench_window_solvers(
     *, quick: bool = False, report: Callable[[dict[str, object]], None] | None = None
 ) -> list[dict[str, object]]:
@@ -114,7 +152,18 @@ def bench_window_solvers(
         }
         for name, build in builders.items():
             reference, reference_ms = None, 0.0
-            for solver in SOLVERS:
+            if name == "standard MHE" and _dompc_available():
+                solvers: tuple[str, ...] = (*SOLVERS, "do-mpc")
+            else:
+                solvers = SOLVERS
+            for solver in solvers:
+                if solver == "do-mpc":
+                    assert reference is not None
+                    record = _dompc_record(system, N, traj, steps, reference, reference_ms)
+                    records.append(record)
+                    if report is not None:
+                        report(record)
+                    continue
                 estimator = build(solver)
                 recorder = _record_full_windows(estimator, N) if solver != "ipopt" else None
                 result = estimator.run(traj.u[:steps], traj.y[: steps + 1])
