@@ -322,14 +322,20 @@ def test_failed_solve_propagates_and_strict_raises(closed_form_case, monkeypatch
 
 def test_real_solver_failure_is_recorded(closed_form_case):
     system, weights, traj = closed_form_case
-    est = UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver_options={"max_iter": 1})
+    est = UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver="ipopt", solver_options={"max_iter": 1})
     result = est.run(traj.u[:5], traj.y[:6])
     assert result.failures > 0
     assert all(s.startswith("propagated (Maximum_Iterations_Exceeded)") for s in result.status[~result.success])
     with pytest.raises(SolverError):
-        UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver_options={"max_iter": 1}, strict=True).run(
-            traj.u[:5], traj.y[:6]
-        )
+        UISE(
+            system,
+            weights=weights,
+            N=3,
+            x0_prior=[0.0, 0.0],
+            solver="ipopt",
+            solver_options={"max_iter": 1},
+            strict=True,
+        ).run(traj.u[:5], traj.y[:6])
 
 
 def test_missing_measurements_are_dropped_and_recorded():

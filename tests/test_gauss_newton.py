@@ -92,6 +92,27 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     assert result.failures == 0
 
 
+def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, monkeypatch):
+    system, traj, prior = crop_run
+    weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+    reference = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
+    real_step = gauss_newton.GaussNewtonSolver._step
+    dampings: list[float] = []
+
+    def singular_when_undamped(self, z, linearisation, damping, warm):  # as if J^T J were singular
+        dampings.append(damping / np.abs(linearisation[2]).max())
+        return None if damping == 0.0 else real_step(self, z, linearisation, damping, warm)
+
+    monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", singular_when_undamped)
+    estimator = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn")
+    result = estimator.run(traj.u[:10], traj.y[:11])
+    assert set(result.status[1:]) == {"Converged (regularised)"} and result.failures == 0
+    # each window length's solver (0 .. 5) tried one undamped QP, then 1e-14; later solves start damped
+    assert dampings.count(0.0) == 6 and min(d for d in dampings if d > 0) == pytest.approx(1e-14)
+    assert estimator._cached(5).warm._singular
+    np.testing.assert_allclose(result.x_hat, reference.x_hat, rtol=0, atol=1e-6)
+
+
 @pytest.mark.parametrize("estimator", ["uise", "fie", "mhe"])
 def test_gauss_newton_equals_ipopt_on_the_noisy_linear_example(estimator):
     from uiest.estimators import FIE

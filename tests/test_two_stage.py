@@ -106,9 +106,13 @@ def test_crop_noise_free_converges_to_solver_precision():
     traj = simulate(reduced.system, scenario.x0, 60, w=crop_growth.UnknownInputLaw())
     prior = scenario.prior(traj.y[0])
     weights = crop_weights(reduced)
-    plain = TwoStageUISE(reduced, weights=weights, N=30, x0_prior=prior).run(traj.u, traj.y)
-    polished = TwoStageUISE(reduced, weights=weights, N=30, x0_prior=prior, polish=True).run(traj.u, traj.y)
-    for result, floor in ((plain, 5e-7), (polished, 1e-10)):  # IPOPT's precision, and the polished one
+    # each backend's precision in the direction the data barely determine (gn: normal equations,
+    # cond(J)^2), and with the Gauss-Newton refinement of uiest.window.polish
+    floors = {("ipopt", False): 5e-7, ("gn", False): 5e-6, ("ipopt", True): 1e-10, ("gn", True): 1e-10}
+    for (solver, polish), floor in floors.items():
+        result = TwoStageUISE(reduced, weights=weights, N=30, x0_prior=prior, solver=solver, polish=polish).run(
+            traj.u, traj.y
+        )
         error = np.abs(result.error(traj.x))
         assert result.failures == 0
         assert error[0, 1] > 1e-3  # the prior of x^{d,1} is off ...

@@ -33,7 +33,7 @@ from uiest.estimators.base import WindowEstimator
 from uiest.estimators.uise import resolve_uise_weights, uise_window_weights
 from uiest.estimators.weights import StrongCertificate, UISEWeights
 from uiest.system import System
-from uiest.window import WindowWeights
+from uiest.window import DEFAULT_BACKEND, WindowWeights
 
 
 class FIE(WindowEstimator):
@@ -58,7 +58,7 @@ class FIE(WindowEstimator):
         weights: UISEWeights | None = None,
         x0_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
-        solver: str = "ipopt",
+        solver: str = DEFAULT_BACKEND,
         solver_options: Mapping[str, Any] | None = None,
         warm_start: bool = True,
         strict: bool = False,

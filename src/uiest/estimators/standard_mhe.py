@@ -37,7 +37,7 @@ from uiest.estimators.base import WindowEstimator
 from uiest.estimators.checks import check_horizon
 from uiest.estimators.weights import DeltaCertificate, MHEWeights
 from uiest.system import System
-from uiest.window import WindowWeights
+from uiest.window import DEFAULT_BACKEND, WindowWeights
 
 
 def mhe_window_weights(weights: MHEWeights, length: int) -> WindowWeights:
@@ -106,7 +106,7 @@ class StandardMHE(WindowEstimator):
         w_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
         use_w_range: bool = True,
-        solver: str = "ipopt",
+        solver: str = DEFAULT_BACKEND,
         solver_options: Mapping[str, Any] | None = None,
         warm_start: bool = True,
         strict: bool = False,

@@ -39,7 +39,7 @@ from uiest.estimators.base import WindowEstimator
 from uiest.estimators.checks import check_horizon
 from uiest.estimators.weights import StrongCertificate, UISEWeights
 from uiest.system import System
-from uiest.window import WindowWeights
+from uiest.window import DEFAULT_BACKEND, WindowWeights
 
 
 def uise_window_weights(weights: UISEWeights, length: int) -> WindowWeights:
@@ -99,9 +99,11 @@ class UISE(WindowEstimator):
     v_prior : array_like (nv,), optional
         Noise prior ``v_bar`` in V (default 0).
     solver : str
-        Window backend, ``"ipopt"``.
+        Window backend: ``"gn"`` (default, Gauss-Newton SQP with IPOPT as its fallback),
+        ``"ipopt"`` (the paper's solver) or ``"rti"`` (one Gauss-Newton step per sample).
     solver_options : mapping, optional
-        IPOPT options overriding :data:`uiest.window.IPOPT_DEFAULTS`.
+        Backend options: for IPOPT, options overriding :data:`uiest.window.IPOPT_DEFAULTS`;
+        for gn/rti, keyword arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`.
     warm_start : bool
         Primal-dual warm start from the shifted previous solution (default True).
     strict : bool
@@ -121,7 +123,7 @@ class UISE(WindowEstimator):
         N: int | None = None,
         x0_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
-        solver: str = "ipopt",
+        solver: str = DEFAULT_BACKEND,
         solver_options: Mapping[str, Any] | None = None,
         warm_start: bool = True,
         strict: bool = False,

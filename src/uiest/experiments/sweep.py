@@ -33,6 +33,7 @@ import pandas as pd
 from uiest.errors import OptionError, UiestError
 from uiest.experiments.runner import BUILDERS, simulate_run
 from uiest.experiments.scenario import Scenario
+from uiest.window import DEFAULT_BACKEND
 
 SWEEPABLE = ("N", "mu", "output_weight", "noise_scale", "w_gain", "initial_error", "steps", "estimator", "solver")
 """Parameters a sweep may vary: N, mu, output_weight apply to every estimator; estimator keeps only
@@ -94,7 +95,7 @@ class Sweep:
             points.append(point)
         return points
 
-    def tasks(self, solver: str = "ipopt") -> list[Task]:
+    def tasks(self, solver: str = DEFAULT_BACKEND) -> list[Task]:
         """Every (point, case, run) as a Task."""
         tasks = []
         for point in self.points():
@@ -270,7 +271,7 @@ def sweep(
     *,
     workers: int | None = None,
     scheduler: str | None = None,
-    solver: str = "ipopt",
+    solver: str = DEFAULT_BACKEND,
     progress: Callable[[SweepProgress], None] | None = None,
     max_tasks: int | None = None,
 ) -> pd.DataFrame:
@@ -312,7 +313,7 @@ def sweep(
     return collect(design, Path(out), solver)
 
 
-def collect(design: Sweep, out: Path, solver: str = "ipopt") -> pd.DataFrame:
+def collect(design: Sweep, out: Path, solver: str = DEFAULT_BACKEND) -> pd.DataFrame:
     """Union of the stored tasks of ``design`` (in task order), written to results.parquet with a summary."""
     runs_dir = out / "runs"
     frames = [

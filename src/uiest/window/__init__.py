@@ -4,8 +4,9 @@
   reduced model with node data and node constraints).
 - :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
   simple bounds; the window data are parameters, so it is built once per window length.
-- :func:`make_solver`: backends ``"ipopt"`` (the reference), ``"gn"`` (Gauss-Newton SQP) and
-  ``"rti"`` (real-time iteration), returning :class:`WindowSolution`.
+- :func:`make_solver`: backends ``"ipopt"`` (the reference), ``"gn"`` (Gauss-Newton SQP, the
+  estimators' default :data:`DEFAULT_BACKEND`) and ``"rti"`` (real-time iteration), returning
+  :class:`WindowSolution`.
 - :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """
 
@@ -13,6 +14,7 @@ from uiest.window.model import WindowModel
 from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
 from uiest.window.solvers import (
     BACKENDS,
+    DEFAULT_BACKEND,
     IPOPT_DEFAULTS,
     IPOPT_WARM_START,
     IpoptSolver,
@@ -24,6 +26,7 @@ from uiest.window.warmstart import predicted_guess, shifted_guess
 
 __all__ = [
     "BACKENDS",
+    "DEFAULT_BACKEND",
     "IPOPT_DEFAULTS",
     "IPOPT_WARM_START",
     "IpoptSolver",
