@@ -86,7 +86,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     assert result.exit_code == 0, result.output
     records = json.loads(out.read_text())
     keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
-            "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt"}  # fmt: skip
+            "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt", "median_dev_vs_ipopt",
+            "windows_compared", "windows_dev_above_1e-6"}  # fmt: skip
     from uiest.experiments.solver_bench import _dompc_available
 
     # 3 estimators x 3 backends, plus the do-mpc peer of the standard MHE where do-mpc is installed
@@ -99,3 +100,6 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     assert all(r["failures"] == 0 for r in records if r["solver"] != "rti")
     # on the same windows, the Gauss-Newton optimum is at least as good as IPOPT's
     assert all(r["max_cost_excess_vs_ipopt"] <= 1e-7 for r in records if r["solver"] == "gn")
+    # 100 samples after 30 warm-up ones: the full windows k = 30 .. 100 (71) are compared
+    gn = [r for r in records if r["solver"] == "gn"]
+    assert all(r["windows_compared"] == 71 and r["median_dev_vs_ipopt"] <= r["max_dev_vs_ipopt"] for r in gn)

@@ -281,20 +281,13 @@ def bench(
     """Window solver backends (ipopt, gn, rti) x estimators x N on the noisy crop scenario."""
     import json
 
-    from uiest.experiments.solver_bench import bench_window_solvers
+    from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
 
-    table = Table(title="window solvers, noisy crop scenario (ms per sample after N warm-up samples)")
-    columns = ("estimator", "solver", "N", "median_ms", "speedup_vs_ipopt", "p95_ms", "max_ms", "iterations",
-               "max_dev_vs_ipopt", "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "failures")  # fmt: skip
-    for column in columns:
-        table.add_column(column)
-    with console.status("benchmarking") as status:
-        records = bench_window_solvers(
-            quick=quick, report=lambda r: status.update(f"benchmarking: {r['estimator']} {r['solver']} N={r['N']}")
-        )
-    for record in records:
-        table.add_row(*[f"{record[c]:.3g}" if isinstance(record[c], float) else str(record[c]) for c in columns])
-    console.print(table)
+    console.print("window solvers, noisy crop scenario (ms per sample after N warm-up samples)", highlight=False)
+    console.print(TABLE_HEADER, highlight=False, soft_wrap=True)
+    records = bench_window_solvers(
+        quick=quick, report=lambda r: console.print(table_row(r), highlight=False, soft_wrap=True)
+    )
     if json_file is not None:
         json_file.parent.mkdir(parents=True, exist_ok=True)
         json_file.write_text(json.dumps(records, indent=2))
