@@ -38,7 +38,7 @@ or the iterations do not converge, and ``fallback=True``, the sample is solved b
 the status says so. Gauss-Newton's model ``J^T J`` leaves out the residuals' and constraints'
 curvature, which in directions the data barely determine can exceed ``J^T J``'s; there it
 converges slowly (and, damped, stops where the model sees no decrease: on the crop UISE with
-N = 100 at costs up to about 1e-4 (relative) above IPOPT's).
+N = 100 at costs up to about 3e-4 (relative) above IPOPT's).
 """
 
 from __future__ import annotations
