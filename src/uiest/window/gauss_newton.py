@@ -68,11 +68,7 @@ ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
 
 DAMPING_FLOOR = 1e-9
-"""Levenberg-Marquardt damping after a rejected undamped step, relative to ``max |J^T J|``."""
-
-DAMPING_OFF = 1e-15
-"""Damping (relative) below which good steps switch it off: it shrinks 10x per good step from
-``DAMPING_FLOOR``, so a problem that needs a damping between 0 and the floor finds it."""
+"""Smallest non-zero Levenberg-Marquardt damping, relative to ``max |J^T J|``."""
 
 SINGULAR_DAMPING = 1e-14
 """Damping, relative to ``max |J^T J|``, tried first when an undamped QP fails (singular in double precision)."""
@@ -282,7 +278,7 @@ class GaussNewtonSolver:
             if ratio > ACCEPT_RATIO or self.max_iter == 1:
                 z, r, g = z_new, r_new, g_new
                 if ratio > 0.75:
-                    damping = damping / 10.0 if damping / 10.0 > DAMPING_OFF * h_max else damping_min
+                    damping = damping_min if damping <= damping_floor else damping / 10.0
                 elif ratio < 0.25:
                     damping = max(4.0 * damping, damping_floor)
                 linearisation = trial
