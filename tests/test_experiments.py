@@ -83,7 +83,9 @@ def test_runner_metrics_and_report(tmp_path):
     assert pd.read_parquet(tmp_path / "steps.parquet").shape == steps.shape
     data = json.loads((tmp_path / "manifest.json").read_text())
     assert data["versions"]["casadi"] and data["scenario"]["name"] == "tiny" and manifest["files"]
-    assert "Claims of the paper" in (tmp_path / "report.md").read_text()
+    assert data["solver"] == "ipopt" == study.solver
+    report = (tmp_path / "report.md").read_text()
+    assert "Claims of the paper" in report and "Window solver: IPOPT" in report
 
 
 def test_an_estimator_that_raises_is_recorded_and_the_study_goes_on(monkeypatch):

@@ -94,6 +94,8 @@ class StudyResult:
         ``(case, run) -> Trajectory`` of the simulated truth.
     results : dict
         ``(case, run, estimator) -> EstimationResult``.
+    solver : str
+        The window backend every estimator used (``"ipopt"``, ``"gn"`` or ``"rti"``).
 
     """
 
@@ -102,6 +104,7 @@ class StudyResult:
     runs: pd.DataFrame
     truths: dict[tuple[str, int], Trajectory]
     results: dict[tuple[str, int, str], EstimationResult]
+    solver: str = "ipopt"
 
 
 def initial_state(scenario: Scenario, default: FloatArray, run: int) -> FloatArray:
@@ -212,7 +215,7 @@ def run_study(
                 if progress is not None:
                     progress(f"{case} run {run + 1}/{scenario.runs}: {spec.name}")
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
-    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results)
+    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, solver)
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
