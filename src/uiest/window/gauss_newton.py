@@ -68,7 +68,9 @@ ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
 
 DAMPING_FLOOR = 1e-9
-"""Smallest non-zero Levenberg-Marquardt damping, relative to ``max |J^T J|``."""
+"""Levenberg-Marquardt damping after a poor or rejected step, relative to ``max |J^T J|``; good
+steps bring a damping at or below it straight back to the solve's minimum (0, or
+``SINGULAR_DAMPING`` once the problem's QP was singular)."""
 
 SINGULAR_DAMPING = 1e-14
 """Damping, relative to ``max |J^T J|``, tried first when an undamped QP fails (singular in double precision)."""
