@@ -8,9 +8,10 @@ import pytest
 
 from uiest import CertificationError, ModelError, OptionError
 from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, lmi
+from uiest.estimators import MHEWeights, TwoStageWeights
 from uiest.models import closed_form, crop_growth, linear
 
-FAST = {"grid": 2, "pool_grid": 3, "pool_random": 200}
+FAST = {"samples": 500}
 
 
 def _linear_reduced(F):
@@ -41,7 +42,7 @@ def test_reduced_linear_mu_min_is_spectral_radius_squared(F, expected):
 def test_reduced_unstable_model_is_not_certified():
     f, h, bounds = _linear_reduced(np.array([[1.2, 0.0], [0.0, 0.3]]))
     cert = certify_reduced_ioss(f, h, **bounds, **FAST)
-    assert not cert.certified and "infeasible" in cert.reason
+    assert not cert.certified and cert.status == "infeasible", cert.reason
     with pytest.raises(CertificationError):
         cert.min_horizon()
     assert np.isnan(cert.verify().worst_ratio)
@@ -63,7 +64,7 @@ def test_reduced_closed_form_certifies_with_its_contraction_rate():
     assert cert.verify(20_000, seed=3).holds
     # the constants of eq:p-eioss_quadratic are the scaled weights over mu lambda_min(P)
     lam = np.linalg.eigvalsh(cert.P_scaled)[0]
-    assert cert.c_v == pytest.approx(cert.solution.q[1] / (cert.mu * lam))
+    assert cert.c_v == pytest.approx(cert.q[1] / (cert.mu * lam))
     data = json.loads(json.dumps(cert.to_dict()))
     assert data["kind"] == "reduced_eioss" and data["min_horizon"] == n
 
@@ -72,7 +73,7 @@ def test_reduced_given_mu_and_bad_input():
     f, h, bounds = _linear_reduced(np.diag([0.5, 0.3]))
     assert certify_reduced_ioss(f, h, **bounds, mu=0.5, **FAST).mu == 0.5
     below = certify_reduced_ioss(f, h, **bounds, mu=0.1, **FAST)
-    assert not below.certified and "below" in below.reason
+    assert not below.certified and below.status == "below the smallest rate"
     with pytest.raises(OptionError, match="mu"):
         certify_reduced_ioss(f, h, **bounds, mu=1.0)
     with pytest.raises(ModelError, match="h_sharp"):
@@ -119,9 +120,37 @@ def test_crop_certificates_hold_with_discounts_near_one():
     assert reduced.verify(5000).holds
 
 
-def test_bisect_discount_resolves_discounts_near_one():
+def test_bisect_rate_resolves_rates_near_one():
     for threshold in (0.3, 0.99, 1.0 - 3e-5):
-        found = lmi.bisect_discount(lambda mu, t=threshold: mu >= t, 1e-4, 1e-4)
-        assert found >= threshold
-        assert found - threshold <= max(1e-4, 0.011 * (1.0 - threshold))
-    assert lmi.bisect_discount(lambda mu: False, 1e-4, 1e-4) is None
+        found = lmi.bisect_rate(lambda mu, t=threshold: lmi.FEASIBLE if mu >= t else lmi.INFEASIBLE)
+        assert found.outcome == lmi.FEASIBLE and found.rate >= threshold
+        assert found.rate - threshold <= max(1e-4, 0.011 * (1.0 - threshold))
+    never = lmi.bisect_rate(lambda mu: lmi.INFEASIBLE)
+    assert never.rate is None and never.outcome == lmi.INFEASIBLE
+
+
+def test_bisect_rate_never_reports_a_solver_failure_as_infeasible():
+    broken = lmi.bisect_rate(lambda mu: lmi.FAILED)
+    assert broken.rate is None and broken.outcome == lmi.FAILED
+    # failures near the answer end the bisection at the best rate proven, and say so
+    threshold = 0.5
+
+    def flaky(mu):
+        if abs(mu - threshold) < 0.2 and mu != 1.0 - lmi.RATE_GAP:
+            return lmi.FAILED
+        return lmi.FEASIBLE if mu >= threshold else lmi.INFEASIBLE
+
+    found = lmi.bisect_rate(flaky)
+    assert found.outcome == lmi.FEASIBLE and found.rate >= threshold and found.failed_at
+    assert "upper estimate" in found.note
+
+
+def test_certificates_share_one_interface():
+    system = closed_form.system()
+    delta = certify_delta_ioss(system, w_bounds=(-1, 1), **FAST)
+    reduced = closed_form.reduction().certify(**FAST)
+    assert isinstance(delta.weights(), MHEWeights) and isinstance(reduced.weights(), TwoStageWeights)
+    for cert in (delta, reduced):
+        assert cert.certified and cert.status == "certified" and cert.rate_min <= cert.rate < 1
+        assert cert.min_horizon() >= 1 and cert.margin >= 0 and "sampled" in cert.coverage
+        assert json.loads(json.dumps(cert.to_dict()))["certified"] is True

@@ -1,11 +1,15 @@
 """Strong-detectability certificates (theo:Lyapunov) against known answers."""
 
+import dataclasses
+import json
+
 import numpy as np
 import pytest
 
-from uiest import CertificationError, OptionError
+from uiest import CertificationError, ModelError, OptionError, System
 from uiest.detectability import certify_strong_detectability, linear_strong_detectability
-from uiest.models import closed_form, linear
+from uiest.estimators import UISEWeights
+from uiest.models import closed_form, crop_growth, linear
 
 LINEAR_SPEC = {"x_bounds": (-10.0, 10.0), "v_bounds": (-1e-3, 1e-3)}
 
@@ -20,59 +24,135 @@ LINEAR_SPEC = {"x_bounds": (-10.0, 10.0), "v_bounds": (-1e-3, 1e-3)}
 )
 def test_linear_mu_min_is_largest_zero_squared(zeros, kwargs):
     system, A, B, C = linear.with_invariant_zeros(zeros, seed=3, **kwargs, **LINEAR_SPEC)
-    cert = certify_strong_detectability(system, grid=2, pool_grid=2, pool_random=10)
+    cert = certify_strong_detectability(system)
     expected = max(abs(z) for z in zeros) ** 2
     assert cert.certified, cert.reason
     assert cert.mu_min == pytest.approx(expected, abs=1e-3)
+    assert cert.mu == pytest.approx(cert.mu_min + 0.02 * (1 - cert.mu_min))
+    assert cert.cover.kind == "constant" and cert.cover.sound
     # the nonlinear certificate's linear special case agrees with the Hautus test
     assert cert.mu_min == pytest.approx(linear_strong_detectability(A, B, C).mu_min, abs=1e-3)
-    assert cert.mu > cert.mu_min
-    report = cert.verify(5000, seed=1)
-    assert report.pairs_used > 20 and report.holds, report
+    report = cert.verify(20_000, seed=1)
+    assert report.pairs_used > 10_000 and report.holds, report
 
 
-def test_zero_outside_unit_disk_is_not_certified():
+def test_zero_outside_unit_disk_is_infeasible_not_a_failure():
     system, *_ = linear.with_invariant_zeros([1.5], seed=3, **LINEAR_SPEC)
-    cert = certify_strong_detectability(system, grid=2, pool_grid=2, pool_random=10)
-    assert not cert.certified
-    assert "infeasible" in cert.reason
+    cert = certify_strong_detectability(system)
+    assert not cert.certified and cert.status == "infeasible", cert.reason
     with pytest.raises(CertificationError):
         cert.min_horizon()
+    assert np.isnan(cert.verify().worst_ratio)
 
 
-def test_matching_failure_is_not_certified_at_any_mu():
+def test_matching_failure_is_a_typed_error_with_the_ranks():
     # w enters x2, only x1 is measured: C B = 0 while B != 0
     A = np.array([[0.5, 1.0], [0.0, 0.3]])
     system = linear.linear_system(A, [[0.0], [1.0]], [[1.0, 0.0]], **LINEAR_SPEC)
-    cert = certify_strong_detectability(system, grid=2, pool_grid=2, pool_random=10)
-    assert not cert.certified and "rank" in cert.reason
+    with pytest.raises(ModelError, match=r"rank\(C B\) = 0 < rank\(B\) = 1"):
+        certify_strong_detectability(system)
 
 
-def test_contractive_nonlinear_system_certifies_with_its_rate():
-    # closed-form model: x2+ = a(x1) x2 + u with a in [0.2, 0.8] -> mu* = 0.8^2 = 0.64
-    system = closed_form.system()
+def test_closed_form_rate_over_a_domain_twenty_times_wider_in_one_state():
+    # x2+ = a(x1) x2 + u with a = 0.5 + 0.3 tanh(x1), x1 in [-3, 3]: mu* = max a^2; x2 in [-60, 60]
+    system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
+    known = (0.5 + 0.3 * np.tanh(3.0)) ** 2
     cert = certify_strong_detectability(system)
     assert cert.certified, cert.reason
-    assert cert.mu_min == pytest.approx(0.64, abs=5e-3)
-    assert cert.verify(20_000, seed=2).holds
+    assert cert.cover.kind == "sampled cover" and not cert.cover.sound
+    assert known - 1e-6 <= cert.mu_min <= known + 0.01
+    report = cert.verify(100_000, seed=2)
+    assert report.pairs_used > 90_000 and report.holds, report
 
 
-def test_given_mu_and_horizon():
-    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
-    cert = certify_strong_detectability(system, mu=0.48, grid=2, pool_grid=2, pool_random=10)
-    assert cert.certified and cert.mu == 0.48
+def test_parameter_map_gives_a_sound_cover_and_the_exact_rate():
+    # after the unknown input's direction e1 is projected out, df/dx = [[0, 0], [a1 sech^2(x1) x2, a(x1)]]
+    system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
+    cert = certify_strong_detectability(system, parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])])
+    assert cert.certified, cert.reason
+    assert cert.cover.kind == "parameter box" and cert.cover.sound and len(cert.cover.vertices) == 4
+    assert cert.mu_min == pytest.approx((0.5 + 0.3 * np.tanh(3.0)) ** 2, abs=1e-3)
+    assert cert.verify(20_000, seed=3).holds
+    with pytest.raises(ModelError, match="not affine in the given parameters"):
+        certify_strong_detectability(system, parameters=lambda x, u: [np.tanh(x[0])])
+
+
+def test_verify_exposes_a_certificate_that_claims_too_much():
+    system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
+    cert = certify_strong_detectability(system)
+    tampered = dataclasses.replace(cert, rate=0.5 * cert.mu)
+    assert tampered.verify(20_000, seed=4).worst_ratio > 1.0
+
+
+def _cstr(**kwargs):
+    k0, energy, beta = 50.0, 5.0, 0.5
+
+    def rhs(x, u, w):
+        rate = k0 * x[0] * np.exp(-energy / x[1])
+        return [1.0 - x[0] - rate, 2.0 - 2.0 * x[1] + beta * rate + w[0]]
+
+    return System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.05,
+                           x_bounds=((0.0, 0.8), (1.0, 2.5)), v_bounds=(-1e-3, 1e-3), **kwargs)  # fmt: skip
+
+
+def test_continuous_time_model_with_a_constant_input_channel_certifies():
+    cert = certify_strong_detectability(_cstr())
+    assert cert.certified, cert.reason
+    assert 0.8 < cert.mu_min < 1.0
+    assert cert.verify(20_000).holds
+    # w held inside RK4 turns the input's direction with the state: matching fails on its span
+    with pytest.raises(ModelError, match="direction of df/dw varies"):
+        certify_strong_detectability(_cstr(input_channel="rk4"))
+
+
+def test_crop_model_certifies_at_the_papers_rate_with_its_noise_gain():
+    system = crop_growth.system()
+    cert = certify_strong_detectability(system, mu=0.48)
+    assert cert.certified and cert.mu == 0.48, cert.reason
+    assert cert.mu_min < 0.3
+    assert cert.noise_gain.shape == (3,) and np.all(np.isfinite(cert.noise_gain)) and np.all(cert.noise_gain > 0)
     n = cert.min_horizon()
     assert 8 * cert.mu**n * cert.condition < 1 <= 8 * cert.mu ** (n - 1) * cert.condition
-    low = certify_strong_detectability(system, mu=0.2, grid=2, pool_grid=2, pool_random=10)
-    assert not low.certified and "below" in low.reason
-    with pytest.raises(OptionError, match="mu"):
-        certify_strong_detectability(system, mu=1.5)
+    assert cert.verify(20_000).holds
 
 
-def test_certificate_serialises():
-    import json
+def test_chaotic_map_without_zero_dynamics_certifies_at_the_floor():
+    def henon(x, u, w):
+        return [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]]
 
+    system = System.from_callables(henon, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1,
+                                   x_bounds=((-1.5, -0.5), (1.5, 0.5)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    cert = certify_strong_detectability(system)
+    assert cert.certified and cert.mu_min <= 1e-4, cert.reason
+    assert cert.verify(20_000).holds
+
+
+def test_bad_models_and_options_get_typed_errors():
+    with pytest.raises(ModelError, match="bounded state domain"):
+        certify_strong_detectability(linear.linear_system(0.5 * np.eye(2), [[1.0], [0.0]], [[1.0, 0.0]]))
+    quadratic = System.from_callables(lambda x, u, w: [0.5 * x[0] + w[0], 0.5 * x[1]], lambda x, v: [x[0] ** 2 + v[0]],
+                                      nx=2, nw=1, nv=1, x_bounds=(-1, 1))  # fmt: skip
+    with pytest.raises(ModelError, match="affine in the state"):
+        certify_strong_detectability(quadratic)
     system = closed_form.system()
-    cert = certify_strong_detectability(system, grid=2, pool_grid=3, pool_random=50)
+    for bad in (1.5, 0.0, "a"):
+        with pytest.raises(OptionError, match="mu"):
+            certify_strong_detectability(system, mu=bad)
+    with pytest.raises(OptionError, match="samples"):
+        certify_strong_detectability(system, samples=2)
+
+
+def test_given_rate_below_the_smallest_is_refused_and_weights_follow_the_certificate():
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    low = certify_strong_detectability(system, mu=0.2)
+    assert not low.certified and low.status == "below the smallest rate"
+    cert = certify_strong_detectability(system, mu=0.48)
+    weights = cert.weights()
+    assert isinstance(weights, UISEWeights) and weights.mu == 0.48
+    np.testing.assert_allclose(weights.P, cert.P)
+    np.testing.assert_allclose(cert.R_y, cert.sigma_y * np.diag(1 / system.y.scale**2))
     data = json.loads(json.dumps(cert.to_dict()))
-    assert data["certified"] is cert.certified and data["kind"] == "strong_detectability"
+    assert data["kind"] == "strong_detectability" and data["status"] == "certified"
+    assert data["min_horizon"] == cert.min_horizon()
+    with pytest.raises(CertificationError):
+        low.weights()

@@ -39,11 +39,11 @@ class UncertifiedDelta:
 def linear_case():
     """Zeros {0.5, 0.2}; X unbounded (the states follow w up to 1e6); certificates for both estimators."""
     bounded, A, B, C = linear.with_invariant_zeros([0.5, 0.2], seed=1, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))
-    cert = certify_strong_detectability(bounded, grid=2, pool_grid=2, pool_random=10)  # LTI: constant Jacobians
+    cert = certify_strong_detectability(bounded)  # LTI: one Jacobian
     assert cert.certified and cert.mu_min == pytest.approx(0.25, abs=1e-3)
     system = linear.linear_system(A, B, C, v_bounds=(-1e-3, 1e-3))
     # delta-IOSS at eta = 0.5 (Schiller et al., Cor. 3); for an LTI system the LMI does not depend on the domain
-    delta = certify_delta_ioss(bounded, eta=0.5, w_bounds=(-1.0, 1.0), grid=2, pool_grid=2, pool_random=10)
+    delta = certify_delta_ioss(bounded, eta=0.5, w_bounds=(-1.0, 1.0), samples=200)
     assert delta.certified
     return system, cert, delta
 
@@ -84,7 +84,7 @@ def test_linear_uise_exact_despite_huge_unknown_input_standard_mhe_not(linear_ca
 
 def test_closed_form_error_follows_the_closed_form():
     system = closed_form.system()
-    cert = certify_strong_detectability(system, grid=2, pool_grid=3, pool_random=50)
+    cert = certify_strong_detectability(system)
     assert cert.certified
     setup = get("closed-form").setup()
     traj = simulate(system, setup.x0, 50, u=setup.u, w=setup.w)
@@ -210,10 +210,7 @@ def test_certificate_and_weight_errors(linear_case):
     with pytest.raises(OptionError, match="N"):
         UISE(system, weights=weights)
     unproven = certify_strong_detectability(
-        linear.with_invariant_zeros([1.5], seed=3, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))[0],
-        grid=2,
-        pool_grid=2,
-        pool_random=10,
+        linear.with_invariant_zeros([1.5], seed=3, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))[0]
     )
     with pytest.raises(CertificationError, match="not certified"):
         UISE(system, certificate=unproven)

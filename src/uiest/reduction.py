@@ -187,7 +187,7 @@ class ReducedModel:
             3,
         )  # fmt: skip
         ys = np.asarray(system.h.map(len(grid))(grid[:, : system.nx].T, grid[:, system.nx :].T), dtype=float).T
-        u_box = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+        u_box = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
         return certify_reduced_ioss(
             self.f_sharp,
             self.h_sharp,
@@ -213,8 +213,8 @@ def _assumption_report(
 ) -> AssumptionReport:
     rng = np.random.default_rng(seed)
     x = system.x.bounds.sample(rng, count) if system.x.bounds.is_bounded else rng.standard_normal((count, system.nx))
-    v = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale).sample(rng, count)
-    u = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, count)
+    v = lmi.finite_box(system.v.bounds, system.v.bounds.center, system.v.scale).sample(rng, count)
+    u = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, count)
     w = system.nominal_w + system.w.scale * 10.0 ** rng.uniform(-3, 6, (count, system.nw)) * rng.choice(
         [-1, 1], (count, system.nw)
     )
@@ -368,8 +368,8 @@ def _default_B(system: System, w_spread: float, rtol: float) -> FloatArray:
     """Orthonormal basis (nx, s) of the span of df/dw over sampled X x U x W."""
     rng = np.random.default_rng(0)
     x = system.x.bounds.sample(rng, 200) if system.x.bounds.is_bounded else rng.standard_normal((200, system.nx))
-    u = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, 200)
-    w_box = lmi.sampling_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
+    u = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale).sample(rng, 200)
+    w_box = lmi.finite_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
     w = w_box.sample(rng, 200)
     v = np.broadcast_to(system.v.bounds.center if system.v.bounds.is_bounded else np.zeros(system.nv), (200, system.nv))
     B_w = lmi.batched(system.jacobian_function, [x, u, w, v])[2]

@@ -324,6 +324,49 @@ class System:
             raise ModelError(f"f: expected {nx} outputs (nx), got {x_next.size1()}")
         return cls.from_expressions(xs, us, ws, vs, x_next, y, **spec)
 
+    @classmethod
+    def from_ode(
+        cls,
+        rhs: Callable[[Any, Any, Any], Any] | ca.Function,
+        h: Callable[[Any, Any], Any] | ca.Function,
+        *,
+        nx: int,
+        nw: int,
+        nv: int,
+        nu: int = 0,
+        dt: float,
+        substeps: int = 1,
+        input_channel: str | None = None,
+        **spec: Any,
+    ) -> System:
+        """Sample the continuous-time model ``dx/dt = rhs(x, u, w)``, ``y = h(x, v)`` every ``dt``.
+
+        ``rhs`` and ``h`` are callables (traced as in :meth:`from_callables`) or CasADi Functions.
+        u and w are held over each sample. The drift is integrated by RK4 (``substeps`` steps
+        per sample); where rhs is affine in w with a constant matrix G, the unknown input enters
+        through its per-sample integral ``Gamma (w - w0)`` (constant direction, linearised at
+        the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
+        :mod:`uiest.ode` for the discretisation error. Further keywords as in :meth:`from_functions`.
+        """
+        from uiest import ode
+
+        for label, value in (("nx", nx), ("nu", nu), ("nw", nw), ("nv", nv)):
+            if not isinstance(value, int | np.integer) or value < 0 or (label == "nx" and value == 0):
+                raise ModelError(f"{label}: expected a non-negative integer (nx >= 1), got {value!r}")
+        rhs_f = as_function(rhs, "rhs", [("x", nx), ("u", nu), ("w", nw)], nx)
+        h_f = as_function(h, "h", [("x", nx), ("v", nv)])
+        w_range = spec.get("w_range")
+        f, _ = ode.discretise(
+            rhs_f,
+            dt=float(dt),
+            substeps=substeps,
+            input_channel=input_channel,
+            x_ref=Box.coerce(spec.get("x_bounds"), nx, "x_bounds").center,
+            u_ref=Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center,
+            w_ref=np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center,
+        )
+        return cls.from_functions(f, h_f, dt=float(dt), **spec)
+
     # ------------------------------------------------------------------ sizes
     @property
     def nx(self) -> int:

@@ -1,20 +1,25 @@
 """Detectability certificates: the paper's conditions turned into numbers a user can check.
 
+Every certificate is a :class:`Certificate` (verdict and status, rate, quadratic storage P,
+``weights()`` for its estimator, ``min_horizon()``, ``verify()``, ``to_dict()``):
+
+- :func:`certify_strong_detectability` (theo:Lyapunov): the unknown input and the current-output
+  gain eliminated exactly, vertices covering X x U.
 - :func:`linear_strong_detectability` (lem:UIO_LTI): matching, invariant zeros, mu_min.
-- :func:`certify_strong_detectability` (theo:Lyapunov): quadratic storage by LMIs.
 - :func:`certify_reduced_ioss` (ass:e-ioss): exponential i-IOSS of a reduced-order model.
 - :func:`certify_delta_ioss` (Schiller et al. 2023, Assumption 1): for the standard MHE.
 - :func:`window_information`: the smallest state difference one window's data can resolve.
 """
 
+from uiest.detectability.certificate import Certificate, Verification
 from uiest.detectability.delta import DeltaIOSS, certify_delta_ioss
 from uiest.detectability.information import InformationBound, window_information
 from uiest.detectability.linear import LinearStrongDetectability, invariant_zeros, linear_strong_detectability
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
-from uiest.detectability.report import Verification
 from uiest.detectability.strong import StrongDetectability, certify_strong_detectability
 
 __all__ = [
+    "Certificate",
     "DeltaIOSS",
     "InformationBound",
     "LinearStrongDetectability",

@@ -27,133 +27,97 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import dissipation, lmi
-from uiest.detectability.report import Verification
-from uiest.errors import CertificationError
+from uiest.detectability.certificate import Certificate, Verification
+from uiest.errors import ModelError
 from uiest.system import System
 
 
 @dataclass(frozen=True, eq=False)
-class DeltaIOSS(dissipation.SolvedCertificate):
+class DeltaIOSS(Certificate):
     """A quadratic delta-IOSS Lyapunov function (Schiller et al. 2023, Assumption 1).
+
+    Beyond :class:`~uiest.detectability.certificate.Certificate` (``rate`` is eta):
 
     Attributes
     ----------
-    certified : bool
-        True only when the LMIs were solved and the eigenvalue re-check holds on every point.
-    reason : str
-        Why (not) certified.
-    eta, eta_min : float
-        Discount and the smallest feasible one found by bisection.
-    P : ndarray (nx, nx)
-        ``W = |x - x~|_P^2`` in original units (``P1 = P2 = P``).
     Q_w, Q_v, R : ndarray
-        Weights in original units (nw, nw), (nv, nv), (ny, ny).
+        Weights in original units (nw, nw), (nv, nv), (ny, ny) (properties).
     structure : str
         "full" or "identity" (``P = p I`` in scaled coordinates, the paper's "scaled identity").
     w_box : Box
         The range of w the certificate covers (``system.w_range`` unless given).
+    q, r : ndarray, float
+        The scaled weights of the dissipation inequality (channels w and v, and the output).
 
     """
 
     system: System = field(repr=False)
     model: dissipation.IncrementalModel = field(repr=False)
-    solution: dissipation.Solution = field(repr=False)
+    q: FloatArray
+    r: float
     structure: str
     w_box: Box
-    solve_time: float
+
+    kind = "delta_ioss"
 
     @property
     def eta(self) -> float:
         """Discount of Assumption 1."""
-        return self.solution.mu
+        return self.rate
 
     @property
     def eta_min(self) -> float:
         """Smallest feasible discount (bisection)."""
-        return self.solution.mu_min
-
-    @property
-    def P_scaled(self) -> FloatArray:
-        """``P`` in scaled coordinates."""
-        return self.solution.P
-
-    @property
-    def P(self) -> FloatArray:
-        """``P`` in original units."""
-        s = self.system.x.scale
-        return self.solution.P / np.outer(s, s)
+        return self.rate_min
 
     @property
     def Q_w(self) -> FloatArray:
         """Weight of the unknown input, original units."""
-        return float(self.solution.q[0]) * np.diag(1.0 / self.system.w.scale**2)
+        return float(self.q[0]) * np.diag(1.0 / self.system.w.scale**2)
 
     @property
     def Q_v(self) -> FloatArray:
         """Weight of the measurement noise, original units."""
-        return float(self.solution.q[1]) * np.diag(1.0 / self.system.v.scale**2)
+        return float(self.q[1]) * np.diag(1.0 / self.system.v.scale**2)
 
     @property
     def R(self) -> FloatArray:
         """Weight of the output, original units."""
-        return self.solution.r * np.diag(1.0 / self.system.y.scale**2)
+        return self.r * np.diag(1.0 / self.system.y.scale**2)
 
-    @property
-    def condition(self) -> float:
-        """Condition number of ``P_scaled``."""
-        return self.solution.condition
-
-    def min_horizon(self) -> int:
-        """Smallest M with ``4 eta^M lambda_max(P2, P1) < 1`` (Schiller et al., eq. (16)); ``P1 = P2``.
-
-        Raises CertificationError when the certificate does not hold.
-        """
-        if not self.certified:
-            raise CertificationError(f"min_horizon: the certificate does not hold ({self.reason})")
+    def _horizon(self) -> int:
+        """Smallest M with ``4 eta^M lambda_max(P2, P1) < 1`` (Schiller et al., eq. (16)); ``P1 = P2``."""
         return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
 
-    def verify(self, n_pairs: int = 20_000, seed: int = 0) -> Verification:
-        """Test Assumption 1's inequality on random pairs with the nonlinear f and h.
+    def weights(self) -> Any:
+        """:class:`~uiest.estimators.MHEWeights` ``(eta, P, Q_w, Q_v, R)``."""
+        from uiest.estimators.weights import MHEWeights
 
-        Pairs ``(x, x~)`` in X, ``(w, v)``, ``(w~, v~)`` in ``w_box x V``, a shared u.
-        """
-        if not self.certified:
-            return Verification(float("nan"), 0, 0, self.reason)
+        return MHEWeights.from_certificate(self)
+
+    def _verify(self, n_pairs: int, seed: int) -> Verification:
+        """Assumption 1's inequality on random pairs in X x w_box x V with the nonlinear f and h."""
         check = dissipation.check_pairs(self.model, self.P, self.eta, [self.Q_w, self.Q_v], self.R, n_pairs, seed)
         return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of Schiller et al. eq. (4)")
 
-    def to_dict(self) -> dict[str, object]:
-        """Plain-data form for JSON."""
+    def _details(self) -> dict[str, object]:
         ok = self.certified
         return {
-            "kind": "delta_ioss",
             "system": self.system.name,
-            "certified": ok,
-            "reason": self.reason,
             "eta": self.eta,
             "eta_min": self.eta_min,
             "structure": self.structure,
-            "P": self.P.tolist() if ok else None,
-            "P_scaled": self.P_scaled.tolist() if ok else None,
             "Q_w": self.Q_w.tolist() if ok else None,
             "Q_v": self.Q_v.tolist() if ok else None,
             "R": self.R.tolist() if ok else None,
-            "condition_scaled": self.condition if ok else None,
-            "min_horizon": self.min_horizon() if ok else None,
-            "solver_status": self.solution.status,
-            "solve_time_s": self.solve_time,
-            "margin": self.solution.margin,
-            "n_active": self.solution.n_active,
-            "n_pool": self.solution.n_pool,
-            "argument": self.solution.argument,
             "w_box": self.w_box.to_dict(),
         }
 
 
 def certify_delta_ioss(
     system: System,
-    *,
     eta: float | None = None,
+    *,
     structure: str = "full",
     w_bounds: Box | tuple[Any, Any] | None = None,
     w_spread: float = 100.0,
@@ -165,7 +129,7 @@ def certify_delta_ioss(
     ----------
     system : System
         Needs a bounded X. The output Jacobians should be constant (h affine, as Corollary 3
-        requires); otherwise the certificate says the pointwise LMIs are a sampled check only.
+        requires); otherwise the certificate says the output term is a sampled check only.
     eta : float, optional
         Discount to certify; None minimises it (``eta = min(2 eta_min, (1 + eta_min) / 2)``).
     structure : {"full", "identity"}
@@ -175,20 +139,23 @@ def certify_delta_ioss(
     w_spread : float
         Used only without ``w_bounds`` and ``system.w_range``.
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve`.
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, samples, kappa_max,
+        gain_max, tol, seed).
 
     """
     start = time.perf_counter()
     if not system.x.bounds.is_bounded:
-        raise CertificationError(f"certify_delta_ioss: X must be bounded to grid the Jacobians, got {system.x.bounds}")
+        raise ModelError(f"X: a certificate needs a bounded state domain, got {system.x.bounds}")
     if w_bounds is not None:
         w_box = Box.coerce(w_bounds, system.nw, "w_bounds")
     elif system.w_range is not None:
         w_box = system.w_range
     else:
-        w_box = lmi.sampling_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
-    v_box = lmi.sampling_box(system.v.bounds, system.v.bounds.center, system.v.scale)
-    u_box = lmi.sampling_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+        w_box = lmi.finite_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
+    if not w_box.is_bounded:
+        raise ModelError(f"w_bounds: a delta-IOSS certificate needs a bounded range of w, got {w_box}")
+    v_box = lmi.finite_box(system.v.bounds, system.v.bounds.center, system.v.scale)
+    u_box = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
     nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
     x, u, d = ca.SX.sym("x", nx), ca.SX.sym("u", nu), ca.SX.sym("d", nw + nv)
     model = dissipation.IncrementalModel(
@@ -203,4 +170,5 @@ def certify_delta_ioss(
         channels=(("w", nw), ("v", nv)),
     )
     solution = dissipation.solve(model, mu=eta, structure=structure, **options)
-    return DeltaIOSS(system, model, solution, structure, w_box, time.perf_counter() - start)
+    return DeltaIOSS(**solution.certificate_fields(system.x.scale, time.perf_counter() - start), system=system,
+                     model=model, q=solution.q, r=solution.r, structure=structure, w_box=w_box)  # fmt: skip

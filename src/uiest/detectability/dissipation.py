@@ -2,8 +2,7 @@ r"""Quadratic incremental dissipation inequalities by LMIs: the engine of the i-
 
 A one-step model ``z+ = F(z, u, d)``, ``y = H(z, d)`` with a known input ``u`` (equal in both
 trajectories) and a disturbance ``d`` made of named channels ``d = (d_1, ..., d_c)``. In scaled
-coordinates (``z = S_z z~`` and so on) find ``P >= I`` (full, or ``p I``), channel weights
-``q_c >= 0`` and an output weight ``r >= 0`` such that, for all pairs in the domain,
+coordinates find ``P >= I``, channel weights ``q_c >= 0`` and an output weight ``r >= 0`` with
 
     |F(z,u,d) - F(z~,u,d~)|_P^2 <= mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2.
 
@@ -11,26 +10,24 @@ With ``J = dF/d(z, d)`` and ``G = dH/d(z, d)`` the pointwise condition is
 
     M(J, G) = blkdiag(mu P, q_1 I, ..., q_c I) + r G^T G - J^T P J >= 0,
 
-linear in the decision variables (J and G are data). It is equivalent to the Schur form
-``[blkdiag(mu P, q I) + r G^T G, J^T P; P J, P] >= 0`` of Schiller et al.'s Corollary 3, which is
-affine in J; so the set of J where it holds is convex and where it holds at the sampled
-Jacobians it holds on their convex hull, which contains the mean-value Jacobians of the
-incremental argument (``F(a) - F(b) = (int_0^1 J(b + s(a - b)) ds) (a - b)``, the segment lying
-in the convex domain). If G is constant the same argument covers the output term; if G varies,
-``r G^T G`` is convex in G and the pointwise LMI is a sampled check only. The form ``M`` (rather
-than the Schur form) is what the solver sees: for slow sampled systems (``J ~ I``, ``mu ~ 1``)
-the Schur block is nearly singular and interior-point solvers lose the margin ``(1 - mu) P`` in
-their tolerances, while ``M`` carries it directly. That the sampled Jacobians represent the
-whole domain is a sampled check either way (grid with corners over the axes the Jacobians
-depend on, cutting plane on a dense pool), not a proof. This is the LMI of Schiller et al. 2023,
-Corollary 3, eq. (33), and the quadratic form of the paper's ass:e-ioss.
+equivalent to the Schur form ``[blkdiag(mu P, q I) + r G^T G, J^T P; P J, P] >= 0`` of Schiller
+et al.'s Corollary 3, eq. (33), which is affine in J: where it holds at the vertices of a cover
+of J over the domain (:mod:`uiest.detectability.cover`) it holds at every mean-value Jacobian.
+If G varies, ``r G^T G`` is not affine in G and the vertex argument covers J only: the
+certificate says so. The solver sees M (not the Schur form): for slow sampled systems
+(``J ~ I``, ``mu ~ 1``) the Schur block is nearly singular and interior-point solvers lose the
+margin ``(1 - mu) P`` in their tolerances, while M carries it directly.
+
+The rate is bisected with :func:`uiest.detectability.lmi.bisect_rate` on the margin problem
+(``max t`` with ``M_i >= t I``, ``I / kappa <= P <= I``); at the chosen rate the condition number
+of P is minimised, then the gains. The numpy re-check at every vertex decides.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import cvxpy as cp
@@ -38,18 +35,23 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import lmi
+from uiest.detectability.certificate import (
+    BELOW_RATE,
+    CERTIFIED,
+    INFEASIBLE,
+    RECHECK_FAILED,
+    SOLVER_FAILED,
+    check_rate,
+    quad,
+    sample_pairs,
+)
+from uiest.detectability.cover import Cover, cover
 from uiest.errors import OptionError
-
-MU_FLOOR = 1e-4
-"""Lower end of the discount bisection."""
 
 STRUCTURES = ("full", "identity")
 
-ACCEPTED = ("optimal", "optimal_inaccurate")
-"""Statuses whose solution is passed to the eigenvalue re-check, which alone decides certification."""
-
 MARGIN_FLOOR = 1e-9
-"""Smallest margin ``t*`` of the margin problem that counts as feasible (P >= I normalises it)."""
+"""Smallest margin ``t*`` of the margin problem that counts as feasible (``P <= I`` normalises it)."""
 
 GAIN_REGULARISATION = 1e-6
 """Weight of ``sum q + r`` while minimising the condition number: without it the optimal face is
@@ -58,7 +60,7 @@ unbounded in the gains and interior-point solvers end 'inaccurate'."""
 
 @dataclass(frozen=True, eq=False)
 class IncrementalModel:
-    """``z+ = step(z, u, d)``, ``y = output(z, d)`` with finite sampling boxes and scales.
+    """``z+ = step(z, u, d)``, ``y = output(z, d)`` with finite boxes and scales.
 
     Attributes
     ----------
@@ -67,7 +69,7 @@ class IncrementalModel:
     output : casadi.Function
         ``(z (n,), d (nd,)) -> y (p,)``.
     z_box, u_box, d_box : Box
-        Finite boxes over which the Jacobians are sampled (the domain of the certificate).
+        Finite boxes: the domain of the certificate.
     z_scale, d_scale, y_scale : ndarray
         Positive nominal magnitudes; the LMI is solved in ``z / z_scale`` etc.
     channels : tuple of (str, int)
@@ -97,103 +99,110 @@ class IncrementalModel:
 
     @property
     def domain(self) -> Box:
-        """The product box ``Z x U x D`` of sample points, columns ordered (z, u, d)."""
+        """The product box ``Z x U x D``, columns ordered (z, u, d)."""
         return Box(
             np.concatenate([self.z_box.lower, self.u_box.lower, self.d_box.lower]),
             np.concatenate([self.z_box.upper, self.u_box.upper, self.d_box.upper]),
         )
 
-    def jacobian_function(self) -> ca.Function:
-        """``(z, u, d) -> (J, G)``, both in scaled coordinates: J (n, n + nd), G (p, n + nd)."""
-        z, u, d = (ca.SX.sym(s, k) for s, k in (("z", self.n), ("u", self.u_box.size), ("d", self.nd)))
-        zd = ca.vertcat(z, d)
-        col_scale = np.concatenate([self.z_scale, self.d_scale])
-        J = ca.diag(1.0 / self.z_scale) @ ca.jacobian(self.step(z, u, d), zd) @ ca.diag(col_scale)
-        G = ca.diag(1.0 / self.y_scale) @ ca.jacobian(self.output(z, d), zd) @ ca.diag(col_scale)
-        return ca.Function("scaled_jacobians", [z, u, d], [J, G])
-
-    def jacobians(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
-        """Scaled Jacobians at points (m, n + nu + nd): J (m, n, n + nd), G (m, p, n + nd)."""
+    def jacobians(self) -> tuple[ca.Function, ca.Function]:
+        """Functions of ``p = (z, u, d)``: the scaled J (n, n + nd) and G (p, n + nd)."""
         n, nu = self.n, self.u_box.size
-        J, G = lmi.batched(self.jacobian_function(), [points[:, :n], points[:, n : n + nu], points[:, n + nu :]])
-        return J, G
+        point = ca.SX.sym("p", n + nu + self.nd)
+        z, u, d = point[:n], point[n : n + nu], point[n + nu :]
+        zd = ca.vertcat(z, d)
+        col = np.concatenate([self.z_scale, self.d_scale])
+        J = ca.diag(1.0 / self.z_scale) @ ca.jacobian(self.step(z, u, d), zd) @ ca.diag(col)
+        G = ca.diag(1.0 / self.y_scale) @ ca.jacobian(self.output(z, d), zd) @ ca.diag(col)
+        return ca.Function("J", [point], [J]), ca.Function("G", [point], [G])
 
 
 @dataclass(frozen=True, eq=False)
-class Solution:
+class DissipationSolution:
     """Outcome of :func:`solve`, in scaled coordinates.
 
     Attributes
     ----------
-    certified : bool
-        LMIs solved to optimality and the eigenvalue re-check holds on every active and pool point.
+    outcome : str
+        ``lmi.FEASIBLE`` (certified), ``lmi.INFEASIBLE``, ``lmi.FAILED``, "below mu_min" or
+        "re-check failed".
     reason : str
         Why (not) certified, with the numbers.
     mu, mu_min : float
-        Discount used, and the smallest feasible discount found by bisection.
+        Rate used and the smallest rate found by bisection.
     P : ndarray (n, n)
         Scaled storage matrix (``P >= I``); NaN when not solved.
     q : ndarray (c,)
         Scaled channel weights.
     r : float
         Scaled output weight.
-    status : str
-        Final solver status.
     margin : float
-        Smallest eigenvalue of the Schur complement over all checked points, divided by |P|.
-    n_active, n_pool : int
-        Points in the LMI and in the re-check pool.
-    argument : str
-        Which argument makes the pointwise LMIs cover the domain.
+        Smallest eigenvalue of M over the vertices, divided by ``||P||``.
+    cover : Cover
+        The vertices of J (and G).
+    output_constant : bool
+        Whether G is constant (else the vertex argument covers J only).
 
     """
 
-    certified: bool
+    outcome: str
     reason: str
     mu: float
     mu_min: float
     P: FloatArray
     q: FloatArray
     r: float
-    status: str
     margin: float
-    n_active: int
-    n_pool: int
-    argument: str
+    cover: Cover
+    output_constant: bool
 
     @property
-    def condition(self) -> float:
-        """Condition number of P (NaN when not solved)."""
-        if not np.all(np.isfinite(self.P)):
-            return float("nan")
-        eig = np.linalg.eigvalsh(self.P)
-        return float(eig[-1] / eig[0])
+    def coverage(self) -> str:
+        """The cover's kind, soundness and how it was found."""
+        sound = self.cover.sound and self.output_constant
+        tail = "" if self.output_constant else "; the output Jacobian varies, so r G'G is a sampled check only"
+        return f"{self.cover.kind} ({'sound' if sound else 'sampled, not a proof'}): {self.cover.description}{tail}"
+
+    def certificate_fields(self, scale: FloatArray, seconds: float) -> dict[str, Any]:
+        """The :class:`~uiest.detectability.certificate.Certificate` fields of this solution."""
+        return {
+            "certified": self.outcome == lmi.FEASIBLE,
+            "status": _STATUS.get(self.outcome, SOLVER_FAILED),
+            "reason": self.reason,
+            "rate": self.mu,
+            "rate_min": self.mu_min,
+            "P_scaled": self.P,
+            "scale": scale,
+            "solve_time": seconds,
+            "coverage": self.coverage,
+            "margin": self.margin,
+        }
 
 
-class SolvedCertificate:
-    """The accessors every certificate built on a :class:`Solution` shares (it holds ``solution``)."""
+_STATUS = {lmi.FEASIBLE: CERTIFIED, lmi.INFEASIBLE: INFEASIBLE, lmi.FAILED: SOLVER_FAILED,
+           "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED}  # fmt: skip
 
-    solution: Solution
 
-    @property
-    def certified(self) -> bool:
-        """Whether the certificate holds (solved and re-checked)."""
-        return self.solution.certified
+def margins(
+    J: FloatArray, G: FloatArray, P: FloatArray, q: FloatArray, r: float, channels: Sequence[int], mu: float
+) -> FloatArray:
+    """Independent re-check: min eig of ``blkdiag(mu P, q I) + r G^T G - J^T P J`` per point, over |P|.
 
-    @property
-    def reason(self) -> str:
-        """Why (not) certified."""
-        return self.solution.reason
+    Shapes: J (m, n, n + nd), G (m, p, n + nd); returns (m,).
+    """
+    n = P.shape[0]
+    top = np.zeros((J.shape[2], J.shape[2]))
+    top[:n, :n] = mu * P
+    top[n:, n:] = np.diag(np.repeat(q, channels)) if len(channels) else np.zeros((0, 0))
+    M = top[None] + r * np.einsum("mji,mjk->mik", G, G) - np.einsum("mji,jk,mkl->mil", J, P, J)
+    return lmi.min_eig(M) / np.linalg.eigvalsh(P)[-1]
 
 
 class _Problem:
-    """The LMI ``M(J_i, G_i) >= t I`` on a fixed set of points, normalised by ``P <= I``.
+    """The LMI ``M(J_i, G_i) >= t I`` on a fixed set of vertices, normalised by ``P <= I``.
 
-    The LMI is homogeneous in ``(P, q, r)``; normalising the largest eigenvalue of P (rather than
-    the smallest) keeps every variable of order one, which interior-point solvers need to
-    resolve margins of order ``(1 - mu)`` (about 1e-5 for the crop model). Three problems share
-    the variables; mu, the required margin, the lower bound on P and the weight are Parameters
-    (bisection re-solves without recompiling):
+    Three problems share the variables; mu, the required margin and the lower bound on P are
+    Parameters (bisection re-solves without recompiling):
 
     - ``margin``: maximise t with ``I / kappa_max <= P`` and the gains at most ``gain_max``;
       feasible at mu iff ``t* > 0``.
@@ -236,51 +245,69 @@ class _Problem:
         self.gains_problem = cp.Problem(cp.Minimize(cp.sum(self.q) + self.r), [*designed, self.s >= self.s_req])
         self.n = n
 
-    def feasible(self, mu: float) -> bool:
-        """Whether the LMI is strictly feasible at discount ``mu`` (margin problem, ``t* > 0``)."""
-        self.mu.value = mu
-        status = lmi.solve(self.margin_problem)
-        return status in ACCEPTED and self.t.value is not None and float(self.t.value) > MARGIN_FLOOR
-
     def values(self) -> tuple[FloatArray, FloatArray, float]:
         """(P, q, r) of the last solution rescaled to ``lambda_min(P) = 1``, P as an (n, n) matrix."""
         P = self.P.value if self.P.ndim == 2 else float(self.P.value) * np.eye(self.n)
         P = np.asarray(P, dtype=float)
-        low = float(np.linalg.eigvalsh(0.5 * (P + P.T))[0])
+        P = 0.5 * (P + P.T)
+        low = float(np.linalg.eigvalsh(P)[0])
         q = np.asarray(self.q.value, dtype=float).reshape(-1)
-        return P / low, q / low, float(self.r.value) / low
+        return P / low, np.maximum(q, 0.0) / low, max(float(self.r.value), 0.0) / low
 
 
-def margins(
-    J: FloatArray, G: FloatArray, P: FloatArray, q: FloatArray, r: float, channels: Sequence[int], mu: float
-) -> FloatArray:
-    """Independent re-check: min eig of ``blkdiag(mu P, q I) + r G^T G - J^T P J`` per point, over |P|.
+class _Solver:
+    """Bisection and design on all vertices through an active set grown by cutting planes."""
 
-    Shapes: J (m, n, n + nd), G (m, p, n + nd); returns (m,).
-    """
-    n = P.shape[0]
-    top = np.zeros((J.shape[2], J.shape[2]))
-    top[:n, :n] = mu * P
-    top[n:, n:] = np.diag(np.repeat(q, channels)) if len(channels) else np.zeros((0, 0))
-    M = top[None] + r * np.einsum("mji,mjk->mik", G, G) - np.einsum("mji,jk,mkl->mil", J, P, J)
-    return lmi.min_eig(M) / np.linalg.eigvalsh(P)[-1]
+    def __init__(
+        self, J: FloatArray, G: FloatArray, channels: Sequence[int], structure: str, kappa_max: float, gain_max: float
+    ) -> None:
+        self.J, self.G, self.channels = J, G, list(channels)
+        self.options = (structure, kappa_max, gain_max)
+        self.active = lmi.ActiveSet(np.concatenate([J, G], axis=1))
+        self._problem: _Problem | None = None
+        self._size = -1
 
+    def problem(self) -> _Problem:
+        index = self.active.index
+        if self._problem is None or self._size != len(index):
+            self._problem = _Problem(self.J[index], self.G[index], self.channels, *self.options)
+            self._size = len(index)
+        return self._problem
 
-def relevant_axes(model: IncrementalModel) -> FloatArray:
-    """Boolean mask over the (z, u, d) columns: the axes the scaled Jacobians depend on (structurally)."""
-    fun = model.jacobian_function()
-    syms = [ca.SX.sym(f"a{i}", fun.size_in(i)) for i in range(3)]
-    outs = ca.vertcat(*[ca.vec(o) for o in fun(*syms)])
-    mask = []
-    for sym in syms:
-        mask.extend(bool(ca.depends_on(outs, sym[j])) for j in range(sym.numel()))
-    return np.array(mask, dtype=bool)
+    def all_margins(self, P: FloatArray, q: FloatArray, r: float, mu: float) -> FloatArray:
+        return margins(self.J, self.G, P, q, r, self.channels, mu)
 
+    def probe(self, mu: float) -> str:
+        """FEASIBLE when the margin problem has ``t* > 0`` and every vertex passes the re-check."""
+        for _ in range(len(self.J)):
+            problem = self.problem()
+            problem.mu.value = mu
+            status = lmi.solve(problem.margin_problem)
+            if status not in lmi.SOLVED or problem.t.value is None:
+                return lmi.INFEASIBLE if status in ("infeasible", "infeasible_inaccurate") else lmi.FAILED
+            if not float(problem.t.value) > MARGIN_FLOOR:
+                return lmi.INFEASIBLE if status == "optimal" else lmi.FAILED
+            found = self.all_margins(*problem.values(), mu)
+            if found.min() >= 0.0:
+                return lmi.FEASIBLE
+            if not self.active.add_worst(found):
+                return lmi.FAILED
+        return lmi.FAILED
 
-def _restricted(box: Box, mask: FloatArray) -> Box:
-    """``box`` collapsed to its centre on the axes outside ``mask``."""
-    center = box.center
-    return Box(np.where(mask, box.lower, center), np.where(mask, box.upper, center))
+    def design(self, mu: float, kappa_slack: float) -> tuple[FloatArray, FloatArray, float] | None:
+        """Condition number of P first, then the gains; the margin solution when a design solve fails."""
+        if self.probe(mu) != lmi.FEASIBLE:
+            return None
+        problem = self.problem()
+        fallback = problem.values()
+        problem.t_req.value = 0.1 * float(problem.t.value)
+        status = lmi.solve(problem.conditioning_problem)
+        if status in lmi.SOLVED:
+            problem.s_req.value = float(problem.s.value) / kappa_slack
+            status = lmi.solve(problem.gains_problem)
+        if status in lmi.SOLVED and self.all_margins(*problem.values(), mu).min() >= 0.0:
+            return problem.values()
+        return fallback
 
 
 def solve(
@@ -288,107 +315,68 @@ def solve(
     *,
     mu: float | None,
     structure: str = "full",
-    grid: int = 3,
-    pool_grid: int = 7,
-    pool_random: int = 2000,
-    max_pool_grid: int = 5000,
+    parameters: ca.Function | None = None,
+    samples: int = 4000,
     kappa_max: float = 1e6,
     gain_max: float = 1e4,
     kappa_slack: float = 1.1,
     tol: float = 1e-4,
-    max_rounds: int = 6,
     seed: int = 0,
-) -> Solution:
-    """Find (P, q, r) of the module docstring by bisection on mu and a cutting plane.
+) -> DissipationSolution:
+    """Find (P, q, r) of the module docstring; mu given or ``min(2 mu_min, (1 + mu_min) / 2)``.
 
-    The active set starts as a ``grid``-point grid (corners included) over the axes the
-    Jacobians depend on; the pool is a ``pool_grid``-point grid (coarsened so that it has at
-    most ``max_pool_grid`` points) plus ``pool_random`` uniform samples of the whole domain.
-    The discount is the given ``mu`` or ``min(2 mu_min, (1 + mu_min) / 2)``; at that discount
-    the condition number ``kappa`` of P is minimised, then the gains ``sum q + r`` subject to
-    ``kappa <= kappa_slack * kappa_min``.
+    ``parameters`` is a function of ``(z, u, d)`` that J is affine in (a parameter box); else
+    J is covered by sampling (:func:`uiest.detectability.cover.cover`).
     """
     if structure not in STRUCTURES:
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
-    if mu is not None and not 0.0 < mu < 1.0:
-        raise OptionError(f"mu: expected a number in (0, 1), got {mu!r}")
+    mu = check_rate(mu, "mu")
+    J_fun, G_fun = model.jacobians()
+    point = ca.SX.sym("p", J_fun.numel_in(0))
+    output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
+    stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
+    covered = cover(stacked, model.domain, parameters=parameters, samples=samples, seed=seed)
+    n = model.n
+    J = covered.vertices[:, :n, :]
+    if output_constant:
+        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
+    else:
+        G = covered.vertices[:, n:, :]
     channels = [size for _, size in model.channels]
-    mask = relevant_axes(model)
-    box = _restricted(model.domain, mask)
-    dims = max(1, int(np.count_nonzero(mask & (box.width > 0))))
-    fine = max(2, min(pool_grid, math.floor(max_pool_grid ** (1.0 / dims))))
-    active_pts, pool_pts = lmi.point_sets(box, grid, fine, 0, seed)
-    rng = np.random.default_rng(seed)
-    pool_values = np.vstack([pool_pts.values, model.domain.sample(rng, pool_random)])
-    J_pool, G_pool = model.jacobians(pool_values)
-    constant_output = bool(np.ptp(G_pool, axis=0).max(initial=0.0) <= 1e-12 * max(1.0, np.abs(G_pool).max()))
-    argument = (
-        ("Schur form affine in the Jacobians with a constant output Jacobian: " if constant_output else
-         "the output Jacobian varies, so r G'G is not affine in it: pointwise LMIs are a sampled check only; ")
-        + f"domain coverage is a sampled check (active: {active_pts.description}, over the "
-        f"{int(mask.sum())} axes the Jacobians depend on, + cutting plane; pool: {fine}-point grid + "
-        f"{pool_random} uniform samples, {len(pool_values)} points)"
-    )  # fmt: skip
-    active = active_pts.values
+    solver = _Solver(J, G, channels, structure, kappa_max, gain_max)
+    nan = float("nan")
 
-    def fail(reason: str, mu_min: float = float("nan"), status: str = "not solved") -> Solution:
-        n = model.n
-        return Solution(False, reason, float("nan"), mu_min, np.full((n, n), np.nan), np.full(len(channels), np.nan),
-                        float("nan"), status, float("nan"), len(active), len(pool_values), argument)  # fmt: skip
+    def fail(outcome: str, reason: str, mu_min: float = nan) -> DissipationSolution:
+        return DissipationSolution(outcome, reason, nan, mu_min, np.full((n, n), nan), np.full(len(channels), nan),
+                                   nan, nan, covered, output_constant)  # fmt: skip
 
-    for _round in range(max_rounds):
-        J, G = model.jacobians(active)
-        problem = _Problem(J, G, channels, structure, kappa_max, gain_max)
-        mu_min = lmi.bisect_discount(problem.feasible, MU_FLOOR, tol)
-        if mu_min is None:
-            return fail("infeasible for every discount < 1: no quadratic storage certifies the inequality",
-                        status="infeasible")  # fmt: skip
-        mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
+    bisection = lmi.bisect_rate(solver.probe, tol=tol)
+    note = f" ({bisection.note})" if bisection.note else ""
+    if bisection.rate is None:
+        if bisection.outcome == lmi.INFEASIBLE:
+            return fail(lmi.INFEASIBLE, "infeasible for every rate < 1: no quadratic storage (with cond(P) <= "
+                        f"{kappa_max:g}) certifies the inequality{note}")  # fmt: skip
+        return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
+    mu_min = bisection.rate
+    mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
+    values = solver.design(mu_used, kappa_slack)
+    if values is None:
         if mu_used < mu_min:
-            return fail(f"mu={mu_used} is below the smallest certifiable discount mu_min={mu_min:.4g}", mu_min,
-                        "infeasible")  # fmt: skip
-        status, (P, q, r) = _design(problem, mu_used, kappa_slack, J, G, channels)
-        if status not in ACCEPTED:
-            return fail(f"final solve at mu={mu_used:.4g} returned {status}", mu_min, status)
-        pool_margin = margins(J_pool, G_pool, P, q, r, channels, mu_used)
-        if pool_margin.min() >= 0.0:
-            break
-        worst = np.argsort(pool_margin)[:10]
-        active = np.vstack([active, pool_values[worst]])
-    margin = float(min(margins(J, G, P, q, r, channels, mu_used).min(), pool_margin.min()))
-    certified = margin >= 0.0
+            return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}",
+                        mu_min)  # fmt: skip
+        return fail(lmi.FAILED, f"the design at mu={mu_used:.6g} failed although mu_min={mu_min:.6g} is feasible{note}",
+                    mu_min)  # fmt: skip
+    P, q, r = values
+    margin = float(solver.all_margins(P, q, r, mu_used).min())
+    ok = margin >= 0.0
     reason = (
         f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g}), condition of P {np.linalg.cond(P):.3g}, "
-        f"re-check margin {margin:.2e}"
-        if certified
-        else f"re-check failed: worst eigenvalue margin {margin:.2e} after {max_rounds} cutting-plane rounds"
+        f"re-check margin {margin:.2e}{note}"
+        if ok
+        else f"re-check failed: worst eigenvalue margin {margin:.2e} at mu={mu_used:.6g}{note}"
     )
-    return Solution(certified, reason, float(mu_used), float(mu_min), P, q, r, status, margin, len(active),
-                    len(pool_values), argument)  # fmt: skip
-
-
-def _design(
-    problem: _Problem, mu: float, kappa_slack: float, J: FloatArray, G: FloatArray, channels: Sequence[int]
-) -> tuple[str, tuple[FloatArray, FloatArray, float]]:
-    """Design at discount mu: condition number of P first, then the gains.
-
-    Keeps a tenth of the best margin, minimises the condition number of P, then the gains under
-    ``kappa <= kappa_slack kappa_min``.
-
-    Falls back to the margin problem's (strictly feasible) solution when a design solve fails or
-    its solution does not pass the re-check on the active points.
-    """
-    if not problem.feasible(mu):
-        return str(problem.margin_problem.status), problem.values()
-    fallback = problem.values()
-    problem.t_req.value = 0.1 * float(problem.t.value)
-    status = lmi.solve(problem.conditioning_problem)
-    if status in ACCEPTED:
-        problem.s_req.value = float(problem.s.value) / kappa_slack
-        status = lmi.solve(problem.gains_problem)
-    if status in ACCEPTED and margins(J, G, *problem.values(), channels, mu).min() >= 0.0:
-        return "optimal", problem.values()
-    return "optimal", fallback
+    return DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min), P, q,
+                               r, margin, covered, output_constant)  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -411,15 +399,16 @@ def check_pairs(
     """Test the inequality in original units on random pairs with the nonlinear F and H.
 
     ``weights[c]`` is the (size_c, size_c) weight matrix of channel c, ``R`` the output weight.
-    Half of the pairs are close (relative distance 1e-3), where the inequality is tightest.
+    Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`).
     """
     rng = np.random.default_rng(seed)
     n = model.n
-    z, zt = model.z_box.sample(rng, n_pairs), model.z_box.sample(rng, n_pairs)
-    d, dt = model.d_box.sample(rng, n_pairs), model.d_box.sample(rng, n_pairs)
-    close = rng.random(n_pairs) < 0.5
-    zt[close] = model.z_box.clip(z[close] + 1e-3 * model.z_scale * rng.standard_normal((close.sum(), n)))
-    dt[close] = model.d_box.clip(d[close] + 1e-3 * model.d_scale * rng.standard_normal((close.sum(), model.nd)))
+    joint = Box(
+        np.concatenate([model.z_box.lower, model.d_box.lower]), np.concatenate([model.z_box.upper, model.d_box.upper])
+    )
+    scale = np.concatenate([model.z_scale, model.d_scale])
+    a, b = sample_pairs(rng, joint, n_pairs, scale)
+    z, d, zt, dt = a[:, :n], a[:, n:], b[:, :n], b[:, n:]
     u = model.u_box.sample(rng, n_pairs)
 
     def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
@@ -432,10 +421,7 @@ def check_pairs(
     for (_, size), weight in zip(model.channels, weights, strict=True):
         W[start : start + size, start : start + size] = weight
         start += size
-
-    def quad(v: FloatArray, M: FloatArray) -> FloatArray:
-        return np.einsum("mi,ij,mj->m", v, M, v)
-
     lhs = quad(dz_next, P)
     rhs = mu * quad(z - zt, P) + quad(d - dt, W) + quad(dy, R)
-    return PairCheck(float((lhs / np.maximum(rhs, 1e-300)).max()), n_pairs)
+    used = rhs > 0.0
+    return PairCheck(float((lhs[used] / rhs[used]).max(initial=-np.inf)), int(used.sum()))

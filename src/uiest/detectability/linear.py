@@ -1,20 +1,29 @@
-"""Strong detectability of LTI systems ``x+ = A x + B w``, ``y = C x`` (paper: lemma "UIO_LTI").
+"""Strong detectability of LTI systems ``x+ = A x + B w``, ``y = C x + v`` (paper: lemma "UIO_LTI").
 
 The system is strongly detectable iff (ii) rank(CB) = rank(B) (matching) and (i) every invariant
 zero of the Rosenbrock pencil ``P(z) = [zI - A, -B; C, 0]`` lies strictly inside the unit disk.
 Following the proof, ``B T = (B_tilde, 0)`` with ``B_tilde`` an orthonormal basis of range(B),
 ``Y = pinv(C B_tilde)`` and the estimation error obeys ``e+ = (A - B_tilde Y C A) e + B_tilde Y dy``.
+
+When it is, the certificate of :mod:`uiest.detectability.strong_lmi` at the single vertex A gives
+the quadratic storage and the weights (``mu = mu_min + 0.02 (1 - mu_min)`` unless given), in
+the coordinates of (A, B, C) as given (no scaling).
 """
 
 from __future__ import annotations
 
 import math
+import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
+from uiest.detectability import lmi
+from uiest.detectability.certificate import CERTIFIED, INFEASIBLE, SOLVER_FAILED, Certificate, Verification, check_rate
+from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
 FloatArray = NDArray[np.float64]
@@ -26,8 +35,12 @@ _CONFIRM_FACTOR = 100.0  # zero iff sigma_r(P(z)) <= 100 rtol |pencil|: weakly o
 
 
 @dataclass(frozen=True, eq=False)
-class LinearStrongDetectability:
+class LinearStrongDetectability(Certificate):
     """Result of :func:`linear_strong_detectability` for ``A (n, n)``, ``B (n, q)``, ``C (p, n)``.
+
+    A :class:`~uiest.detectability.certificate.Certificate` (``certified`` iff strongly
+    detectable and the LMI re-check passed; ``rate`` is the design mu, ``rate_min = max |z|^2``)
+    with the Hautus test's findings.
 
     Attributes
     ----------
@@ -41,8 +54,6 @@ class LinearStrongDetectability:
         Invariant zeros, sorted by decreasing modulus.
     strongly_detectable : bool
         Matching holds and every zero has modulus < 1.
-    mu_min : float
-        ``max |z|^2`` (0.0 without zeros); ``inf`` when matching fails.
     B_tilde : ndarray, shape (n, rank_B)
         Orthonormal basis of range(B) (always set).
     Y : ndarray, shape (rank_B, p) or None
@@ -51,10 +62,12 @@ class LinearStrongDetectability:
         ``A - B_tilde Y C A``; None when matching fails.
     observer_gain : ndarray, shape (n, p) or None
         ``K`` with ``error_matrix - K C`` Schur stable; None unless strongly detectable.
-    reason : str
-        One sentence explaining the verdict with the numbers.
-    C : ndarray, shape (p, n)
-        The output matrix (kept for :attr:`spectral_radius`).
+    sigma_y : float
+        ``sigma_y(r) = sigma_y r^2`` (and ``sigma_v`` the same, for ``y = C x + v``).
+    R_y, R_v : ndarray (p, p)
+        ``sigma_y I``.
+    A, C : ndarray
+        The system matrices.
 
     """
 
@@ -64,21 +77,73 @@ class LinearStrongDetectability:
     rank_tol: float
     invariant_zeros: ComplexArray
     strongly_detectable: bool
-    mu_min: float
-    B_tilde: FloatArray | None
+    B_tilde: FloatArray
     Y: FloatArray | None
     error_matrix: FloatArray | None
     observer_gain: FloatArray | None
-    reason: str
-    C: FloatArray | None = field(default=None, repr=False)
+    sigma_y: float
+    R_y: FloatArray
+    R_v: FloatArray
+    A: FloatArray = field(repr=False)
+    C: FloatArray = field(repr=False)
+
+    kind = "linear_strong_detectability"
+
+    @property
+    def mu(self) -> float:
+        """Design rate of the quadratic certificate."""
+        return self.rate
+
+    @property
+    def mu_min(self) -> float:
+        """``max |z|^2`` over the invariant zeros (0 without zeros; inf when matching fails)."""
+        return self.rate_min
 
     @property
     def spectral_radius(self) -> float | None:
         """Spectral radius of ``error_matrix - observer_gain C``; None when there is no gain."""
-        if self.observer_gain is None or self.error_matrix is None or self.C is None:
+        if self.observer_gain is None or self.error_matrix is None:
             return None
         closed = self.error_matrix - self.observer_gain @ self.C
         return float(np.max(np.abs(np.linalg.eigvals(closed)), initial=0.0))
+
+    def _horizon(self) -> int:
+        """Smallest N with ``8 mu^N cond(P) < 1`` (eq:MHE_full_horizon, quadratic alphas)."""
+        return int(np.floor(np.log(8.0 * self.condition) / np.log(1.0 / self.mu))) + 1
+
+    def weights(self) -> Any:
+        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
+        from uiest.estimators.weights import UISEWeights
+
+        self.require("weights")
+        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)
+
+    def _verify(self, n_pairs: int, seed: int) -> Verification:
+        """eq:Lyapunov_2 on random increments (the system is linear: pairs are increments)."""
+        from uiest.detectability.strong import worst_case_ratio
+
+        rng = np.random.default_rng(seed)
+        n, p = self.A.shape[0], self.C.shape[0]
+        dx = rng.standard_normal((n_pairs, n)) * 10.0 ** rng.uniform(-3, 3, (n_pairs, 1))
+        noisy = (np.arange(n_pairs) % 2 == 0)[:, None]
+        dv, dv_next = (np.where(noisy, rng.uniform(-1.0, 1.0, (n_pairs, p)), 0.0) for _ in range(2))
+        return worst_case_ratio(
+            a=dx @ self.A.T, dx=dx, dy=dx @ self.C.T + dv, noise_next=dv_next,
+            dv2=np.sum(dv**2, axis=1) + np.sum(dv_next**2, axis=1), P=self.P_scaled, C=self.C, B=self.B_tilde,
+            mu=self.mu, sigma_y=self.sigma_y, sigma_v=self.sigma_y,
+        )  # fmt: skip
+
+    def _details(self) -> dict[str, object]:
+        return {
+            "matching": self.matching,
+            "rank_B": self.rank_B,
+            "rank_CB": self.rank_CB,
+            "invariant_zeros": [[z.real, z.imag] for z in self.invariant_zeros],
+            "strongly_detectable": self.strongly_detectable,
+            "mu": self.mu,
+            "mu_min": self.mu_min,
+            "sigma_y": self.sigma_y,
+        }
 
 
 def _as_matrix(value: ArrayLike, name: str, expected: str) -> FloatArray:
@@ -185,9 +250,9 @@ def invariant_zeros(A: ArrayLike, B: ArrayLike, C: ArrayLike, *, rtol: float = 1
 
 
 def linear_strong_detectability(
-    A: ArrayLike, B: ArrayLike, C: ArrayLike, *, rtol: float = 1e-9
+    A: ArrayLike, B: ArrayLike, C: ArrayLike, *, rtol: float = 1e-9, mu: float | None = None
 ) -> LinearStrongDetectability:
-    """Decide strong detectability of ``x+ = A x + B w``, ``y = C x`` (lemma "UIO_LTI").
+    """Decide strong detectability of ``x+ = A x + B w``, ``y = C x + v`` (lemma "UIO_LTI").
 
     Parameters
     ----------
@@ -199,15 +264,19 @@ def linear_strong_detectability(
         Relative SVD rank tolerance: rank(B) counts singular values above ``rtol * sigma_max(B)``,
         rank(CB) those above ``rtol * sigma_max(C) * sigma_max(B)`` (so that round-off in a
         product that vanishes exactly does not count), pencil ranks ``rtol * sigma_max(P(z))``.
+    mu : float, optional
+        Design rate of the quadratic certificate (default ``mu_min + 0.02 (1 - mu_min)``).
 
     Raises
     ------
     ModelError
         Non-2-D, non-finite or non-real matrices or disagreeing shapes (names the argument).
     OptionError
-        ``rtol`` not in (0, 1).
+        ``rtol`` not in (0, 1), ``mu`` not in (0, 1).
 
     """
+    start = time.perf_counter()
+    mu = check_rate(mu, "mu")
     A_, B_, C_ = _validate(A, B, C, rtol)
     U, s, _ = np.linalg.svd(B_, full_matrices=False)
     rank_B = _rank(B_, rtol)
@@ -246,8 +315,45 @@ def linear_strong_detectability(
                 K = _observer_gain(E, C_)
             except (np.linalg.LinAlgError, ValueError) as exc:
                 reason = reason[:-1] + f", but the Riccati equation for the observer gain failed ({exc})."
+    n, p = A_.shape[0], C_.shape[0]
+    nan = float("nan")
+    P, sigma_y, rate, margin, status = np.full((n, n), nan), nan, nan, nan, INFEASIBLE
+    if ok and p == 0:
+        status = SOLVER_FAILED
+        reason += " No output: the quadratic certificate needs at least one."
+    elif ok:
+        solution = StrongLMI(A_[None], B_tilde, C_).solve(mu, mu_min=mu_min)
+        if solution.outcome == lmi.FEASIBLE:
+            P, sigma_y, rate, margin, status = solution.P, solution.sigma_y, solution.mu, solution.margin, CERTIFIED
+        else:
+            status = SOLVER_FAILED
+            reason += f" The quadratic certificate was not found: {solution.reason}."
     return LinearStrongDetectability(
-        matching, rank_B, rank_CB, float(rtol), zeros, ok, mu_min, B_tilde, Y, E, K, reason, C_
+        certified=status == CERTIFIED,
+        status=status,
+        reason=reason,
+        rate=rate,
+        rate_min=mu_min,
+        P_scaled=P,
+        scale=np.ones(n),
+        solve_time=time.perf_counter() - start,
+        coverage="exact: a linear system has one Jacobian",
+        margin=margin,
+        matching=matching,
+        rank_B=rank_B,
+        rank_CB=rank_CB,
+        rank_tol=float(rtol),
+        invariant_zeros=zeros,
+        strongly_detectable=ok,
+        B_tilde=B_tilde,
+        Y=Y,
+        error_matrix=E,
+        observer_gain=K,
+        sigma_y=sigma_y,
+        R_y=sigma_y * np.eye(p),
+        R_v=sigma_y * np.eye(p),
+        A=A_,
+        C=C_,
     )
 
 

@@ -1,10 +1,16 @@
-"""Shared LMI machinery: scaled Jacobian samples, point sets, bisection, eigenvalue re-checks.
+"""Shared LMI machinery: batched Jacobians, solver calls with honest statuses, robust rate bisection.
 
-All certificates are computed in scaled coordinates ``x = S_x x~`` (``S = diag(scale)`` of each
-signal, see :class:`uiest.signal.Signal`) and mapped back. Pointwise LMIs are imposed on an
-*active set* of sample points (box corners plus a coarse grid), then checked on a dense *pool*
-(finer grid plus uniform samples) with batched ``numpy.linalg.eigvalsh``; the worst violators
-are added to the active set and the problem is solved again (cutting plane).
+Every certificate is a family of LMIs in a discount rate (mu, eta). A probe at one rate ends
+in one of three outcomes, kept apart all the way to the user:
+
+- ``FEASIBLE``: the solver returned a solution and the independent numpy re-check passed
+  (a solver's "optimal_inaccurate" counts only then);
+- ``INFEASIBLE``: the solver proved the LMI infeasible, or its best margin is not positive;
+- ``FAILED``: the solver raised, or returned something the re-check rejects.
+
+:func:`bisect_rate` finds the smallest feasible rate; a failed probe is retried once nearer the
+feasible side and otherwise ends the bisection at the best rate proven so far, never turning a
+solver failure into "infeasible".
 """
 
 from __future__ import annotations
@@ -23,22 +29,25 @@ from uiest.box import Box, FloatArray
 SOLVER = "CLARABEL"
 """cvxpy solver for every LMI (SCS returns 'optimal' for violated LMIs; never trusted here)."""
 
-OK_STATUSES = ("optimal",)
-"""Statuses accepted before the independent re-check; 'optimal_inaccurate' is not accepted."""
+SOLVED = ("optimal", "optimal_inaccurate")
+"""Statuses whose solution is handed to the independent re-check, which alone decides."""
 
+FEASIBLE, INFEASIBLE, FAILED = "feasible", "infeasible", "solver failed"
 
-@dataclass(frozen=True)
-class Points:
-    """Sample points of a box product, shape (m, d), and how they were made."""
+RATE_FLOOR = 1e-4
+"""Lower end of every rate bisection: a rate found at the floor means 'at most 1e-4'."""
 
-    values: FloatArray
-    description: str
+RATE_GAP = 1e-6
+"""Upper end of every rate bisection is ``1 - RATE_GAP``."""
+
+MAX_ACTIVE = 24
+"""Vertices imposed at once; more are added by a cutting plane when the re-check finds them violated."""
 
 
 def grid_points(box: Box, per_axis: int) -> FloatArray:
-    """A tensor grid with ``per_axis`` points per finite axis, endpoints (corners) included.
+    """A tensor grid with ``per_axis`` points per axis, corners included, shape (m, n).
 
-    A degenerate axis (lower == upper) contributes its single value. Shape (m, n).
+    A degenerate axis (lower == upper) contributes its single value.
     """
     axes = [
         np.array([lo]) if lo == hi else np.linspace(lo, hi, per_axis)
@@ -49,22 +58,11 @@ def grid_points(box: Box, per_axis: int) -> FloatArray:
     return np.array(list(itertools.product(*axes)), dtype=float).reshape(-1, box.size)
 
 
-def sampling_box(box: Box, center: FloatArray, half_width: FloatArray) -> Box:
+def finite_box(box: Box, center: FloatArray, half_width: FloatArray) -> Box:
     """``box`` with infinite sides replaced by ``center -/+ half_width``."""
     lower = np.where(np.isfinite(box.lower), box.lower, center - half_width)
     upper = np.where(np.isfinite(box.upper), box.upper, center + half_width)
     return Box(lower, upper)
-
-
-def point_sets(box: Box, coarse: int, fine: int, n_random: int, seed: int) -> tuple[Points, Points]:
-    """Active starting set (coarse grid with corners) and dense pool (fine grid + random) of a box."""
-    active = grid_points(box, coarse)
-    rng = np.random.default_rng(seed)
-    pool = np.vstack([grid_points(box, fine), box.sample(rng, n_random)])
-    return (
-        Points(active, f"{coarse}-point grid per axis incl. corners ({len(active)} points)"),
-        Points(pool, f"{fine}-point grid per axis + {n_random} uniform samples ({len(pool)} points)"),
-    )
 
 
 def batched(fun: ca.Function, columns: list[FloatArray]) -> list[FloatArray]:
@@ -73,8 +71,7 @@ def batched(fun: ca.Function, columns: list[FloatArray]) -> list[FloatArray]:
     ``columns[i]`` has shape (m, n_i); returns one array of shape (m, rows, cols) per output.
     """
     m = columns[0].shape[0]
-    mapped = fun.map(m, "serial")
-    outs = mapped(*[c.T for c in columns])
+    outs = fun.map(m, "serial")(*[c.T for c in columns])
     outs = outs if isinstance(outs, tuple | list) else [outs]
     result = []
     for i, out in enumerate(outs):
@@ -82,6 +79,14 @@ def batched(fun: ca.Function, columns: list[FloatArray]) -> list[FloatArray]:
         arr = np.asarray(out, dtype=float).reshape(rows, m, cols)  # map() stacks [M_1, ..., M_m] horizontally
         result.append(np.transpose(arr, (1, 0, 2)))
     return result
+
+
+def is_constant(fun: ca.Function, output: int, wrt: list[int]) -> bool:
+    """Whether output ``output`` of ``fun`` is independent of the inputs ``wrt`` (structurally)."""
+    syms = [ca.SX.sym(f"a{i}", fun.size_in(i)) for i in range(fun.n_in())]
+    expr = fun(*syms)
+    expr = expr[output] if isinstance(expr, tuple | list) else expr
+    return not any(ca.depends_on(expr, syms[i]) for i in wrt)
 
 
 def min_eig(matrices: FloatArray) -> FloatArray:
@@ -106,47 +111,113 @@ def solve(problem: cp.Problem) -> str:
     return str(problem.status)
 
 
-def bisect(feasible: Callable[[float], bool], lower: float, upper: float, tol: float) -> float | None:
-    """Smallest value in (lower, upper] for which ``feasible`` holds (monotone), to ``tol``.
+@dataclass(frozen=True)
+class Bisection:
+    """Outcome of :func:`bisect_rate`.
 
-    Returns None when ``feasible(upper)`` is False.
+    Attributes
+    ----------
+    rate : float or None
+        Smallest rate proven feasible (None when none was).
+    outcome : str
+        ``FEASIBLE``, ``INFEASIBLE`` (the largest rate is infeasible) or ``FAILED`` (no rate
+        could be decided because the solver failed).
+    failed_at : tuple of float
+        Rates whose probe failed (the bisection stopped early when this is not empty).
+    probes : int
+        Probes made.
+
     """
-    if not feasible(upper):
-        return None
-    lo, hi = lower, upper
-    while hi - lo > tol:
-        mid = 0.5 * (lo + hi)
-        if feasible(mid):
-            hi = mid
-        else:
-            lo = mid
-    return hi
+
+    rate: float | None
+    outcome: str
+    failed_at: tuple[float, ...]
+    probes: int
+
+    @property
+    def note(self) -> str:
+        """What the failures cost, or ''."""
+        if not self.failed_at:
+            return ""
+        rates = ", ".join(f"{r:.6g}" for r in self.failed_at)
+        return f"the solver failed at rate(s) {rates}, so the smallest rate is an upper estimate"
 
 
-def is_constant(fun: ca.Function, output: int, wrt: list[int]) -> bool:
-    """Whether output ``output`` of ``fun`` is independent of the inputs ``wrt`` (structurally)."""
-    syms = [ca.SX.sym(f"a{i}", fun.size_in(i)) for i in range(fun.n_in())]
-    expr = fun(*syms)
-    expr = expr[output] if isinstance(expr, tuple | list) else expr
-    return not any(ca.depends_on(expr, syms[i]) for i in wrt)
+def bisect_rate(
+    probe: Callable[[float], str], *, floor: float = RATE_FLOOR, tol: float = 1e-4, gap: float = RATE_GAP
+) -> Bisection:
+    """Smallest rate in ``[floor, 1 - gap]`` for which ``probe`` returns ``FEASIBLE`` (monotone).
 
-
-def bisect_discount(feasible: Callable[[float], bool], floor: float, tol: float, gap: float = 1e-6) -> float | None:
-    """Smallest discount mu in ``[floor, 1 - gap]`` for which ``feasible`` holds (monotone).
-
-    Bisects on ``log(1 - mu)`` so that discounts near 1 (slow sampled systems: ``1 - mu`` of
-    1e-5) are resolved to a relative tolerance of 1 % in ``1 - mu``, and stops once the bracket
-    is narrower than ``tol`` in mu as well. Returns None when ``feasible(1 - gap)`` is False.
+    Bisects on ``log(1 - rate)``, so rates near one (slow sampled systems: ``1 - rate`` of
+    1e-5) are resolved to 1 % of ``1 - rate``, and stops once the bracket is narrower than
+    ``tol`` in the rate as well. A ``FAILED`` probe is retried once halfway towards the
+    feasible end of the bracket; a second failure ends the bisection (recorded in ``failed_at``).
     """
-    if not feasible(1.0 - gap):
-        return None
-    hi, lo = np.log(gap), np.log(1.0 - floor)  # log(1 - mu): hi is feasible, lo side infeasible
-    if feasible(floor):
-        return floor
+    failed: list[float] = []
+    probes = 0
+
+    def run(rate: float) -> str:
+        nonlocal probes
+        probes += 1
+        outcome = probe(rate)
+        if outcome == FAILED:
+            failed.append(rate)
+        return outcome
+
+    top = 1.0 - gap
+    first = run(top)
+    if first == FAILED:
+        first = run(1.0 - 10.0 * gap)
+        top = 1.0 - 10.0 * gap
+    if first != FEASIBLE:
+        return Bisection(None, first, tuple(failed), probes)
+    if run(floor) == FEASIBLE:
+        return Bisection(floor, FEASIBLE, tuple(failed), probes)
+    hi, lo = np.log(1.0 - top), np.log(1.0 - floor)  # log(1 - rate): hi feasible, lo not
     while abs(np.exp(hi) - np.exp(lo)) > tol or hi - lo < -0.01:
         mid = 0.5 * (lo + hi)
-        if feasible(1.0 - float(np.exp(mid))):
+        outcome = run(1.0 - float(np.exp(mid)))
+        if outcome == FAILED:
+            mid = 0.5 * (mid + hi)
+            outcome = run(1.0 - float(np.exp(mid)))
+            if outcome == FAILED:
+                break
+        if outcome == FEASIBLE:
             hi = mid
         else:
             lo = mid
-    return 1.0 - float(np.exp(hi))
+    return Bisection(1.0 - float(np.exp(hi)), FEASIBLE, tuple(failed), probes)
+
+
+class ActiveSet:
+    """The vertices imposed in an LMI: a spread-out subset of at most ``MAX_ACTIVE``, grown by cutting planes.
+
+    After each solve the re-check runs on every vertex; :meth:`add_worst` adds the most violated
+    ones that are not imposed yet (never a duplicate), and the LMI is solved again.
+    """
+
+    def __init__(self, vertices: FloatArray) -> None:
+        self.all = vertices
+        m = len(vertices)
+        if m <= MAX_ACTIVE:
+            self.index = list(range(m))
+        else:  # farthest-point selection: a spread-out subset
+            flat = vertices.reshape(m, -1)
+            chosen = [int(np.argmax(np.linalg.norm(flat - flat.mean(axis=0), axis=1)))]
+            dist = np.linalg.norm(flat - flat[chosen[0]], axis=1)
+            while len(chosen) < MAX_ACTIVE:
+                nxt = int(np.argmax(dist))
+                chosen.append(nxt)
+                dist = np.minimum(dist, np.linalg.norm(flat - flat[nxt], axis=1))
+            self.index = chosen
+
+    @property
+    def vertices(self) -> FloatArray:
+        """The imposed vertices."""
+        return self.all[self.index]
+
+    def add_worst(self, margins: FloatArray, count: int = 4) -> bool:
+        """Add up to ``count`` violated vertices not yet active; False when there are none."""
+        order = [i for i in np.argsort(margins) if margins[i] < 0 and i not in self.index][:count]
+        self.index.extend(int(i) for i in order)
+        return bool(order)

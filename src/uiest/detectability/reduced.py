@@ -26,85 +26,66 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import dissipation
-from uiest.detectability.report import Verification
-from uiest.errors import CertificationError, ModelError
+from uiest.detectability.certificate import Certificate, Verification
+from uiest.errors import ModelError
 
 
 @dataclass(frozen=True, eq=False)
-class ReducedIOSS(dissipation.SolvedCertificate):
+class ReducedIOSS(Certificate):
     """An exponential i-IOSS certificate of a reduced-order model (ass:e-ioss).
+
+    Beyond :class:`~uiest.detectability.certificate.Certificate` (``rate`` is mu):
 
     Attributes
     ----------
-    certified : bool
-        True only when the LMIs were solved and the eigenvalue re-check holds on every point.
-    reason : str
-        Why (not) certified.
-    mu, mu_min : float
-        Discount of eq:p-eioss_quadratic and the smallest feasible one found by bisection.
     c_x, c_v, c_y, c_gamma : float
         The constants of eq:p-eioss_quadratic in scaled norms.
-    P, P_scaled : ndarray (n, n)
-        Storage matrix in original units and scaled coordinates.
     R_v, R_y, R_gamma : ndarray
         ``c_v |dv|^2`` etc. as weight matrices in original units (``|dv|^2_{R_v}``): the weights of
         the two-stage MHE cost eq:cost_MHE.
-    solve_time : float
-        Seconds, bisection and cutting plane included.
+    q, r : ndarray, float
+        The scaled weights of the dissipation inequality (channels gamma and v, and the output).
 
     """
 
     model: dissipation.IncrementalModel = field(repr=False)
-    solution: dissipation.Solution = field(repr=False)
-    solve_time: float
+    q: FloatArray
+    r: float
+
+    kind = "reduced_eioss"
 
     @property
     def mu(self) -> float:
         """Discount of eq:p-eioss_quadratic."""
-        return self.solution.mu
+        return self.rate
 
     @property
     def mu_min(self) -> float:
         """Smallest feasible discount (bisection)."""
-        return self.solution.mu_min
-
-    @property
-    def P_scaled(self) -> FloatArray:
-        """Storage matrix in scaled coordinates."""
-        return self.solution.P
-
-    @property
-    def P(self) -> FloatArray:
-        """Storage matrix in original units: ``V = |z - z~|_P^2``."""
-        s = self.model.z_scale
-        return self.solution.P / np.outer(s, s)
-
-    @property
-    def _lambda_min(self) -> float:
-        return float(np.linalg.eigvalsh(self.solution.P)[0]) if self.certified else float("nan")
+        return self.rate_min
 
     @property
     def c_x(self) -> float:
         """``lambda_max(P) / lambda_min(P)`` (scaled)."""
-        return self.solution.condition
+        return self.condition
 
     def _c(self, weight: float) -> float:
-        return weight / (self.mu * self._lambda_min)
+        return weight / (self.mu * self.alpha_1_scaled)
 
     @property
     def c_gamma(self) -> float:
         """Gain of the fictitious input (scaled norms)."""
-        return self._c(float(self.solution.q[0]))
+        return self._c(float(self.q[0]))
 
     @property
     def c_v(self) -> float:
         """Gain of the measurement noise (scaled norms)."""
-        return self._c(float(self.solution.q[1]))
+        return self._c(float(self.q[1]))
 
     @property
     def c_y(self) -> float:
         """Gain of the output (scaled norms)."""
-        return self._c(self.solution.r)
+        return self._c(self.r)
 
     def _matrix(self, c: float, scale: FloatArray) -> FloatArray:
         return c * np.diag(1.0 / scale**2)
@@ -126,50 +107,32 @@ class ReducedIOSS(dissipation.SolvedCertificate):
         """``c_y`` as a weight matrix in original units."""
         return self._matrix(self.c_y, self.model.y_scale)
 
-    def min_horizon(self) -> int:
-        """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond).
-
-        Raises CertificationError when the certificate does not hold.
-        """
-        if not self.certified:
-            raise CertificationError(f"min_horizon: the certificate does not hold ({self.reason})")
+    def _horizon(self) -> int:
+        """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
         return int(np.floor(np.log(4.0 * self.c_x) / np.log(1.0 / self.mu))) + 1
 
-    def verify(self, n_pairs: int = 20_000, seed: int = 0) -> Verification:
-        """Test the one-step inequality of the module docstring on random pairs (nonlinear f, h).
+    def weights(self) -> Any:
+        """:class:`~uiest.estimators.TwoStageWeights` from the constants of eq:p-eioss_quadratic."""
+        from uiest.estimators.weights import TwoStageWeights
 
-        Pairs ``(z, z~)`` in the z box, ``(gamma, v)`` and ``(gamma~, v~)`` in ``Y x V``, a shared u.
-        """
-        if not self.certified:
-            return Verification(float("nan"), 0, 0, self.reason)
-        lam = self._lambda_min * self.mu
-        p = self.model.channels[0][1]
+        return TwoStageWeights.from_certificate(self)
+
+    def _verify(self, n_pairs: int, seed: int) -> Verification:
+        """The one-step inequality of the module docstring on random pairs (nonlinear f, h)."""
+        lam = self.alpha_1_scaled * self.mu
         weights = [self.R_gamma * lam, self.R_v * lam]
         check = dissipation.check_pairs(self.model, self.P, self.mu, weights, self.R_y * lam, n_pairs, seed)
-        return Verification(check.worst_ratio, check.pairs, n_pairs, f"ratio = LHS / RHS of V+ <= mu V + ... (p={p})")
+        return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of V+ <= mu V + ...")
 
-    def to_dict(self) -> dict[str, object]:
-        """Plain-data form for JSON."""
+    def _details(self) -> dict[str, object]:
         ok = self.certified
         return {
-            "kind": "reduced_eioss",
-            "certified": ok,
-            "reason": self.reason,
             "mu": self.mu,
             "mu_min": self.mu_min,
             "c_x": self.c_x if ok else None,
             "c_v": self.c_v if ok else None,
             "c_y": self.c_y if ok else None,
             "c_gamma": self.c_gamma if ok else None,
-            "P": self.P.tolist() if ok else None,
-            "P_scaled": self.P_scaled.tolist() if ok else None,
-            "min_horizon": self.min_horizon() if ok else None,
-            "solver_status": self.solution.status,
-            "solve_time_s": self.solve_time,
-            "margin": self.solution.margin,
-            "n_active": self.solution.n_active,
-            "n_pool": self.solution.n_pool,
-            "argument": self.solution.argument,
             "z_box": self.model.z_box.to_dict(),
         }
 
@@ -220,8 +183,8 @@ def certify_reduced_ioss(
     mu : float, optional
         Discount to certify; None minimises it (``mu = min(2 mu_min, (1 + mu_min) / 2)``).
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve` (grid, pool_grid, pool_random,
-        kappa_max, tol, max_rounds, seed).
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, samples, kappa_max,
+        gain_max, tol, seed).
 
     """
     start = time.perf_counter()
@@ -254,4 +217,5 @@ def certify_reduced_ioss(
         channels=(("gamma", p), ("v", nv)),
     )
     solution = dissipation.solve(model, mu=mu, **options)
-    return ReducedIOSS(model=model, solution=solution, solve_time=time.perf_counter() - start)
+    return ReducedIOSS(**solution.certificate_fields(model.z_scale, time.perf_counter() - start), model=model,
+                       q=solution.q, r=solution.r)  # fmt: skip

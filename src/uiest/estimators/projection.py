@@ -30,7 +30,7 @@ class Projection:
         self.used = 0  # how many estimates the projection changed
         if mode == "exact":
             x = ca.SX.sym("x", reduced.system.nx)
-            grid = lmi.grid_points(lmi.sampling_box(self.box, self.box.center, reduced.system.x.scale), 5)
+            grid = lmi.grid_points(lmi.finite_box(self.box, self.box.center, reduced.system.x.scale), 5)
             zs = np.asarray(reduced.T.map(len(grid))(grid.T), dtype=float).T
             spread = zs.max(axis=0) - zs.min(axis=0)
             self.scale = np.where(np.isfinite(spread) & (spread > 0), spread, 1.0)

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -39,6 +40,8 @@ class ModelEntry:
     build: Callable[[], System]
     setup: Callable[[], SimulationSetup]
     reduction: Callable[[], ReducedModel] | None = None
+    jacobian_parameters: Callable[[], Callable[..., Any]] | None = None
+    """Returns ``theta(x, u)``, the functions the state Jacobian is affine in (an exact certificate cover)."""
 
 
 def _crop_setup() -> SimulationSetup:
@@ -87,6 +90,7 @@ _REGISTRY: dict[str, ModelEntry] = {
             crop_growth.system,
             _crop_setup,
             crop_growth.reduction,
+            crop_growth.jacobian_parameters,
         ),
         ModelEntry(
             closed_form.NAME,
@@ -94,6 +98,7 @@ _REGISTRY: dict[str, ModelEntry] = {
             closed_form.system,
             _closed_form_setup,
             closed_form.reduction,
+            closed_form.jacobian_parameters,
         ),
         ModelEntry(
             "linear-example",

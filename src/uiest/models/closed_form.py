@@ -77,6 +77,15 @@ def system(
     )
 
 
+def jacobian_parameters() -> Any:
+    """``theta(x, u) = (x2 / cosh(x1)^2, tanh(x1))``, the functions the state Jacobian is affine in.
+
+    With the unknown input's direction (x1) projected out, ``df/dx = [[0, 0], [a1 theta_1,
+    a0 + a1 theta_2]]``: the box of theta over X is an exact certificate cover.
+    """
+    return lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])]
+
+
 def reduction(**kwargs: Any) -> ReducedModel:
     """The reduction of the module docstring: ``T = id``, ``z_flat = x1 = psi(y, v) = y - v``.
 

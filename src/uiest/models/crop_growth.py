@@ -186,6 +186,26 @@ def system(params: CropParameters | None = None, **overrides: Any) -> System:
     )
 
 
+def jacobian_parameters(params: CropParameters | None = None, **overrides: Any) -> Any:
+    """The two functions of the state the certificate's state Jacobian is affine in, as ``theta(x, u)``.
+
+    With the unknown input's direction projected out, ``df/dx`` varies through
+    ``F(x^{d,1}) phi'(x^c)`` and ``exp(-xi_1 x^{d,1}) phi(x^c)`` only (u is the fixed temperature),
+    so the box of these two over X gives an exact cover (``certify_strong_detectability(...,
+    parameters=jacobian_parameters())``).
+    """
+    p = (params or CropParameters()).with_overrides(**overrides)
+
+    def theta(x: Any, u: Any) -> list[Any]:
+        co2 = ca.SX.sym("co2")
+        phi = ca.Function("phi", [co2], [photosynthesis(p, p.temperature, co2)])
+        dphi = ca.Function("dphi", [co2], [ca.jacobian(photosynthesis(p, p.temperature, co2), co2)])
+        decay = np.exp(-p.xi_1 * x[1])
+        return [(decay - 1.0) * dphi(x[0]), decay * phi(x[0])]
+
+    return theta
+
+
 def reduction(params: CropParameters | None = None, **overrides: Any) -> ReducedModel:
     """The paper's reduction for the two-stage UISE (Section "Numerical example").
 

@@ -1,0 +1,217 @@
+"""What every certificate is: a verdict, a rate, a quadratic storage, weights, a horizon, a check.
+
+:class:`Certificate` is the base of :class:`~uiest.detectability.StrongDetectability`,
+:class:`~uiest.detectability.ReducedIOSS`, :class:`~uiest.detectability.DeltaIOSS` and
+:class:`~uiest.detectability.LinearStrongDetectability`. Storage matrices are computed in
+scaled coordinates ``z / scale`` and given in original units by :attr:`Certificate.P`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from uiest.box import Box, FloatArray
+from uiest.errors import CertificationError, OptionError
+
+CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED = (
+    "certified",
+    "infeasible",
+    "solver failed",
+    "below the smallest rate",
+    "re-check failed",
+)
+"""The statuses a certificate can end in; "infeasible" only when the solver proved it."""
+
+
+@dataclass(frozen=True)
+class Verification:
+    """Outcome of ``certificate.verify(...)``.
+
+    Attributes
+    ----------
+    worst_ratio : float
+        Largest ``LHS / RHS`` of the certificate's incremental inequality over the pairs
+        (<= 1: the inequality held on every pair; NaN: nothing was tested).
+    pairs_used : int
+        Pairs tested.
+    pairs_drawn : int
+        Pairs drawn.
+    note : str
+        What the ratio measures, or why nothing was tested.
+
+    """
+
+    worst_ratio: float
+    pairs_used: int
+    pairs_drawn: int
+    note: str
+
+    @property
+    def holds(self) -> bool:
+        """True when pairs were tested and the worst ratio is at most 1 (+1e-9)."""
+        return self.pairs_used > 0 and self.worst_ratio <= 1.0 + 1e-9
+
+
+@dataclass(frozen=True, eq=False)
+class Certificate:
+    """A certificate's verdict, rate and quadratic storage ``V = |z - z~|_P^2``.
+
+    Attributes
+    ----------
+    certified : bool
+        True only when the LMIs were solved and the independent numpy re-check passed.
+    status : str
+        One of "certified", "infeasible" (proved by the solver), "solver failed",
+        "below the smallest rate" (a given rate below the one found), "re-check failed".
+    reason : str
+        One sentence with the numbers.
+    rate, rate_min : float
+        The discount of the certificate's inequality (mu or eta) and the smallest one found.
+    P_scaled : ndarray (n, n)
+        Storage matrix in scaled coordinates (NaN when not certified).
+    scale : ndarray (n,)
+        The scales of the certificate's state: ``P = P_scaled / outer(scale, scale)``.
+    solve_time : float
+        Seconds, from the call to the result.
+    coverage : str
+        How the domain was covered (exact vertices, parameter box, sampled cover).
+    margin : float
+        Smallest eigenvalue margin of the re-check, relative to ``||P||`` (> 0 when certified).
+
+    """
+
+    certified: bool
+    status: str
+    reason: str
+    rate: float
+    rate_min: float
+    P_scaled: FloatArray
+    scale: FloatArray
+    solve_time: float
+    coverage: str
+    margin: float
+
+    kind: ClassVar[str] = "certificate"
+
+    @property
+    def P(self) -> FloatArray:
+        """Storage matrix in original units: ``V = |z - z~|_P^2``."""
+        return self.P_scaled / np.outer(self.scale, self.scale)
+
+    @property
+    def alpha_1_scaled(self) -> float:
+        """``lambda_min(P_scaled)`` (NaN when not certified)."""
+        return _eig(self.P_scaled, 0)
+
+    @property
+    def alpha_2_scaled(self) -> float:
+        """``lambda_max(P_scaled)`` (NaN when not certified)."""
+        return _eig(self.P_scaled, -1)
+
+    @property
+    def condition(self) -> float:
+        """Condition number of ``P_scaled`` (NaN when not certified)."""
+        return self.alpha_2_scaled / self.alpha_1_scaled
+
+    def require(self, what: str) -> None:
+        """Raise :class:`CertificationError` for ``what`` unless the certificate holds."""
+        if not self.certified:
+            raise CertificationError(f"{what}: the certificate does not hold ({self.status}: {self.reason})")
+
+    def min_horizon(self) -> int:
+        """Smallest horizon for which the estimator's theorem applies; raises when not certified."""
+        self.require("min_horizon")
+        return self._horizon()
+
+    def _horizon(self) -> int:
+        raise NotImplementedError
+
+    def weights(self) -> Any:
+        """The estimator weights this certificate designs; raises when not certified."""
+        raise NotImplementedError
+
+    def verify(self, n_pairs: int = 100_000, seed: int = 0) -> Verification:
+        """Test the certificate's inequality with the nonlinear model on random pairs."""
+        n_pairs = _count(n_pairs)
+        if not self.certified:
+            return Verification(float("nan"), 0, 0, f"not certified: {self.reason}")
+        return self._verify(n_pairs, int(seed))
+
+    def _verify(self, n_pairs: int, seed: int) -> Verification:
+        raise NotImplementedError
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain-data form for JSON (NaN for numbers that do not exist)."""
+        ok = self.certified
+        return {
+            "kind": self.kind,
+            "certified": ok,
+            "status": self.status,
+            "reason": self.reason,
+            "rate": self.rate,
+            "rate_min": self.rate_min,
+            "P": self.P.tolist() if ok else None,
+            "P_scaled": self.P_scaled.tolist() if ok else None,
+            "condition_scaled": self.condition if ok else None,
+            "min_horizon": self.min_horizon() if ok else None,
+            "solve_time_s": self.solve_time,
+            "coverage": self.coverage,
+            "margin": self.margin,
+            **self._details(),
+        }
+
+    def _details(self) -> dict[str, object]:
+        return {}
+
+
+def _eig(matrix: FloatArray, index: int) -> float:
+    if not np.all(np.isfinite(matrix)):
+        return float("nan")
+    return float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))[index])
+
+
+def _count(n_pairs: object) -> int:
+    if isinstance(n_pairs, bool) or not isinstance(n_pairs, int | np.integer) or n_pairs < 1:
+        raise OptionError(f"n_pairs: expected a positive integer, got {n_pairs!r}")
+    return int(n_pairs)
+
+
+def check_rate(value: object, name: str) -> float | None:
+    """``value`` as a rate in (0, 1), or None; OptionError naming ``name`` otherwise."""
+    if value is None:
+        return None
+    try:
+        rate = float(value)  # type: ignore[arg-type]
+    except (TypeError, ValueError):
+        raise OptionError(f"{name}: expected a number in (0, 1) or None, got {value!r}") from None
+    if not 0.0 < rate < 1.0:
+        raise OptionError(f"{name}: expected a number in (0, 1) or None, got {value!r}")
+    return rate
+
+
+def sample_pairs(
+    rng: np.random.Generator, box: Box, n_pairs: int, scale: FloatArray, directions: FloatArray | None = None
+) -> tuple[FloatArray, FloatArray]:
+    """Pairs ``(z, z~)`` in a bounded box, shape (n_pairs, n) each; half of them close.
+
+    Close pairs: ``z~ = z + 10^U(-6, -1) * width * d`` with d a random unit combination of the
+    columns of ``directions`` (scaled coordinates; all directions when None), clipped to the box.
+    Steps below 1e-6 of the width would measure rounding, not the inequality.
+    """
+    z, zt = box.sample(rng, n_pairs), box.sample(rng, n_pairs)
+    close = np.arange(n_pairs) < n_pairs // 2
+    basis = np.eye(box.size) if directions is None else directions
+    d = rng.standard_normal((int(close.sum()), basis.shape[1])) @ basis.T
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+    width = np.where(box.width > 0, box.width, scale)
+    step = 10.0 ** rng.uniform(-6.0, -1.0, (int(close.sum()), 1)) * float(np.linalg.norm(width / scale))
+    zt[close] = box.clip(z[close] + step * d * scale)
+    return z, zt
+
+
+def quad(d: FloatArray, W: FloatArray) -> FloatArray:
+    """``d_m^T W d_m`` for each row of d (m, n)."""
+    return np.einsum("mi,ij,mj->m", d, W, d)

@@ -1,0 +1,192 @@
+r"""The form ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` that the strong-detectability LMI needs.
+
+The unknown input must act through a constant input matrix B (the paper's eq:sys_spec after
+its change of input ``d = f2(w, x, u)``): then d is as free as w, and the LMI eliminates it
+exactly. :func:`input_structure` reads the form off a :class:`~uiest.system.System`:
+
+- ``C = dh/dx`` must be constant and ``dh/dv`` independent of x (checked structurally; a
+  nonlinear output needs the paper's change of state phi first);
+- B is an orthonormal basis of the span of ``df/dw`` over X x U x W, found structurally when
+  ``df/dw`` is constant and otherwise from samples (w up to 1e3 of its scale). If that span is
+  larger than ``df/dw``'s rank at a single point, the input's direction varies with the state:
+  B is the whole span, which is sound but adds directions the output must see;
+- matching ``rank(C B) = rank(B)`` is required (the unknown input must show in the next output).
+
+Everything is in scaled coordinates ``x / x.scale`` etc.; the LMI's state Jacobian is
+``A(x, u) = (I - B B^T) S_x^-1 df/dx(x, u, w0) S_x`` (the part along B is cancelled by the
+elimination anyway, and removing it makes A independent of w).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from uiest.box import Box, FloatArray
+from uiest.detectability.lmi import batched, finite_box
+from uiest.errors import ModelError
+from uiest.system import System
+
+RANK_RTOL = 1e-8
+"""Singular values below this fraction of the largest one count as zero (ranks of df/dw, C B)."""
+
+
+@dataclass(frozen=True, eq=False)
+class InputStructure:
+    """Scaled data of ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` for one system.
+
+    Attributes
+    ----------
+    B : ndarray, shape (nx, r)
+        Orthonormal basis of the unknown input's directions (scaled coordinates).
+    C : ndarray, shape (ny, nx)
+        Scaled output matrix ``S_y^-1 dh/dx S_x``.
+    D_norm : float
+        Largest spectral norm of the scaled ``S_y^-1 dh/dv S_v`` over V (exact when constant).
+    D : ndarray, shape (ny, nv)
+        Scaled ``dh/dv`` at the centre of V.
+    rank_B, rank_CB : int
+        Numerical ranks (``rank_B`` is also the number of columns of B).
+    pointwise_rank : int
+        Largest rank of ``df/dw`` at a single point (< rank_B: the direction varies).
+    evidence : str
+        How B was found ("structural": df/dw is constant; else "sampled at m points").
+    state_jacobian : casadi.Function
+        ``z = (x, u) -> A (nx, nx)``, the scaled, projected Jacobian of f in x at ``w0``.
+    box : Box
+        The domain of ``z = (x, u)`` (U's infinite sides replaced by centre +- scale when A
+        does not depend on them).
+    names : tuple of str
+        Names of the entries of z.
+
+    """
+
+    B: FloatArray
+    C: FloatArray
+    D_norm: float
+    D: FloatArray
+    rank_B: int  # noqa: N815
+    rank_CB: int  # noqa: N815
+    pointwise_rank: int
+    evidence: str
+    state_jacobian: ca.Function
+    box: Box
+    names: tuple[str, ...]
+
+
+def _rank(M: FloatArray, scale: float) -> int:
+    s = np.linalg.svd(M, compute_uv=False) if M.size else np.zeros(0)
+    return int(np.sum(s > RANK_RTOL * scale)) if scale > 0 else 0
+
+
+def _depends(expr: ca.SX, symbols: list[ca.SX]) -> bool:
+    return any(ca.depends_on(expr, s) for s in symbols if s.numel())
+
+
+def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> InputStructure:
+    """Read ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` off ``system`` (see the module docstring).
+
+    Raises
+    ------
+    ModelError
+        X unbounded, no output, an output that is not affine in x, or a failed matching
+        condition (naming the property and the measured ranks).
+
+    """
+    if not system.x.bounds.is_bounded:
+        raise ModelError(f"X: a certificate needs a bounded state domain, got {system.x.bounds}")
+    if system.ny == 0:
+        raise ModelError("h: a certificate needs at least one output")
+    nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
+    x, u, w, v = (ca.SX.sym(s, n) for s, n in (("x", nx), ("u", nu), ("w", nw), ("v", nv)))
+    fx, hx = system.f(x, u, w), system.h(x, v)
+    C_expr, D_expr, B_expr = ca.jacobian(hx, x), ca.jacobian(hx, v), ca.jacobian(fx, w)
+    if _depends(C_expr, [x, v]):
+        raise ModelError(
+            "h: the output must be affine in the state, y = C x + g(v) (dh/dx varies over the domain); bring the "
+            "model to this form by a change of state (the paper's phi) first"
+        )
+    if _depends(D_expr, [x]):
+        raise ModelError("h: the noise must enter the output independently of the state, y = C x + g(v)")
+    sx, sy, sv, sw = system.x.scale, system.y.scale, system.v.scale, system.w.scale
+    C = np.asarray(ca.DM(ca.substitute(C_expr, ca.vertcat(x, v), ca.DM.zeros(nx + nv))), dtype=float)
+    C = C * sx[None, :] / sy[:, None]
+    V = finite_box(system.v.bounds, system.v.bounds.center, sv)
+    D_fun = ca.Function("D", [v], [D_expr])
+    v_points = V.center[None]
+    if _depends(D_expr, [v]):  # g(v) nonlinear: the largest gain over V, sampled
+        v_points = np.vstack(
+            [v_points, V.corners() if nv <= 10 else v_points, V.sample(np.random.default_rng(seed), 256)]
+        )
+    D_all = batched(D_fun, [v_points])[0] * sv[None, None, :] / sy[None, :, None]
+    D_norm = float(max(np.linalg.norm(Di, 2) for Di in D_all)) if nv else 0.0
+
+    U = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+    rng = np.random.default_rng(seed)
+    if not _depends(B_expr, [x, u, w]):
+        B_samples = np.asarray(ca.DM(ca.substitute(B_expr, ca.vertcat(x, u, w), ca.DM.zeros(nx + nu + nw))))[None]
+        evidence = "structural (df/dw is constant)"
+    else:
+        xs, us = system.x.bounds.sample(rng, samples), U.sample(rng, samples)
+        magnitude = 10.0 ** rng.uniform(-3.0, 3.0, (samples, nw)) * rng.choice([-1.0, 1.0], (samples, nw))
+        ws = system.nominal_w + sw * magnitude
+        B_samples = batched(ca.Function("Bw", [x, u, w], [B_expr]), [xs, us, ws])[0]
+        finite = np.all(np.isfinite(B_samples), axis=(1, 2))
+        if not finite.any():
+            raise ModelError("f: df/dw is not finite at any sampled point of X x U x W")
+        B_samples = B_samples[finite]
+        evidence = f"sampled at {int(finite.sum())} points of X x U x W (|w| up to 1e3 scales)"
+    B_scaled = B_samples * sw[None, None, :] / sx[None, :, None]
+    biggest = float(np.abs(B_scaled).max()) if B_scaled.size else 0.0
+    pointwise = max((_rank(Bi, np.linalg.norm(Bi, 2)) for Bi in B_scaled), default=0) if biggest > 0 else 0
+    columns = np.concatenate(list(B_scaled), axis=1) if B_scaled.size else np.zeros((nx, 0))
+    with np.errstate(over="ignore", invalid="ignore"):
+        norms = np.linalg.norm(columns, axis=0)
+    usable = np.isfinite(norms) & (norms > 0)
+    stacked = columns[:, usable] / norms[usable]  # directions only: large |w| must not drown the rest
+    basis, s, _ = np.linalg.svd(stacked, full_matrices=False) if stacked.size else (np.zeros((nx, 0)), [], None)
+    rank_B = int(np.sum(np.asarray(s) > RANK_RTOL * s[0])) if len(s) and s[0] > 0 else 0
+    B = basis[:, :rank_B]
+    rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
+    if rank_CB < rank_B:
+        varying = (
+            f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
+            f"dimension {rank_B} while df/dw has rank "
+            f"{pointwise} at a point: w does not enter through a constant input matrix, e.g. an RK4 step of an ODE; "
+            "keep the input channel's direction constant, as System.from_ode(..., input_channel='integral') does)"
+            if pointwise < rank_B
+            else ""
+        )
+        consequence = (
+            ""
+            if varying
+            else ": the unknown input can move the state without changing the next output, so the "
+            "system is not strongly detectable (x[k] cannot be estimated from y[..k]; a delayed estimate may exist)"
+        )
+        raise ModelError(f"matching fails: rank(C B) = {rank_CB} < rank(B) = {rank_B}{consequence}{varying}")
+    projector = np.eye(nx) - B @ B.T
+    A_expr = ca.jacobian(system.f(x, u, ca.DM(system.nominal_w)), x)
+    A_scaled = ca.mtimes([ca.DM(projector @ np.diag(1.0 / sx)), A_expr, ca.DM(np.diag(sx))])
+    z = ca.vertcat(x, u)
+    state_jacobian = ca.Function("A", [z], [A_scaled])
+    box = Box(np.concatenate([system.x.bounds.lower, U.lower]), np.concatenate([system.x.bounds.upper, U.upper]))
+    if not np.all(np.isfinite(system.u.bounds.lower) & np.isfinite(system.u.bounds.upper)) and _depends(A_expr, [u]):
+        raise ModelError(
+            f"U: the state Jacobian depends on the known input, whose domain is unbounded ({system.u.bounds}); "
+            "give finite u_bounds"
+        )
+    return InputStructure(
+        B=B,
+        C=C,
+        D_norm=D_norm,
+        D=D_all[0],
+        rank_B=rank_B,
+        rank_CB=rank_CB,
+        pointwise_rank=pointwise,
+        evidence=evidence,
+        state_jacobian=state_jacobian,
+        box=box,
+        names=tuple(system.x.names) + tuple(system.u.names),
+    )

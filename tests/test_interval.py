@@ -1,0 +1,62 @@
+"""Interval enclosures and branch-and-bound bounds of CasADi expressions."""
+
+import casadi as ca
+import numpy as np
+import pytest
+
+from uiest.box import Box
+from uiest.detectability import interval
+
+
+def _function(expr_builder, n=2):
+    z = ca.SX.sym("z", n)
+    return ca.Function("g", [z], [expr_builder(z)])
+
+
+EXPRESSIONS = {
+    "polynomial": lambda z: z[0] * z[1] - z[0] ** 2 + 3.0 * z[1] ** 3,
+    "trigonometric": lambda z: ca.sin(3.0 * z[0]) * ca.cos(z[1]) + ca.tan(0.3 * z[1]),
+    "exponential": lambda z: ca.exp(-2.0 * z[0]) / (1.5 + ca.tanh(z[1])) + ca.sqrt(z[0] + 5.0),
+    "rational": lambda z: z[0] / (z[1] ** 2 + 1.0) + ca.fabs(z[0] - z[1]) + ca.fmax(z[0], 0.3),
+    "logarithm": lambda z: ca.log(z[0] + 4.0) * ca.atan(z[1]) + ca.log1p(z[1] ** 2),
+}
+
+
+@pytest.mark.parametrize("name", sorted(EXPRESSIONS))
+def test_enclosures_contain_every_sampled_value(name):
+    fun = _function(EXPRESSIONS[name])
+    rng = np.random.default_rng(0)
+    lower = rng.uniform(-3.0, 0.0, (200, 2))
+    upper = lower + rng.uniform(0.0, 2.0, (200, 2))
+    derivative = interval.centered(fun)
+    for centred in (None, derivative):
+        lo, hi = interval.enclosure(fun, lower, upper, centred)
+        for _ in range(20):
+            z = lower + rng.random((200, 2)) * (upper - lower)
+            value = np.asarray(fun.map(200)(z.T)).reshape(-1)
+            assert np.all((lo[:, 0] <= value) & (value <= hi[:, 0]))
+
+
+@pytest.mark.parametrize("name", sorted(EXPRESSIONS))
+def test_bounds_are_sound_and_tight(name):
+    fun = _function(EXPRESSIONS[name])
+    box = Box([-2.0, -1.0], [1.0, 1.0])
+    found = interval.bounds(fun, box, rtol=1e-3)
+    z = box.sample(np.random.default_rng(1), 20_000)
+    values = np.asarray(fun.map(len(z))(z.T)).reshape(-1)
+    assert found.lower[0] <= values.min() and values.max() <= found.upper[0]
+    spread = values.max() - values.min()
+    assert found.gap[0] <= 2e-3 * spread
+
+
+def test_sine_peaks_are_found():
+    fun = _function(lambda z: ca.sin(z[0]), n=1)
+    lo, hi = interval.enclosure(fun, np.array([[1.0], [-2.0], [0.1]]), np.array([[2.0], [-1.0], [0.2]]))
+    assert hi[0, 0] == pytest.approx(1.0) and lo[1, 0] == pytest.approx(-1.0)
+    assert lo[2, 0] == pytest.approx(np.sin(0.1)) and hi[2, 0] == pytest.approx(np.sin(0.2))
+
+
+def test_unsupported_operations_are_named():
+    fun = _function(lambda z: ca.floor(z[0]) + z[1])
+    with pytest.raises(interval.IntervalUnsupportedError, match="floor"):
+        interval.bounds(fun, Box([0.0, 0.0], [1.0, 1.0]))
