@@ -97,3 +97,39 @@ def test_an_estimator_that_raises_is_recorded_and_the_study_goes_on(monkeypatch)
     errors = study.runs.set_index("estimator")["error"]
     assert errors["standard MHE"] == "OptionError: broken on purpose" and errors["UISE"] == ""
     assert set(study.steps.estimator) == {"UISE"}
+
+
+def test_certificate_weights_reach_the_study_and_its_report(tmp_path):
+    base = tiny()
+    certified = EstimatorSpec("UISE (certified)", "uise", N=0, mu=0.9, weights="certificate")
+    scenario = base.with_overrides(runs=1, estimators=(*base.estimators, certified))
+    study = run_study(scenario)
+    (row,) = study.certificates
+    assert row["status"] == "certified" and row["rate"] == pytest.approx(0.9) and row["guarantee"] is True
+    assert row["N"] == row["min_horizon"] >= 1 and len(row["noise_gain"]) == 2
+    result = study.results[("noisy", 0, "UISE (certified)")]
+    assert result.guarantee.startswith("theo:MHE_full")
+    write_report(study, tmp_path, wall_time=1.0)
+    report = (tmp_path / "report.md").read_text()
+    assert "## Certificates and guarantees" in report and "the theorem applies" in report
+    guarantees = pd.read_csv(tmp_path / "guarantees.csv").set_index("estimator")
+    assert guarantees.loc["UISE (certified)", "theorem applies"] == "yes"
+    assert guarantees.loc["UISE", "theorem applies"] == "no"
+    assert json.loads((tmp_path / "manifest.json").read_text())["certificates"][0]["status"] == "certified"
+    with pytest.raises(OptionError, match="N"):
+        EstimatorSpec("x", "uise", N=0)  # N = 0 (the certificate's horizon) needs certificate weights
+    with pytest.raises(OptionError, match="weights"):
+        EstimatorSpec("x", "uise", weights="guess")
+
+
+def test_a_certificate_that_cannot_be_had_is_recorded_and_the_study_goes_on():
+    base = tiny()
+    no_reduction = EstimatorSpec("two-stage", "two-stage", N=4, weights="certificate")
+    changes = {"model": "linear-example", "runs": 1, "cases": ("noise-free",), "prior": (), "prior_from_output": (),
+               "focus_state": 0, "x0_lower": (), "x0_upper": ()}  # fmt: skip
+    changes["estimators"] = (base.estimators[0], no_reduction)
+    scenario = base.with_overrides(**changes)
+    study = run_study(scenario)
+    assert study.certificates[0]["status"] == "not available" and "reduction" in study.certificates[0]["reason"]
+    errors = study.runs.set_index("estimator")["error"]
+    assert "reduction" in errors["two-stage"] and errors["UISE"] == ""

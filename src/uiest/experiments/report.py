@@ -30,8 +30,9 @@ OPEN_CHOICES = (
     "Priors: x_hat^c_0 = y^c_0 (the paper), crop weights at the centre of X (0.09, 0.09).",
     "Weights: diagonal per scaled unit, output 1e6, prior 1, noise 1 (w: 1 for the standard MHE); the paper "
     "verifies its conditions with mu = 0.48 but does not give the weights.",
-    "Discount mu = eta = 0.48 and N = 30 as in the paper, although the project's certificates for the crop model "
-    "give mu ~ 0.9995 (see `uiest certify crop-growth`); so no theorem guarantee is claimed for these runs.",
+    "Discount mu = eta = 0.48 and N = 30 as in the paper, with explicit weights: no theorem guarantee is claimed "
+    "for these runs. The '(certified)' estimators take their weights from the certificates instead (see "
+    "'Certificates and guarantees'; `uiest certify crop-growth` prints them).",
     "Unknown input: w_k = 1 - exp(-45 x^{d,2}_k) evaluated on the true state; the standard MHE knows its range "
     "[0.965, 1] and uses the centre as its prior w_bar.",
     "Noise: uniform, |v_i| <= 3e-6 per component (the paper bounds ||v^d||; one component here).",
@@ -171,7 +172,7 @@ def claims(study: StudyResult, acc: pd.DataFrame, times: pd.DataFrame) -> list[s
     """The paper's claims, checked against the measured numbers (one sentence each)."""
     scenario = study.scenario
     focus = state_names(study)[scenario.focus_state]
-    names = [spec.name for spec in scenario.estimators]
+    names = [spec.name for spec in scenario.estimators if spec.weights == "explicit"]  # the paper's setting
     lines = []
     for case in scenario.cases:
         sub = acc[(acc["case"] == case) & (acc["state"] == focus)].set_index("estimator")
@@ -198,7 +199,7 @@ def claims(study: StudyResult, acc: pd.DataFrame, times: pd.DataFrame) -> list[s
                 f"{case}: the standard MHE's {focus} error grows over the run: {grows} "
                 f"(late/early mean |error| = {mhe['growth']:.3g})."
             )
-        tsub = times[times["case"] == case].set_index("estimator")
+        tsub = times[(times["case"] == case) & times["estimator"].isin(names)].set_index("estimator")
         if "two-stage UISE" in tsub.index and len(tsub) > 1:
             fastest = tsub["t_max_ms"].idxmin()
             verdict = "holds" if fastest == "two-stage UISE" else "does NOT hold"
@@ -238,7 +239,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     name_focus = state_names(study)[focus]
     rows = []
     for spec in scenario.estimators:
-        if spec.kind == "fie":
+        if spec.kind == "fie" or spec.weights != "explicit":
             continue
         ks = range(max(spec.N, scenario.settle), scenario.steps + 1, stride)
         bounds = [
@@ -254,6 +255,40 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
                 "discounted_std (median)": float(np.median([b.std_discounted[focus] for b in bounds])),
                 "measured_rmse": float(measured["rmse"].iloc[0]) if len(measured) else float("nan"),
                 "X_width": float(system.x.bounds.width[focus]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
+    """Per estimator: where its weights come from, rate, N, whether its theorem applies, noise gain, RMSE.
+
+    The noise gain is the strong-detectability certificate's per-step bound ``sqrt(sigma_v(v_max) /
+    alpha_1)`` for the focus state (UISE and FIE with certificate weights only).
+    """
+    scenario = study.scenario
+    focus = scenario.focus_state
+    name = state_names(study)[focus]
+    certified = {str(row["estimator"]): row for row in study.certificates}
+    rows = []
+    for spec in scenario.estimators:
+        row = certified.get(spec.name)
+        sub = acc[(acc["estimator"] == spec.name) & (acc["state"] == name)].set_index("case")["rmse"]
+        gain = None if row is None or not row.get("noise_gain") else row["noise_gain"][focus]  # type: ignore[index]
+        runs = study.runs[study.runs["estimator"] == spec.name]
+        failed = {case: int(runs[runs["case"] == case]["failures"].clip(lower=0).sum()) for case in scenario.cases}
+        ok = row is not None and row.get("status") == "certified"
+        rows.append(
+            {
+                "estimator": spec.name,
+                "weights": "certificate" if spec.weights == "certificate" else "explicit",
+                "mu": f"{float(row['rate']):.6g}" if ok else f"{spec.mu:.6g}",  # type: ignore[arg-type, index]
+                "N": "-" if spec.kind == "fie" else (row["N"] if ok else spec.N),  # type: ignore[index]
+                "min horizon": row["min_horizon"] if ok else "-",  # type: ignore[index]
+                "theorem applies": ("yes" if row["guarantee"] else "no") if ok else "no",  # type: ignore[index]
+                f"noise gain {name}": gain if gain is not None else "-",
+                **{f"RMSE {name} ({case})": float(sub.get(case, float("nan"))) for case in scenario.cases},
+                "failed solves": " / ".join(str(failed[case]) for case in scenario.cases),
             }
         )
     return pd.DataFrame(rows)
@@ -300,6 +335,11 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         if not info.empty
         else []
     )
+    from uiest.experiments.certificates import describe
+
+    guarantees = guarantee_table(study, acc)
+    guarantees.to_csv(out / "guarantees.csv", index=False)
+    written.append(out / "guarantees.csv")
     report = [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
@@ -311,6 +351,16 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "## Claims of the paper, checked",
         "",
         *[f"- {line}" for line in claims(study, acc, times)],
+        "",
+        "## Certificates and guarantees",
+        "",
+        _markdown(guarantees),
+        "",
+        *[f"- {describe(row)}" for row in study.certificates],
+        "",
+        "The noise gain is the certificate's bound on the error one step of the largest noise in V can cause "
+        f"({focus}, same units): a guarantee of the theorem is only as tight as this number. Failed solves are "
+        f"counted over all runs ({' / '.join(scenario.cases)}); a failed sample propagates the previous estimate.",
         "",
         "## Table 1: maximal average computation time per sample (ms)",
         "",
@@ -354,6 +404,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "versions": _versions(),
         "git_revision": _git_revision(),
         "wall_time_s": wall_time,
+        "certificates": list(study.certificates),
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "files": sorted(str(p.relative_to(out)) for p in written),
     }

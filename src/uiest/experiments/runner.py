@@ -10,6 +10,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -27,6 +28,7 @@ from uiest.estimators import (
     TwoStageWeights,
     UISEWeights,
 )
+from uiest.experiments.certificates import certificate_for, summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
@@ -36,7 +38,15 @@ from uiest.system import System
 Builder = Callable[[System, EstimatorSpec, FloatArray, str], object]
 
 
+def _certificate(system: System, spec: EstimatorSpec) -> Any:
+    """The certificate of a spec with ``weights = "certificate"`` (cached per process), else None."""
+    return certificate_for(system.name, spec.kind, spec.mu) if spec.weights == "certificate" else None
+
+
 def _uise(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(system, spec)
+    if certificate is not None:
+        return UISE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = UISEWeights.from_scales(
         system, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
     )
@@ -44,6 +54,9 @@ def _uise(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -
 
 
 def _fie(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(system, spec)
+    if certificate is not None:
+        return FIE(system, certificate=certificate, x0_prior=prior, solver=solver)
     weights = UISEWeights.from_scales(
         system, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
     )
@@ -51,6 +64,9 @@ def _fie(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) ->
 
 
 def _standard_mhe(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(system, spec)
+    if certificate is not None:
+        return StandardMHE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = MHEWeights.from_scales(
         system,
         spec.mu,
@@ -67,6 +83,9 @@ def _two_stage(system: System, spec: EstimatorSpec, prior: FloatArray, solver: s
     if entry.reduction is None:
         raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {system.name!r} registers none")
     reduced = entry.reduction()
+    certificate = _certificate(system, spec)
+    if certificate is not None:
+        return TwoStageUISE(reduced, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = TwoStageWeights.from_scales(
         reduced, spec.mu, prior=spec.prior_weight, output=spec.output_weight, noise=spec.noise_weight
     )
@@ -96,6 +115,9 @@ class StudyResult:
         ``(case, run, estimator) -> EstimationResult``.
     solver : str
         The window backend every estimator used (``"ipopt"``, ``"gn"`` or ``"rti"``).
+    certificates : tuple of dict
+        For each estimator with certificate weights: the certificate's rate, horizon, whether
+        the theorem applies, the noise gain (:func:`uiest.experiments.certificates.summary`).
 
     """
 
@@ -105,6 +127,7 @@ class StudyResult:
     truths: dict[tuple[str, int], Trajectory]
     results: dict[tuple[str, int, str], EstimationResult]
     solver: str = "ipopt"
+    certificates: tuple[dict[str, object], ...] = ()
 
 
 def initial_state(scenario: Scenario, default: FloatArray, run: int) -> FloatArray:
@@ -180,6 +203,13 @@ def run_study(
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
+    certificates = []
+    for spec in scenario.estimators:
+        if spec.weights == "certificate":
+            try:
+                certificates.append(summary(spec, certificate_for(scenario.model, spec.kind, spec.mu)))
+            except UiestError as exc:  # the estimator's runs record the same error; the study goes on
+                certificates.append(summary(spec, None, f"{type(exc).__name__}: {exc}"))
     step_frames, run_rows = [], []
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
@@ -215,7 +245,7 @@ def run_study(
                 if progress is not None:
                     progress(f"{case} run {run + 1}/{scenario.runs}: {spec.name}")
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
-    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, solver)
+    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, solver, tuple(certificates))
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
