@@ -154,3 +154,9 @@ def test_certificates_share_one_interface():
         assert cert.certified and cert.status == "certified" and cert.rate_min <= cert.rate < 1
         assert cert.min_horizon() >= 1 and cert.margin >= 0 and "sampled" in cert.coverage
         assert json.loads(json.dumps(cert.to_dict()))["certified"] is True
+
+
+def test_bisect_rate_with_a_failed_top_probe_decides_nothing():
+    outcomes = {1.0 - lmi.RATE_GAP: lmi.FAILED}
+    found = lmi.bisect_rate(lambda mu: outcomes.get(mu, lmi.INFEASIBLE))
+    assert found.rate is None and found.outcome == lmi.FAILED

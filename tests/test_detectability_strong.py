@@ -156,3 +156,38 @@ def test_given_rate_below_the_smallest_is_refused_and_weights_follow_the_certifi
     assert data["min_horizon"] == cert.min_horizon()
     with pytest.raises(CertificationError):
         low.weights()
+
+
+def test_an_input_direction_that_drifts_with_the_state_is_caught():
+    # x2+ picks up 1e-9 x1 w: negligible at small w, unbounded at large w, so B must be 2-dimensional
+    drifting = System.from_callables(lambda x, u, w: [0.5 * x[0] + x[1] + w[0], 0.5 * x[1] + 1e-9 * x[0] * w[0]],
+                                     lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=(-1, 1))  # fmt: skip
+    with pytest.raises(ModelError, match="varies"):
+        certify_strong_detectability(drifting)
+
+
+def test_every_state_measured_and_the_sound_flag():
+    system = linear.linear_system(np.array([[0.9, 0.2], [0.0, 0.7]]), [[1.0], [0.5]], np.eye(2), **LINEAR_SPEC)
+    cert = certify_strong_detectability(system)
+    assert cert.certified and cert.mu_min <= 1e-4 and cert.sound, cert.reason
+    assert cert.verify(20_000).holds
+    sampled = certify_strong_detectability(closed_form.system())
+    assert not sampled.sound and "sampled" in sampled.coverage
+
+
+def test_solver_failures_are_never_reported_as_infeasible(monkeypatch):
+    from uiest.detectability import strong_lmi
+
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    # the margin problem is always feasible: a solver saying "infeasible" has failed
+    monkeypatch.setattr(strong_lmi.RateProblem, "solve", lambda self, mu: ("infeasible", None, float("nan")))
+    cert = certify_strong_detectability(system)
+    assert cert.status == "solver failed" and not cert.certified, cert.reason
+
+
+def test_linear_certificate_statuses():
+    _, A, B, C = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    assert linear_strong_detectability(A, B, C).status == "certified"
+    assert linear_strong_detectability(A, B, C, mu=0.1).status == "below the smallest rate"
+    _, A, B, C = linear.with_invariant_zeros([1.5], seed=3, **LINEAR_SPEC)
+    assert linear_strong_detectability(A, B, C).status == "infeasible"

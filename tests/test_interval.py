@@ -60,3 +60,38 @@ def test_unsupported_operations_are_named():
     fun = _function(lambda z: ca.floor(z[0]) + z[1])
     with pytest.raises(interval.IntervalUnsupportedError, match="floor"):
         interval.bounds(fun, Box([0.0, 0.0], [1.0, 1.0]))
+
+
+def test_arguments_outside_a_domain_give_no_false_bounds():
+    # the natural extension of z^2 - 2 c z + c^2 + 0.01 dips below 0, where log and sqrt are undefined
+    c = 0.37
+    for build, name in ((lambda z: 3.0 * ca.log(z[0] ** 2 - 2 * c * z[0] + c**2 + 0.01), "log"),
+                        (lambda z: ca.sqrt(z[0] ** 2 - z[0] + 0.26), "sqrt")):  # fmt: skip
+        fun = _function(build, n=1)
+        box = Box([0.0], [1.0])
+        z = np.linspace(0.0, 1.0, 100_001)[:, None]
+        values = np.asarray(fun.map(len(z))(z.T)).reshape(-1)
+        lo, hi = interval.enclosure(fun, box.lower[None], box.upper[None], interval.centered(fun))
+        assert lo[0, 0] <= values.min() and values.max() <= hi[0, 0], name
+        found = interval.bounds(fun, box)
+        assert found.lower[0] <= values.min() and values.max() <= found.upper[0], name
+
+
+def test_sparse_outputs_stay_in_place():
+    z = ca.SX.sym("z", 2)
+    fun = ca.Function("g", [z], [ca.vertcat(ca.SX(1, 1), z[0], 10.0 * z[1])])
+    assert not fun.sparsity_out(0).is_dense()
+    lo, hi = interval.enclosure(fun, np.array([[0.0, 0.0]]), np.array([[1.0, 1.0]]))
+    np.testing.assert_allclose(lo[0], [0.0, 0.0, 0.0], atol=1e-300)
+    np.testing.assert_allclose(hi[0], [0.0, 1.0, 10.0], rtol=1e-15)
+    found = interval.bounds(fun, Box([0.0, 0.0], [1.0, 1.0]))
+    np.testing.assert_allclose(found.upper, [0.0, 1.0, 10.0], rtol=1e-12, atol=1e-300)
+
+
+def test_large_arguments_and_cancellation_are_enclosed():
+    fun = _function(lambda z: ca.cos(z[0]) + (z[0] + z[1]) * 2.0 - 2.0 * z[1])
+    for point in ([100.0, 0.0], [1e6, 3.0], [0.1, 1e8]):
+        p = np.array([point])
+        lo, hi = interval.enclosure(fun, p, p, interval.centered(fun))
+        exact = np.cos(point[0]) + 2.0 * point[0]
+        assert lo[0, 0] <= exact <= hi[0, 0]

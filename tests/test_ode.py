@@ -34,7 +34,7 @@ def test_linear_model_with_an_input_channel_is_sampled_exactly():
     assert system.dt == 0.1
 
 
-def test_input_channel_error_grows_like_dt_squared_times_w():
+def test_input_channel_error_is_linear_in_w_and_of_order_dt_cubed_when_the_channel_column_is_constant():
     x, u = np.array([0.8, 2.0]), np.array([0.3])
     errors = {}
     for dt in (0.04, 0.02):

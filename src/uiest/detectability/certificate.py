@@ -23,7 +23,21 @@ CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED = (
     "below the smallest rate",
     "re-check failed",
 )
-"""The statuses a certificate can end in; "infeasible" only when the solver proved it."""
+"""The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
+to optimality with a non-positive margin (within the stated bounds on P and the gains)."""
+
+STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
+             "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED}  # fmt: skip
+"""Certificate status of each solver outcome (:mod:`uiest.detectability.lmi` and the LMI modules)."""
+
+
+def strong_horizon(mu: float, condition: float) -> int:
+    r"""Smallest N with ``8 mu^N a2 / a1 < 1`` (eq:MHE_full_horizon for ``alpha_i(r) = a_i r^2``).
+
+    ``(2 mu^N alpha_2 o 2 alpha_1^-1)(r) = 8 mu^N (a2 / a1) r`` with ``alpha_1^-1(s) = sqrt(s / a1)``;
+    ``condition = a2 / a1``.
+    """
+    return int(np.floor(np.log(8.0 * condition) / np.log(1.0 / mu))) + 1
 
 
 @dataclass(frozen=True)
@@ -78,6 +92,10 @@ class Certificate:
         Seconds, from the call to the result.
     coverage : str
         How the domain was covered (exact vertices, parameter box, sampled cover).
+    sound : bool
+        True when every ingredient is proved over the whole domain (the vertices cover it and, for
+        strong detectability, the input structure is structural); False when any was sampled
+        (``coverage`` says which). Either way the LMIs were solved and re-checked at the vertices.
     margin : float
         Smallest eigenvalue margin of the re-check, relative to ``||P||`` (> 0 when certified).
 
@@ -92,6 +110,7 @@ class Certificate:
     scale: FloatArray
     solve_time: float
     coverage: str
+    sound: bool
     margin: float
 
     kind: ClassVar[str] = "certificate"
@@ -159,6 +178,7 @@ class Certificate:
             "min_horizon": self.min_horizon() if ok else None,
             "solve_time_s": self.solve_time,
             "coverage": self.coverage,
+            "sound": self.sound,
             "margin": self.margin,
             **self._details(),
         }

@@ -171,6 +171,8 @@ def _parameter_cover(
         )
     try:
         found = interval.bounds(parameters, domain, seed=seed)
+        if not np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
+            raise interval.IntervalUnsupportedError("interval arithmetic left a bound infinite")
         lower, upper, sound = found.lower, found.upper, True
         gap = float(np.max(found.gap / np.maximum(upper - lower, 1e-300)))
         how = (

@@ -36,11 +36,8 @@ import numpy as np
 from uiest.box import Box, FloatArray
 from uiest.detectability import lmi
 from uiest.detectability.certificate import (
-    BELOW_RATE,
-    CERTIFIED,
-    INFEASIBLE,
-    RECHECK_FAILED,
     SOLVER_FAILED,
+    STATUS_OF,
     check_rate,
     quad,
     sample_pairs,
@@ -167,7 +164,7 @@ class DissipationSolution:
         """The :class:`~uiest.detectability.certificate.Certificate` fields of this solution."""
         return {
             "certified": self.outcome == lmi.FEASIBLE,
-            "status": _STATUS.get(self.outcome, SOLVER_FAILED),
+            "status": STATUS_OF.get(self.outcome, SOLVER_FAILED),
             "reason": self.reason,
             "rate": self.mu,
             "rate_min": self.mu_min,
@@ -175,12 +172,9 @@ class DissipationSolution:
             "scale": scale,
             "solve_time": seconds,
             "coverage": self.coverage,
+            "sound": self.cover.sound and self.output_constant,
             "margin": self.margin,
         }
-
-
-_STATUS = {lmi.FEASIBLE: CERTIFIED, lmi.INFEASIBLE: INFEASIBLE, lmi.FAILED: SOLVER_FAILED,
-           "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED}  # fmt: skip
 
 
 def margins(
@@ -279,25 +273,25 @@ class _Solver:
 
     def probe(self, mu: float) -> str:
         """FEASIBLE when the margin problem has ``t* > 0`` and every vertex passes the re-check."""
-        for _ in range(len(self.J)):
+
+        def solve() -> tuple[str, object, float]:
             problem = self.problem()
             problem.mu.value = mu
             status = lmi.solve(problem.margin_problem)
             if status not in lmi.SOLVED or problem.t.value is None:
-                return lmi.INFEASIBLE if status in ("infeasible", "infeasible_inaccurate") else lmi.FAILED
-            if not float(problem.t.value) > MARGIN_FLOOR:
-                return lmi.INFEASIBLE if status == "optimal" else lmi.FAILED
-            found = self.all_margins(*problem.values(), mu)
-            if found.min() >= 0.0:
-                return lmi.FEASIBLE
-            if not self.active.add_worst(found):
-                return lmi.FAILED
-        return lmi.FAILED
+                return status, None, float("nan")
+            return status, problem.values(), float(problem.t.value)
+
+        def recheck(values: object) -> FloatArray:
+            return self.all_margins(*values, mu)  # type: ignore[misc]
+
+        return lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)[0]
 
     def design(self, mu: float, kappa_slack: float) -> tuple[FloatArray, FloatArray, float] | None:
-        """Condition number of P first, then the gains; the margin solution when a design solve fails."""
-        if self.probe(mu) != lmi.FEASIBLE:
-            return None
+        """Condition number of P first, then the gains; the margin solution when a design solve fails.
+
+        Call after a FEASIBLE :meth:`probe` at ``mu`` (its solution is loaded).
+        """
         problem = self.problem()
         fallback = problem.values()
         problem.t_req.value = 0.1 * float(problem.t.value)
@@ -354,21 +348,22 @@ def solve(
     note = f" ({bisection.note})" if bisection.note else ""
     if bisection.rate is None:
         if bisection.outcome == lmi.INFEASIBLE:
-            return fail(lmi.INFEASIBLE, "infeasible for every rate < 1: no quadratic storage (with cond(P) <= "
-                        f"{kappa_max:g}) certifies the inequality{note}")  # fmt: skip
+            return fail(lmi.INFEASIBLE, f"infeasible for every rate < 1: no quadratic storage with cond(P) <= "
+                        f"{kappa_max:g} and gains <= {gain_max:g} certifies the inequality{note}")  # fmt: skip
         return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
     mu_min = bisection.rate
     mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
-    values = solver.design(mu_used, kappa_slack)
-    if values is None:
-        if mu_used < mu_min:
-            return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}",
-                        mu_min)  # fmt: skip
-        return fail(lmi.FAILED, f"the design at mu={mu_used:.6g} failed although mu_min={mu_min:.6g} is feasible{note}",
+    outcome = solver.probe(mu_used)
+    if outcome == lmi.INFEASIBLE and mu_used < mu_min:
+        return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}",
                     mu_min)  # fmt: skip
+    values = solver.design(mu_used, kappa_slack) if outcome == lmi.FEASIBLE else None
+    if values is None:
+        return fail(lmi.FAILED, f"the solver failed at mu={mu_used:.6g} ('{outcome}'; mu_min={mu_min:.6g} was "
+                    f"feasible){note}", mu_min)  # fmt: skip
     P, q, r = values
     margin = float(solver.all_margins(P, q, r, mu_used).min())
-    ok = margin >= 0.0
+    ok = margin > 0.0
     reason = (
         f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g}), condition of P {np.linalg.cond(P):.3g}, "
         f"re-check margin {margin:.2e}{note}"

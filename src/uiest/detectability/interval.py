@@ -32,7 +32,9 @@ class IntervalUnsupportedError(Exception):
 
 
 def _widen(lo: FloatArray, hi: FloatArray) -> Interval:
-    """Outward rounding: two units in the last place on each side."""
+    """Outward rounding (two units in the last place on each side); NaN (no information) becomes +-inf."""
+    lo = np.where(np.isnan(lo), -np.inf, lo)
+    hi = np.where(np.isnan(hi), np.inf, hi)
     return np.nextafter(np.nextafter(lo, -np.inf), -np.inf), np.nextafter(np.nextafter(hi, np.inf), np.inf)
 
 
@@ -55,7 +57,7 @@ def _even(fun: Callable[[FloatArray], FloatArray]) -> Callable[[Interval], Inter
 
 def _mul(a: Interval, b: Interval) -> Interval:
     products = np.stack([a[0] * b[0], a[0] * b[1], a[1] * b[0], a[1] * b[1]])
-    products = np.where(np.isnan(products), 0.0, products)  # 0 * inf: the zero end wins
+    products = np.where(np.isnan(products), 0.0, products)  # only 0 * inf (inputs are never NaN): the zero wins
     return products.min(axis=0), products.max(axis=0)
 
 
@@ -83,7 +85,13 @@ def _sin(a: Interval) -> Interval:
 
 
 def _cos(a: Interval) -> Interval:
-    return _sin((a[0] + 0.5 * np.pi, a[1] + 0.5 * np.pi))
+    lo, hi = a
+    c_lo, c_hi = np.cos(lo), np.cos(hi)
+    low, high = np.minimum(c_lo, c_hi), np.maximum(c_lo, c_hi)
+    wide = (hi - lo >= 2.0 * np.pi) | ~np.isfinite(lo) | ~np.isfinite(hi)
+    high = np.where(wide | _periodic_peak(lo, hi, 0.0), 1.0, high)
+    low = np.where(wide | _periodic_peak(lo, hi, np.pi), -1.0, low)
+    return low, high
 
 
 def _tan(a: Interval) -> Interval:
@@ -93,13 +101,18 @@ def _tan(a: Interval) -> Interval:
 
 
 def _domain(fun: Callable[[FloatArray], FloatArray], low: float) -> Callable[[Interval], Interval]:
-    """Increasing ``fun`` defined on ``[low, inf)``: boxes reaching below give NaN (undefined)."""
+    """Increasing ``fun`` defined on ``[low, inf)``, enclosed on the part of the argument where it is defined.
+
+    An argument reaching below ``low`` is clamped to it (``log`` gives ``-inf``); one entirely below
+    gives no information (``-inf, inf``).
+    """
 
     def apply(a: Interval) -> Interval:
         lo, hi = a
+        outside = hi < low
         with np.errstate(invalid="ignore", divide="ignore"):
-            bad = lo < low
-            return np.where(bad, np.nan, fun(np.maximum(lo, low))), np.where(hi < low, np.nan, fun(hi))
+            return (np.where(outside, -np.inf, fun(np.maximum(lo, low))),
+                    np.where(outside, np.inf, fun(np.maximum(hi, low))))  # fmt: skip
 
     return apply
 
@@ -117,12 +130,12 @@ def _constpow(a: Interval, b: Interval) -> Interval:
         if q > 0:
             return base[0] ** q, base[1] ** q
         return _constpow(_inv(a), (np.full_like(a[0], -q), np.full_like(a[0], -q)))
-    with np.errstate(invalid="ignore", divide="ignore"):
+    with np.errstate(invalid="ignore", divide="ignore"):  # defined for a >= 0 only: clamp, as in _domain
         lo, hi = a
-        bad = lo < 0
-        lo = np.maximum(lo, 0.0)
+        outside = hi < 0
+        lo, hi = np.maximum(lo, 0.0), np.maximum(hi, 0.0)
         out = (lo**p, hi**p) if p > 0 else (hi**p, lo**p)
-        return np.where(bad, np.nan, out[0]), np.where(bad, np.nan, out[1])
+        return np.where(outside, -np.inf, out[0]), np.where(outside, np.inf, out[1])
 
 
 def _pow(a: Interval, b: Interval) -> Interval:
@@ -208,6 +221,9 @@ def centered(fun: ca.Function) -> ca.Function:
     return ca.Function(f"{fun.name()}_centered", [z], [g, ca.densify(ca.jacobian(g, z))])
 
 
+UNIT_ROUNDOFF = 2.0**-53
+
+
 def enclosure(
     fun: ca.Function, lower: FloatArray, upper: FloatArray, derivative: ca.Function | None = None
 ) -> Interval:
@@ -215,35 +231,50 @@ def enclosure(
 
     With ``derivative`` (from :func:`centered`), the natural enclosure is intersected with the
     mean-value form ``g(c) + [dg/dz](box) (box - c)`` at the box centres c, whose
-    over-estimation shrinks quadratically with the box size.
+    over-estimation shrinks quadratically with the box size (``g(c)`` is itself enclosed, and
+    the rounding of the sum is bounded).
 
     Parameters
     ----------
     fun : casadi.Function
-        An SX function with one dense input and one output.
+        An SX function with one dense input and one output (a sparse output is densified).
     lower, upper : ndarray, shape (m, n)
         The boxes.
 
     Returns
     -------
     (lo, hi) : ndarrays, shape (m, k)
-        ``lo <= fun(z) <= hi`` for every z in each box (NaN where fun is undefined on the box).
+        ``lo <= fun(z) <= hi`` for every z in each box where fun is defined (``-inf, inf`` where
+        nothing is known).
 
     """
+    fun = _dense(fun)
     lo, hi = _natural(fun, lower, upper)
     if derivative is None:
         return lo, hi
     center = 0.5 * (lower + upper)
     k, n = fun.numel_out(0), fun.numel_in(0)
-    value = np.asarray(derivative.map(len(center))(center.T)[0], dtype=float).reshape(k, -1).T
+    g_lo, g_hi = _natural(fun, center, center)
     jac_lo, jac_hi = (
         a.reshape(-1, n, k).transpose(0, 2, 1) for a in _natural(_jacobian_part(derivative), lower, upper)
     )
     d_lo, d_hi = (lower - center)[:, None, :], (upper - center)[:, None, :]
     terms = np.stack([jac_lo * d_lo, jac_lo * d_hi, jac_hi * d_lo, jac_hi * d_hi])
-    terms = np.where(np.isnan(terms), 0.0, terms)
-    mv_lo, mv_hi = _widen(value + terms.min(axis=0).sum(axis=2), value + terms.max(axis=0).sum(axis=2))
-    return np.fmax(lo, mv_lo), np.fmin(hi, mv_hi)
+    terms = np.where(np.isnan(terms), 0.0, terms)  # 0 * inf on a degenerate side: the term is 0
+    low, high = g_lo + terms.min(axis=0).sum(axis=2), g_hi + terms.max(axis=0).sum(axis=2)
+    with np.errstate(invalid="ignore"):
+        slack = (n + 2) * UNIT_ROUNDOFF * (np.abs(g_lo) + np.abs(g_hi) + np.abs(terms).max(axis=0).sum(axis=2))
+    mv_lo, mv_hi = _widen(low - slack, high + slack)
+    return np.maximum(lo, mv_lo), np.minimum(hi, mv_hi)
+
+
+def _dense(fun: ca.Function) -> ca.Function:
+    """``fun`` with a dense output (structural zeros become explicit constants)."""
+    if fun.sparsity_out(0).is_dense():
+        return fun
+    check_supported(fun)
+    z = ca.SX.sym("z", fun.numel_in(0))
+    return ca.Function(f"{fun.name()}_dense", [z], [ca.densify(fun(z))])
 
 
 def _jacobian_part(derivative: ca.Function) -> ca.Function:
@@ -252,11 +283,11 @@ def _jacobian_part(derivative: ca.Function) -> ca.Function:
 
 
 def _natural(fun: ca.Function, lower: FloatArray, upper: FloatArray) -> Interval:
-    """The natural interval extension of ``fun`` on m boxes: (lo, hi) of shape (m, k)."""
+    """The natural interval extension of ``fun`` (dense output) on m boxes: (lo, hi) of shape (m, k)."""
     check_supported(fun)
     m = lower.shape[0]
     work: dict[int, Interval] = {}
-    out_lo, out_hi = np.full((m, fun.numel_out(0)), np.nan), np.full((m, fun.numel_out(0)), np.nan)
+    out_lo, out_hi = np.full((m, fun.numel_out(0)), -np.inf), np.full((m, fun.numel_out(0)), np.inf)
     with np.errstate(over="ignore", invalid="ignore"):
         for k in range(fun.n_instructions()):
             op, args, res = fun.instruction_id(k), fun.instruction_input(k), fun.instruction_output(k)
@@ -271,11 +302,6 @@ def _natural(fun: ca.Function, lower: FloatArray, upper: FloatArray) -> Interval
                 work[res[0]] = _widen(*UNARY[op](work[args[0]]))
             else:
                 work[res[0]] = _widen(*BINARY[op](work[args[0]], work[args[1]]))
-    # structurally zero outputs have no OUTPUT instruction
-    sparsity = fun.sparsity_out(0)
-    dense = np.zeros(fun.numel_out(0), dtype=bool)
-    dense[np.array(sparsity.find(), dtype=int)] = True
-    out_lo[:, ~dense], out_hi[:, ~dense] = 0.0, 0.0
     return out_lo, out_hi
 
 
@@ -317,6 +343,7 @@ def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 4
     Degenerate sides of ``box`` are never split. Raises :class:`IntervalUnsupportedError`.
     """
     check_supported(fun)
+    fun = _dense(fun)
     if not box.is_bounded:
         raise IntervalUnsupportedError(f"the box is unbounded: {box}")
     rng = np.random.default_rng(seed)
@@ -356,6 +383,8 @@ def _branch_and_bound(
         ub = np.where(np.isnan(ub), np.inf, ub)
         mid = 0.5 * (lower + upper)
         point = sign * np.asarray(fun.map(len(mid))(mid.T), dtype=float).reshape(fun.numel_out(0), -1)[j]
+        if np.any(point > ub + 1e-9 * np.maximum(1.0, np.abs(point))):  # a value above its own enclosure
+            raise IntervalUnsupportedError(f"an enclosure of {fun.name()} misses a value it contains (a bug)")
         best = max(best, float(np.nanmax(point, initial=-np.inf)))
         open_ = ub > best + tol
         if used + 2 * int(open_.sum()) > max_boxes or not splittable.any():
@@ -368,4 +397,6 @@ def _branch_and_bound(
         left_upper[np.arange(len(lower)), axis] = cut
         right_lower[np.arange(len(lower)), axis] = cut
         lower, upper = np.vstack([lower, right_lower]), np.vstack([left_upper, upper])
+    if kept_bound < best - 1e-9 * max(1.0, abs(best)):
+        raise IntervalUnsupportedError(f"the enclosures of {fun.name()} lie below a value attained (a bug)")
     return max(kept_bound, best), best, used

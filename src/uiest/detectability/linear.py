@@ -21,8 +21,16 @@ import numpy as np
 import scipy.linalg
 from numpy.typing import ArrayLike, NDArray
 
-from uiest.detectability import lmi
-from uiest.detectability.certificate import CERTIFIED, INFEASIBLE, SOLVER_FAILED, Certificate, Verification, check_rate
+from uiest.detectability.certificate import (
+    CERTIFIED,
+    INFEASIBLE,
+    SOLVER_FAILED,
+    STATUS_OF,
+    Certificate,
+    Verification,
+    check_rate,
+    strong_horizon,
+)
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
@@ -108,8 +116,8 @@ class LinearStrongDetectability(Certificate):
         return float(np.max(np.abs(np.linalg.eigvals(closed)), initial=0.0))
 
     def _horizon(self) -> int:
-        """Smallest N with ``8 mu^N cond(P) < 1`` (eq:MHE_full_horizon, quadratic alphas)."""
-        return int(np.floor(np.log(8.0 * self.condition) / np.log(1.0 / self.mu))) + 1
+        """eq:MHE_full_horizon: :func:`~uiest.detectability.certificate.strong_horizon`."""
+        return strong_horizon(self.mu, self.condition)
 
     def weights(self) -> Any:
         """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
@@ -323,11 +331,11 @@ def linear_strong_detectability(
         reason += " No output: the quadratic certificate needs at least one."
     elif ok:
         solution = StrongLMI(A_[None], B_tilde, C_).solve(mu, mu_min=mu_min)
-        if solution.outcome == lmi.FEASIBLE:
-            P, sigma_y, rate, margin, status = solution.P, solution.sigma_y, solution.mu, solution.margin, CERTIFIED
+        status = STATUS_OF.get(solution.outcome, SOLVER_FAILED)
+        if status == CERTIFIED:
+            P, sigma_y, rate, margin = solution.P, solution.sigma_y, solution.mu, solution.margin
         else:
-            status = SOLVER_FAILED
-            reason += f" The quadratic certificate was not found: {solution.reason}."
+            reason += f" The quadratic certificate was not found ({status}): {solution.reason}."
     return LinearStrongDetectability(
         certified=status == CERTIFIED,
         status=status,
@@ -338,6 +346,7 @@ def linear_strong_detectability(
         scale=np.ones(n),
         solve_time=time.perf_counter() - start,
         coverage="exact: a linear system has one Jacobian",
+        sound=True,
         margin=margin,
         matching=matching,
         rank_B=rank_B,

@@ -3,10 +3,13 @@
 Every certificate is a family of LMIs in a discount rate (mu, eta). A probe at one rate ends
 in one of three outcomes, kept apart all the way to the user:
 
-- ``FEASIBLE``: the solver returned a solution and the independent numpy re-check passed
-  (a solver's "optimal_inaccurate" counts only then);
-- ``INFEASIBLE``: the solver proved the LMI infeasible, or its best margin is not positive;
-- ``FAILED``: the solver raised, or returned something the re-check rejects.
+- ``FEASIBLE``: the solver returned a solution and the independent numpy re-check passed at
+  every vertex (a solver's "optimal_inaccurate" counts only then);
+- ``INFEASIBLE``: the solver solved the margin problem (``max t`` with the LMIs ``>= t I``,
+  always feasible) to optimality and ``t* <= 0``;
+- ``FAILED``: anything else: the solver raised or returned another status (an "infeasible"
+  margin problem is a solver failure), ``0 < t*`` within the floor, or a re-check rejection
+  that no cutting plane resolves.
 
 :func:`bisect_rate` finds the smallest feasible rate; a failed probe is retried once nearer the
 feasible side and otherwise ends the bisection at the best rate proven so far, never turning a
@@ -167,8 +170,10 @@ def bisect_rate(
     top = 1.0 - gap
     first = run(top)
     if first == FAILED:
-        first = run(1.0 - 10.0 * gap)
         top = 1.0 - 10.0 * gap
+        first = run(top)
+        if first == INFEASIBLE:  # infeasible below the rate whose probe failed: nothing is decided at 1 - gap
+            first = FAILED
     if first != FEASIBLE:
         return Bisection(None, first, tuple(failed), probes)
     if run(floor) == FEASIBLE:
@@ -187,6 +192,34 @@ def bisect_rate(
         else:
             lo = mid
     return Bisection(1.0 - float(np.exp(hi)), FEASIBLE, tuple(failed), probes)
+
+
+def cutting_plane_probe(
+    solve: Callable[[], tuple[str, object, float]],
+    recheck: Callable[[object], FloatArray],
+    active: ActiveSet,
+    floor: float,
+) -> tuple[str, object]:
+    """One rate probe: solve the margin problem on the active vertices, re-check all, grow, repeat.
+
+    ``solve()`` returns (solver status, solution or None, margin t) for the active vertices;
+    ``recheck(solution)`` the re-check margin of every vertex (>= 0 passes). Returns the outcome
+    and the solution (None unless ``FEASIBLE``).
+    """
+    for _ in range(len(active.all) + 1):
+        status, solution, t = solve()
+        if solution is None or status not in SOLVED:
+            return FAILED, None
+        if t <= 0.0:
+            return (INFEASIBLE if status == "optimal" else FAILED), None
+        if t <= floor:
+            return FAILED, None  # a margin within the solver's tolerance decides nothing
+        margins = recheck(solution)
+        if margins.min() >= 0.0:
+            return FEASIBLE, solution
+        if not active.add_worst(margins):
+            return FAILED, None  # an imposed vertex fails the re-check: solver inaccuracy
+    return FAILED, None
 
 
 class ActiveSet:

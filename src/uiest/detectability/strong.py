@@ -12,7 +12,7 @@ eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 
     sigma_y(r) = sigma_y r^2,  sigma_y = 2 max(s1, s2),      sigma_v(r) = sigma_y ||D||^2 r^2
 
 (scaled norms; ``D`` the scaled ``dg/dv``). The per-step noise-to-error gain
-``sqrt(sigma_v(v_max) / alpha_1)`` (v_max the largest noise in V) is reported per state.
+``sqrt(2 sigma_v(d_max) / alpha_1)`` (d_max the largest noise increment in V) is reported per state.
 """
 
 from __future__ import annotations
@@ -29,25 +29,20 @@ import scipy.linalg
 from uiest.box import FloatArray
 from uiest.detectability import lmi
 from uiest.detectability.certificate import (
-    BELOW_RATE,
-    CERTIFIED,
-    INFEASIBLE,
-    RECHECK_FAILED,
     SOLVER_FAILED,
+    STATUS_OF,
     Certificate,
     Verification,
     check_rate,
     quad,
     sample_pairs,
+    strong_horizon,
 )
 from uiest.detectability.cover import Cover, cover
 from uiest.detectability.strong_lmi import StrongLMI, StrongSolution
 from uiest.detectability.structure import InputStructure, input_structure
 from uiest.errors import ModelError, OptionError
 from uiest.system import System, as_function
-
-_STATUS = {lmi.FEASIBLE: CERTIFIED, lmi.INFEASIBLE: INFEASIBLE, lmi.FAILED: SOLVER_FAILED,
-           "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED}  # fmt: skip
 
 
 @dataclass(frozen=True, eq=False)
@@ -64,8 +59,9 @@ class StrongDetectability(Certificate):
     R_y, R_v : ndarray
         The same as weight matrices in original units: ``sigma_y(dy) = |dy|_{R_y}^2``.
     noise_gain : ndarray (nx,)
-        ``sqrt(sigma_v(v_max) / alpha_1)`` in state units: the error one step of the largest
-        noise in V can cause in each state (inf when V is unbounded).
+        ``sqrt((sigma_v(d) + sigma_v(d)) / alpha_1)`` in state units, d the largest noise
+        increment ``|v - v~|`` in V (its diameter): how far the noise terms of one step of
+        eq:Lyapunov_2 can move the bound on each state (inf when V is unbounded).
     s1, s2, eps : float
         The core certificate's output weights on ``|C dx|^2``, ``|C dx+|^2`` (scaled) and the
         output scaling of the solve.
@@ -113,12 +109,8 @@ class StrongDetectability(Certificate):
         return float(np.linalg.eigvalsh(self.P)[-1]) if self.certified else float("nan")
 
     def _horizon(self) -> int:
-        r"""Smallest N with ``8 mu^N a2 / a1 < 1`` (eq:MHE_full_horizon for ``alpha_i(r) = a_i r^2``).
-
-        ``(2 mu^N alpha_2 o 2 alpha_1^-1)(r) = 8 mu^N (a2 / a1) r`` with ``alpha_1^-1(s) = sqrt(s / a1)``;
-        the scaled norm is used, so ``a2 / a1`` is the condition number of ``P_scaled``.
-        """
-        return int(np.floor(np.log(8.0 * self.condition) / np.log(1.0 / self.mu))) + 1
+        """eq:MHE_full_horizon in the scaled norm: :func:`~uiest.detectability.certificate.strong_horizon`."""
+        return strong_horizon(self.mu, self.condition)
 
     def weights(self) -> Any:
         """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
@@ -224,16 +216,17 @@ def _certificate(
     sx, sy, sv = system.x.scale, system.y.scale, system.v.scale
     sigma_y = solution.sigma_y if ok else float("nan")
     sigma_v = sigma_y * structure.D_norm**2
-    V = system.v.bounds
-    v_max = np.linalg.norm(np.maximum(np.abs(V.lower), np.abs(V.upper)) / sv) if system.nv else 0.0
+    diameter = float(np.linalg.norm(system.v.bounds.width / sv)) if system.nv else 0.0  # largest |v - v~|
     alpha_1 = float(np.linalg.eigvalsh(solution.P)[0]) if ok else float("nan")
-    gain = sx * np.sqrt(sigma_v * v_max**2 / alpha_1) if ok else np.full(system.nx, np.nan)
+    gain = sx * np.sqrt(2.0 * sigma_v * diameter**2 / alpha_1) if ok else np.full(system.nx, np.nan)
     D = structure.D
-    R_v_scaled = sigma_y * (
-        D.T @ D if np.linalg.norm(D, 2) >= structure.D_norm else structure.D_norm**2 * np.eye(system.nv)
+    R_v_scaled = sigma_y * (D.T @ D if structure.noise_constant else structure.D_norm**2 * np.eye(system.nv))
+    sound = covered.sound and structure.structural
+    coverage = (
+        f"{covered.kind} ({'sound' if covered.sound else 'sampled, not a proof'}): {covered.description}; "
+        f"input structure {structure.evidence}"
     )
-    coverage = f"{covered.kind} ({'sound' if covered.sound else 'sampled, not a proof'}): {covered.description}"
-    status = _STATUS.get(solution.outcome, SOLVER_FAILED)
+    status = STATUS_OF.get(solution.outcome, SOLVER_FAILED)
     return StrongDetectability(
         certified=ok,
         status=status,
@@ -244,6 +237,7 @@ def _certificate(
         scale=sx,
         solve_time=seconds,
         coverage=coverage,
+        sound=sound,
         margin=solution.margin,
         system=system,
         structure=structure,
@@ -274,6 +268,10 @@ def _verify(cert: StrongDetectability, n_pairs: int, seed: int) -> Verification:
     v, vt, vp, vtp = (np.where(noisy, V.sample(rng, n_pairs), V.center) for _ in range(4))
     w0 = np.broadcast_to(system.nominal_w, (n_pairs, system.nw))
     dv2 = np.sum(((v - vt) / sv) ** 2, axis=1) + np.sum(((vp - vtp) / sv) ** 2, axis=1)
+    leak = _input_leak(cert, x, u, rng)
+    if leak > STRUCTURE_RTOL:
+        return Verification(float("inf"), n_pairs, n_pairs, f"the unknown input moves the state outside the span of "
+                            f"B by {leak:.2e} of its effect: the elimination does not hold")  # fmt: skip
     return worst_case_ratio(
         a=(system.step(x, u, w0) - system.step(xt, u, w0)) / sx,
         dx=(x - xt) / sx,
@@ -287,6 +285,30 @@ def _verify(cert: StrongDetectability, n_pairs: int, seed: int) -> Verification:
         sigma_y=cert.sigma_y,
         sigma_v=cert.sigma_v,
     )
+
+
+STRUCTURE_RTOL = 1e-9
+"""``verify`` fails when w moves the state outside the span of B by more than this fraction."""
+
+
+def _input_leak(cert: StrongDetectability, x: FloatArray, u: FloatArray, rng: np.random.Generator) -> float:
+    """How far w moves the state outside the span of B, relative to how far it moves it (w up to 1e9 scales).
+
+    The largest ``|(I - B B^T) df| / |df|`` with ``df = f(x, u, w) - f(x, u, w0)`` (scaled), the
+    rounding of the two evaluations (100 eps their size) discounted.
+    """
+    system, B = cert.system, cert.structure.B
+    n, nw = x.shape[0], system.nw
+    w = system.nominal_w + system.w.scale * 10.0 ** rng.uniform(0.0, 9.0, (n, nw)) * rng.choice([-1, 1], (n, nw))
+    with np.errstate(all="ignore"):
+        moved, nominal = system.step(x, u, w) / system.x.scale, system.step(x, u, system.nominal_w) / system.x.scale
+    effect = moved - nominal
+    keep = np.all(np.isfinite(effect), axis=1)
+    rounding = 1e2 * np.finfo(float).eps * (np.linalg.norm(moved, axis=1) + np.linalg.norm(nominal, axis=1))
+    excess = np.maximum(np.linalg.norm(effect - (effect @ B) @ B.T, axis=1) - rounding, 0.0)
+    size = np.linalg.norm(effect, axis=1)
+    keep &= size > 0
+    return float((excess[keep] / size[keep]).max(initial=0.0))
 
 
 def worst_case_ratio(

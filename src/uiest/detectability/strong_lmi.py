@@ -79,7 +79,8 @@ class StrongSolution:
     eps : float
         The output scaling used.
     margin : float
-        ``min_i lambda_min(N^T Q_i N) / ||P||`` (> 0 when certified).
+        The smallest of the re-check's margins over ``||P||``: ``lambda_min(N^T Q_i N)``,
+        ``lambda_min(W)`` and the direct check of the core inequality (:meth:`StrongLMI._direct_margin`).
     design : str
         Which solve produced P: "design" or "rate problem (design solve failed: ...)".
     bisection : lmi.Bisection or None
@@ -125,7 +126,7 @@ class Geometry:
         else:
             self.eps = 1.0
         self.K = np.linalg.pinv(CB / self.eps) if B.shape[1] else np.zeros((0, p))
-        self.G = (C @ self.R).T @ (C @ self.R)
+        self.measured_gram = (C @ self.R).T @ (C @ self.R)
         self.k = self.N.shape[1]
 
     def Y2(self, P: FloatArray | cp.Expression, Z: FloatArray | cp.Expression | None) -> FloatArray | cp.Expression:
@@ -228,18 +229,19 @@ class StrongLMI:
         return self._probe(mu)[0]
 
     def _probe(self, mu: float) -> tuple[str, tuple[FloatArray, FloatArray, float] | None, float]:
-        for _ in range(len(self.vertices)):
+        """(outcome, solution, margin t) of the rate problem at ``mu`` on all vertices."""
+        found: dict[str, float] = {"t": float("nan")}
+
+        def solve() -> tuple[str, object, float]:
             status, solution, t = self._rate().solve(mu)
-            if solution is None:
-                return (lmi.INFEASIBLE if status in ("infeasible", "infeasible_inaccurate") else lmi.FAILED), None, t
-            if not t > MARGIN_FLOOR:
-                return (lmi.INFEASIBLE if status == "optimal" else lmi.FAILED), None, t
-            margins = restricted_margins(self.geometry, self.vertices, *solution, mu)
-            if margins.min() >= 0.0:
-                return lmi.FEASIBLE, solution, t
-            if not self.active.add_worst(margins):
-                return lmi.FAILED, None, t  # an imposed vertex fails the re-check: solver inaccuracy
-        return lmi.FAILED, None, float("nan")
+            found["t"] = t
+            return status, solution, t
+
+        def recheck(solution: object) -> FloatArray:
+            return restricted_margins(self.geometry, self.vertices, *solution, mu)  # type: ignore[misc]
+
+        outcome, solution = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)
+        return outcome, solution, found["t"]  # type: ignore[return-value]
 
     def solve(self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None) -> StrongSolution:
         """Bisect for mu_min, design at mu, then the closed-form s1 and the re-check.
@@ -255,21 +257,20 @@ class StrongLMI:
         else:
             bisection = lmi.bisect_rate(self.probe, tol=tol)
         if bisection.rate is None:
-            what = ("infeasible for every mu < 1: no quadratic storage (with cond(P) <= 1e6) certifies strong "
-                    "detectability" if bisection.outcome == lmi.INFEASIBLE else
+            what = ("infeasible for every mu < 1: no quadratic storage with cond(P) <= 1e6 and an output weight "
+                    "within 1e6 of the matched injection's certifies strong detectability"
+                    if bisection.outcome == lmi.INFEASIBLE else
                     "the LMI solver failed at every rate tried; nothing was decided")  # fmt: skip
             return self._unsolved(bisection.outcome, what, float("nan"), bisection)
         mu_min = bisection.rate
         mu_used = mu if mu is not None else mu_min + 0.02 * (1.0 - mu_min)
-        if mu_used < mu_min:
-            outcome, _, _ = self._probe(mu_used) if g.k else (lmi.FEASIBLE, None, 0.0)
-            if outcome != lmi.FEASIBLE:
-                return self._unsolved("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate "
-                                      f"mu_min={mu_min:.6g} found", mu_min, bisection)  # fmt: skip
         outcome, rate_solution, t = self._probe(mu_used) if g.k else (lmi.FEASIBLE, None, 1.0)
-        if outcome != lmi.FEASIBLE and g.k:
-            return self._unsolved(outcome, f"the rate problem at mu={mu_used:.6g} ended '{outcome}' although "
-                                  f"mu_min={mu_min:.6g} was feasible", mu_min, bisection)  # fmt: skip
+        if outcome == lmi.INFEASIBLE and mu_used < mu_min:
+            return self._unsolved("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate "
+                                  f"mu_min={mu_min:.6g} found", mu_min, bisection)  # fmt: skip
+        if outcome != lmi.FEASIBLE:  # above a feasible rate, 'infeasible' contradicts monotonicity: a failure
+            return self._unsolved(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} "
+                                  f"('{outcome}'; mu_min={mu_min:.6g} was feasible)", mu_min, bisection)  # fmt: skip
         design = self._design(mu_used, DESIGN_MARGIN * t)
         note = "design"
         if design is None:
@@ -304,11 +305,11 @@ class StrongLMI:
         T = np.hstack([g.N, g.eps * g.R])
         P = cp.Variable((n, n), symmetric=True)
         Z = g.free_variable()
-        s1, s2, gain = cp.Variable(nonneg=True), cp.Variable(nonneg=True), cp.Variable()
+        s1_eps2, s2, gain = cp.Variable(nonneg=True), cp.Variable(nonneg=True), cp.Variable()  # s1 eps^2
         Y2 = g.Y2(P, Z)
         rank = g.R.shape[1]
-        constraints = [P >> np.eye(n), s1 <= gain, s2 <= gain]
-        measured = cp.bmat([[np.zeros((k, k)), np.zeros((k, rank))], [np.zeros((rank, k)), s1 * g.G]])
+        constraints = [P >> np.eye(n), s1_eps2 <= gain, s2 <= gain]
+        measured = cp.bmat([[np.zeros((k, k)), np.zeros((k, rank))], [np.zeros((rank, k)), s1_eps2 * g.measured_gram]])
         for A in vertices:
             H = (P @ A - Y2 @ (g.C @ A) / g.eps) @ T
             block = cp.bmat([[mu * (T.T @ P @ T) + measured, np.zeros((n, p)), H.T],
@@ -332,17 +333,18 @@ class StrongLMI:
         kernel = min(float(np.linalg.eigvalsh(b[0])[0]) for b in blocks) / norm_P if g.k else np.inf
         s1 = 0.0
         if kernel > 0.0 and W_margin > 0.0:
-            worst = max(float(scipy.linalg.eigh(nm.T @ np.linalg.solve(nn, nm) - mm if g.k else -mm, g.G,
+            worst = max(float(scipy.linalg.eigh(nm.T @ np.linalg.solve(nn, nm) - mm if g.k else -mm, g.measured_gram,
                                                 eigvals_only=True)[-1]) for nn, nm, mm in blocks)  # fmt: skip
-            s1 = max(worst, 0.0) * (1.0 + S1_SAFETY) + 1e-12 * norm_P / float(np.linalg.eigvalsh(g.G)[0])
-        margin = min(kernel, W_margin)
-        ok = margin > 0.0 and matched <= 1e-9
+            s1 = max(worst, 0.0) * (1.0 + S1_SAFETY) + 1e-12 * norm_P / float(np.linalg.eigvalsh(g.measured_gram)[0])
+        direct, tolerance = self._direct_margin(mu, P, s1, s2 / g.eps**2) if kernel > 0.0 < W_margin else (-np.inf, 0.0)
+        margin = min(kernel, W_margin, direct)
+        ok = kernel > 0.0 and W_margin > 0.0 and direct >= -tolerance and matched <= 1e-9
         reason = (
             f"certified: mu={mu:.6g} (mu_min={mu_min:.6g}), cond(P)={np.linalg.cond(P):.3g}, re-check margin "
             f"{margin:.2e}, w eliminated to {matched:.1e}"
             if ok
-            else f"re-check failed at mu={mu:.6g}: kernel margin {kernel:.2e}, W margin {W_margin:.2e}, "
-            f"elimination residual {matched:.1e}"
+            else f"re-check failed at mu={mu:.6g}: kernel margin {kernel:.2e}, W margin {W_margin:.2e}, direct "
+            f"margin {direct:.2e} (rounding {tolerance:.1e}), elimination residual {matched:.1e}"
         )
         if bisection.note:
             reason += f" ({bisection.note})"
@@ -350,6 +352,24 @@ class StrongLMI:
             lmi.FEASIBLE if ok else "re-check failed", reason, float(mu), float(mu_min), P, Y2, float(s1),
             float(s2 / g.eps**2), g.eps, float(margin), note, bisection,
         )  # fmt: skip
+
+    def _direct_margin(self, mu: float, P: FloatArray, s1: float, s2: float) -> tuple[float, float]:
+        """The core inequality checked directly, without Schur complements: (margin, rounding), over ``||P||``.
+
+        At each vertex, ``|A dx + B dd|_P^2 - mu |dx|_P^2 - s1 |C dx|^2 - s2 |C (A dx + B dd)|^2`` is a
+        quadratic form in (dx, dd) that must be negative semidefinite; the margin is minus its
+        largest eigenvalue, the rounding ``1e-13`` times its largest entry.
+        """
+        g = self.geometry
+        norm_P = float(np.linalg.eigvalsh(P)[-1])
+        margin, rounding = np.inf, 0.0
+        for A in self.vertices:
+            AB = np.hstack([A, g.B])
+            M = AB.T @ (P - s2 * g.C.T @ g.C) @ AB
+            M[: g.n, : g.n] -= mu * P + s1 * g.C.T @ g.C
+            margin = min(margin, -float(np.linalg.eigvalsh(0.5 * (M + M.T))[-1]) / norm_P)
+            rounding = max(rounding, 1e-13 * float(np.abs(M).max()) / norm_P)
+        return margin, rounding
 
     def _unsolved(self, outcome: str, reason: str, mu_min: float, bisection: lmi.Bisection | None) -> StrongSolution:
         n, p = self.geometry.n, self.geometry.p

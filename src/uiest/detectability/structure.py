@@ -7,7 +7,9 @@ exactly. :func:`input_structure` reads the form off a :class:`~uiest.system.Syst
 - ``C = dh/dx`` must be constant and ``dh/dv`` independent of x (checked structurally; a
   nonlinear output needs the paper's change of state phi first);
 - B is an orthonormal basis of the span of ``df/dw`` over X x U x W, found structurally when
-  ``df/dw`` is constant and otherwise from samples (w up to 1e3 of its scale). If that span is
+  ``df/dw`` is constant and otherwise from samples (w up to 1e6 of its scale, directions kept
+  down to 1e-12 of the largest: only rounding is dropped). A sampled structure is evidence, not
+  a proof, and the certificate says so (``sound`` is False). If that span is
   larger than ``df/dw``'s rank at a single point, the input's direction varies with the state:
   B is the whole span, which is sound but adds directions the output must see;
 - matching ``rank(C B) = rank(B)`` is required (the unknown input must show in the next output).
@@ -30,7 +32,11 @@ from uiest.errors import ModelError
 from uiest.system import System
 
 RANK_RTOL = 1e-8
-"""Singular values below this fraction of the largest one count as zero (ranks of df/dw, C B)."""
+"""Singular values below this fraction of the largest one count as zero (ranks of df/dw and C B)."""
+
+DIRECTION_RTOL = 1e-12
+"""Directions of sampled ``df/dw`` columns below this fraction count as rounding: the unknown input is
+unbounded, so a direction dropped that is not rounding would make the elimination inexact without bound."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,12 +53,16 @@ class InputStructure:
         Largest spectral norm of the scaled ``S_y^-1 dh/dv S_v`` over V (exact when constant).
     D : ndarray, shape (ny, nv)
         Scaled ``dh/dv`` at the centre of V.
+    noise_constant : bool
+        Whether ``dh/dv`` is constant (``y = C x + D v``), so D is exact everywhere.
     rank_B, rank_CB : int
         Numerical ranks (``rank_B`` is also the number of columns of B).
     pointwise_rank : int
         Largest rank of ``df/dw`` at a single point (< rank_B: the direction varies).
     evidence : str
         How B was found ("structural": df/dw is constant; else "sampled at m points").
+    structural : bool
+        Whether B was found structurally (a proof) rather than sampled.
     state_jacobian : casadi.Function
         ``z = (x, u) -> A (nx, nx)``, the scaled, projected Jacobian of f in x at ``w0``.
     box : Box
@@ -67,10 +77,12 @@ class InputStructure:
     C: FloatArray
     D_norm: float
     D: FloatArray
+    noise_constant: bool
     rank_B: int  # noqa: N815
     rank_CB: int  # noqa: N815
     pointwise_rank: int
     evidence: str
+    structural: bool
     state_jacobian: ca.Function
     box: Box
     names: tuple[str, ...]
@@ -130,14 +142,14 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> In
         evidence = "structural (df/dw is constant)"
     else:
         xs, us = system.x.bounds.sample(rng, samples), U.sample(rng, samples)
-        magnitude = 10.0 ** rng.uniform(-3.0, 3.0, (samples, nw)) * rng.choice([-1.0, 1.0], (samples, nw))
+        magnitude = 10.0 ** rng.uniform(-3.0, 6.0, (samples, nw)) * rng.choice([-1.0, 1.0], (samples, nw))
         ws = system.nominal_w + sw * magnitude
         B_samples = batched(ca.Function("Bw", [x, u, w], [B_expr]), [xs, us, ws])[0]
         finite = np.all(np.isfinite(B_samples), axis=(1, 2))
         if not finite.any():
             raise ModelError("f: df/dw is not finite at any sampled point of X x U x W")
         B_samples = B_samples[finite]
-        evidence = f"sampled at {int(finite.sum())} points of X x U x W (|w| up to 1e3 scales)"
+        evidence = f"sampled at {int(finite.sum())} points of X x U x W (|w| up to 1e6 scales)"
     B_scaled = B_samples * sw[None, None, :] / sx[None, :, None]
     biggest = float(np.abs(B_scaled).max()) if B_scaled.size else 0.0
     pointwise = max((_rank(Bi, np.linalg.norm(Bi, 2)) for Bi in B_scaled), default=0) if biggest > 0 else 0
@@ -147,8 +159,10 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> In
     usable = np.isfinite(norms) & (norms > 0)
     stacked = columns[:, usable] / norms[usable]  # directions only: large |w| must not drown the rest
     basis, s, _ = np.linalg.svd(stacked, full_matrices=False) if stacked.size else (np.zeros((nx, 0)), [], None)
-    rank_B = int(np.sum(np.asarray(s) > RANK_RTOL * s[0])) if len(s) and s[0] > 0 else 0
+    rank_B = int(np.sum(np.asarray(s) > DIRECTION_RTOL * s[0])) if len(s) and s[0] > 0 else 0
     B = basis[:, :rank_B]
+    if rank_B < len(s) and evidence.startswith("sampled"):
+        evidence += f"; other directions below {float(s[rank_B] / s[0]):.1e} of the largest (rounding)"
     rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
     if rank_CB < rank_B:
         varying = (
@@ -182,10 +196,12 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> In
         C=C,
         D_norm=D_norm,
         D=D_all[0],
+        noise_constant=not _depends(D_expr, [v]),
         rank_B=rank_B,
         rank_CB=rank_CB,
         pointwise_rank=pointwise,
         evidence=evidence,
+        structural=evidence.startswith("structural"),
         state_jacobian=state_jacobian,
         box=box,
         names=tuple(system.x.names) + tuple(system.u.names),
