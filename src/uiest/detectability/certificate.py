@@ -187,6 +187,36 @@ class Certificate:
         return {}
 
 
+@dataclass(frozen=True, eq=False)
+class StrongDetectabilityBase(Certificate):
+    """What the nonlinear and the linear strong-detectability certificates share.
+
+    mu, the horizon of eq:MHE_full_horizon and the UISE's weights ``(mu, P, R_y, R_v)``
+    (subclasses hold ``R_y`` and ``R_v``).
+    """
+
+    @property
+    def mu(self) -> float:
+        """Discount of eq:Lyapunov_2 (the design rate)."""
+        return self.rate
+
+    @property
+    def mu_min(self) -> float:
+        """Smallest discount found."""
+        return self.rate_min
+
+    def _horizon(self) -> int:
+        """eq:MHE_full_horizon in the scaled norm: :func:`strong_horizon`."""
+        return strong_horizon(self.mu, self.condition)
+
+    def weights(self) -> Any:
+        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
+        from uiest.estimators.weights import UISEWeights
+
+        self.require("weights")
+        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)  # type: ignore[attr-defined]
+
+
 def _eig(matrix: FloatArray, index: int) -> float:
     if not np.all(np.isfinite(matrix)):
         return float("nan")

@@ -15,7 +15,6 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 import scipy.linalg
@@ -26,10 +25,9 @@ from uiest.detectability.certificate import (
     INFEASIBLE,
     SOLVER_FAILED,
     STATUS_OF,
-    Certificate,
+    StrongDetectabilityBase,
     Verification,
     check_rate,
-    strong_horizon,
 )
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
@@ -43,7 +41,7 @@ _CONFIRM_FACTOR = 100.0  # zero iff sigma_r(P(z)) <= 100 rtol |pencil|: weakly o
 
 
 @dataclass(frozen=True, eq=False)
-class LinearStrongDetectability(Certificate):
+class LinearStrongDetectability(StrongDetectabilityBase):
     """Result of :func:`linear_strong_detectability` for ``A (n, n)``, ``B (n, q)``, ``C (p, n)``.
 
     A :class:`~uiest.detectability.certificate.Certificate` (``certified`` iff strongly
@@ -98,33 +96,12 @@ class LinearStrongDetectability(Certificate):
     kind = "linear_strong_detectability"
 
     @property
-    def mu(self) -> float:
-        """Design rate of the quadratic certificate."""
-        return self.rate
-
-    @property
-    def mu_min(self) -> float:
-        """``max |z|^2`` over the invariant zeros (0 without zeros; inf when matching fails)."""
-        return self.rate_min
-
-    @property
     def spectral_radius(self) -> float | None:
         """Spectral radius of ``error_matrix - observer_gain C``; None when there is no gain."""
         if self.observer_gain is None or self.error_matrix is None:
             return None
         closed = self.error_matrix - self.observer_gain @ self.C
         return float(np.max(np.abs(np.linalg.eigvals(closed)), initial=0.0))
-
-    def _horizon(self) -> int:
-        """eq:MHE_full_horizon: :func:`~uiest.detectability.certificate.strong_horizon`."""
-        return strong_horizon(self.mu, self.condition)
-
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
-        from uiest.estimators.weights import UISEWeights
-
-        self.require("weights")
-        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """eq:Lyapunov_2 on random increments (the system is linear: pairs are increments)."""

@@ -31,12 +31,11 @@ from uiest.detectability import lmi
 from uiest.detectability.certificate import (
     SOLVER_FAILED,
     STATUS_OF,
-    Certificate,
+    StrongDetectabilityBase,
     Verification,
     check_rate,
     quad,
     sample_pairs,
-    strong_horizon,
 )
 from uiest.detectability.cover import Cover, cover
 from uiest.detectability.strong_lmi import StrongLMI, StrongSolution
@@ -46,7 +45,7 @@ from uiest.system import System, as_function
 
 
 @dataclass(frozen=True, eq=False)
-class StrongDetectability(Certificate):
+class StrongDetectability(StrongDetectabilityBase):
     """A strong-detectability certificate (theo:Lyapunov): ``V = |x - x~|_P^2``.
 
     Beyond :class:`~uiest.detectability.certificate.Certificate`:
@@ -89,16 +88,6 @@ class StrongDetectability(Certificate):
     kind = "strong_detectability"
 
     @property
-    def mu(self) -> float:
-        """Discount of eq:Lyapunov_2."""
-        return self.rate
-
-    @property
-    def mu_min(self) -> float:
-        """Smallest discount found by bisection."""
-        return self.rate_min
-
-    @property
     def alpha_1(self) -> float:
         """``lambda_min(P)`` in original units."""
         return float(np.linalg.eigvalsh(self.P)[0]) if self.certified else float("nan")
@@ -107,17 +96,6 @@ class StrongDetectability(Certificate):
     def alpha_2(self) -> float:
         """``lambda_max(P)`` in original units."""
         return float(np.linalg.eigvalsh(self.P)[-1]) if self.certified else float("nan")
-
-    def _horizon(self) -> int:
-        """eq:MHE_full_horizon in the scaled norm: :func:`~uiest.detectability.certificate.strong_horizon`."""
-        return strong_horizon(self.mu, self.condition)
-
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
-        from uiest.estimators.weights import UISEWeights
-
-        self.require("weights")
-        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         return _verify(self, n_pairs, seed)
