@@ -78,7 +78,8 @@ def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "
         "min_horizon": horizon,
         "guarantee": horizon is not None and (spec.kind == "fie" or int(row["N"]) >= horizon),  # type: ignore[call-overload]
         "noise_gain": None if noise_gain is None else [float(g) for g in noise_gain],
-        "coverage": certificate.coverage.split(":")[0],
+        "coverage": certificate.coverage.split(" (")[0] + (", proved" if certificate.sound else ", partly sampled"),
+        "sound": certificate.sound,
         "solve_time_s": certificate.solve_time,
         "reason": certificate.reason,
     }

@@ -358,8 +358,8 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "",
         *[f"- {describe(row)}" for row in study.certificates],
         "",
-        "The noise gain is the certificate's bound on the error one step of the largest noise in V can cause "
-        f"({focus}, same units): a guarantee of the theorem is only as tight as this number. Failed solves are "
+        "The noise gain is how far one step's largest noise increments in V can move the certificate's bound "
+        f"on {focus} (same units): a guarantee of the theorem is only as tight as this number. Failed solves are "
         f"counted over all runs ({' / '.join(scenario.cases)}); a failed sample propagates the previous estimate.",
         "",
         "## Table 1: maximal average computation time per sample (ms)",
