@@ -49,25 +49,45 @@ def test_bad_known_inputs():
         CF_EST.run(None, y)
 
 
-def test_all_nan_window_is_rejected():
+def test_an_outage_longer_than_the_window_is_bridged_by_the_model():
     y = TRAJ.y.copy()
-    y[4 : 4 + N_SMALL + 1] = np.nan  # the UISE's whole window k-3..k at k = 7
-    with pytest.raises(DataError, match=r"y: every measurement in the window 4\.\.7 of step k=7"):
-        UISE_EST.run(None, y)
+    y[4 : 4 + N_SMALL + 3] = np.nan  # the UISE's whole window k-3..k at k = 7, 8, 9
+    result = UISE_EST.run(None, y)
+    assert list(result.status[7:10]) == ["propagated (no data)"] * 3
+    assert not result.success[7:10].any() and result.success[10:].all()
+    assert np.all(np.isfinite(result.x_hat))
+    # the one-step-ahead MHE needs y[k-N..k-1]: a missing y[0] only matters at k = 1
     y = TRAJ.y.copy()
     y[0] = np.nan
-    with pytest.raises(DataError, match=r"window 0\.\.0 of step k=0"):
-        UISE_EST.run(None, y)
-    # the one-step-ahead MHE needs y[k-N..k-1]: a missing y[0] only matters at k = 1
-    with pytest.raises(DataError, match=r"window 0\.\.0 of step k=1"):
-        MHE_EST.run(None, y)
-    # streaming: the step is refused and nothing is committed
+    assert MHE_EST.run(None, y).status[1] == "propagated (no data)"
+    # streaming: steps go on through an outage of any length and recover when data return
     est = UISE(SYSTEM, weights=WEIGHTS, N=1, x0_prior=np.zeros(3))
     est.step(None, [0.1])
-    est.step(None, [np.nan])
-    with pytest.raises(DataError, match="missing"):
-        est.step(None, [np.nan])
-    assert est.k == 2
+    assert est.step(None, [np.nan]).success  # its window 0..1 still holds y[0]
+    for _ in range(4):
+        assert est.step(None, [np.nan]).status == "propagated (no data)"
+    assert est.step(None, [0.1]).success and est.k == 7
+
+
+def test_a_run_keeps_what_it_computed_when_a_step_raises(monkeypatch):
+    est = UISE(SYSTEM, weights=WEIGHTS, N=N_SMALL, x0_prior=np.zeros(3))
+    original = est._solve_window
+    calls = {"n": 0}
+
+    def flaky(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise ZeroDivisionError("injected")
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(est, "_solve_window", flaky)
+    result = est.run(None, TRAJ.y)
+    assert result.status[4] == "propagated (ZeroDivisionError: injected)" and not result.success[4]  # 5th solve
+    assert result.success[5:].all() and np.all(np.isfinite(result.x_hat))
+    strict = UISE(SYSTEM, weights=WEIGHTS, N=N_SMALL, x0_prior=np.zeros(3), strict=True)
+    monkeypatch.setattr(strict, "_solve_window", lambda *a, **k: 1 / 0)
+    with pytest.raises(ZeroDivisionError):
+        strict.run(None, TRAJ.y)
 
 
 def test_bad_priors_and_options():
@@ -169,11 +189,23 @@ def test_missing_data(mask, which):
         if last >= first and missing[first : last + 1].all():
             empty_window = True
             break
-    if empty_window:
-        with pytest.raises(DataError, match="y: every measurement in the window"):
-            est.run(None, y)
-        return
     result = est.run(None, y)
     np.testing.assert_array_equal(result.missing[:, 0], missing)
-    assert result.failures == 0 and np.all(np.isfinite(result.x_hat))
+    bridged = result.status == "propagated (no data)"
+    assert bridged.any() == empty_window and result.failures == int(bridged.sum())
+    assert np.all(np.isfinite(result.x_hat))
     assert np.all(SYSTEM.x.bounds.contains(result.x_hat, tol=1e-9))
+
+
+def test_an_estimate_held_on_the_boundary_of_x_is_flagged():
+    from uiest import DomainWarning
+    from uiest.models import closed_form
+
+    system = closed_form.system()  # X = [-10, 10]^2
+    with pytest.warns(DomainWarning, match="x left X"):
+        truth = simulate(system, [0.0, 0.5], 30, u=np.zeros(1), w=np.ones((30, 1)))
+    est = UISE(system, weights=UISEWeights.from_scales(system, 0.5, output=1e4), N=5, x0_prior=[0.0, 0.5])
+    result = est.run(truth.u, truth.y)
+    flagged = np.array(["on the boundary of X (x1)" in s for s in result.status])
+    np.testing.assert_array_equal(flagged[truth.x_outside], True)
+    assert not flagged[: int(np.argmax(truth.x_outside))].any()

@@ -11,8 +11,9 @@ from uiest.models import crop_growth, linear
 def test_fully_measured_system_with_free_inputs_resolves_each_state_to_the_noise_level():
     # y = x + v and w moves every state: only y_k informs x_k, so the bound is sigma itself
     A = np.array([[0.9, 0.2], [0.0, 0.7]])
-    system = linear.linear_system(A, np.eye(2), np.eye(2), x_bounds=(-10, 10), v_bounds=(-1e-2, 1e-2))
+    system = linear.linear_system(A, np.eye(2), np.eye(2), x_bounds=(-20, 20), v_bounds=(-1e-2, 1e-2))
     traj = simulate(system, [1.0, -1.0], 20, w=np.ones((20, 2)))
+    assert not traj.x_outside.any()
     bound = window_information(system, traj.x, None, traj.w, k=15, N=5, noise_std=[0.01, 0.02], mu=0.5)
     np.testing.assert_allclose(bound.std_bound, [0.01, 0.02], rtol=1e-8)
     np.testing.assert_allclose(bound.std_discounted, [0.01, 0.02], rtol=1e-8)

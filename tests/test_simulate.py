@@ -3,7 +3,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from uiest import DataError, GaussianNoise, ModelError, System, UniformNoise, simulate
+from uiest import DataError, DomainWarning, GaussianNoise, ModelError, System, UniformNoise, simulate
 
 
 def make_system(nu=1):
@@ -62,8 +62,17 @@ def test_noise_models():
     traj = simulate(system, [0.0, 0.0], 2000, u=[0.0], v=UniformNoise([-0.1, -0.01], [0.1, 0.01]), seed=1)
     assert np.all(np.abs(traj.v[:, 0]) <= 0.1) and np.all(np.abs(traj.v[:, 1]) <= 0.01)
     assert traj.v[:, 1].std() == pytest.approx(0.02 / np.sqrt(12), rel=0.1)
-    g = simulate(system, [0.0, 0.0], 2000, u=[0.0], v=GaussianNoise(0.5), seed=1)
+    with pytest.warns(DomainWarning, match=r"v left V at \d+ of 2001 samples"):
+        g = simulate(system, [0.0, 0.0], 2000, u=[0.0], v=GaussianNoise(0.5), seed=1)  # V is +-0.1
     assert g.v.std(axis=0) == pytest.approx([0.5, 0.5], rel=0.1)
+    assert g.v_outside.sum() > 1500 and not g.x_outside.any()
+
+
+def test_a_state_leaving_x_is_recorded_and_announced():
+    system = make_system()
+    with pytest.warns(DomainWarning, match=r"x left X"):
+        traj = simulate(system, [0.0, 0.0], 40, u=[0.0], w=lambda k, x: [1e3 * k])
+    assert traj.x_outside.any() and not traj.x_outside[0]
 
 
 def test_no_known_input_system():

@@ -5,7 +5,15 @@ models live in :mod:`uiest.models`.
 """
 
 from uiest.box import Box
-from uiest.errors import CertificationError, DataError, ModelError, OptionError, SolverError, UiestError
+from uiest.errors import (
+    CertificationError,
+    DataError,
+    DomainWarning,
+    ModelError,
+    OptionError,
+    SolverError,
+    UiestError,
+)
 from uiest.noise import GaussianNoise, UniformNoise
 from uiest.results import Trajectory
 from uiest.signal import Signal
@@ -18,6 +26,7 @@ __all__ = [
     "Box",
     "CertificationError",
     "DataError",
+    "DomainWarning",
     "GaussianNoise",
     "Linearization",
     "ModelError",

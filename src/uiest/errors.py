@@ -29,3 +29,7 @@ class CertificationError(UiestError, RuntimeError):
 
 class SolverError(UiestError, RuntimeError):
     """A numerical solver failed and the caller asked for failures to be raised."""
+
+
+class DomainWarning(UserWarning):
+    """Data left its declared domain (the true state outside X, noise outside V); it is recorded."""

@@ -8,6 +8,7 @@ from types import MappingProxyType
 
 import numpy as np
 import pandas as pd
+from numpy.typing import NDArray
 
 from uiest.box import FloatArray
 
@@ -37,6 +38,10 @@ class Trajectory:
     system_name : str
     seed : int or None
         The seed the noise was drawn with.
+    x_outside : ndarray, shape (K+1,) of bool
+        Where the state left the domain X (estimators constrain their estimates to X).
+    v_outside : ndarray, shape (K+1,) of bool
+        Where the noise left its domain V.
 
     """
 
@@ -50,10 +55,17 @@ class Trajectory:
     system_name: str = "system"
     seed: int | None = None
     time_unit: str = "s"
+    x_outside: NDArray[np.bool_] | None = None
+    v_outside: NDArray[np.bool_] | None = None
 
     def __post_init__(self) -> None:
         for name in ("t", "x", "u", "w", "v", "y"):
             object.__setattr__(self, name, _freeze(getattr(self, name)))
+        for name in ("x_outside", "v_outside"):
+            value = getattr(self, name)
+            flags = np.zeros(self.t.shape[0], dtype=bool) if value is None else np.array(value, dtype=bool)
+            flags.setflags(write=False)
+            object.__setattr__(self, name, flags)
         object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
 
     @property

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from typing import Any
 
@@ -9,7 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.errors import DataError, ModelError
+from uiest.errors import DataError, DomainWarning, ModelError
 from uiest.noise import NoiseModel
 from uiest.results import Trajectory
 from uiest.system import System
@@ -89,7 +90,8 @@ def simulate(
     -------
     Trajectory
         Time-first arrays ``t (K+1,)``, ``x (K+1, nx)``, ``u (K, nu)``, ``w (K, nw)``,
-        ``v (K+1, nv)``, ``y (K+1, ny)``.
+        ``v (K+1, nv)``, ``y (K+1, ny)``; samples where x left X or v left V are recorded in
+        ``x_outside`` and ``v_outside`` and announced by a :class:`~uiest.errors.DomainWarning`.
 
     """
     if not isinstance(system, System):
@@ -127,6 +129,18 @@ def simulate(
     if not np.all(system.u.bounds.contains(u_arr, tol=1e-12)):
         raise DataError(f"u: expected values in U = {system.u.bounds}")
     y_arr = system.output(x_arr, v_arr)
+    x_outside = ~np.asarray(system.x.bounds.contains(x_arr, tol=1e-12))
+    v_outside = ~np.asarray(system.v.bounds.contains(v_arr, tol=1e-12))
+    for label, flags, domain in (("x", x_outside, "X"), ("v", v_outside, "V")):
+        if flags.any():
+            first = int(np.argmax(flags))
+            warnings.warn(
+                f"{label} left {domain} at {int(flags.sum())} of {steps + 1} samples (first at k={first}: "
+                f"{np.round(x_arr[first] if label == 'x' else v_arr[first], 6).tolist()}, {domain} = "
+                f"{system.x.bounds if label == 'x' else system.v.bounds}); recorded in Trajectory.{label}_outside",
+                DomainWarning,
+                stacklevel=2,
+            )
     return Trajectory(
         t=np.arange(steps + 1, dtype=float) * system.dt,
         x=x_arr,
@@ -138,6 +152,8 @@ def simulate(
         system_name=system.name,
         seed=seed,
         time_unit=system.time_unit,
+        x_outside=x_outside,
+        v_outside=v_outside,
     )
 
 

@@ -30,7 +30,14 @@ from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.errors import DataError, OptionError, SolverError
-from uiest.estimators.checks import check_horizon, check_run_data, check_u_prev, check_y, window_bounds
+from uiest.estimators.checks import (
+    boundary_flag,
+    check_horizon,
+    check_run_data,
+    check_u_prev,
+    check_y,
+    window_bounds,
+)
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import WindowProblem, WindowSolution, WindowSolver, WindowTrajectory, WindowWeights, make_solver
@@ -93,8 +100,6 @@ class WindowEstimator(StreamingEstimator):
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
     """True: the window at time k uses ``y[k-N_k .. k-1]`` (the estimate is a one-step prediction)."""
-    require_measurements: ClassVar[bool] = True
-    """True: :meth:`run` refuses data where a window holds no measurement at all."""
 
     def __init__(
         self,
@@ -217,20 +222,21 @@ class WindowEstimator(StreamingEstimator):
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
-        length, start, last = window_bounds(k, self.N, self.one_step_ahead)
+        length, start, _ = window_bounds(k, self.N, self.one_step_ahead)
         stored_u = list(self._u)
         u_win = np.array([*stored_u[len(stored_u) - length + 1 :], u_vec] if length else [], dtype=float)
         u_win = u_win.reshape(length, self.system.nu)
         past = list(self._y)[len(self._y) - length :] if length else []
         y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
-        if y_win.size and np.all(np.isnan(y_win)):
-            raise DataError(f"y: every measurement in the window {start}..{last} of step k={k} is missing (NaN)")
         prior = self._x0_prior if start == 0 else self._priors[0]
-
+        entry = None
+        solution = None
         if len(y_win) == 0:  # the one-step-ahead MHE at k = 0: nothing to fit, the estimate is the prior
             x_hat, w_hat, w_index = prior.copy(), None, None
             status, success, iterations, solve_time, cost = "prior", True, 0, 0.0, 0.0
-            solution = None
+        elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
+            x_hat, w_hat, w_index = self._propagate(u_vec, k)
+            status, success, iterations, solve_time, cost = "propagated (no data)", False, 0, 0.0, float("nan")
         else:
             entry, attempts = self._solve_window(length, start, prior, u_win, y_win)
             problem = entry.problem
@@ -241,7 +247,7 @@ class WindowEstimator(StreamingEstimator):
             if success:
                 trajectory = problem.unpack(solution.z)
                 x_hat = trajectory.x[-1].copy()
-                status, cost = solution.status, solution.cost
+                status, cost = solution.status + boundary_flag(self.system, x_hat, y_vec, self.v_prior), solution.cost
                 w_hat, w_index = self._reported_w(trajectory, k)
             else:
                 if self.strict:
@@ -252,17 +258,9 @@ class WindowEstimator(StreamingEstimator):
                 x_hat, w_hat, w_index = self._propagate(u_vec, k)
                 status, cost = f"propagated ({solution.status})", float("nan")
 
-        # commit
-        if k > 0:
-            self._u.append(u_vec)
-        self._y.append(y_vec)
-        self._priors.append(self._x0_prior.copy() if k == 0 else x_hat.copy())
-        if solution is not None and solution.success:
+        if solution is not None and solution.success and entry is not None:
             self._last = (start, entry.problem, solution)
-        self._x_last = x_hat
-        if w_hat is not None:
-            self._w_last = w_hat
-        self._k = k + 1
+        self._commit(k, u_vec, y_vec, x_hat, w_hat)
         return StepEstimate(
             k=k,
             x_hat=x_hat,
@@ -276,6 +274,33 @@ class WindowEstimator(StreamingEstimator):
             window=length,
             missing=np.isnan(y_vec),
         )
+
+    def _commit(
+        self, k: int, u_vec: FloatArray, y_vec: FloatArray, x_hat: FloatArray, w_hat: FloatArray | None
+    ) -> None:
+        """Store step k's data and estimate, and move to k + 1."""
+        if k > 0:
+            self._u.append(u_vec)
+        self._y.append(y_vec)
+        self._priors.append(self._x0_prior.copy() if k == 0 else x_hat.copy())  # type: ignore[union-attr]
+        self._x_last = x_hat
+        if w_hat is not None:
+            self._w_last = w_hat
+        self._k = k + 1
+
+    def skip(self, u_prev: ArrayLike | None, y: ArrayLike, reason: str) -> StepEstimate:
+        """Step k without solving: the model propagates the last estimate; ``reason`` goes into the status.
+
+        :func:`collect_run` calls it when :meth:`step` raised unexpectedly, so that a run keeps
+        what it computed and goes on.
+        """
+        k = self._k
+        u_vec = check_u_prev(self.system, u_prev, k)
+        y_vec = check_y(self.system, y)
+        x_hat, w_hat, w_index = self._propagate(u_vec, k)
+        self._commit(k, u_vec, y_vec, x_hat, w_hat)
+        return StepEstimate(k, x_hat, w_hat, w_index, f"propagated ({reason})", False, 0, 0.0, float("nan"),
+                            0, np.isnan(y_vec))  # fmt: skip
 
     def _reported_w(self, trajectory: WindowTrajectory, k: int) -> tuple[FloatArray | None, int | None]:
         """The newest unknown-input estimate a measurement informs, and its time index."""
@@ -366,9 +391,7 @@ class WindowEstimator(StreamingEstimator):
         EstimationResult
 
         """
-        u_arr, y_arr = check_run_data(
-            self.system, u, y, self.N, self.one_step_ahead, require_measurements=self.require_measurements
-        )
+        u_arr, y_arr = check_run_data(self.system, u, y)
         self.reset(x0_prior)
         return collect_run(self, u_arr, y_arr)
 
@@ -390,7 +413,13 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     cost = np.zeros(K + 1)
     window = np.zeros(K + 1, dtype=np.int64)
     for k in range(K + 1):
-        est = estimator.step(None if k == 0 else u_arr[k - 1], y_arr[k])
+        u_prev = None if k == 0 else u_arr[k - 1]
+        try:
+            est = estimator.step(u_prev, y_arr[k])
+        except Exception as exc:  # recorded; the run keeps what it computed and goes on
+            if getattr(estimator, "strict", False) or not hasattr(estimator, "skip"):
+                raise
+            est = estimator.skip(u_prev, y_arr[k], f"{type(exc).__name__}: {exc}")
         x_hat[k] = est.x_hat
         if est.w_hat is not None and est.w_index is not None:
             w_hat[est.w_index] = est.w_hat

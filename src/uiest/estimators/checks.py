@@ -55,18 +55,10 @@ def window_bounds(k: int, N: int | None, one_step_ahead: bool) -> tuple[int, int
     return length, k - length, (k - 1 if one_step_ahead else k)
 
 
-def check_run_data(
-    system: System,
-    u: ArrayLike | None,
-    y: ArrayLike,
-    N: int | None,
-    one_step_ahead: bool,
-    *,
-    require_measurements: bool = True,
-) -> tuple[FloatArray, FloatArray]:
+def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[FloatArray, FloatArray]:
     """Check ``u (K, nu)`` and ``y (K+1, ny)`` for a run.
 
-    With ``require_measurements`` every window (``window_bounds``) must hold a measurement.
+    NaN in y is missing; windows without any measurement are bridged by the model.
     """
     try:
         y_arr = np.asarray(y, dtype=float)
@@ -81,30 +73,51 @@ def check_run_data(
     if u is None:
         if nu:
             raise DataError(f"u: required, the system has nu={nu} known inputs; expected shape ({K}, {nu})")
+        return np.zeros((K, 0)), y_arr
+    try:
+        u_arr = np.asarray(u, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise DataError(f"u: expected an array of shape ({K}, {nu}), got {type(u).__name__}") from exc
+    if u_arr.size == 0 and nu == 0:
         u_arr = np.zeros((K, 0))
-    else:
-        try:
-            u_arr = np.asarray(u, dtype=float)
-        except (TypeError, ValueError) as exc:
-            raise DataError(f"u: expected an array of shape ({K}, {nu}), got {type(u).__name__}") from exc
-        if u_arr.size == 0 and nu == 0:
-            u_arr = np.zeros((K, 0))
-        if u_arr.ndim != 2 or u_arr.shape[1] != nu:
-            raise DataError(f"u: expected shape (K, {nu}), got {u_arr.shape}")
-        if u_arr.shape[0] != K:
-            raise DataError(
-                f"u, y: length mismatch, u has {u_arr.shape[0]} rows and y has {K + 1}; "
-                "expected u (K, nu) with y (K+1, ny)"
-            )
-        if not np.all(np.isfinite(u_arr)):
-            bad = int(np.argwhere(~np.isfinite(u_arr))[0][0])
-            raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
-    if not require_measurements:
-        return u_arr, y_arr
-    has = (~np.isnan(y_arr)).any(axis=1).astype(int)
-    counts = np.concatenate([[0], np.cumsum(has)])
-    for k in range(K + 1):
-        _, first, last = window_bounds(k, N, one_step_ahead)
-        if last >= first and counts[last + 1] - counts[first] == 0:
-            raise DataError(f"y: every measurement in the window {first}..{last} of step k={k} is missing (NaN)")
+    if u_arr.ndim != 2 or u_arr.shape[1] != nu:
+        raise DataError(f"u: expected shape (K, {nu}), got {u_arr.shape}")
+    if u_arr.shape[0] != K:
+        raise DataError(
+            f"u, y: length mismatch, u has {u_arr.shape[0]} rows and y has {K + 1}; expected u (K, nu) with y (K+1, ny)"
+        )
+    if not np.all(np.isfinite(u_arr)):
+        bad = int(np.argwhere(~np.isfinite(u_arr))[0][0])
+        raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
     return u_arr, y_arr
+
+
+BOUNDARY_RESIDUAL = 10.0
+"""An estimate on the boundary of X is flagged when its output residual exceeds this many noise bounds."""
+
+
+def boundary_flag(system: System, x_hat: FloatArray, y: FloatArray, v_bar: FloatArray) -> str:
+    """A status suffix when ``x_hat`` sits on a finite side of X and misses ``y`` by far more than the noise.
+
+    The noise bound of each output is ``|h(x_hat, v_hi) - h(x_hat, v_lo)|`` over V's corners (V's
+    centre +- its scale where unbounded); the residual is ``y - h(x_hat, v_bar)`` (missing channels
+    ignored). Such an estimate is held by the constraint, not by the data: the true state may
+    have left X.
+    """
+    X = system.x.bounds
+    width = np.where(np.isfinite(X.width) & (X.width > 0), X.width, 1.0)
+    on = (np.isfinite(X.lower) & (x_hat <= X.lower + 1e-9 * width)) | (
+        np.isfinite(X.upper) & (x_hat >= X.upper - 1e-9 * width)
+    )
+    if not on.any():
+        return ""
+    V = system.v.bounds
+    lo = np.where(np.isfinite(V.lower), V.lower, V.center - system.v.scale)
+    hi = np.where(np.isfinite(V.upper), V.upper, V.center + system.v.scale)
+    noise = np.abs(system.output(x_hat, hi) - system.output(x_hat, lo)) + 1e-9 * system.y.scale
+    residual = np.abs(y - system.output(x_hat, v_bar))
+    ratio = np.nanmax(residual / noise, initial=0.0)
+    if not ratio > BOUNDARY_RESIDUAL:
+        return ""
+    names = [n for n, flag in zip(system.x.names, on, strict=True) if flag]
+    return f" [on the boundary of X ({', '.join(names)}), output residual {ratio:.3g}x the noise]"

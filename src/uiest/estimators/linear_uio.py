@@ -244,7 +244,7 @@ class LinearUIO(StreamingEstimator):
 
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
         """Estimate ``x[0..K]`` from ``u (K, nu)`` and ``y (K+1, ny)``, starting from a reset."""
-        u_arr, y_arr = check_run_data(self.system, u, y, None, False, require_measurements=False)
+        u_arr, y_arr = check_run_data(self.system, u, y)
         self.reset(x0_prior)
         return collect_run(self, u_arr, y_arr)
 

@@ -77,7 +77,7 @@ from numpy.typing import ArrayLike
 from uiest.box import FloatArray
 from uiest.errors import OptionError, SolverError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_horizon, check_u_prev, check_y
+from uiest.estimators.checks import boundary_flag, check_horizon, check_u_prev, check_y
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import PROJECTIONS, Projection
 from uiest.estimators.results import StepEstimate
@@ -181,7 +181,6 @@ class TwoStageUISE(WindowEstimator):
 
     estimator_name = "TwoStageUISE"
     one_step_ahead: ClassVar[bool] = True
-    require_measurements: ClassVar[bool] = False
 
     def __init__(
         self,
@@ -360,24 +359,10 @@ class TwoStageUISE(WindowEstimator):
         # stage 2: eq:fullest_new with the current measurement (missing channels predicted)
         gamma_k = self._fill(y_vec, z_hat, u_vec, k)
         x_hat = self.projection(self._full_state(gamma_k, z_hat))
-        w_hat, w_index = None, None
-        if k > 0 and self._x_last is not None:
-            guess = self._w_full if self._w_full is not None else s.nominal_w
-            w_hat, w_index = self._fit(self._x_last, u_vec, x_hat, guess), k - 1
-
-        # commit
-        if k > 0:
-            self._u.append(u_vec)
-        self._y.append(y_vec)
-        self._gamma.append(gamma_k)
-        self._priors.append(z_hat.copy())
+        status += boundary_flag(s, x_hat, y_vec, self.v_prior)
         if solution is not None and solution.success and problem is not None:
             self._last = (start, problem, solution)
-        self._x_last = x_hat
-        self.z_hat = z_hat
-        if w_hat is not None:
-            self._w_full = w_hat
-        self._k = k + 1
+        w_hat, w_index = self._commit_two_stage(k, u_vec, y_vec, gamma_k, z_hat, x_hat)
         return StepEstimate(
             k=k,
             x_hat=x_hat,
@@ -391,6 +376,43 @@ class TwoStageUISE(WindowEstimator):
             window=length,
             missing=np.isnan(y_vec),
         )
+
+    def _commit_two_stage(
+        self, k: int, u_vec: FloatArray, y_vec: FloatArray, gamma_k: FloatArray, z_hat: FloatArray, x_hat: FloatArray
+    ) -> tuple[FloatArray | None, int | None]:
+        """Fit ``w_hat[k-1]``, store step k and move to k + 1; returns (w_hat, its time index)."""
+        w_hat, w_index = None, None
+        if k > 0 and self._x_last is not None:
+            guess = self._w_full if self._w_full is not None else self.system.nominal_w
+            w_hat, w_index = self._fit(self._x_last, u_vec, x_hat, guess), k - 1
+        if k > 0:
+            self._u.append(u_vec)
+        self._y.append(y_vec)
+        self._gamma.append(gamma_k)
+        self._priors.append(z_hat.copy())
+        self._x_last = x_hat
+        self.z_hat = z_hat
+        if w_hat is not None:
+            self._w_full = w_hat
+        self._k = k + 1
+        return w_hat, w_index
+
+    def skip(self, u_prev: ArrayLike | None, y: ArrayLike, reason: str) -> StepEstimate:
+        """Step k without solving: the full model propagates ``x_hat[k-1]`` (see :meth:`WindowEstimator.skip`)."""
+        s, k = self.system, self._k
+        u_vec = check_u_prev(s, u_prev, k)
+        y_vec = check_y(s, y)
+        if k == 0 or self._x_last is None:
+            x_hat = self._x0_prior.copy()  # type: ignore[union-attr]
+        else:
+            w = self._w_full if self._w_full is not None else s.nominal_w
+            nxt = s.step(self._x_last, u_vec, w)
+            x_hat = s.x.bounds.clip(nxt) if np.all(np.isfinite(nxt)) else self._x_last.copy()
+        z_hat = self._split(x_hat)[1]
+        gamma_k = np.where(np.isnan(y_vec), s.output(x_hat, self.v_prior), y_vec)
+        w_hat, w_index = self._commit_two_stage(k, u_vec, y_vec, gamma_k, z_hat, x_hat)
+        return StepEstimate(k, x_hat, w_hat, w_index, f"propagated ({reason})", False, 0, 0.0, float("nan"), 0,
+                            np.isnan(y_vec))  # fmt: skip
 
     # ------------------------------------------------------------------ guarantee
     @property
