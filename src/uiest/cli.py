@@ -21,11 +21,25 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    rich_markup_mode=None,
 )
 console = Console()
 error_console = Console(stderr=True)
 
 F = TypeVar("F", bound=Callable[..., Any])
+
+
+def _choice(value: str, allowed: Any, option: str) -> str:
+    """``value`` if it is one of ``allowed``, else OptionError naming the option."""
+    if value not in allowed:
+        raise OptionError(f"{option}: expected one of {list(allowed)}, got {value!r}")
+    return value
+
+
+def _positive(value: int | None, option: str, *, allow_zero: bool = False) -> int | None:
+    if value is not None and (value < 0 or (value == 0 and not allow_zero)):
+        raise OptionError(f"{option}: expected an integer >= {0 if allow_zero else 1}, got {value}")
+    return value
 
 
 def _user_errors(command: F) -> F:
@@ -36,7 +50,7 @@ def _user_errors(command: F) -> F:
         try:
             return command(*args, **kwargs)
         except UiestError as exc:
-            error_console.print(f"[bold red]error:[/] {exc}", highlight=False, soft_wrap=True)
+            error_console.print(f"error: {exc}", style="bold red", highlight=False, soft_wrap=True, markup=False)
             raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
@@ -67,9 +81,12 @@ def simulate(
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
+    from uiest.experiments.sweep import writable_folder
     from uiest.plotting import plot_trajectory, save_figure
     from uiest.simulate import simulate as run_simulation
 
+    _positive(steps, "--steps", allow_zero=True)
+    writable_folder(out, "--out")
     entry = models.get(model)
     system = entry.build()
     setup = entry.setup()
@@ -121,6 +138,9 @@ def certify(
         raise OptionError(f"--verify: expected a positive number of pairs, got {verify}")
     if structure not in ("full", "identity"):
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")
+    from uiest.experiments.sweep import writable_folder
+
+    writable_folder(out.parent, "--out")
     entry = models.get(model)
     system = entry.build()
     parameters = entry.jacobian_parameters() if entry.jacobian_parameters is not None else None
@@ -211,7 +231,12 @@ def reproduce(
     from rich.progress import SpinnerColumn
 
     from uiest.experiments import Scenario, crop_growth_scenario, run_study, write_report
+    from uiest.experiments.sweep import writable_folder
+    from uiest.window.solvers import BACKENDS
 
+    _choice(solver, BACKENDS, "--solver")
+    _positive(runs, "--runs")
+    _positive(steps, "--steps")
     if scenario is not None:
         setting = Scenario.from_toml(scenario)
     elif study == "crop-growth":
@@ -220,6 +245,7 @@ def reproduce(
         raise OptionError(f"study: expected 'crop-growth' or --scenario FILE.toml, got {study!r}")
     setting = setting.with_overrides(runs=2 if quick and runs is None else runs, steps=steps)
     folder = out if out is not None else Path("out") / setting.name
+    writable_folder(folder, "--out")
     total = setting.runs * len(setting.cases) * len(setting.estimators)
     start = time.perf_counter()
     with Progress(
@@ -235,8 +261,11 @@ def reproduce(
             setting, solver=solver, progress=lambda label: bar.update(task, advance=1, description=label)
         )
     manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
-    console.print((folder / "table1.md").read_text(), highlight=False)
-    console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})")
+    console.print((folder / "table1.md").read_text(), highlight=False, markup=False)
+    console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})", markup=False)
+    if (result.runs["error"] != "").all():
+        error_console.print("error: every estimator raised on every run; see the report's Failures", markup=False)
+        raise typer.Exit(code=1)
 
 
 @app.command()
@@ -253,9 +282,13 @@ def sweep(
     solver: Annotated[str, typer.Option(help="Default window solver backend (ipopt, gn, rti).")] = "gn",
 ) -> None:
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
-    from uiest.experiments.sweep import Sweep, SweepProgress
+    from uiest.experiments.sweep import Sweep, SweepProgress, writable_folder
     from uiest.experiments.sweep import sweep as run_sweep
+    from uiest.window.solvers import BACKENDS
 
+    _choice(solver, BACKENDS, "--solver")
+    _positive(workers, "--workers")
+    writable_folder(out, "--out")
     plan = Sweep.from_toml(design)
     total = len(plan.tasks(solver))
     with Progress(
@@ -273,7 +306,11 @@ def sweep(
 
         results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update)
     failed = int((results["error"] != "").sum()) if not results.empty else 0
-    console.print(f"{len(results)} rows ({failed} failed) in {out / 'results.parquet'}; summary: {out / 'summary.csv'}")
+    console.print(f"{len(results)} rows ({failed} failed) in {out / 'results.parquet'}; summary: {out / 'summary.csv'}",
+                  markup=False)  # fmt: skip
+    if results.empty or failed == len(results):
+        error_console.print("error: every task failed; see the 'error' column of results.parquet", markup=False)
+        raise typer.Exit(code=1)
 
 
 @app.command()
@@ -286,6 +323,10 @@ def bench(
     import json
 
     from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
+    from uiest.experiments.sweep import writable_folder
+
+    if json_file is not None:
+        writable_folder(json_file.parent, "--json")
 
     console.print("window solvers, noisy crop scenario (ms per sample after N warm-up samples)", highlight=False)
     console.print(TABLE_HEADER, highlight=False, soft_wrap=True)

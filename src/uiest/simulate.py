@@ -97,6 +97,8 @@ def simulate(
     if not isinstance(system, System):
         raise DataError(f"system: expected a uiest.System, got {type(system).__name__}")
     steps = _check_steps(steps)
+    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
+        raise DataError(f"seed: expected an integer >= 0 or None, got {seed!r}")
     x_start = as_vector(x0, system.nx, "x0")
     if not system.x.bounds.contains(x_start):
         raise DataError(f"x0: expected a point in X = {system.x.bounds}, got {x_start.tolist()}")

@@ -144,6 +144,7 @@ def certify_delta_ioss(
 
     """
     start = time.perf_counter()
+    dissipation.check_options(options, "certify_delta_ioss")
     if not system.x.bounds.is_bounded:
         raise ModelError(f"X: a certificate needs a bounded state domain, got {system.x.bounds}")
     if w_bounds is not None:

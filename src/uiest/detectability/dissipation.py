@@ -304,6 +304,16 @@ class _Solver:
         return fallback
 
 
+def check_options(options: dict[str, Any], caller: str) -> None:
+    """OptionError naming any keyword :func:`solve` does not take (``structure`` and ``mu`` are the caller's)."""
+    import inspect
+
+    known = set(inspect.signature(solve).parameters) - {"model", "mu"}
+    unknown = sorted(set(options) - known)
+    if unknown:
+        raise OptionError(f"{caller}: unknown options {unknown}; expected some of {sorted(known)}")
+
+
 def solve(
     model: IncrementalModel,
     *,

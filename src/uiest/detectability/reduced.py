@@ -188,6 +188,7 @@ def certify_reduced_ioss(
 
     """
     start = time.perf_counter()
+    dissipation.check_options(options, "certify_reduced_ioss")
     for name, fun, n_in in (("f_sharp", f_sharp, 4), ("h_sharp", h_sharp, 3)):
         if not isinstance(fun, ca.Function) or fun.n_in() != n_in or fun.n_out() != 1:
             raise ModelError(f"{name}: expected a casadi.Function with {n_in} inputs and one output, got {fun!r}")

@@ -115,7 +115,10 @@ def _psd(value: ArrayLike, n: int, name: str) -> FloatArray:
 
 def _diag_scaled(weight: ArrayLike, scale: FloatArray, name: str) -> FloatArray:
     """``diag(weight / scale^2)``: a weight of ``weight`` per scaled unit; ``weight`` scalar or (n,)."""
-    w = np.broadcast_to(np.asarray(weight, dtype=float), scale.shape)
+    try:
+        w = np.broadcast_to(np.asarray(weight, dtype=float), scale.shape)
+    except (TypeError, ValueError):
+        raise OptionError(f"{name}: expected a number or {scale.size} numbers, got {weight!r}") from None
     if not np.all(np.isfinite(w)) or np.any(w < 0):
         raise OptionError(f"{name}: expected non-negative finite weights, got {np.asarray(weight).tolist()}")
     return np.diag(w / scale**2)

@@ -7,6 +7,9 @@ import pandas as pd
 
 from uiest.experiments.runner import StudyResult
 
+ACCURACY_COLUMNS = ("case", "estimator", "state", "rmse", "max_abs_error", "final_abs_error", "growth")
+TIMING_COLUMNS = ("case", "estimator", "mean_ms", "median_ms", "p95_ms", "max_ms", "t_max_ms", "failed_steps")
+
 
 def accuracy(study: StudyResult) -> pd.DataFrame:
     """Accuracy per (case, estimator, state) over all runs.
@@ -17,7 +20,7 @@ def accuracy(study: StudyResult) -> pd.DataFrame:
     """
     frame = study.steps
     if frame.empty:
-        return pd.DataFrame()
+        return pd.DataFrame(columns=list(ACCURACY_COLUMNS))
     scenario = study.scenario
     x_names = state_names(study)
     settled = frame[frame["k"] >= scenario.settle]
@@ -56,7 +59,7 @@ def timing(study: StudyResult) -> pd.DataFrame:
     """
     frame = study.steps
     if frame.empty:
-        return pd.DataFrame()
+        return pd.DataFrame(columns=list(TIMING_COLUMNS))
     rows = []
     for (case, name), group in frame.groupby(["case", "estimator"], sort=False):
         ms = 1e3 * group["solve_time"].to_numpy()

@@ -4,10 +4,6 @@ from __future__ import annotations
 
 import datetime as dt
 import json
-import platform
-import subprocess
-import sys
-from importlib import metadata
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -15,6 +11,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from uiest.experiments import provenance
 from uiest.experiments.metrics import accuracy, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 
@@ -44,41 +41,6 @@ SOLVERS = {
     "rti": "one Gauss-Newton step per sample (real-time iteration: not the window's optimum)",
 }
 """How each window backend is described in report.md."""
-
-
-def machine() -> str:
-    """CPU model and core count of this machine."""
-    name = platform.processor() or platform.machine()
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                name = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    import os
-
-    return f"{name}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
-
-
-def _git_revision() -> str:
-    try:
-        out = subprocess.run(
-            ["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=Path(__file__).parent
-        )
-        return out.stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        return "unknown (not a git checkout)"
-
-
-def _versions() -> dict[str, str]:
-    versions = {"python": sys.version.split()[0]}
-    for package in ("uiest", "casadi", "numpy", "scipy", "cvxpy", "clarabel", "pandas", "matplotlib"):
-        try:
-            versions[package] = metadata.version(package)
-        except metadata.PackageNotFoundError:
-            versions[package] = "not installed"
-    return versions
 
 
 def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
@@ -294,6 +256,27 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def outcome_lines(study: StudyResult) -> list[str]:
+    """What went wrong, first: estimator runs that raised, true states that left X, estimates held on its boundary."""
+    runs = study.runs
+    lines = []
+    raised = runs[runs["error"] != ""]
+    if len(raised) == len(runs):
+        lines.append(f"**Every estimator raised on every run ({len(runs)} of {len(runs)}): nothing was estimated; "
+                     "see Failures.**")  # fmt: skip
+    elif len(raised):
+        lines.append(f"**{len(raised)} of {len(runs)} estimator runs raised (see Failures); the rest are reported.**")
+    outside = runs.drop_duplicates(["case", "run"])["x_outside"]
+    if outside.sum():
+        lines.append(f"**The true state left X in {int((outside > 0).sum())} runs ({int(outside.sum())} samples): "
+                     "the estimators constrain their estimates to X there.**")  # fmt: skip
+    held = runs[runs["on_boundary"] > 0]
+    if len(held):
+        per = ", ".join(f"{name}: {int(n)}" for name, n in held.groupby("estimator")["on_boundary"].sum().items())
+        lines.append(f"**Estimates held on the boundary of X with a large output residual (steps): {per}.**")
+    return [*lines, ""] if lines else []
+
+
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out``."""
     out.mkdir(parents=True, exist_ok=True)
@@ -308,7 +291,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     times.to_csv(out / "timing.csv", index=False)
     table = timing_table(study)
     table.to_csv(out / "table1.csv", index=False)
-    (out / "table1.md").write_text(_markdown(table) + f"\n\nMeasured on: {machine()}\n")
+    (out / "table1.md").write_text(_markdown(table) + f"\n\nMeasured on: {provenance.machine()}\n")
     written += [steps_path, runs_path, out / "accuracy.csv", out / "timing.csv", out / "table1.csv", out / "table1.md"]
     written += figures(study, out)
     scenario.to_toml(out / "scenario.toml")
@@ -343,8 +326,9 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     report = [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
+        *outcome_lines(study),
         f"Model `{scenario.model}`, {scenario.runs} runs x {len(scenario.cases)} cases, K = {scenario.steps} steps, "
-        f"seed {scenario.seed}. Machine: {machine()}. Wall time {wall_time:.0f} s.",
+        f"seed {scenario.seed}. Machine: {provenance.machine()}. Wall time {wall_time:.0f} s.",
         "",
         f"Window solver: {SOLVERS.get(study.solver, study.solver)}, warm-started from the shifted previous solution.",
         "",
@@ -399,10 +383,11 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     manifest = {
         "scenario": scenario.to_dict(),
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "machine": machine(),
+        "machine": provenance.machine(),
         "solver": study.solver,
-        "versions": _versions(),
-        "git_revision": _git_revision(),
+        "versions": provenance.versions(),
+        "git_revision": provenance.git_revision(),
+        "code_version": provenance.code_version(),
         "wall_time_s": wall_time,
         "certificates": list(study.certificates),
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},

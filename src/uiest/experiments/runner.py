@@ -107,8 +107,9 @@ class StudyResult:
         One row per (case, run, estimator, k): ``t``, true and estimated states
         (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time``, ``status``.
     runs : pandas.DataFrame
-        One row per (case, run, estimator): ``x0``, wall time, failures, ``error`` (message if
-        the estimator raised, else empty).
+        One row per (case, run, estimator): ``x0``, wall time, failures, ``x_outside`` (samples
+        where the true state left X), ``on_boundary`` (estimates flagged as held on X's boundary),
+        ``error`` (type and message if the estimator raised, else empty).
     truths : dict
         ``(case, run) -> Trajectory`` of the simulated truth.
     results : dict
@@ -203,6 +204,8 @@ def run_study(
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
+    model = models.get(scenario.model).build()
+    scenario.check_model(model.nx, model.ny)
     certificates = []
     for spec in scenario.estimators:
         if spec.weights == "certificate":
@@ -224,7 +227,7 @@ def run_study(
                 try:
                     estimator = BUILDERS[spec.kind](system, spec, prior, solver)
                     result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
-                except (UiestError, RuntimeError) as exc:  # recorded; the study goes on
+                except Exception as exc:  # recorded, whatever it is; the study goes on
                     error = f"{type(exc).__name__}: {exc}"
                     result = None
                 wall = time.perf_counter() - start
@@ -239,6 +242,8 @@ def run_study(
                         "x0": list(map(float, x0)),
                         "wall_time_s": wall,
                         "failures": result.failures if result is not None else -1,
+                        "x_outside": int(truth.x_outside.sum()),
+                        "on_boundary": -1 if result is None else sum("boundary of X" in s for s in result.status),
                         "error": error,
                     }
                 )

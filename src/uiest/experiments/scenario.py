@@ -67,8 +67,35 @@ class EstimatorSpec:
         least = 0 if self.weights == "certificate" else 1
         if isinstance(self.N, bool) or not isinstance(self.N, int) or least > self.N:
             raise OptionError(f"estimators.N: expected an integer >= {least}, got {self.N!r}")
-        if not 0.0 < self.mu < 1.0:
+        if not isinstance(self.name, str) or not self.name:
+            raise OptionError(f"estimators.name: expected a non-empty string, got {self.name!r}")
+        if not _number(self.mu) or not 0.0 < self.mu < 1.0:
             raise OptionError(f"estimators.mu: expected a number in (0, 1), got {self.mu!r}")
+        for label in ("output_weight", "prior_weight", "noise_weight", "disturbance_weight"):
+            value = getattr(self, label)
+            if not _number(value) or not (math.isfinite(value) and value >= 0.0):
+                raise OptionError(f"estimators.{label}: expected a finite number >= 0, got {value!r}")
+
+
+def _number(value: object) -> bool:
+    """A real number (int or float), not a bool or a string."""
+    return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[float, ...]:
+    """A tuple of real numbers (finite unless ``allow_nan`` lets NaN through), else OptionError naming ``name``."""
+    try:
+        items = tuple(value)  # type: ignore[arg-type]
+    except TypeError:
+        raise OptionError(f"{name}: expected a list of numbers, got {value!r}") from None
+    out = []
+    for item in items:
+        if isinstance(item, str) and allow_nan and item.lower() == "nan":
+            item = math.nan
+        if not _number(item) or not (math.isfinite(item) or (allow_nan and math.isnan(item))):
+            raise OptionError(f"{name}: expected {'numbers or nan' if allow_nan else 'finite numbers'}, got {value!r}")
+        out.append(float(item))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -134,6 +161,9 @@ class Scenario:
     estimators: tuple[EstimatorSpec, ...] = field(default_factory=tuple)
 
     def __post_init__(self) -> None:
+        for label in ("name", "model"):
+            if not isinstance(getattr(self, label), str) or not getattr(self, label):
+                raise OptionError(f"{label}: expected a non-empty string, got {getattr(self, label)!r}")
         for label in ("steps", "runs"):
             value = getattr(self, label)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -145,14 +175,36 @@ class Scenario:
         names = [spec.name for spec in self.estimators]
         if len(set(names)) != len(names):
             raise OptionError(f"estimators: names must be unique, got {names}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise OptionError(f"seed: expected an integer >= 0, got {self.seed!r}")
         if len(self.x0_lower) != len(self.x0_upper):
             raise OptionError("x0_lower, x0_upper: expected the same length")
-        if not 0 <= self.settle < self.steps:
+        if any(lo > hi for lo, hi in zip(self.x0_lower, self.x0_upper, strict=True)):
+            raise OptionError(f"x0_lower, x0_upper: expected x0_lower <= x0_upper, got {self.x0_lower} and "
+                              f"{self.x0_upper}")  # fmt: skip
+        if isinstance(self.focus_state, bool) or not isinstance(self.focus_state, int) or self.focus_state < 0:
+            raise OptionError(f"focus_state: expected a state index >= 0, got {self.focus_state!r}")
+        if isinstance(self.settle, bool) or not isinstance(self.settle, int) or not 0 <= self.settle < self.steps:
             raise OptionError(f"settle: expected 0 <= settle < steps = {self.steps}, got {self.settle}")
         if not (self.noise_scale >= 0.0 and math.isfinite(self.noise_scale)):
             raise OptionError(f"noise_scale: expected a finite number >= 0, got {self.noise_scale!r}")
         if not math.isfinite(self.w_gain):
             raise OptionError(f"w_gain: expected a finite number, got {self.w_gain!r}")
+
+    def check_model(self, nx: int, ny: int) -> None:
+        """Raise OptionError unless the sizes in this scenario fit a model with ``nx`` states and ``ny`` outputs."""
+        for label in ("x0", "x0_lower", "x0_upper", "prior"):
+            value = getattr(self, label)
+            if value and len(value) != nx:
+                raise OptionError(f"{label}: expected {nx} values (the model's states), got {len(value)}")
+        if not 0 <= self.focus_state < nx:
+            raise OptionError(f"focus_state: expected a state index in [0, {nx}), got {self.focus_state}")
+        for state, output in self.prior_from_output:
+            if not (0 <= state < nx and 0 <= output < ny):
+                raise OptionError(
+                    f"prior_from_output: expected (state in [0, {nx}), output in [0, {ny})) pairs, "
+                    f"got ({state}, {output})"
+                )
 
     def with_overrides(self, **changes: Any) -> Scenario:
         """A copy with fields replaced (None values are ignored); unknown names raise OptionError."""
@@ -184,24 +236,41 @@ class Scenario:
         if unknown:
             raise OptionError(f"scenario: unknown keys {sorted(unknown)}")
         spec_fields = {f.name for f in fields(EstimatorSpec)}
+        raw_specs = data.get("estimators", [])
+        if not isinstance(raw_specs, list) or not all(isinstance(raw, dict) for raw in raw_specs):
+            raise OptionError(f"estimators: expected a list of tables ([[scenario.estimators]]), got {raw_specs!r}")
         estimators = []
-        for raw in data.get("estimators", []):
+        for raw in raw_specs:
             bad = set(raw) - spec_fields
             if bad:
                 raise OptionError(f"estimators: unknown keys {sorted(bad)}")
+            missing = {"name", "kind"} - set(raw)
+            if missing:
+                raise OptionError(f"estimators: each needs {sorted(missing)}")
             estimators.append(EstimatorSpec(**raw))
+        missing = {"name", "model"} - set(data)
+        if missing:
+            raise OptionError(f"scenario: missing keys {sorted(missing)} (an empty or partial scenario table)")
         values = dict(data)
         values["estimators"] = tuple(estimators)
-        for key in ("cases", "x0", "x0_lower", "x0_upper"):
+        if "cases" in values:
+            cases = values["cases"]
+            values["cases"] = (cases,) if isinstance(cases, str) else tuple(cases)
+        for key in ("x0", "x0_lower", "x0_upper"):
             if key in values:
-                values[key] = tuple(values[key])
+                values[key] = _numbers(values[key], key)
         for key in ("noise_scale", "w_gain", "initial_error"):
             if key in values:
-                values[key] = float(values[key])
+                (values[key],) = _numbers([values[key]], key, allow_nan=key == "initial_error")
         if "prior" in values:
-            values["prior"] = tuple(float(v) for v in values["prior"])
+            values["prior"] = _numbers(values["prior"], "prior", allow_nan=True)
         if "prior_from_output" in values:
-            values["prior_from_output"] = tuple((int(a), int(b)) for a, b in values["prior_from_output"])
+            try:
+                values["prior_from_output"] = tuple((int(a), int(b)) for a, b in values["prior_from_output"])
+            except (TypeError, ValueError):
+                raise OptionError(
+                    f"prior_from_output: expected [state, output] index pairs, got {values['prior_from_output']!r}"
+                ) from None
         return cls(**values)
 
     @classmethod

@@ -1,165 +1,47 @@
 """Monte Carlo sweeps over scenario parameters: serial, local processes or a Dask cluster.
 
-A :class:`Sweep` is a base :class:`~uiest.experiments.scenario.Scenario` and a design over
-the parameters in ``SWEEPABLE`` (a full grid and/or random points). Every (design point, case,
-run) is one :class:`Task`; its seeds depend only on (scenario seed, run), so results do not
-depend on the number of workers or on the executor. Workers rebuild the system and the
-estimators from the task (plain data); nothing compiled is shipped.
+The design (:class:`~uiest.experiments.sweep_design.Sweep`) gives the tasks; seeds depend only
+on (scenario seed, run), so results do not depend on the number of workers or on the executor.
+Workers rebuild the system and the estimators from the task (plain data); nothing compiled is
+shipped.
 
 Each finished task is written at once to ``OUT/runs/<key>.parquet`` (written to a temporary name,
 then renamed), one row per estimator with the swept parameters as columns; re-running skips
-tasks already stored, so an interrupted sweep resumes without recomputation or duplicates.
+tasks already stored, so an interrupted sweep resumes without recomputation or duplicates. A
+stored file that cannot be read is moved to ``OUT/runs/corrupt/`` and its task computed again.
+A task whose estimator raises records the error in its row; a task whose worker dies is
+reported and left for the next run. ``OUT/manifest.json`` records the design, seeds, versions,
+git revision and code version.
 """
 
 from __future__ import annotations
 
 import contextlib
-import hashlib
+import datetime as dt
 import json
-import math
 import os
-import tomllib
+import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor, as_completed
-from dataclasses import dataclass, field, replace
-from itertools import product
+from dataclasses import dataclass
 from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
+import pyarrow.parquet as pq
 
-from uiest.errors import OptionError, UiestError
+from uiest import models
+from uiest.errors import OptionError
+from uiest.experiments import provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
 from uiest.experiments.scenario import Scenario
+from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
 from uiest.window import DEFAULT_BACKEND
 
-SWEEPABLE = ("N", "mu", "output_weight", "noise_scale", "w_gain", "initial_error", "steps", "estimator", "solver")
-"""Parameters a sweep may vary: N, mu, output_weight apply to every estimator; estimator keeps only
-the named one; solver selects the window backend; the rest are Scenario fields."""
-
-
-@dataclass(frozen=True)
-class Sweep:
-    """A design over scenario parameters.
-
-    Attributes
-    ----------
-    scenario : Scenario
-        The base study (its runs, cases, seed and estimators).
-    grid : dict
-        Parameter -> list of values; the full factorial product is swept.
-    random : int
-        Number of additional random points, drawn (seeded by the scenario seed) uniformly from
-        ``ranges`` (integers for N and steps, log-uniform for output_weight).
-    ranges : dict
-        Parameter -> (low, high) for the random points.
-
-    """
-
-    scenario: Scenario
-    grid: dict[str, tuple[Any, ...]] = field(default_factory=dict)
-    random: int = 0
-    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        for name in [*self.grid, *self.ranges]:
-            if name not in SWEEPABLE:
-                raise OptionError(f"sweep: {name!r} cannot be swept; expected one of {SWEEPABLE}")
-        if self.random < 0 or (self.random and not self.ranges):
-            raise OptionError("sweep.random: expected a count >= 0, with ranges when > 0")
-        names = {spec.name for spec in self.scenario.estimators}
-        for value in self.grid.get("estimator", ()):
-            if value not in names:
-                raise OptionError(
-                    f"sweep.grid.estimator: {value!r} is not an estimator of the scenario {sorted(names)}"
-                )
-
-    def points(self) -> list[dict[str, Any]]:
-        """The design points: the grid product, then the random points."""
-        keys = list(self.grid)
-        points = [dict(zip(keys, values, strict=True)) for values in product(*(self.grid[k] for k in keys))]
-        if not keys:
-            points = [{}] if not self.random else []
-        rng = np.random.default_rng([self.scenario.seed, 101])
-        for _ in range(self.random):
-            point: dict[str, Any] = {}
-            for name, (low, high) in self.ranges.items():
-                if name in ("N", "steps"):
-                    point[name] = int(rng.integers(int(low), int(high) + 1))
-                elif name == "output_weight":
-                    point[name] = float(10 ** rng.uniform(math.log10(low), math.log10(high)))
-                else:
-                    point[name] = float(rng.uniform(low, high))
-            points.append(point)
-        return points
-
-    def tasks(self, solver: str = DEFAULT_BACKEND) -> list[Task]:
-        """Every (point, case, run) as a Task."""
-        tasks = []
-        for point in self.points():
-            scenario = apply(self.scenario, point)
-            for case in scenario.cases:
-                for run in range(scenario.runs):
-                    tasks.append(Task(scenario, tuple(sorted(point.items())), case, run, point.get("solver", solver)))
-        return tasks
-
-    @classmethod
-    def from_toml(cls, path: Path) -> Sweep:
-        """Read ``[scenario]`` (as in Scenario TOML) and ``[sweep]`` (``grid``, ``random``, ``ranges``)."""
-        try:
-            data = tomllib.loads(Path(path).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise OptionError(f"sweep: cannot read {path}: {exc}") from exc
-        unknown = set(data) - {"scenario", "sweep"}
-        if unknown or "scenario" not in data:
-            raise OptionError(f"sweep file: expected tables [scenario] and [sweep], got {sorted(data)}")
-        design = data.get("sweep", {})
-        bad = set(design) - {"grid", "random", "ranges"}
-        if bad:
-            raise OptionError(f"sweep: unknown keys {sorted(bad)}")
-        return cls(
-            Scenario.from_dict(data["scenario"]),
-            grid={k: tuple(v) for k, v in design.get("grid", {}).items()},
-            random=int(design.get("random", 0)),
-            ranges={k: (float(v[0]), float(v[1])) for k, v in design.get("ranges", {}).items()},
-        )
-
-
-def apply(scenario: Scenario, point: dict[str, Any]) -> Scenario:
-    """The scenario with a design point's parameters applied."""
-    estimators = scenario.estimators
-    spec_changes = {k: point[k] for k in ("N", "mu", "output_weight") if k in point}
-    if "N" in spec_changes:
-        spec_changes["N"] = int(spec_changes["N"])
-    if spec_changes:
-        estimators = tuple(replace(spec, **spec_changes) for spec in estimators)
-    if "estimator" in point:
-        estimators = tuple(spec for spec in estimators if spec.name == point["estimator"])
-    fields = {k: point[k] for k in ("noise_scale", "w_gain", "initial_error") if k in point}
-    if "steps" in point:
-        fields["steps"] = int(point["steps"])
-    return replace(scenario, estimators=estimators, **fields)
-
-
-@dataclass(frozen=True)
-class Task:
-    """One (design point, case, run): plain data, rebuilt into a system and estimators by a worker."""
-
-    scenario: Scenario
-    params: tuple[tuple[str, Any], ...]
-    case: str
-    run: int
-    solver: str
-
-    @property
-    def key(self) -> str:
-        """Stable identifier of the task (hash of the scenario, the point, the case and the run)."""
-        payload = json.dumps(
-            [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver], sort_keys=True, default=str
-        )
-        return hashlib.sha256(payload.encode()).hexdigest()[:20]
+__all__ = ["SWEEPABLE", "Sweep", "SweepProgress", "Task", "apply", "collect", "run_task", "sweep"]
 
 
 def run_task(task: Task) -> pd.DataFrame:
@@ -168,16 +50,17 @@ def run_task(task: Task) -> pd.DataFrame:
     base = {"key": task.key, **dict(task.params), "case": task.case, "run": task.run, "solver": task.solver}
     try:
         system, truth, prior = simulate_run(scenario, task.case, task.run)
-    except (UiestError, RuntimeError) as exc:
+    except Exception as exc:  # recorded, whatever it is
         return pd.DataFrame([{**base, "estimator": "", "error": f"{type(exc).__name__}: {exc}"}])
     names = truth.names.get("x") or tuple(f"x{i}" for i in range(system.nx))
+    base["x_outside"] = int(truth.x_outside.sum())
     rows = []
     for spec in scenario.estimators:
         row: dict[str, Any] = {**base, "estimator": spec.name, "error": ""}
         try:
             estimator = BUILDERS[spec.kind](system, spec, prior, task.solver)
             result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
-        except (UiestError, RuntimeError, KeyError) as exc:
+        except Exception as exc:  # recorded, whatever it is; the sweep goes on
             row["error"] = f"{type(exc).__name__}: {exc}"
             rows.append(row)
             continue
@@ -189,18 +72,9 @@ def run_task(task: Task) -> pd.DataFrame:
         ms = 1e3 * result.solve_time
         row.update(mean_ms=float(ms.mean()), median_ms=float(np.median(ms)), max_ms=float(ms.max()),
                    failures=int(result.failures))  # fmt: skip
+        row["on_boundary"] = sum("boundary of X" in status for status in result.status)
         rows.append(row)
     return pd.DataFrame(rows)
-
-
-@dataclass(frozen=True)
-class SweepProgress:
-    """Counts passed to the progress callback after each task."""
-
-    done: int
-    failed: int
-    remaining: int
-    skipped: int
 
 
 def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
@@ -208,6 +82,21 @@ def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
     tmp = folder / f".{key}.parquet.tmp"
     frame.to_parquet(tmp, index=False)
     os.replace(tmp, folder / f"{key}.parquet")
+
+
+def _stored_keys(folder: Path) -> set[str]:
+    """Keys of the readable stored tasks; unreadable files are moved to ``folder/corrupt/``."""
+    keys = set()
+    for path in folder.glob("*.parquet") if folder.exists() else ():
+        try:
+            pq.read_metadata(path)
+        except Exception:  # any unreadable file: set it aside, its task is computed again
+            aside = folder / "corrupt"
+            aside.mkdir(exist_ok=True)
+            os.replace(path, aside / f"{path.stem}.{time.time_ns()}.parquet")
+            continue
+        keys.add(path.stem)
+    return keys
 
 
 @contextlib.contextmanager
@@ -227,21 +116,52 @@ def _single_threaded_children() -> Iterator[None]:
                 os.environ[name] = value
 
 
-def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | None) -> Iterator[pd.DataFrame]:
-    """Run tasks and yield their frames as they finish (serial, processes or Dask)."""
+def _exit_with_parent(parent: int) -> None:
+    """Worker initializer: a daemon thread ends the worker once its parent process is gone."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
+Outcome = tuple[Task, pd.DataFrame | None, str]
+"""A task, its rows (None when its worker failed) and why its worker failed ('' otherwise)."""
+
+
+def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | None) -> Iterator[Outcome]:
+    """Run tasks and yield their outcomes as they finish (serial, processes or Dask)."""
     if scheduler is None and workers == 1:
         for task in tasks:
-            yield run_task(task)
+            yield task, run_task(task), ""
         return
     if scheduler is None:
         with (
             _single_threaded_children(),
-            ProcessPoolExecutor(max_workers=workers or os.cpu_count(), mp_context=get_context("spawn")) as pool,
+            ProcessPoolExecutor(
+                max_workers=workers or os.cpu_count(),
+                mp_context=get_context("spawn"),
+                initializer=_exit_with_parent,
+                initargs=(os.getpid(),),
+            ) as pool,  # fmt: skip
         ):
-            futures: list[Future[pd.DataFrame]] = [pool.submit(run_task, task) for task in tasks]
+            futures: dict[Future[pd.DataFrame], Task] = {pool.submit(run_task, task): task for task in tasks}
             for future in as_completed(futures):
-                yield future.result()
+                yield _outcome(futures[future], future)
         return
+    yield from _dask_results(tasks, workers, scheduler)
+
+
+def _outcome(task: Task, future: Any) -> Outcome:
+    try:
+        return task, future.result(), ""
+    except Exception as exc:  # the worker died (or the cluster failed): nothing of the task is stored
+        return task, None, f"{type(exc).__name__}: {exc}"
+
+
+def _dask_results(tasks: list[Task], workers: int | None, scheduler: str) -> Iterator[Outcome]:
     import dask
     from distributed import Client, LocalCluster
     from distributed import as_completed as dask_completed
@@ -256,13 +176,30 @@ def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | N
         with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
             cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True)
     try:
-        with Client(cluster if cluster is not None else scheduler) as client:
+        try:
+            client = Client(cluster if cluster is not None else scheduler, timeout=10)
+        except (OSError, TimeoutError, ValueError) as exc:
+            raise OptionError(f"scheduler: no Dask scheduler answers at {scheduler!r} within 10 s ({exc})") from None
+        with client:
             dask_futures = client.map(run_task, tasks, pure=False)
+            by_key = {future.key: task for future, task in zip(dask_futures, tasks, strict=True)}
             for future in dask_completed(dask_futures):
-                yield future.result()
+                yield _outcome(by_key[future.key], future)
     finally:
         if cluster is not None:
             cluster.close()
+
+
+@dataclass(frozen=True)
+class SweepProgress:
+    """Counts passed to the progress callback after each task."""
+
+    done: int
+    failed: int
+    remaining: int
+    skipped: int
+    lost: int = 0
+    """Tasks whose worker died: not stored, computed again by the next run."""
 
 
 def sweep(
@@ -282,7 +219,8 @@ def sweep(
     design : Sweep
     out : Path
         Folder; finished tasks go to ``out/runs/<key>.parquet``, the union to ``out/results.parquet``,
-        the per-point summary to ``out/summary.csv`` and plots to ``out/sweep_*.png``.
+        the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png`` and the
+        provenance to ``out/manifest.json``.
     workers : int, optional
         Worker processes (default: all cores; 1 with no scheduler: serial in this process).
     scheduler : str, optional
@@ -294,33 +232,89 @@ def sweep(
     max_tasks : int, optional
         Stop after this many new tasks (the rest is left for a later call).
 
+    Raises
+    ------
+    OptionError
+        Bad ``workers``, ``solver`` or ``max_tasks``, an ``out`` that cannot be written, or a
+        scheduler that does not answer.
+
     """
-    runs_dir = Path(out) / "runs"
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise OptionError(f"workers: expected an integer >= 1 or None (all cores), got {workers!r}")
+    if max_tasks is not None and (isinstance(max_tasks, bool) or not isinstance(max_tasks, int) or max_tasks < 0):
+        raise OptionError(f"max_tasks: expected an integer >= 0, got {max_tasks!r}")
     tasks = design.tasks(solver)
-    stored = {p.stem for p in runs_dir.glob("*.parquet")} if runs_dir.exists() else set()
+    out = Path(out)
+    writable_folder(out, "out")
+    model = models.get(design.scenario.model).build()
+    design.scenario.check_model(model.nx, model.ny)
+    _write_manifest(design, out, solver, workers, scheduler)
+    runs_dir = out / "runs"
+    stored = _stored_keys(runs_dir)
     todo = [task for task in tasks if task.key not in stored]
     skipped = len(tasks) - len(todo)
     if max_tasks is not None:
         todo = todo[:max_tasks]
-    done = failed = 0
+    done = failed = lost = 0
     if todo:
-        for frame in _executor_results(todo, workers, scheduler):
-            _store(frame, runs_dir, str(frame["key"].iloc[0]))
-            done += 1
-            failed += int((frame["error"] != "").any())
+        for task, frame, why in _executor_results(todo, workers, scheduler):
+            if frame is None:
+                lost += 1
+                failed += 1
+                _log_lost(out, task, why)
+            else:
+                _store(frame, runs_dir, task.key)
+                done += 1
+                failed += int((frame["error"] != "").any())
             if progress is not None:
-                progress(SweepProgress(done, failed, len(todo) - done, skipped))
-    return collect(design, Path(out), solver)
+                progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost))
+    return collect(design, out, solver)
+
+
+def writable_folder(folder: Path, name: str) -> None:
+    """Create ``folder`` and check a file can be written there, else OptionError naming ``name``."""
+    probe = Path(folder) / f".write-test-{os.getpid()}"
+    try:
+        Path(folder).mkdir(parents=True, exist_ok=True)
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OptionError(f"{name}: cannot write to {folder} ({exc.strerror or exc})") from None
+
+
+def _log_lost(out: Path, task: Task, why: str) -> None:
+    with (out / "lost_tasks.log").open("a") as log:
+        log.write(f"{dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} {task.key} {task.case} run {task.run} "
+                  f"{dict(task.params)}: {why}\n")  # fmt: skip
+
+
+def _write_manifest(design: Sweep, out: Path, solver: str, workers: int | None, scheduler: str | None) -> None:
+    """``out/manifest.json``: the design, seeds, versions, git revision, code version, machine."""
+    scenario = design.scenario
+    manifest = {
+        "design": design.to_dict(),
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "machine": provenance.machine(),
+        "solver": solver,
+        "workers": workers,
+        "scheduler": scheduler,
+        "versions": provenance.versions(),
+        "git_revision": provenance.git_revision(),
+        "code_version": provenance.code_version(),
+        "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
+        "tasks": len(design.tasks(solver)),
+    }
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
 
 
 def collect(design: Sweep, out: Path, solver: str = DEFAULT_BACKEND) -> pd.DataFrame:
     """Union of the stored tasks of ``design`` (in task order), written to results.parquet with a summary."""
     runs_dir = out / "runs"
-    frames = [
-        pd.read_parquet(runs_dir / f"{task.key}.parquet")
-        for task in design.tasks()
-        if (runs_dir / f"{task.key}.parquet").exists()
-    ]
+    frames = []
+    for task in design.tasks(solver):
+        path = runs_dir / f"{task.key}.parquet"
+        if path.exists():
+            frames.append(pd.read_parquet(path))
     if not frames:
         return pd.DataFrame()
     results = pd.concat(frames, ignore_index=True)

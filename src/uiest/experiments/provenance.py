@@ -1,0 +1,66 @@
+"""Where results come from: machine, package versions, git revision and a hash of uiest's own code."""
+
+from __future__ import annotations
+
+import functools
+import hashlib
+import os
+import platform
+import subprocess
+import sys
+from importlib import metadata
+from pathlib import Path
+
+PACKAGE = Path(__file__).resolve().parents[1]
+"""The ``uiest`` package folder."""
+
+
+def machine() -> str:
+    """CPU model and core count of this machine."""
+    name = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                name = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{name}, {os.cpu_count()} cores, {platform.system()} {platform.release()}"
+
+
+def git_revision() -> str:
+    """The git commit of the package's checkout (with '-dirty' for uncommitted changes), or why none."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=PACKAGE)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], capture_output=True, text=True,
+                               check=True, cwd=PACKAGE)  # fmt: skip
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")
+
+
+def versions() -> dict[str, str]:
+    """Python and the versions of the packages results depend on."""
+    found = {"python": sys.version.split()[0]}
+    for package in ("uiest", "casadi", "numpy", "scipy", "cvxpy", "clarabel", "pandas", "matplotlib", "dask"):
+        try:
+            found[package] = metadata.version(package)
+        except metadata.PackageNotFoundError:
+            found[package] = "not installed"
+    return found
+
+
+@functools.cache
+def code_version() -> str:
+    """A hash of every ``.py`` file of the installed uiest package and the solver libraries' versions.
+
+    Results computed by different code (a changed estimator, another CasADi) get different
+    versions, with or without git; 16 hex digits.
+    """
+    digest = hashlib.sha256()
+    for path in sorted(PACKAGE.rglob("*.py")):
+        digest.update(str(path.relative_to(PACKAGE)).encode())
+        digest.update(path.read_bytes())
+    for package in ("casadi", "numpy", "scipy", "cvxpy", "clarabel"):
+        digest.update(versions().get(package, "").encode())
+    return digest.hexdigest()[:16]

@@ -1,0 +1,228 @@
+"""Sweep designs: which scenario parameters vary, over which values, as tasks with stable keys.
+
+A :class:`Sweep` is a base :class:`~uiest.experiments.scenario.Scenario` and a design over
+the parameters in ``SWEEPABLE`` (a full grid and/or random points). Every value is checked
+against the parameter's type and the scenario before any run starts. Every (design point,
+case, run) is one :class:`Task`; its key hashes the scenario, the point, the case, the run, the
+backend and the code version, so results of other code are never taken for these.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from itertools import product
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from uiest.errors import OptionError
+from uiest.experiments.provenance import code_version
+from uiest.experiments.scenario import Scenario
+from uiest.window import DEFAULT_BACKEND
+from uiest.window.solvers import BACKENDS
+
+SWEEPABLE = ("N", "mu", "output_weight", "noise_scale", "w_gain", "initial_error", "steps", "estimator", "solver")
+"""Parameters a sweep may vary: N, mu, output_weight apply to every estimator; estimator keeps only
+the named one; solver selects the window backend; the rest are Scenario fields."""
+
+INTEGER = ("N", "steps")
+CHOICES = ("estimator", "solver")
+
+
+def _check_value(name: str, value: Any, estimators: set[str]) -> Any:
+    """``value`` if it is a valid value of the swept parameter ``name``, else OptionError."""
+    where = f"sweep.grid.{name}"
+    if name in CHOICES:
+        allowed = sorted(estimators) if name == "estimator" else list(BACKENDS)
+        if value not in allowed:
+            raise OptionError(f"{where}: expected one of {allowed}, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise OptionError(f"{where}: expected a number, got {value!r}")
+    if name in INTEGER:
+        if not isinstance(value, int) or value < 1:
+            raise OptionError(f"{where}: expected an integer >= 1, got {value!r}")
+        return value
+    value = float(value)
+    valid = {
+        "mu": 0.0 < value < 1.0,
+        "output_weight": math.isfinite(value) and value > 0.0,
+        "noise_scale": math.isfinite(value) and value >= 0.0,
+        "w_gain": math.isfinite(value),
+        "initial_error": math.isfinite(value) or math.isnan(value),
+    }[name]
+    if not valid:
+        expected = {"mu": "a number in (0, 1)", "output_weight": "a finite number > 0",
+                    "noise_scale": "a finite number >= 0"}.get(name, "a finite number")  # fmt: skip
+        raise OptionError(f"{where}: expected {expected}, got {value!r}")
+    return value
+
+
+def _check_range(name: str, bounds: Any) -> tuple[float, float]:
+    where = f"sweep.ranges.{name}"
+    if name in CHOICES:
+        raise OptionError(f"{where}: {name} takes a list of values in sweep.grid, not a range")
+    try:
+        low, high = bounds
+    except (TypeError, ValueError):
+        raise OptionError(f"{where}: expected [low, high], got {bounds!r}") from None
+    for value in (low, high):
+        if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+            raise OptionError(f"{where}: expected finite numbers [low, high], got {bounds!r}")
+    if low > high:
+        raise OptionError(f"{where}: expected low <= high, got [{low}, {high}]")
+    for value in (low, high):
+        _check_value(name, int(value) if name in INTEGER and float(value).is_integer() else value, set())
+    return float(low), float(high)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """A design over scenario parameters.
+
+    Attributes
+    ----------
+    scenario : Scenario
+        The base study (its runs, cases, seed and estimators).
+    grid : dict
+        Parameter -> non-empty list of values; the full factorial product is swept.
+    random : int
+        Number of additional random points, drawn (seeded by the scenario seed) uniformly from
+        ``ranges`` (integers for N and steps, log-uniform for output_weight).
+    ranges : dict
+        Parameter -> (low, high) for the random points.
+
+    """
+
+    scenario: Scenario
+    grid: dict[str, tuple[Any, ...]] = field(default_factory=dict)
+    random: int = 0
+    ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        for name in [*self.grid, *self.ranges]:
+            if name not in SWEEPABLE:
+                raise OptionError(f"sweep: {name!r} cannot be swept; expected one of {SWEEPABLE}")
+        if isinstance(self.random, bool) or not isinstance(self.random, int) or self.random < 0:
+            raise OptionError(f"sweep.random: expected an integer >= 0, got {self.random!r}")
+        if self.random and not self.ranges:
+            raise OptionError("sweep.random: random points need sweep.ranges")
+        names = {spec.name for spec in self.scenario.estimators}
+        grid = {}
+        for name, values in self.grid.items():
+            if isinstance(values, str) or not isinstance(values, list | tuple) or not values:
+                raise OptionError(f"sweep.grid.{name}: expected a non-empty list of values, got {values!r}")
+            grid[name] = tuple(_check_value(name, value, names) for value in values)
+        object.__setattr__(self, "grid", grid)
+        object.__setattr__(self, "ranges", {name: _check_range(name, b) for name, b in self.ranges.items()})
+        for point in self.points():  # every point must give a valid scenario
+            try:
+                apply(self.scenario, point)
+            except OptionError as exc:
+                raise OptionError(f"sweep point {point}: {exc}") from None
+
+    def points(self) -> list[dict[str, Any]]:
+        """The design points: the grid product, then the random points."""
+        keys = list(self.grid)
+        points = [dict(zip(keys, values, strict=True)) for values in product(*(self.grid[k] for k in keys))]
+        if not keys:
+            points = [{}] if not self.random else []
+        rng = np.random.default_rng([self.scenario.seed, 101])
+        for _ in range(self.random):
+            point: dict[str, Any] = {}
+            for name, (low, high) in self.ranges.items():
+                if name in INTEGER:
+                    point[name] = int(rng.integers(math.ceil(low), math.floor(high) + 1))
+                elif name == "output_weight":
+                    point[name] = float(10 ** rng.uniform(math.log10(low), math.log10(high)))
+                else:
+                    point[name] = float(rng.uniform(low, high))
+            points.append(point)
+        return points
+
+    def tasks(self, solver: str = DEFAULT_BACKEND) -> list[Task]:
+        """Every (point, case, run) as a Task; ``solver`` unless the point sweeps it."""
+        if solver not in BACKENDS:
+            raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
+        tasks = []
+        for point in self.points():
+            scenario = apply(self.scenario, point)
+            for case in scenario.cases:
+                for run in range(scenario.runs):
+                    tasks.append(Task(scenario, tuple(sorted(point.items())), case, run, point.get("solver", solver)))
+        return tasks
+
+    def to_dict(self) -> dict[str, Any]:
+        """Plain data: ``{"scenario": ..., "sweep": {"grid", "random", "ranges"}}`` (TOML-ready)."""
+        return {
+            "scenario": self.scenario.to_dict(),
+            "sweep": {
+                "grid": {k: list(v) for k, v in self.grid.items()},
+                "random": self.random,
+                "ranges": {k: list(v) for k, v in self.ranges.items()},
+            },
+        }
+
+    @classmethod
+    def from_toml(cls, path: Path) -> Sweep:
+        """Read ``[scenario]`` (as in Scenario TOML) and ``[sweep]`` (``grid``, ``random``, ``ranges``)."""
+        try:
+            data = tomllib.loads(Path(path).read_text())
+        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+            raise OptionError(f"sweep: cannot read {path}: {exc}") from exc
+        unknown = set(data) - {"scenario", "sweep"}
+        if unknown or "scenario" not in data:
+            raise OptionError(f"sweep file: expected the tables 'scenario' and 'sweep', got {sorted(data)}")
+        design = data.get("sweep", {})
+        if not isinstance(design, dict):
+            raise OptionError(f"sweep: expected a table, got {design!r}")
+        bad = set(design) - {"grid", "random", "ranges"}
+        if bad:
+            raise OptionError(f"sweep: unknown keys {sorted(bad)}")
+        for key in ("grid", "ranges"):
+            if not isinstance(design.get(key, {}), dict):
+                raise OptionError(f"sweep.{key}: expected a table of parameters, got {design[key]!r}")
+        return cls(
+            Scenario.from_dict(data["scenario"]),
+            grid=dict(design.get("grid", {})),
+            random=design.get("random", 0),
+            ranges=dict(design.get("ranges", {})),
+        )
+
+
+def apply(scenario: Scenario, point: dict[str, Any]) -> Scenario:
+    """The scenario with a design point's parameters applied."""
+    estimators = scenario.estimators
+    spec_changes = {k: point[k] for k in ("N", "mu", "output_weight") if k in point}
+    if spec_changes:
+        estimators = tuple(replace(spec, **spec_changes) for spec in estimators)
+    if "estimator" in point:
+        estimators = tuple(spec for spec in estimators if spec.name == point["estimator"])
+    fields = {k: point[k] for k in ("noise_scale", "w_gain", "initial_error", "steps") if k in point}
+    return replace(scenario, estimators=estimators, **fields)
+
+
+@dataclass(frozen=True)
+class Task:
+    """One (design point, case, run): plain data, rebuilt into a system and estimators by a worker."""
+
+    scenario: Scenario
+    params: tuple[tuple[str, Any], ...]
+    case: str
+    run: int
+    solver: str
+
+    @property
+    def key(self) -> str:
+        """Stable identifier: a hash of the scenario, the point, the case, the run, the backend and the code."""
+        payload = json.dumps(
+            [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, code_version()],
+            sort_keys=True,
+            default=str,
+        )
+        return hashlib.sha256(payload.encode()).hexdigest()[:20]
