@@ -102,7 +102,7 @@ def test_bad_priors_and_options():
     with pytest.raises(OptionError, match="x0_prior: required"):
         UISE(SYSTEM, weights=WEIGHTS, N=3).step(None, [0.0])
     for bad in (0, -2, 1.5, True, "3"):
-        with pytest.raises(OptionError, match="N: expected an integer horizon >= 1"):
+        with pytest.raises(OptionError, match="N: expected an integer >= 1"):
             UISE(SYSTEM, weights=WEIGHTS, N=bad)
     with pytest.raises(OptionError, match="N: expected"):
         StandardMHE(SYSTEM, weights=MHE_WEIGHTS, N=0)

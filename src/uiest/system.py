@@ -98,6 +98,19 @@ def _as_column(value: Any, name: str) -> ca.SX:
     return expr
 
 
+def _check_no_nan(expr: ca.SX, name: str) -> ca.SX:
+    """Refuse a traced expression holding NaN: a ``math`` function turned a CasADi symbol into NaN."""
+    function = ca.Function("probe", ca.symvar(expr), [expr])
+    constants = [function.instruction_constant(k) for k in range(function.n_instructions())
+                 if function.instruction_id(k) == ca.OP_CONST]  # fmt: skip
+    if any(np.isnan(c) for c in constants):
+        raise ModelError(
+            f"{name}: the traced expression holds NaN. A function of Python's math module (math.sin, math.exp, ...) "
+            "turns a CasADi symbol into NaN; use numpy (np.sin) or casadi (ca.sin), which take symbols"
+        )
+    return expr
+
+
 def as_function(fun: Any, name: str, inputs: list[tuple[str, int]], n_out: int | None = None) -> ca.Function:
     """A CasADi Function from ``fun``: a ``casadi.Function`` (sizes checked) or a Python callable.
 
@@ -117,7 +130,7 @@ def as_function(fun: Any, name: str, inputs: list[tuple[str, int]], n_out: int |
         symbols = [_symbol_array(label, n) for label, n in inputs]
         with _casadi_legacy_numpy():
             try:
-                out = _as_column(fun(*[arr for _, arr in symbols]), name)
+                out = _check_no_nan(_as_column(fun(*[arr for _, arr in symbols]), name), name)
             except ModelError:
                 raise
             except Exception as exc:
@@ -314,8 +327,8 @@ class System:
         )
         with _casadi_legacy_numpy():
             try:
-                x_next = _as_column(f(xa, ua, wa), "f")
-                y = _as_column(h(xa, va), "h")
+                x_next = _check_no_nan(_as_column(f(xa, ua, wa), "f"), "f")
+                y = _check_no_nan(_as_column(h(xa, va), "h"), "h")
             except ModelError:
                 raise
             except Exception as exc:

@@ -88,7 +88,11 @@ def window_information(
     """
     x = np.asarray(x, dtype=float)
     w = np.asarray(w, dtype=float).reshape(-1, system.nw)
-    u_arr = np.zeros((w.shape[0], system.nu)) if u is None else np.asarray(u, dtype=float).reshape(-1, system.nu)
+    u_arr = (
+        np.zeros((w.shape[0], system.nu))
+        if u is None or system.nu == 0
+        else np.asarray(u, dtype=float).reshape(-1, system.nu)
+    )
     if isinstance(N, bool) or not isinstance(N, int) or N < 1 or not isinstance(k, int) or not N <= k <= w.shape[0]:
         raise OptionError(f"k, N: expected integers with 1 <= N <= k <= {w.shape[0]}, got k={k!r}, N={N!r}")
     if x.ndim != 2 or x.shape[1] != system.nx or x.shape[0] <= k:

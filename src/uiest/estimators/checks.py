@@ -12,10 +12,10 @@ from uiest.errors import DataError, OptionError
 from uiest.system import System
 
 
-def check_horizon(N: Any) -> int:
-    """Return N as an int >= 1 or raise OptionError naming ``N``."""
+def check_horizon(N: Any, name: str = "N") -> int:
+    """Return N as an int >= 1 or raise OptionError naming ``name``."""
     if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 1:
-        raise OptionError(f"N: expected an integer horizon >= 1, got {N!r}")
+        raise OptionError(f"{name}: expected an integer >= 1, got {N!r}")
     return int(N)
 
 

@@ -17,9 +17,13 @@ certificate implies (iterating eq:Lyapunov_2 as in the proof of theo:Lyapunov):
 the UISE's cost eq:cost_MHE_full with the window reaching back to time 0. The FIE and the UISE
 therefore solve the same problem while ``k <= N``, which makes the FIE a cross-check of the
 moving-horizon machinery (and an offline estimator). Its problems grow with k: one is built per
-length (k+1 of them) and all data are kept (memory grows with k). For large k the prior weight
-``mu^k`` vanishes, and directions the data do not determine become flat: use it offline and for
-short records.
+length (k+1 of them) and all data are kept, so building takes time that grows with the square
+of the record's length (measured on the closed-form model, 2 cores: 50 steps 1 s, 100 steps
+4 s, 200 steps 18 s with either backend, nearly all of it building) and memory grows with k.
+``max_steps`` (default 500) bounds it: a longer record raises :class:`OptionError` before any
+work, pointing to the UISE, whose window stays N long. For large k the prior weight ``mu^k``
+vanishes, and directions the data do not determine become flat: use it offline and for short
+records.
 """
 
 from __future__ import annotations
@@ -27,9 +31,13 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
+from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
+from uiest.estimators.checks import check_horizon
+from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.uise import resolve_uise_weights, uise_window_weights
 from uiest.estimators.weights import StrongCertificate, UISEWeights
 from uiest.system import System
@@ -45,7 +53,8 @@ class FIE(WindowEstimator):
         x_hat[k]   = x^*_{k|k}    from x_bar_0, u[0 .. k-1], y[0 .. k]
         w_hat[k-1] = w^*_{k-1|k}
 
-    Parameters as for :class:`~uiest.estimators.UISE`, without N.
+    Parameters as for :class:`~uiest.estimators.UISE`, without N, and ``max_steps``: the longest
+    record (k at most this) the FIE accepts; building grows with its square (module docstring).
     """
 
     estimator_name = "FIE"
@@ -62,8 +71,10 @@ class FIE(WindowEstimator):
         solver_options: Mapping[str, Any] | None = None,
         warm_start: bool = True,
         strict: bool = False,
+        max_steps: int = 500,
     ) -> None:
         self.weights, self.certificate = resolve_uise_weights(system, certificate, weights)
+        self.max_steps = check_horizon(max_steps, "max_steps")
         super().__init__(
             system,
             N=None,
@@ -77,6 +88,24 @@ class FIE(WindowEstimator):
 
     def _window_weights(self, length: int) -> WindowWeights:
         return uise_window_weights(self.weights, length)
+
+    def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
+        """As :meth:`WindowEstimator.step`; raises :class:`OptionError` beyond ``max_steps``."""
+        self._check_length(self._k)
+        return super().step(u_prev, y)
+
+    def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
+        """As :meth:`WindowEstimator.run`; a record longer than ``max_steps`` is refused before any work."""
+        self._check_length(np.shape(y)[0] - 1 if np.ndim(y) == 2 else 0)
+        return super().run(u, y, x0_prior=x0_prior)
+
+    def _check_length(self, k: int) -> None:
+        if k > self.max_steps:
+            raise OptionError(
+                f"max_steps: the FIE builds one problem per length, so its time grows with the square of the "
+                f"record; k = {k} exceeds max_steps = {self.max_steps}. Raise max_steps, or use a UISE (its window "
+                "stays N long)"
+            )
 
     @property
     def guaranteed(self) -> bool:

@@ -298,7 +298,10 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     written.append(out / "scenario.toml")
     focus = state_names(study)[scenario.focus_state]
     failures = study.runs[study.runs["error"] != ""]
-    info = information_table(study)
+    try:
+        info = information_table(study)
+    except Exception as exc:  # an optional section: its failure is reported, the rest is written
+        info = pd.DataFrame([{"information table unavailable": f"{type(exc).__name__}: {exc}"}])
     info.to_csv(out / "information.csv", index=False)
     written.append(out / "information.csv")
     info_section = (
