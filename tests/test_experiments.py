@@ -133,3 +133,15 @@ def test_a_certificate_that_cannot_be_had_is_recorded_and_the_study_goes_on():
     assert study.certificates[0]["status"] == "not available" and "reduction" in study.certificates[0]["reason"]
     errors = study.runs.set_index("estimator")["error"]
     assert "reduction" in errors["two-stage"] and errors["UISE"] == ""
+
+
+def test_a_state_leaving_x_is_counted_and_reported(tmp_path):
+    base = tiny()
+    leaving = base.with_overrides(runs=1, cases=("noise-free",), w_gain=30.0, estimators=(base.estimators[0],))
+    with pytest.warns(UserWarning, match="x left X"):
+        study = run_study(leaving)
+    row = study.runs.iloc[0]
+    assert row["x_outside"] > 0 and row["on_boundary"] > 0
+    write_report(study, tmp_path, wall_time=1.0)
+    report = (tmp_path / "report.md").read_text()
+    assert "The true state left X in 1 runs" in report and "held on the boundary of X" in report

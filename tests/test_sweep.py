@@ -89,3 +89,32 @@ def test_the_readme_example_sweep_file_parses():
 
     design = Sweep.from_toml(Path(__file__).parents[1] / "examples" / "crop_sweep.toml")
     assert len(design.points()) == 6 and len(design.tasks()) == 6 * design.scenario.runs
+
+
+def test_every_backend_collects_its_rows_and_the_manifest_records_provenance(tmp_path):
+    import json
+
+    results = sweep(design(), tmp_path, workers=1, solver="rti")
+    assert len(results) == 4 and set(results["solver"]) == {"rti"}
+    manifest = json.loads((tmp_path / "manifest.json").read_text())
+    assert manifest["solver"] == "rti" and manifest["tasks"] == 4 and manifest["code_version"]
+    assert manifest["design"]["sweep"]["grid"] == {"N": [2, 4], "noise_scale": [0.5]}
+    assert {"casadi", "numpy", "uiest"} <= set(manifest["versions"]) and manifest["git_revision"]
+
+
+def test_task_keys_change_with_the_code(monkeypatch):
+    from uiest.experiments import sweep_design
+
+    before = {task.key for task in design().tasks()}
+    monkeypatch.setattr(sweep_design, "code_version", lambda: "other code")
+    after = {task.key for task in design().tasks()}
+    assert before.isdisjoint(after) and len(after) == len(before)
+
+
+def test_help_texts_keep_their_brackets():
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+
+    text = CliRunner().invoke(app, ["sweep", "--help"], terminal_width=200).output
+    assert "[scenario] and [sweep]" in text
