@@ -32,10 +32,11 @@ drops missing measurements. Outputs constrained to a box Y with finite sides add
 ``(h(x_m, v_m) - c_y) / s_y`` to g with bounds; node constraints ``c(x_m, v_m, d_m)`` of the
 model add ``(c - c_c) / s_c`` at measured nodes (components with a finite side only).
 
-Everything that changes from one step to the next is a parameter ``p``:
-``[prior (nx), u (L, nu), y (M, ny), mask (M, ny), v_bar (M, nv), w_bar (L, nw), data (L+1, nd)]``
-(row-major),
-so the problem is built once per window length and re-solved. A Gauss-Newton backend needs
+Everything that changes from one step to the next, and the weights, are parameters ``p``:
+``[prior (nx), u (L, nu), y (M, ny), mask (M, ny), v_bar (M, nv), w_bar (L, nw), data (L+1, nd),
+weights]`` (row-major; ``weights`` holds the scaled square roots ``(S W S)^{1/2}`` of each block,
+see :meth:`WindowProblem.weight_vector`), so the problem is built once per window length and
+re-solved, and new weights (another rate, another certificate) need no rebuild. A Gauss-Newton backend needs
 only :attr:`WindowProblem.residual_function`, :attr:`WindowProblem.constraint_function` and
 the bounds; IPOPT uses :meth:`WindowProblem.nlp`.
 """
@@ -131,8 +132,12 @@ class WindowProblem:
         Number of transitions L >= 0 (the window has L+1 state nodes).
     measured : sequence of int
         Node indices (0..L) that carry a measurement; increasing.
-    weights : WindowWeights
-        Residual weights (original units); shapes must match ``measured`` and ``length``.
+    weights : WindowWeights, optional
+        Default residual weights (original units; shapes must match ``measured`` and ``length``),
+        used when :meth:`parameters` is given none.
+    weighted_w : bool, optional
+        Whether the unknown input has a residual ``|w - w_bar|`` (default: whether ``weights.w``
+        is given).
     x_box : Box, optional
         Bound on every state node (default: the model's ``x_bounds``).
     v_box : Box, optional
@@ -158,8 +163,9 @@ class WindowProblem:
         system: System | WindowModel,
         length: int,
         measured: ArrayLike,
-        weights: WindowWeights,
+        weights: WindowWeights | None = None,
         *,
+        weighted_w: bool | None = None,
         x_box: Box | None = None,
         v_box: Box | None = None,
         w_box: Box | None = None,
@@ -196,8 +202,7 @@ class WindowProblem:
         for label, box, n in (("x_box", self.x_box, nx), ("v_box", self.v_box, nv), ("w_box", self.w_box, nw)):
             if box.size != n:
                 raise OptionError(f"{label}: expected dimension {n}, got {box.size}")
-        self._check_weights(weights)
-        self.weights = weights
+        self.weighted_w = bool(weights is not None and weights.w is not None) if weighted_w is None else weighted_w
 
         # scaling: z = c + s * z~
         self.x_center, self.x_scale = self.x_box.center, model.x_scale
@@ -244,6 +249,7 @@ class WindowProblem:
             "v_bar": M * nv,
             "w_bar": L * nw,
             "data": (L + 1) * nd,
+            "weights": nx * nx + M * (ny * ny + nv * nv) + (L * nw * nw if self.weighted_w else 0),
         }
         self.parameter_slices: dict[str, slice] = {}
         start = 0
@@ -252,21 +258,34 @@ class WindowProblem:
             start += size
         self.n_par = start
         self._build()
+        self.default_weights = None if weights is None else self.weight_vector(weights)
 
     # ------------------------------------------------------------------ construction
-    def _check_weights(self, weights: WindowWeights) -> None:
+    def weight_vector(self, weights: WindowWeights) -> FloatArray:
+        """The weights' part of ``p``: scaled symmetric square roots ``(S W S)^{1/2}``, block by block.
+
+        Raises OptionError for wrong shapes or weights that are not symmetric positive semidefinite.
+        """
         s = self.model
         L, M = self.length, self.n_meas
-        expected = {
-            "prior": (weights.prior, (s.nx, s.nx)),
-            "y": (weights.y, (M, s.ny, s.ny)),
-            "v": (weights.v, (M, s.nv, s.nv)),
-        }
-        if weights.w is not None:
-            expected["w"] = (weights.w, (L, s.nw, s.nw))
-        for label, (value, shape) in expected.items():
-            if np.shape(value) != shape:
-                raise OptionError(f"weights.{label}: expected shape {shape}, got {np.shape(value)}")
+        blocks: list[tuple[str, ArrayLike, tuple[int, ...], FloatArray]] = [
+            ("prior", weights.prior, (s.nx, s.nx), self.x_scale),
+            ("y", weights.y, (M, s.ny, s.ny), self.y_scale),
+            ("v", weights.v, (M, s.nv, s.nv), self.v_scale),
+        ]
+        if self.weighted_w:
+            if weights.w is None:
+                raise OptionError("weights.w: this problem penalises w, expected weights of shape (L, nw, nw)")
+            blocks.append(("w", weights.w, (L, s.nw, s.nw), self.w_scale))
+        parts = []
+        for label, value, shape, scale in blocks:
+            arr = np.asarray(value, dtype=float)
+            if arr.shape != shape:
+                raise OptionError(f"weights.{label}: expected shape {shape}, got {arr.shape}")
+            for i, block in enumerate(arr.reshape(-1, *shape[-2:])):
+                name = f"weights.{label}" + (f"[{i}]" if arr.ndim == 3 else "")
+                parts.append(sqrt_psd(np.outer(scale, scale) * block, name).ravel())
+        return np.concatenate(parts) if parts else np.zeros(0)
 
     def _build(self) -> None:
         s = self.model
@@ -288,37 +307,27 @@ class WindowProblem:
         ds = [par("data", i, nd) for i in range(L + 1)]
         node_of = {int(node): m for m, node in enumerate(self.measured)}
         v_nominal = ca.DM(self.v_center)
-        weights = self.weights
+        offset = [self.parameter_slices["weights"].start]
 
-        def scaled_root(W: FloatArray, scale: FloatArray, name: str) -> ca.DM:
-            return ca.DM(sqrt_psd(np.outer(scale, scale) * np.asarray(W, dtype=float), name))
+        def root(n: int) -> ca.SX:
+            """The next (n, n) weight root of the parameter vector (symmetric: row or column order alike)."""
+            start = offset[0]
+            offset[0] += n * n
+            return ca.reshape(p[start : start + n * n], n, n) if n else ca.SX(0, 0)
 
-        residuals = [
-            ca.mtimes(
-                scaled_root(weights.prior, self.x_scale, "weights.prior"),
-                (xs[0] - par("prior", 0, nx)) / ca.DM(self.x_scale),
-            )
-        ]
+        residuals = [ca.mtimes(root(nx), (xs[0] - par("prior", 0, nx)) / ca.DM(self.x_scale))]
         outputs = []
+        roots_y = [root(ny) for _ in range(M)]
+        roots_v = [root(nv) for _ in range(M)]
         for m, node in enumerate(self.measured):
             y_hat = s.h(xs[int(node)], vs[m], ds[int(node)])
             outputs.append(y_hat)
             diff = par("mask", m, ny) * (par("y", m, ny) - y_hat) / ca.DM(self.y_scale)
-            residuals.append(ca.mtimes(scaled_root(weights.y[m], self.y_scale, f"weights.y[{m}]"), diff))
-            residuals.append(
-                ca.mtimes(
-                    scaled_root(weights.v[m], self.v_scale, f"weights.v[{m}]"),
-                    (vs[m] - par("v_bar", m, nv)) / ca.DM(self.v_scale),
-                )
-            )
-        if weights.w is not None:
+            residuals.append(ca.mtimes(roots_y[m], diff))
+            residuals.append(ca.mtimes(roots_v[m], (vs[m] - par("v_bar", m, nv)) / ca.DM(self.v_scale)))
+        if self.weighted_w:
             for i in range(L):
-                residuals.append(
-                    ca.mtimes(
-                        scaled_root(weights.w[i], self.w_scale, f"weights.w[{i}]"),
-                        (ws[i] - par("w_bar", i, nw)) / ca.DM(self.w_scale),
-                    )
-                )
+                residuals.append(ca.mtimes(root(nw), (ws[i] - par("w_bar", i, nw)) / ca.DM(self.w_scale)))
         r = ca.vertcat(*residuals)
         dynamics = [
             (s.f(xs[i], par("u", i, nu), ws[i], vs[node_of[i]] if i in node_of else v_nominal, ds[i]) - xs[i + 1])
@@ -405,8 +414,9 @@ class WindowProblem:
         v_bar: ArrayLike | None = None,
         w_bar: ArrayLike | None = None,
         data: ArrayLike | None = None,
+        weights: WindowWeights | FloatArray | None = None,
     ) -> FloatArray:
-        """Pack a window's data into the parameter vector ``p``.
+        """Pack a window's data and weights into the parameter vector ``p``.
 
         Parameters
         ----------
@@ -422,6 +432,9 @@ class WindowProblem:
             Unknown-input priors (default: ``system.nominal_w``); used only if w is weighted.
         data : array_like (L+1, nd), optional
             Node data of the model (required when ``nd > 0``).
+        weights : WindowWeights or ndarray, optional
+            The weights, or their part of ``p`` from :meth:`weight_vector` (cache it: it is the
+            costly part); default: the weights the problem was built with.
 
         """
         s = self.model
@@ -442,6 +455,7 @@ class WindowProblem:
                 else np.asarray(w_bar, dtype=float).reshape(L, s.nw)
             ),
             "data": np.zeros((L + 1, 0)) if data is None else np.asarray(data, dtype=float).reshape(L + 1, s.nd),
+            "weights": self._weights_part(weights),
         }
         p = np.empty(self.n_par)
         for key, value in parts.items():
@@ -449,6 +463,19 @@ class WindowProblem:
                 raise DataError(f"{key}: expected finite window data, got {np.asarray(value).tolist()}")
             p[self.parameter_slices[key]] = np.ravel(value)
         return p
+
+    def _weights_part(self, weights: WindowWeights | FloatArray | None) -> FloatArray:
+        if weights is None:
+            if self.default_weights is None:
+                raise OptionError("weights: this problem was built without weights; pass them to parameters()")
+            return self.default_weights
+        if isinstance(weights, WindowWeights):
+            return self.weight_vector(weights)
+        vector = np.asarray(weights, dtype=float).reshape(-1)
+        expected = self.parameter_slices["weights"].stop - self.parameter_slices["weights"].start
+        if vector.size != expected:
+            raise OptionError(f"weights: expected a weight vector of {expected} values, got {vector.size}")
+        return vector
 
     def pack(self, trajectory: WindowTrajectory) -> FloatArray:
         """Scaled decision vector from a trajectory in original units."""
