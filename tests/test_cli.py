@@ -73,9 +73,9 @@ def test_sweep_command_runs_and_resumes(tmp_path):
     args = ["sweep", str(design), "--out", str(tmp_path / "out"), "--workers", "1"]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
-    assert "2 rows (0 failed)" in result.output
+    assert "2 of 2 tasks stored (0 with an error), 0 lost" in result.output
     again = runner.invoke(app, args)
-    assert again.exit_code == 0 and "2 rows" in again.output
+    assert again.exit_code == 0 and "2 of 2 tasks stored" in again.output
 
 
 def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):

@@ -8,7 +8,7 @@ import pytest
 from uiest import OptionError
 from uiest.experiments import EstimatorSpec, Scenario
 from uiest.experiments import runner as runner_module
-from uiest.experiments.sweep import Sweep, sweep
+from uiest.experiments.sweep import Sweep, collect, sweep
 
 
 def design():
@@ -50,7 +50,7 @@ def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     seen = []
     full = sweep(design(), tmp_path, workers=1, progress=seen.append)
     assert len(full) == 4 and full["key"].is_unique
-    assert len(seen) == 2 and seen[-1].skipped == 2 and seen[-1].remaining == 0
+    assert len(seen) == 3 and seen[0].skipped == 2 and seen[0].remaining == 2 and seen[-1].remaining == 0
     for name, mtime in stored.items():
         assert (tmp_path / "runs" / name).stat().st_mtime_ns == mtime
 
@@ -97,16 +97,21 @@ def test_every_backend_collects_its_rows_and_the_manifest_records_provenance(tmp
     results = sweep(design(), tmp_path, workers=1, solver="rti")
     assert len(results) == 4 and set(results["solver"]) == {"rti"}
     manifest = json.loads((tmp_path / "manifest.json").read_text())
-    assert manifest["solver"] == "rti" and manifest["tasks"] == 4 and manifest["code_version"]
+    assert manifest["solver"] == "rti" and manifest["tasks"] == 4
     assert manifest["design"]["sweep"]["grid"] == {"N": [2, 4], "noise_scale": [0.5]}
-    assert {"casadi", "numpy", "uiest"} <= set(manifest["versions"]) and manifest["git_revision"]
+    (call,) = manifest["calls"]
+    assert call["new_tasks"] == 4 and call["code_version"] and call["git_revision"]
+    assert {"casadi", "numpy", "uiest"} <= set(call["versions"])
+    assert len(collect(design(), tmp_path)) == 4  # the manifest's backend by default
+    sweep(design(), tmp_path, workers=1, solver="rti")
+    assert len(json.loads((tmp_path / "manifest.json").read_text())["calls"]) == 2
 
 
 def test_task_keys_change_with_the_code(monkeypatch):
     from uiest.experiments import sweep_design
 
     before = {task.key for task in design().tasks()}
-    monkeypatch.setattr(sweep_design, "code_version", lambda: "other code")
+    monkeypatch.setattr(sweep_design, "code_version", lambda: "other code")  # read when tasks are made
     after = {task.key for task in design().tasks()}
     assert before.isdisjoint(after) and len(after) == len(before)
 

@@ -14,6 +14,7 @@ from rich.table import Table
 
 from uiest import models
 from uiest.errors import OptionError, UiestError
+from uiest.paths import writable_file, writable_folder
 
 app = typer.Typer(
     name="uiest",
@@ -23,8 +24,8 @@ app = typer.Typer(
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
-console = Console()
-error_console = Console(stderr=True)
+console = Console(markup=False)  # paths and messages may hold brackets
+error_console = Console(stderr=True, markup=False)
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -81,7 +82,6 @@ def simulate(
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
-    from uiest.experiments.sweep import writable_folder
     from uiest.plotting import plot_trajectory, save_figure
     from uiest.simulate import simulate as run_simulation
 
@@ -138,9 +138,8 @@ def certify(
         raise OptionError(f"--verify: expected a positive number of pairs, got {verify}")
     if structure not in ("full", "identity"):
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")
-    from uiest.experiments.sweep import writable_folder
-
-    writable_folder(out.parent, "--out")
+    _positive(seed, "--seed", allow_zero=True)
+    writable_file(out, "--out")
     entry = models.get(model)
     system = entry.build()
     parameters = entry.jacobian_parameters() if entry.jacobian_parameters is not None else None
@@ -231,7 +230,6 @@ def reproduce(
     from rich.progress import SpinnerColumn
 
     from uiest.experiments import Scenario, crop_growth_scenario, run_study, write_report
-    from uiest.experiments.sweep import writable_folder
     from uiest.window.solvers import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
@@ -280,9 +278,10 @@ def sweep(
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
     solver: Annotated[str, typer.Option(help="Default window solver backend (ipopt, gn, rti).")] = "gn",
+    retry_failed: Annotated[bool, typer.Option(help="Compute again the stored tasks that recorded an error.")] = False,
 ) -> None:
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
-    from uiest.experiments.sweep import Sweep, SweepProgress, writable_folder
+    from uiest.experiments.sweep import Sweep, SweepProgress
     from uiest.experiments.sweep import sweep as run_sweep
     from uiest.window.solvers import BACKENDS
 
@@ -291,25 +290,30 @@ def sweep(
     writable_folder(out, "--out")
     plan = Sweep.from_toml(design)
     total = len(plan.tasks(solver))
+    last = SweepProgress(0, 0, 0, 0)
     with Progress(
         TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console
     ) as bar:
         task = bar.add_task("sweep", total=total)
 
         def update(state: SweepProgress) -> None:
-            bar.update(
-                task,
-                completed=state.skipped + state.done,
-                description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
-                f"remaining {state.remaining}",
-            )
+            nonlocal last
+            last = state
+            bar.update(task, completed=state.skipped + state.done + state.lost,
+                       description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
+                       f"lost {state.lost}, remaining {state.remaining}")  # fmt: skip
 
-        results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update)
-    failed = int((results["error"] != "").sum()) if not results.empty else 0
-    console.print(f"{len(results)} rows ({failed} failed) in {out / 'results.parquet'}; summary: {out / 'summary.csv'}",
-                  markup=False)  # fmt: skip
-    if results.empty or failed == len(results):
-        error_console.print("error: every task failed; see the 'error' column of results.parquet", markup=False)
+        results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update,
+                            retry_failed=retry_failed)  # fmt: skip
+    keys = results["key"].nunique() if not results.empty else 0
+    failed = int(results.groupby("key")["error"].apply(lambda e: (e != "").any()).sum()) if keys else 0
+    console.print(f"{keys} of {total} tasks stored ({failed} with an error), {last.lost} lost this run; "
+                  f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}")  # fmt: skip
+    if last.lost:
+        error_console.print(f"error: {last.lost} tasks were not computed (see {out / 'lost_tasks.log'}); run again")
+        raise typer.Exit(code=1)
+    if keys == 0 or failed == keys:
+        error_console.print("error: every task failed; see the 'error' column of results.parquet")
         raise typer.Exit(code=1)
 
 
@@ -323,10 +327,9 @@ def bench(
     import json
 
     from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
-    from uiest.experiments.sweep import writable_folder
 
     if json_file is not None:
-        writable_folder(json_file.parent, "--json")
+        writable_file(json_file, "--json")
 
     console.print("window solvers, noisy crop scenario (ms per sample after N warm-up samples)", highlight=False)
     console.print(TABLE_HEADER, highlight=False, soft_wrap=True)

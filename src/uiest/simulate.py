@@ -114,9 +114,12 @@ def simulate(
     else:
         v_arr = _sequence(v, steps + 1, system.nv, "v")
 
-    x_arr = np.empty((steps + 1, system.nx))
-    u_arr = np.empty((steps, system.nu))
-    w_arr = np.empty((steps, system.nw))
+    try:
+        x_arr = np.empty((steps + 1, system.nx))
+        u_arr = np.empty((steps, system.nu))
+        w_arr = np.empty((steps, system.nw))
+    except MemoryError:
+        raise DataError(f"steps: {steps} steps of this system do not fit in memory") from None
     x_arr[0] = x_start
     f = system.f
     for k in range(steps):

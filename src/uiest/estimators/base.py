@@ -29,7 +29,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.errors import DataError, OptionError, SolverError
+from uiest.errors import CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import (
     boundary_flag,
     check_horizon,
@@ -38,7 +38,7 @@ from uiest.estimators.checks import (
     check_y,
     window_bounds,
 )
-from uiest.estimators.results import EstimationResult, StepEstimate
+from uiest.estimators.results import NO_DATA, EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import WindowProblem, WindowSolution, WindowSolver, WindowTrajectory, WindowWeights, make_solver
 from uiest.window.solvers import BACKENDS
@@ -222,7 +222,7 @@ class WindowEstimator(StreamingEstimator):
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
-        length, start, _ = window_bounds(k, self.N, self.one_step_ahead)
+        length, start = window_bounds(k, self.N)
         stored_u = list(self._u)
         u_win = np.array([*stored_u[len(stored_u) - length + 1 :], u_vec] if length else [], dtype=float)
         u_win = u_win.reshape(length, self.system.nu)
@@ -236,7 +236,7 @@ class WindowEstimator(StreamingEstimator):
             status, success, iterations, solve_time, cost = "prior", True, 0, 0.0, 0.0
         elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
             x_hat, w_hat, w_index = self._propagate(u_vec, k)
-            status, success, iterations, solve_time, cost = "propagated (no data)", False, 0, 0.0, float("nan")
+            status, success, iterations, solve_time, cost = NO_DATA, False, 0, 0.0, float("nan")
         else:
             entry, attempts = self._solve_window(length, start, prior, u_win, y_win)
             problem = entry.problem
@@ -294,6 +294,8 @@ class WindowEstimator(StreamingEstimator):
         :func:`collect_run` calls it when :meth:`step` raised unexpectedly, so that a run keeps
         what it computed and goes on.
         """
+        if self._x0_prior is None:
+            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
@@ -416,6 +418,8 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         u_prev = None if k == 0 else u_arr[k - 1]
         try:
             est = estimator.step(u_prev, y_arr[k])
+        except (OptionError, CertificationError):  # the configuration is wrong: no step will do better
+            raise
         except Exception as exc:  # recorded; the run keeps what it computed and goes on
             if getattr(estimator, "strict", False) or not hasattr(estimator, "skip"):
                 raise

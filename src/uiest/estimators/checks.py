@@ -9,6 +9,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.errors import DataError, OptionError
+from uiest.estimators.results import BOUNDARY_FLAG
 from uiest.system import System
 
 
@@ -36,6 +37,8 @@ def check_u_prev(system: System, u_prev: ArrayLike | None, k: int) -> FloatArray
 def check_y(system: System, y: ArrayLike) -> FloatArray:
     """One measurement as shape (ny,); NaN (missing) allowed, infinities not."""
     ny = system.ny
+    if y is None:
+        raise DataError(f"y: expected {ny} real numbers (NaN = missing), got None")
     try:
         arr = np.asarray(y, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -49,10 +52,10 @@ def check_y(system: System, y: ArrayLike) -> FloatArray:
     return arr.copy()
 
 
-def window_bounds(k: int, N: int | None, one_step_ahead: bool) -> tuple[int, int, int]:
-    """``(N_k, first, last)``: window length and the first and last measured time of step k."""
+def window_bounds(k: int, N: int | None) -> tuple[int, int]:
+    """``(N_k, first)``: the window length and first time of step k (``N_k = min(N, k)``, N None: k)."""
     length = k if N is None else min(N, k)
-    return length, k - length, (k - 1 if one_step_ahead else k)
+    return length, k - length
 
 
 def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[FloatArray, FloatArray]:
@@ -68,6 +71,8 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
         raise DataError(f"y: expected shape (K+1, {system.ny}) with K+1 >= 1, got {y_arr.shape}")
     if np.any(np.isinf(y_arr)):
         raise DataError("y: expected finite values or NaN (missing), got +-inf")
+    if np.all(np.isnan(y_arr)):
+        raise DataError("y: every measurement is missing (NaN): there is nothing to estimate from")
     K = y_arr.shape[0] - 1
     nu = system.nu
     if u is None:
@@ -99,8 +104,8 @@ BOUNDARY_RESIDUAL = 10.0
 def boundary_flag(system: System, x_hat: FloatArray, y: FloatArray, v_bar: FloatArray) -> str:
     """A status suffix when ``x_hat`` sits on a finite side of X and misses ``y`` by far more than the noise.
 
-    The noise bound of each output is ``|h(x_hat, v_hi) - h(x_hat, v_lo)|`` over V's corners (V's
-    centre +- its scale where unbounded); the residual is ``y - h(x_hat, v_bar)`` (missing channels
+    The noise bound of each output is half ``|h(x_hat, v_hi) - h(x_hat, v_lo)|`` over V's corners
+    (V's centre +- its scale where unbounded); the residual is ``y - h(x_hat, v_bar)`` (missing channels
     ignored). Such an estimate is held by the constraint, not by the data: the true state may
     have left X.
     """
@@ -114,10 +119,10 @@ def boundary_flag(system: System, x_hat: FloatArray, y: FloatArray, v_bar: Float
     V = system.v.bounds
     lo = np.where(np.isfinite(V.lower), V.lower, V.center - system.v.scale)
     hi = np.where(np.isfinite(V.upper), V.upper, V.center + system.v.scale)
-    noise = np.abs(system.output(x_hat, hi) - system.output(x_hat, lo)) + 1e-9 * system.y.scale
+    noise = 0.5 * np.abs(system.output(x_hat, hi) - system.output(x_hat, lo)) + 1e-9 * system.y.scale
     residual = np.abs(y - system.output(x_hat, v_bar))
     ratio = np.nanmax(residual / noise, initial=0.0)
     if not ratio > BOUNDARY_RESIDUAL:
         return ""
     names = [n for n, flag in zip(system.x.names, on, strict=True) if flag]
-    return f" [on the boundary of X ({', '.join(names)}), output residual {ratio:.3g}x the noise]"
+    return f" {BOUNDARY_FLAG} ({', '.join(names)}), output residual {ratio:.3g}x the noise]"

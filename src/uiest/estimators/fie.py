@@ -31,12 +31,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_horizon
+from uiest.estimators.checks import check_horizon, check_run_data
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.uise import resolve_uise_weights, uise_window_weights
 from uiest.estimators.weights import StrongCertificate, UISEWeights
@@ -96,7 +95,8 @@ class FIE(WindowEstimator):
 
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
         """As :meth:`WindowEstimator.run`; a record longer than ``max_steps`` is refused before any work."""
-        self._check_length(np.shape(y)[0] - 1 if np.ndim(y) == 2 else 0)
+        _, y_arr = check_run_data(self.system, u, y)
+        self._check_length(y_arr.shape[0] - 1)
         return super().run(u, y, x0_prior=x0_prior)
 
     def _check_length(self, k: int) -> None:

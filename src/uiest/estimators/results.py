@@ -21,6 +21,13 @@ def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
     return arr
 
 
+NO_DATA = "propagated (no data)"
+"""Status of a step whose whole window had no measurement: the model bridged it."""
+
+BOUNDARY_FLAG = "[on the boundary of X"
+"""Start of the status suffix of an estimate held on the boundary of X (see ``checks.boundary_flag``)."""
+
+
 @dataclass(frozen=True, eq=False)
 class StepEstimate:
     """The result of one ``step(u_prev, y)`` at time k.
@@ -144,8 +151,18 @@ class EstimationResult:
 
     @property
     def failures(self) -> int:
-        """Number of steps whose window problem was not solved (estimate propagated)."""
-        return int(np.count_nonzero(~self.success & (self.status != "prior")))
+        """Steps whose window problem was not solved (estimate propagated); outage steps excluded."""
+        return int(np.count_nonzero(~self.success & (self.status != "prior") & (self.status != NO_DATA)))
+
+    @property
+    def bridged(self) -> int:
+        """Steps of an outage longer than the window, bridged by the model (status ``NO_DATA``)."""
+        return int(np.count_nonzero(self.status == NO_DATA))
+
+    @property
+    def on_boundary(self) -> FloatArray:
+        """(K+1,) bool: estimates held on the boundary of X with a large output residual (see the status)."""
+        return np.char.find(self.status.astype(str), BOUNDARY_FLAG) >= 0
 
     def error(self, x: FloatArray) -> FloatArray:
         """``x - x_hat`` for the true states ``x (K+1, nx)``."""

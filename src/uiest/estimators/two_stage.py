@@ -51,8 +51,7 @@ therefore filled with the output the estimator predicts at time j:
 value is used in eq:fullest at time j and stored as the data ``gamma_j`` of later windows.
 Outputs psi does not use (the crop's ``y^d``) thus change nothing but the dropped residual; for
 outputs psi uses, ``x_hat_j`` and later windows carry the error of the unknown-input guess
-(the UISE guarantee does not cover such steps). :attr:`StepEstimate.missing` records them. Unlike
-the full-order estimators, windows without any measurement are accepted.
+(the UISE guarantee does not cover such steps). :attr:`StepEstimate.missing` records them.
 
 **Special cases** (remark after theo:stab): ``n_sharp = 0`` needs no optimisation,
 ``x_hat_k = proj(T^-1(psi(y_k, v_bar)))`` (status ``"algebraic"``); ``n_flat = 0`` gives

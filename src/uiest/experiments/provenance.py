@@ -30,7 +30,9 @@ def machine() -> str:
 
 def git_revision() -> str:
     """The git commit of the package's checkout (with '-dirty' for uncommitted changes), or why none."""
-    try:
+    try:  # the package must be tracked by the checkout (an installed copy inside some project is not)
+        subprocess.run(["git", "ls-files", "--error-unmatch", "__init__.py"], capture_output=True, check=True,
+                       cwd=PACKAGE)  # fmt: skip
         head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=PACKAGE)
         dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], capture_output=True, text=True,
                                check=True, cwd=PACKAGE)  # fmt: skip
@@ -50,15 +52,25 @@ def versions() -> dict[str, str]:
     return found
 
 
+PRESENTATION = frozenset(
+    {"cli.py", "plotting.py", "paths.py", "experiments/report.py", "experiments/provenance.py",
+     "experiments/executors.py", "experiments/solver_bench.py", "experiments/dompc_peer.py"}
+)  # fmt: skip
+"""Modules that do not change computed numbers (how results are shown, stored or run): not hashed."""
+
+
 @functools.cache
 def code_version() -> str:
-    """A hash of every ``.py`` file of the installed uiest package and the solver libraries' versions.
+    """A hash of the uiest code that computes results and of the numerical libraries' versions.
 
+    The ``.py`` files of the installed package except :data:`PRESENTATION`.
     Results computed by different code (a changed estimator, another CasADi) get different
     versions, with or without git; 16 hex digits.
     """
     digest = hashlib.sha256()
     for path in sorted(PACKAGE.rglob("*.py")):
+        if str(path.relative_to(PACKAGE)) in PRESENTATION:
+            continue
         digest.update(str(path.relative_to(PACKAGE)).encode())
         digest.update(path.read_bytes())
     for package in ("casadi", "numpy", "scipy", "cvxpy", "clarabel"):

@@ -75,6 +75,8 @@ class EstimatorSpec:
             value = getattr(self, label)
             if not _number(value) or not (math.isfinite(value) and value >= 0.0):
                 raise OptionError(f"estimators.{label}: expected a finite number >= 0, got {value!r}")
+        for label in ("mu", "output_weight", "prior_weight", "noise_weight", "disturbance_weight"):
+            object.__setattr__(self, label, float(getattr(self, label)))  # 1000000 and 1e6 are one spec
 
 
 def _number(value: object) -> bool:
@@ -168,8 +170,8 @@ class Scenario:
             value = getattr(self, label)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise OptionError(f"{label}: expected an integer >= 1, got {value!r}")
-        if not self.cases or any(case not in CASES for case in self.cases):
-            raise OptionError(f"cases: expected a non-empty subset of {CASES}, got {self.cases!r}")
+        if not self.cases or any(case not in CASES for case in self.cases) or len(set(self.cases)) != len(self.cases):
+            raise OptionError(f"cases: expected a non-empty subset of {CASES} without repeats, got {self.cases!r}")
         if not self.estimators:
             raise OptionError("estimators: expected at least one estimator")
         names = [spec.name for spec in self.estimators]
@@ -177,6 +179,11 @@ class Scenario:
             raise OptionError(f"estimators: names must be unique, got {names}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise OptionError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        for label in ("x0", "x0_lower", "x0_upper", "prior"):
+            object.__setattr__(self, label, _numbers(getattr(self, label), label, allow_nan=label == "prior"))
+        for label in ("noise_scale", "w_gain", "initial_error"):
+            (value,) = _numbers([getattr(self, label)], label, allow_nan=label == "initial_error")
+            object.__setattr__(self, label, value)
         if len(self.x0_lower) != len(self.x0_upper):
             raise OptionError("x0_lower, x0_upper: expected the same length")
         if any(lo > hi for lo, hi in zip(self.x0_lower, self.x0_upper, strict=True)):
@@ -231,6 +238,8 @@ class Scenario:
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Scenario:
         """Build from plain data (as read from TOML); unknown keys raise OptionError."""
+        if not isinstance(data, dict):
+            raise OptionError(f"scenario: expected a table, got {data!r}")
         known = {f.name for f in fields(cls)}
         unknown = set(data) - known
         if unknown:
@@ -255,18 +264,15 @@ class Scenario:
         values["estimators"] = tuple(estimators)
         if "cases" in values:
             cases = values["cases"]
+            if not isinstance(cases, str | list | tuple):
+                raise OptionError(f"cases: expected a list of {CASES}, got {cases!r}")
             values["cases"] = (cases,) if isinstance(cases, str) else tuple(cases)
-        for key in ("x0", "x0_lower", "x0_upper"):
-            if key in values:
-                values[key] = _numbers(values[key], key)
-        for key in ("noise_scale", "w_gain", "initial_error"):
-            if key in values:
-                (values[key],) = _numbers([values[key]], key, allow_nan=key == "initial_error")
-        if "prior" in values:
-            values["prior"] = _numbers(values["prior"], "prior", allow_nan=True)
         if "prior_from_output" in values:
             try:
-                values["prior_from_output"] = tuple((int(a), int(b)) for a, b in values["prior_from_output"])
+                pairs = tuple(tuple(pair) for pair in values["prior_from_output"])
+                if not all(len(pair) == 2 and all(type(i) is int for i in pair) for pair in pairs):
+                    raise ValueError
+                values["prior_from_output"] = pairs
             except (TypeError, ValueError):
                 raise OptionError(
                     f"prior_from_output: expected [state, output] index pairs, got {values['prior_from_output']!r}"
@@ -276,11 +282,15 @@ class Scenario:
     @classmethod
     def from_toml(cls, path: Path) -> Scenario:
         """Read a scenario written by :meth:`to_toml` (or by hand)."""
-        try:
-            data = tomllib.loads(Path(path).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise OptionError(f"scenario: cannot read {path}: {exc}") from exc
-        return cls.from_dict(data)
+        return cls.from_dict(read_toml(path, "scenario"))
+
+
+def read_toml(path: Path, what: str) -> dict[str, Any]:
+    """The table of a TOML file, or OptionError naming ``what`` and why it cannot be read."""
+    try:
+        return tomllib.loads(Path(path).read_text())
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise OptionError(f"{what}: cannot read {path}: {exc}") from exc
 
 
 def crop_growth_scenario() -> Scenario:

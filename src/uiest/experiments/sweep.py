@@ -8,24 +8,23 @@ shipped.
 Each finished task is written at once to ``OUT/runs/<key>.parquet`` (written to a temporary name,
 then renamed), one row per estimator with the swept parameters as columns; re-running skips
 tasks already stored, so an interrupted sweep resumes without recomputation or duplicates. A
-stored file that cannot be read is moved to ``OUT/runs/corrupt/`` and its task computed again.
-A task whose estimator raises records the error in its row; a task whose worker dies is
-reported and left for the next run. ``OUT/manifest.json`` records the design, seeds, versions,
-git revision and code version.
+stored file that cannot be read in full, or holds another task's rows, is moved to
+``OUT/runs/corrupt/`` and its task computed again. A task whose estimator raises records the
+error in its row (``retry_failed`` computes such tasks again); a task that kills its worker is
+recorded too (:mod:`uiest.experiments.executors`); a task computed by other code (a cluster
+worker with another uiest) is not stored. ``OUT/manifest.json`` records the design, seeds and,
+per call, versions, git revision and code version.
 """
 
 from __future__ import annotations
 
-import contextlib
 import datetime as dt
 import json
 import os
-import threading
 import time
-from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ProcessPoolExecutor, as_completed
+import warnings
+from collections.abc import Callable
 from dataclasses import dataclass
-from multiprocessing import get_context
 from pathlib import Path
 from typing import Any
 
@@ -35,17 +34,27 @@ import pyarrow.parquet as pq
 
 from uiest import models
 from uiest.errors import OptionError
-from uiest.experiments import provenance
+from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
 from uiest.experiments.scenario import Scenario
 from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
+from uiest.paths import writable_folder
 from uiest.window import DEFAULT_BACKEND
 
 __all__ = ["SWEEPABLE", "Sweep", "SweepProgress", "Task", "apply", "collect", "run_task", "sweep"]
 
 
+class CodeMismatchError(RuntimeError):
+    """The worker runs other code than the sweep's: its results must not be stored under this key."""
+
+
 def run_task(task: Task) -> pd.DataFrame:
-    """Simulate and estimate one task; one row per estimator (errors are recorded, never raised)."""
+    """Simulate and estimate one task; one row per estimator (errors are recorded, never raised).
+
+    Raises :class:`CodeMismatchError` when this process runs other code than the task was made for.
+    """
+    if provenance.code_version() != task.code:
+        raise CodeMismatchError(f"this worker runs code {provenance.code_version()}, the sweep {task.code}")
     scenario = task.scenario
     base = {"key": task.key, **dict(task.params), "case": task.case, "run": task.run, "solver": task.solver}
     try:
@@ -72,122 +81,49 @@ def run_task(task: Task) -> pd.DataFrame:
         ms = 1e3 * result.solve_time
         row.update(mean_ms=float(ms.mean()), median_ms=float(np.median(ms)), max_ms=float(ms.max()),
                    failures=int(result.failures))  # fmt: skip
-        row["on_boundary"] = sum("boundary of X" in status for status in result.status)
+        row["on_boundary"] = int(result.on_boundary.sum())
         rows.append(row)
     return pd.DataFrame(rows)
 
 
 def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
-    folder.mkdir(parents=True, exist_ok=True)
     tmp = folder / f".{key}.parquet.tmp"
     frame.to_parquet(tmp, index=False)
     os.replace(tmp, folder / f"{key}.parquet")
 
 
-def _stored_keys(folder: Path) -> set[str]:
-    """Keys of the readable stored tasks; unreadable files are moved to ``folder/corrupt/``."""
-    keys = set()
-    for path in folder.glob("*.parquet") if folder.exists() else ():
-        try:
-            pq.read_metadata(path)
-        except Exception:  # any unreadable file: set it aside, its task is computed again
-            aside = folder / "corrupt"
-            aside.mkdir(exist_ok=True)
-            os.replace(path, aside / f"{path.stem}.{time.time_ns()}.parquet")
+def _set_aside(path: Path) -> None:
+    aside = path.parent / "corrupt"
+    aside.mkdir(exist_ok=True)
+    os.replace(path, aside / f"{path.stem}.{time.time_ns()}.parquet")
+
+
+def _read(path: Path) -> pd.DataFrame | None:
+    """A stored task's rows, or None after moving an unreadable or mislabelled file to ``corrupt/``."""
+    try:
+        frame = pq.read_table(path).to_pandas()
+        if "key" not in frame or not (frame["key"] == path.stem).all():
+            raise ValueError("rows of another task")
+    except Exception:  # any damage (footer, pages, contents): set it aside, the task is computed again
+        _set_aside(path)
+        return None
+    return frame
+
+
+def _stored(folder: Path, keys: set[str], retry_failed: bool) -> tuple[set[str], int]:
+    """(keys of the design's readable stored tasks, count of stored files of other designs or code).
+
+    With ``retry_failed`` the stored tasks whose rows record an error count as not stored.
+    """
+    found, other = set(), 0
+    for path in folder.glob("*.parquet"):
+        if path.stem not in keys:
+            other += 1
             continue
-        keys.add(path.stem)
-    return keys
-
-
-@contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
-    """One BLAS/OpenMP thread in spawned worker processes (they inherit the environment at spawn)."""
-    names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-    previous = {name: os.environ.get(name) for name in names}
-    for name in names:
-        os.environ.setdefault(name, "1")
-    try:
-        yield
-    finally:
-        for name, value in previous.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
-
-
-def _exit_with_parent(parent: int) -> None:
-    """Worker initializer: a daemon thread ends the worker once its parent process is gone."""
-
-    def watch() -> None:
-        while os.getppid() == parent:
-            time.sleep(0.5)
-        os._exit(1)
-
-    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
-
-
-Outcome = tuple[Task, pd.DataFrame | None, str]
-"""A task, its rows (None when its worker failed) and why its worker failed ('' otherwise)."""
-
-
-def _executor_results(tasks: list[Task], workers: int | None, scheduler: str | None) -> Iterator[Outcome]:
-    """Run tasks and yield their outcomes as they finish (serial, processes or Dask)."""
-    if scheduler is None and workers == 1:
-        for task in tasks:
-            yield task, run_task(task), ""
-        return
-    if scheduler is None:
-        with (
-            _single_threaded_children(),
-            ProcessPoolExecutor(
-                max_workers=workers or os.cpu_count(),
-                mp_context=get_context("spawn"),
-                initializer=_exit_with_parent,
-                initargs=(os.getpid(),),
-            ) as pool,  # fmt: skip
-        ):
-            futures: dict[Future[pd.DataFrame], Task] = {pool.submit(run_task, task): task for task in tasks}
-            for future in as_completed(futures):
-                yield _outcome(futures[future], future)
-        return
-    yield from _dask_results(tasks, workers, scheduler)
-
-
-def _outcome(task: Task, future: Any) -> Outcome:
-    try:
-        return task, future.result(), ""
-    except Exception as exc:  # the worker died (or the cluster failed): nothing of the task is stored
-        return task, None, f"{type(exc).__name__}: {exc}"
-
-
-def _dask_results(tasks: list[Task], workers: int | None, scheduler: str) -> Iterator[Outcome]:
-    import dask
-    from distributed import Client, LocalCluster
-    from distributed import as_completed as dask_completed
-
-    cluster = None
-    if scheduler == "local":
-        # Dask's default worker environment sets MALLOC_TRIM_THRESHOLD_=65536, which makes the
-        # allocation-heavy CasADi/IPOPT window solves about 3x slower (measured: 7.2 s against
-        # 2.2 s per crop run); keep its thread limits, drop the malloc setting.
-        environ = dict(dask.config.get("distributed.nanny.pre-spawn-environ", {}))
-        environ.pop("MALLOC_TRIM_THRESHOLD_", None)
-        with dask.config.set({"distributed.nanny.pre-spawn-environ": environ}):
-            cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True)
-    try:
-        try:
-            client = Client(cluster if cluster is not None else scheduler, timeout=10)
-        except (OSError, TimeoutError, ValueError) as exc:
-            raise OptionError(f"scheduler: no Dask scheduler answers at {scheduler!r} within 10 s ({exc})") from None
-        with client:
-            dask_futures = client.map(run_task, tasks, pure=False)
-            by_key = {future.key: task for future, task in zip(dask_futures, tasks, strict=True)}
-            for future in dask_completed(dask_futures):
-                yield _outcome(by_key[future.key], future)
-    finally:
-        if cluster is not None:
-            cluster.close()
+        frame = _read(path)
+        if frame is not None and not (retry_failed and (frame["error"] != "").any()):
+            found.add(path.stem)
+    return found, other
 
 
 @dataclass(frozen=True)
@@ -199,7 +135,7 @@ class SweepProgress:
     remaining: int
     skipped: int
     lost: int = 0
-    """Tasks whose worker died: not stored, computed again by the next run."""
+    """Tasks not computed (a cluster failure, other code on a worker): not stored, left for the next run."""
 
 
 def sweep(
@@ -211,6 +147,7 @@ def sweep(
     solver: str = DEFAULT_BACKEND,
     progress: Callable[[SweepProgress], None] | None = None,
     max_tasks: int | None = None,
+    retry_failed: bool = False,
 ) -> pd.DataFrame:
     """Run every task of ``design`` not yet stored in ``out``; return all stored results.
 
@@ -220,7 +157,7 @@ def sweep(
     out : Path
         Folder; finished tasks go to ``out/runs/<key>.parquet``, the union to ``out/results.parquet``,
         the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png`` and the
-        provenance to ``out/manifest.json``.
+        provenance of every call to ``out/manifest.json``.
     workers : int, optional
         Worker processes (default: all cores; 1 with no scheduler: serial in this process).
     scheduler : str, optional
@@ -228,9 +165,11 @@ def sweep(
     solver : str
         Default window backend (a swept ``solver`` overrides it).
     progress : callable, optional
-        Called with a :class:`SweepProgress` after each task.
+        Called with a :class:`SweepProgress` before the first task and after each task.
     max_tasks : int, optional
         Stop after this many new tasks (the rest is left for a later call).
+    retry_failed : bool
+        Compute again the stored tasks whose rows record an error.
 
     Raises
     ------
@@ -245,41 +184,32 @@ def sweep(
         raise OptionError(f"max_tasks: expected an integer >= 0, got {max_tasks!r}")
     tasks = design.tasks(solver)
     out = Path(out)
-    writable_folder(out, "out")
+    runs_dir = out / "runs"
+    if runs_dir.exists() and not runs_dir.is_dir():
+        raise OptionError(f"out: {runs_dir} is a file; expected a folder for the stored tasks")
+    writable_folder(runs_dir, "out")
     model = models.get(design.scenario.model).build()
     design.scenario.check_model(model.nx, model.ny)
-    _write_manifest(design, out, solver, workers, scheduler)
-    runs_dir = out / "runs"
-    stored = _stored_keys(runs_dir)
+    stored, other = _stored(runs_dir, {task.key for task in tasks}, retry_failed)
     todo = [task for task in tasks if task.key not in stored]
     skipped = len(tasks) - len(todo)
     if max_tasks is not None:
         todo = todo[:max_tasks]
+    _write_manifest(design, out, solver, workers, scheduler, new=len(todo), other=other)
     done = failed = lost = 0
-    if todo:
-        for task, frame, why in _executor_results(todo, workers, scheduler):
-            if frame is None:
-                lost += 1
-                failed += 1
-                _log_lost(out, task, why)
-            else:
-                _store(frame, runs_dir, task.key)
-                done += 1
-                failed += int((frame["error"] != "").any())
-            if progress is not None:
-                progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost))
+    if progress is not None:
+        progress(SweepProgress(0, 0, len(todo), skipped))
+    for task, frame, why in executors.results(todo, run_task, workers, scheduler):
+        if frame is None or not (frame["key"] == task.key).all():
+            lost += 1
+            _log_lost(out, task, why or "its rows carry another key (other code on the worker)")
+        else:
+            _store(frame, runs_dir, task.key)
+            done += 1
+            failed += int((frame["error"] != "").any())
+        if progress is not None:
+            progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost))
     return collect(design, out, solver)
-
-
-def writable_folder(folder: Path, name: str) -> None:
-    """Create ``folder`` and check a file can be written there, else OptionError naming ``name``."""
-    probe = Path(folder) / f".write-test-{os.getpid()}"
-    try:
-        Path(folder).mkdir(parents=True, exist_ok=True)
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise OptionError(f"{name}: cannot write to {folder} ({exc.strerror or exc})") from None
 
 
 def _log_lost(out: Path, task: Task, why: str) -> None:
@@ -288,34 +218,58 @@ def _log_lost(out: Path, task: Task, why: str) -> None:
                   f"{dict(task.params)}: {why}\n")  # fmt: skip
 
 
-def _write_manifest(design: Sweep, out: Path, solver: str, workers: int | None, scheduler: str | None) -> None:
-    """``out/manifest.json``: the design, seeds, versions, git revision, code version, machine."""
+def _write_manifest(
+    design: Sweep, out: Path, solver: str, workers: int | None, scheduler: str | None, *, new: int, other: int
+) -> None:
+    """``out/manifest.json``: the design and seeds, and one record per call (versions, code, machine)."""
+    path = out / "manifest.json"
+    try:
+        calls = json.loads(path.read_text()).get("calls", [])
+    except (OSError, ValueError, AttributeError):
+        calls = []
     scenario = design.scenario
+    calls.append({
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
+        "stored_for_other_designs_or_code": other, "code_version": provenance.code_version(),
+        "git_revision": provenance.git_revision(), "versions": provenance.versions(), "machine": provenance.machine(),
+    })  # fmt: skip
     manifest = {
         "design": design.to_dict(),
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "machine": provenance.machine(),
         "solver": solver,
-        "workers": workers,
-        "scheduler": scheduler,
-        "versions": provenance.versions(),
-        "git_revision": provenance.git_revision(),
-        "code_version": provenance.code_version(),
-        "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "tasks": len(design.tasks(solver)),
+        "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
+        "calls": calls,
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2, default=str))
+    path.write_text(json.dumps(manifest, indent=2, default=str))
 
 
-def collect(design: Sweep, out: Path, solver: str = DEFAULT_BACKEND) -> pd.DataFrame:
-    """Union of the stored tasks of ``design`` (in task order), written to results.parquet with a summary."""
+def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame:
+    """Union of the stored tasks of ``design`` (in task order), written to results.parquet with a summary.
+
+    ``solver`` defaults to the one ``out/manifest.json`` records (else the default backend). A
+    stored file that cannot be read is set aside (its task is computed by the next sweep).
+    """
+    out = Path(out)
+    if solver is None:
+        try:
+            solver = str(json.loads((out / "manifest.json").read_text())["solver"])
+        except (OSError, ValueError, KeyError, TypeError):
+            solver = DEFAULT_BACKEND
     runs_dir = out / "runs"
     frames = []
     for task in design.tasks(solver):
         path = runs_dir / f"{task.key}.parquet"
-        if path.exists():
-            frames.append(pd.read_parquet(path))
+        frame = _read(path) if path.exists() else None
+        if frame is not None:
+            frames.append(frame)
     if not frames:
+        if runs_dir.exists() and any(runs_dir.glob("*.parquet")):
+            warnings.warn(
+                f"{runs_dir} holds results, but none of this design with solver {solver!r} and this code version "
+                f"({provenance.code_version()})",
+                stacklevel=2,
+            )
         return pd.DataFrame()
     results = pd.concat(frames, ignore_index=True)
     results.to_parquet(out / "results.parquet", index=False)

@@ -12,7 +12,6 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-import tomllib
 from dataclasses import dataclass, field, replace
 from itertools import product
 from pathlib import Path
@@ -22,7 +21,7 @@ import numpy as np
 
 from uiest.errors import OptionError
 from uiest.experiments.provenance import code_version
-from uiest.experiments.scenario import Scenario
+from uiest.experiments.scenario import Scenario, read_toml
 from uiest.window import DEFAULT_BACKEND
 from uiest.window.solvers import BACKENDS
 
@@ -31,6 +30,8 @@ SWEEPABLE = ("N", "mu", "output_weight", "noise_scale", "w_gain", "initial_error
 the named one; solver selects the window backend; the rest are Scenario fields."""
 
 INTEGER = ("N", "steps")
+MAX_INTEGER = {"N": 100_000, "steps": 10_000_000}
+"""Sanity bounds of the integer parameters (a larger horizon or run is a typo, not a study)."""
 CHOICES = ("estimator", "solver")
 
 
@@ -45,8 +46,8 @@ def _check_value(name: str, value: Any, estimators: set[str]) -> Any:
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise OptionError(f"{where}: expected a number, got {value!r}")
     if name in INTEGER:
-        if not isinstance(value, int) or value < 1:
-            raise OptionError(f"{where}: expected an integer >= 1, got {value!r}")
+        if not isinstance(value, int) or not 1 <= value <= MAX_INTEGER[name]:
+            raise OptionError(f"{where}: expected an integer in [1, {MAX_INTEGER[name]}], got {value!r}")
         return value
     value = float(value)
     valid = {
@@ -110,14 +111,16 @@ class Sweep:
                 raise OptionError(f"sweep: {name!r} cannot be swept; expected one of {SWEEPABLE}")
         if isinstance(self.random, bool) or not isinstance(self.random, int) or self.random < 0:
             raise OptionError(f"sweep.random: expected an integer >= 0, got {self.random!r}")
-        if self.random and not self.ranges:
-            raise OptionError("sweep.random: random points need sweep.ranges")
+        if bool(self.random) != bool(self.ranges):
+            raise OptionError("sweep.random, sweep.ranges: random points need ranges, and ranges need random > 0")
         names = {spec.name for spec in self.scenario.estimators}
         grid = {}
         for name, values in self.grid.items():
             if isinstance(values, str) or not isinstance(values, list | tuple) or not values:
                 raise OptionError(f"sweep.grid.{name}: expected a non-empty list of values, got {values!r}")
             grid[name] = tuple(_check_value(name, value, names) for value in values)
+            if len(set(grid[name])) != len(grid[name]):
+                raise OptionError(f"sweep.grid.{name}: expected distinct values, got {list(values)}")
         object.__setattr__(self, "grid", grid)
         object.__setattr__(self, "ranges", {name: _check_range(name, b) for name, b in self.ranges.items()})
         for point in self.points():  # every point must give a valid scenario
@@ -146,16 +149,21 @@ class Sweep:
         return points
 
     def tasks(self, solver: str = DEFAULT_BACKEND) -> list[Task]:
-        """Every (point, case, run) as a Task; ``solver`` unless the point sweeps it."""
+        """Every distinct (point, case, run) as a Task; ``solver`` unless the point sweeps it.
+
+        Random points that coincide (integer ranges) are one task.
+        """
         if solver not in BACKENDS:
             raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
-        tasks = []
+        code = code_version()
+        tasks: dict[str, Task] = {}
         for point in self.points():
             scenario = apply(self.scenario, point)
             for case in scenario.cases:
                 for run in range(scenario.runs):
-                    tasks.append(Task(scenario, tuple(sorted(point.items())), case, run, point.get("solver", solver)))
-        return tasks
+                    task = Task(scenario, tuple(sorted(point.items())), case, run, point.get("solver", solver), code)
+                    tasks.setdefault(task.key, task)
+        return list(tasks.values())
 
     def to_dict(self) -> dict[str, Any]:
         """Plain data: ``{"scenario": ..., "sweep": {"grid", "random", "ranges"}}`` (TOML-ready)."""
@@ -171,10 +179,7 @@ class Sweep:
     @classmethod
     def from_toml(cls, path: Path) -> Sweep:
         """Read ``[scenario]`` (as in Scenario TOML) and ``[sweep]`` (``grid``, ``random``, ``ranges``)."""
-        try:
-            data = tomllib.loads(Path(path).read_text())
-        except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-            raise OptionError(f"sweep: cannot read {path}: {exc}") from exc
+        data = read_toml(path, "sweep")
         unknown = set(data) - {"scenario", "sweep"}
         if unknown or "scenario" not in data:
             raise OptionError(f"sweep file: expected the tables 'scenario' and 'sweep', got {sorted(data)}")
@@ -216,12 +221,14 @@ class Task:
     case: str
     run: int
     solver: str
+    code: str
+    """The code version (:func:`~uiest.experiments.provenance.code_version`) the task is meant for."""
 
     @property
     def key(self) -> str:
         """Stable identifier: a hash of the scenario, the point, the case, the run, the backend and the code."""
         payload = json.dumps(
-            [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, code_version()],
+            [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, self.code],
             sort_keys=True,
             default=str,
         )
