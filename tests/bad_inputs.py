@@ -28,7 +28,7 @@ from uiest.detectability import (
     linear_strong_detectability,
 )
 from uiest.errors import CertificationError, UiestError
-from uiest.estimators import FIE, UISE, LinearUIO, MHEWeights, StandardMHE, TwoStageUISE, UISEWeights
+from uiest.estimators import FIE, UISE, LinearUIO, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.experiments import EstimatorSpec, Scenario, run_study
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
@@ -80,6 +80,11 @@ def trajectory() -> Any:
 @functools.cache
 def weights() -> UISEWeights:
     return UISEWeights.from_scales(system(), 0.64, output=1e4)
+
+
+def two_stage(**kwargs: Any) -> TwoStageUISE:
+    reduced = closed_form.reduction()
+    return TwoStageUISE(reduced, **{"weights": TwoStageWeights.from_scales(reduced, 0.5), "N": 3, **kwargs})
 
 
 def uise(**kwargs: Any) -> UISE:
@@ -357,10 +362,38 @@ def api_cases(tmp: Path) -> list[Case]:
         ),
         Case("FIE max_steps = 0", lambda: FIE(s(), weights=weights(), max_steps=0), OptionError, "max_steps"),
         Case(
-            "two-stage N = 0",
-            lambda: TwoStageUISE(closed_form.reduction(), weights=None, certificate=None, N=0),
+            "two-stage without weights or certificate",
+            lambda: TwoStageUISE(closed_form.reduction(), weights=None, certificate=None, N=3),
             OptionError,
-            "N|exactly one",
+            "exactly one",
+        ),
+        Case("two-stage N = 0", lambda: two_stage(N=0), OptionError, "N: expected an integer >= 1"),
+        Case("two-stage N = 2.5", lambda: two_stage(N=2.5), OptionError, "N: expected an integer >= 1"),
+        Case(
+            "FIE: ragged y",
+            lambda: FIE(s(), weights=weights(), x0_prior=[0.5, 1.0]).run(np.zeros((2, 1)), [[0.1], [0.2, 0.3]]),
+            DataError,
+            "y",
+        ),
+        Case("skip without a prior", lambda: uise(x0_prior=None).skip(None, [0.0], "r"), OptionError, "x0_prior"),
+        Case("step with y = None", lambda: uise().step(None, None), DataError, "y"),
+        Case(
+            "a record without any measurement",
+            lambda: uise().run(np.zeros((9, 1)), np.full((9, 1), np.nan)),
+            DataError,
+            "every measurement is missing",
+        ),
+        Case(
+            "a solver_options typo raises from run",
+            lambda: uise(solver_options={"max_iterr": 5}).run(traj().u, traj().y),
+            OptionError,
+            "max_iterr",
+        ),
+        Case(
+            "an IPOPT option of the wrong type raises from run",
+            lambda: uise(solver="ipopt", solver_options={"max_iter": "abc"}).run(traj().u, traj().y),
+            OptionError,
+            "solver_options",
         ),
         Case("linear UIO on a nonlinear system", lambda: LinearUIO(s()), ModelError, "linear"),
         Case(
@@ -522,6 +555,37 @@ def api_cases(tmp: Path) -> list[Case]:
         Case("prior of the wrong length", lambda: run_study(scenario(prior=(0.0,))), OptionError, "prior"),
         Case("settle >= steps", lambda: scenario(settle=8), OptionError, "settle"),
         Case("noise_scale < 0", lambda: scenario(noise_scale=-1.0), OptionError, "noise_scale"),
+        Case("noise_scale a string", lambda: scenario(noise_scale="a"), OptionError, "noise_scale"),
+        Case("w_gain a string", lambda: scenario(w_gain="a"), OptionError, "w_gain"),
+        Case("x0 of strings", lambda: scenario(x0=("a", "b")), OptionError, "x0"),
+        Case("initial_error a string", lambda: scenario(initial_error="a"), OptionError, "initial_error"),
+        Case(
+            "prior_from_output 1.7", lambda: scenario(prior_from_output=((1.7, 0),)), OptionError, "prior_from_output"
+        ),
+        Case("cases = 3", lambda: scenario(cases=3), OptionError, "cases"),
+        Case("repeated cases", lambda: scenario(cases=("noisy", "noisy")), OptionError, "cases"),
+        Case(
+            "Trajectory flags of the wrong length",
+            lambda: _trajectory_with(x_outside=np.zeros(5)),
+            DataError,
+            "x_outside",
+        ),
+        Case("simulate 10**12 steps", lambda: simulate(s(), [0.5, 1.0], 10**12, u=[0.0]), DataError, "steps|memory"),
+        Case("ranges N = 1e300", lambda: Sweep(scenario(), random=1, ranges={"N": (1e300, 1e300)}), OptionError, "N"),
+        Case(
+            "random = 0 with ranges", lambda: Sweep(scenario(), random=0, ranges={"N": (2, 3)}), OptionError, "random"
+        ),
+        Case("repeated grid values", lambda: Sweep(scenario(), grid={"N": (2, 2, 3)}), OptionError, "distinct"),
+        Case(
+            "scenario = 3 in a sweep file",
+            lambda: Sweep.from_toml(_file(tmp, "sc3.toml", "scenario = 3\n[sweep]\n")),
+            OptionError,
+            "scenario",
+        ),
+        Case("a binary scenario file", lambda: Scenario.from_toml(_binary(tmp)), OptionError, "cannot read"),
+        Case(
+            "sweep: out/runs is a file", lambda: sweep(_tiny_sweep(), _runs_file(tmp), workers=1), OptionError, "runs"
+        ),
         Case("w_gain = inf", lambda: scenario(w_gain=math.inf), OptionError, "w_gain"),
         Case("no estimators", lambda: scenario(estimators=()), OptionError, "estimators"),
         Case(
@@ -615,6 +679,11 @@ def api_cases(tmp: Path) -> list[Case]:
             "solver",
         ),
         Case(
+            "sweep: a run file with a damaged page",
+            lambda: _corrupted_resume(tmp, page=True),
+            ok=lambda r: len(r) == 2 and r["key"].is_unique and (r["error"] == "").all(),
+        ),
+        Case(
             "sweep: a corrupted run file",
             lambda: _corrupted_resume(tmp),
             ok=lambda r: len(r) == 2 and r["key"].is_unique and (r["error"] == "").all(),
@@ -634,12 +703,35 @@ def _file(tmp: Path, name: str, text: str) -> Path:
     return path
 
 
-def _corrupted_resume(tmp: Path) -> Any:
-    out = tmp / "corrupt"
+def _corrupted_resume(tmp: Path, page: bool = False) -> Any:
+    """A stored task whose file is damaged: no footer, or (``page``) a data page with an intact footer."""
+    out = tmp / ("damaged-page" if page else "corrupt")
     sweep(_tiny_sweep(), out, workers=1, max_tasks=1)
     (stored,) = (out / "runs").glob("*.parquet")
-    stored.write_bytes(b"not parquet")
+    data = bytearray(stored.read_bytes())
+    if page:
+        data[40:120] = bytes(b ^ 0xFF for b in data[40:120])
+    stored.write_bytes(bytes(data) if page else b"not parquet")
     return sweep(_tiny_sweep(), out, workers=1)
+
+
+def _trajectory_with(**changes: Any) -> Any:
+    from dataclasses import replace
+
+    return replace(trajectory(), **changes)
+
+
+def _binary(tmp: Path) -> Path:
+    path = tmp / "binary.toml"
+    path.write_bytes(b"\xff\xfe\x00binary")
+    return path
+
+
+def _runs_file(tmp: Path) -> Path:
+    out = tmp / "runs-is-a-file"
+    out.mkdir(exist_ok=True)
+    (out / "runs").write_text("")
+    return out
 
 
 def _raising_sweep(tmp: Path) -> Any:
@@ -733,12 +825,39 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         ),
         CliCase("an unknown command", ("colour",), 2, "No such command"),
         CliCase(
+            "reproduce a binary scenario",
+            ("reproduce", "--scenario", str(_binary(tmp)), "--out", out),
+            2,
+            "cannot read",
+        ),
+        CliCase("reproduce cases = 3", ("reproduce", "--scenario", str(_cases3(tmp)), "--out", out), 2, "cases"),
+        CliCase(
+            "sweep scenario = 3",
+            ("sweep", str(_file(tmp, "cli-sc3.toml", "scenario = 3\n[sweep]\n")), "--out", out),
+            2,
+            "scenario",
+        ),
+        CliCase("certify --seed -1", ("certify", "closed-form", "--seed", "-1"), 2, "--seed"),
+        CliCase("certify --out an existing folder", ("certify", "closed-form", "--out", str(tmp)), 2, "folder"),
+        CliCase("bench --json an existing folder", ("bench", "--quick", "--json", str(tmp)), 2, "folder"),
+        CliCase(
+            "sweep where out/runs is a file",
+            ("sweep", str(_failing_sweep_file(tmp)), "--out", str(_runs_file(tmp))),
+            2,
+            "runs",
+        ),
+        CliCase(
             "sweep --scheduler pointing at nothing",
             ("sweep", str(_failing_sweep_file(tmp)), "--out", f"{out}-s", "--scheduler", "tcp://127.0.0.1:9"),
             2,
             "no Dask scheduler answers",
         ),
     ]
+
+
+def _cases3(tmp: Path) -> Path:
+    text = scenario().to_toml(tmp / "cases-base.toml").read_text()
+    return _file(tmp, "cases3.toml", re.sub(r"(?m)^cases = .*$", "cases = 3", text))
 
 
 def _failing_sweep_file(tmp: Path) -> Path:

@@ -88,5 +88,7 @@ def test_random_sweep_grids_give_a_sweep_or_an_option_error(name, values):
         design = Sweep(base, grid={name: tuple(values)})
     except OptionError:
         return
-    for point in design.points():  # every accepted value is applied as given, never rounded
-        assert point[name] in values
+    applied = [point[name] for point in design.points()]  # every accepted value as given, never rounded
+    assert applied == list(values) and design.grid[name] == tuple(values)
+    if name in ("N", "steps"):
+        assert all(type(value) is int for value in applied)

@@ -29,7 +29,19 @@ def test_shapes_and_index_convention():
         np.testing.assert_allclose(traj.x[k + 1], system.step(traj.x[k], traj.u[k], traj.w[k]))
     np.testing.assert_allclose(traj.y, traj.x)  # no noise given -> v = 0
     frame = traj.to_pandas()
-    assert list(frame.columns) == ["t", "x[0]", "x[1]", "u[0]", "w[0]", "v[0]", "v[1]", "y[0]", "y[1]"]
+    assert list(frame.columns) == [
+        "t",
+        "x[0]",
+        "x[1]",
+        "u[0]",
+        "w[0]",
+        "v[0]",
+        "v[1]",
+        "y[0]",
+        "y[1]",
+        "x_outside",
+        "v_outside",
+    ]
     assert len(frame) == 11 and np.isnan(frame["w[0]"].iloc[-1])
 
 

@@ -11,6 +11,7 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
+from uiest.errors import DataError
 
 
 def _freeze(array: FloatArray) -> FloatArray:
@@ -64,6 +65,8 @@ class Trajectory:
         for name in ("x_outside", "v_outside"):
             value = getattr(self, name)
             flags = np.zeros(self.t.shape[0], dtype=bool) if value is None else np.array(value, dtype=bool)
+            if flags.shape != self.t.shape:
+                raise DataError(f"{name}: expected shape {self.t.shape} (one flag per time index), got {flags.shape}")
             flags.setflags(write=False)
             object.__setattr__(self, name, flags)
         object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
@@ -74,7 +77,7 @@ class Trajectory:
         return int(self.u.shape[0])
 
     def to_pandas(self) -> pd.DataFrame:
-        """One row per time index k = 0..K; u and w are NaN in the last row (no transition)."""
+        """One row per time index k = 0..K (u and w are NaN in the last row: no transition), then the flags."""
         columns: dict[str, FloatArray] = {"t": self.t}
         for kind in ("x", "u", "w", "v", "y"):
             data = getattr(self, kind)
@@ -84,5 +87,7 @@ class Trajectory:
             for i, name in enumerate(names):
                 columns[name] = data[:, i]
         frame = pd.DataFrame(columns)
+        frame["x_outside"] = self.x_outside
+        frame["v_outside"] = self.v_outside
         frame.index.name = "k"
         return frame

@@ -102,19 +102,18 @@ def simulate(
     x_start = as_vector(x0, system.nx, "x0")
     if not system.x.bounds.contains(x_start):
         raise DataError(f"x0: expected a point in X = {system.x.bounds}, got {x_start.tolist()}")
-    u_source = _known_input(system, u, steps)
-    w_source = (
-        np.zeros((steps, system.nw)) if w is None else (w if callable(w) else _sequence(w, steps, system.nw, "w"))
-    )
-    rng = np.random.default_rng(seed)
-    if v is None:
-        v_arr = np.zeros((steps + 1, system.nv))
-    elif isinstance(v, NoiseModel):
-        v_arr = np.asarray(v.sample(rng, steps + 1, system.nv), dtype=float)
-    else:
-        v_arr = _sequence(v, steps + 1, system.nv, "v")
-
     try:
+        u_source = _known_input(system, u, steps)
+        w_source = (
+            np.zeros((steps, system.nw)) if w is None else (w if callable(w) else _sequence(w, steps, system.nw, "w"))
+        )
+        rng = np.random.default_rng(seed)
+        if v is None:
+            v_arr = np.zeros((steps + 1, system.nv))
+        elif isinstance(v, NoiseModel):
+            v_arr = np.asarray(v.sample(rng, steps + 1, system.nv), dtype=float)
+        else:
+            v_arr = _sequence(v, steps + 1, system.nv, "v")
         x_arr = np.empty((steps + 1, system.nx))
         u_arr = np.empty((steps, system.nu))
         w_arr = np.empty((steps, system.nw))

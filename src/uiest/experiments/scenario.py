@@ -100,6 +100,17 @@ def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[floa
     return tuple(out)
 
 
+def _index_pairs(value: object) -> tuple[tuple[int, int], ...]:
+    """``prior_from_output`` as (state, output) pairs of integers, else OptionError."""
+    try:
+        pairs = tuple(tuple(pair) for pair in value)  # type: ignore[attr-defined]
+    except TypeError:
+        pairs = ((),)
+    if not all(len(pair) == 2 and all(type(i) is int for i in pair) for pair in pairs):
+        raise OptionError(f"prior_from_output: expected [state, output] integer index pairs, got {value!r}")
+    return pairs  # type: ignore[return-value]
+
+
 @dataclass(frozen=True)
 class Scenario:
     """A Monte Carlo study of estimators on a registered model.
@@ -170,6 +181,10 @@ class Scenario:
             value = getattr(self, label)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise OptionError(f"{label}: expected an integer >= 1, got {value!r}")
+        cases = (self.cases,) if isinstance(self.cases, str) else self.cases
+        if not isinstance(cases, list | tuple):
+            raise OptionError(f"cases: expected a list of {CASES}, got {self.cases!r}")
+        object.__setattr__(self, "cases", tuple(cases))
         if not self.cases or any(case not in CASES for case in self.cases) or len(set(self.cases)) != len(self.cases):
             raise OptionError(f"cases: expected a non-empty subset of {CASES} without repeats, got {self.cases!r}")
         if not self.estimators:
@@ -179,6 +194,7 @@ class Scenario:
             raise OptionError(f"estimators: names must be unique, got {names}")
         if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
             raise OptionError(f"seed: expected an integer >= 0, got {self.seed!r}")
+        object.__setattr__(self, "prior_from_output", _index_pairs(self.prior_from_output))
         for label in ("x0", "x0_lower", "x0_upper", "prior"):
             object.__setattr__(self, label, _numbers(getattr(self, label), label, allow_nan=label == "prior"))
         for label in ("noise_scale", "w_gain", "initial_error"):
@@ -262,21 +278,6 @@ class Scenario:
             raise OptionError(f"scenario: missing keys {sorted(missing)} (an empty or partial scenario table)")
         values = dict(data)
         values["estimators"] = tuple(estimators)
-        if "cases" in values:
-            cases = values["cases"]
-            if not isinstance(cases, str | list | tuple):
-                raise OptionError(f"cases: expected a list of {CASES}, got {cases!r}")
-            values["cases"] = (cases,) if isinstance(cases, str) else tuple(cases)
-        if "prior_from_output" in values:
-            try:
-                pairs = tuple(tuple(pair) for pair in values["prior_from_output"])
-                if not all(len(pair) == 2 and all(type(i) is int for i in pair) for pair in pairs):
-                    raise ValueError
-                values["prior_from_output"] = pairs
-            except (TypeError, ValueError):
-                raise OptionError(
-                    f"prior_from_output: expected [state, output] index pairs, got {values['prior_from_output']!r}"
-                ) from None
         return cls(**values)
 
     @classmethod
