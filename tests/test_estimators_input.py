@@ -192,7 +192,7 @@ def test_missing_data(mask, which):
     result = est.run(None, y)
     np.testing.assert_array_equal(result.missing[:, 0], missing)
     bridged = result.status == "propagated (no data)"
-    assert bridged.any() == empty_window and result.failures == int(bridged.sum())
+    assert bridged.any() == empty_window and result.bridged == int(bridged.sum()) and result.failures == 0
     assert np.all(np.isfinite(result.x_hat))
     assert np.all(SYSTEM.x.bounds.contains(result.x_hat, tol=1e-9))
 
