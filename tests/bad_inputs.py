@@ -20,18 +20,20 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from uiest import DataError, ModelError, OptionError, System, UniformNoise, simulate
+from uiest import DataError, ModelError, OptionError, System, Trajectory, UniformNoise, simulate
 from uiest.detectability import (
     certify_delta_ioss,
     certify_reduced_ioss,
     certify_strong_detectability,
     linear_strong_detectability,
+    window_information,
 )
 from uiest.errors import CertificationError, UiestError
 from uiest.estimators import FIE, UISE, LinearUIO, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
-from uiest.experiments import EstimatorSpec, Scenario, run_study
+from uiest.experiments import EstimatorSpec, Scenario, run_study, write_report
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
+from uiest.plotting import plot_estimates, plot_trajectory, save_figure
 
 UNWRITABLE = Path("/proc/uiest-cannot-write-here")
 
@@ -693,8 +695,227 @@ def api_cases(tmp: Path) -> list[Case]:
             lambda: _raising_sweep(tmp),
             ok=lambda r: (r["error"] == "ZeroDivisionError: injected").all(),
         ),
+        *_fuzz_cases(tmp),
     ]
     return cases
+
+
+def _fuzz_cases(tmp: Path) -> list[Case]:
+    """Issue 16, third fuzz run: inputs that gave tracebacks, silent results or hangs."""
+    s, traj, lin = system, trajectory, linear_case
+    p = ca.SX.sym("p")
+    x, u, w, v = ca.SX.sym("x", 2), ca.SX.sym("u", 0), ca.SX.sym("w", 1), ca.SX.sym("v", 1)
+    ode = {"nx": 1, "nw": 1, "nv": 1, "dt": 0.1}
+    rhs, out = (lambda x, u, w: [w[0] - x[0]]), (lambda x, v: [x[0] + v[0]])
+    with_u = functools.partial(callables, nu=1, u_bounds=(0.0, 1.0))
+    reduced = closed_form.reduction
+    return [
+        # systems
+        Case("nu = True", lambda: callables(nu=True), ModelError, "nu: expected an integer"),
+        Case("dt a word", lambda: callables(dt="fast"), ModelError, "dt"),
+        Case("dt = True", lambda: callables(dt=True), ModelError, "dt"),
+        Case("from_ode: dt a word", lambda: System.from_ode(rhs, out, **{**ode, "dt": "fast"}), ModelError, "dt"),
+        Case(
+            "from_ode: substeps = 10**9",
+            lambda: System.from_ode(rhs, out, **ode, substeps=10**9),
+            OptionError,
+            r"substeps: expected an integer in \[1, 1_000\]",
+        ),
+        Case(
+            "from_expressions: a free symbol",
+            lambda: System.from_expressions(x, u, w, v, ca.vertcat(x[0] + p + w, x[1]), x[0] + v),
+            ModelError,
+            r"x_next: uses the symbols \['p'\]",
+        ),
+        Case("step: x a word", lambda: s().step("ab", [0.0], [0.0]), DataError, "x: expected real numbers"),
+        Case("step: u None for nu = 1", lambda: s().step([0.5, 1.0], None, [0.0]), DataError, "u: expected"),
+        Case(
+            "step: batches of 3 and 4",
+            lambda: s().step(np.zeros((3, 2)), np.zeros((4, 1)), [0.0]),
+            DataError,
+            "x, u: batched",
+        ),
+        Case("linear: nw = 0", lambda: linear.with_invariant_zeros([0.5], nw=0), ModelError, "nw"),
+        # simulate, trajectories, results, figures
+        Case(
+            "simulate: progress a word",
+            lambda: simulate(s(), [0, 0], 3, u=[0.0], progress="yes"),
+            OptionError,
+            "progress",
+        ),
+        Case(
+            "Trajectory of disagreeing lengths",
+            lambda: Trajectory(
+                np.arange(3.0), np.zeros((5, 2)), np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((3, 1)), np.zeros((3, 1))
+            ),
+            DataError,
+            r"x: expected shape \(K\+1, nx\)",
+        ),
+        Case(
+            "result.error(a Trajectory)",
+            lambda: uise().run(traj().u, traj().y).error(traj()),
+            DataError,
+            "x: expected the true states",
+        ),
+        Case("plot_estimates: a list of results", lambda: plot_estimates(traj(), [1]), DataError, "results"),
+        Case("plot_estimates: arguments swapped", lambda: plot_estimates({"a": traj()}, traj()), DataError, "traj"),
+        Case("plot_estimates: a result of another system", lambda: _plot_other_system(), DataError, "x_hat"),
+        Case(
+            "plot_trajectory: units too short",
+            lambda: plot_trajectory(traj(), units={"x": ("m",)}),
+            DataError,
+            r"units\['x'\]",
+        ),
+        Case("save_figure: a str path", lambda: _saved(str(tmp / "fig.png")), ok=lambda r: r.stat().st_size > 0),
+        Case("save_figure: an unknown format", lambda: _saved(tmp / "fig.xyz"), OptionError, "path"),
+        Case("save_figure: an unwritable folder", lambda: _saved(UNWRITABLE / "f.png"), OptionError, "cannot write"),
+        # estimators
+        Case(
+            "linear UIO: gain with NaN", lambda: LinearUIO(lin()[0], gain=np.full((3, 1), np.nan)), OptionError, "gain"
+        ),
+        Case("linear UIO: unstable poles", lambda: LinearUIO(lin()[0], poles=[0.5, 0.2, 1.5]), OptionError, "poles: F"),
+        Case("y complex in a run", lambda: uise().run(traj().u, traj().y + 1j), DataError, "y: expected"),
+        Case(
+            "u outside U in a run",
+            lambda: _uise_of(with_u()).run([[5.0]] * 2, np.zeros((3, 1))),
+            DataError,
+            r"u: expected values in U",
+        ),
+        Case(
+            "u_prev outside U in a step",
+            lambda: _step_twice(_uise_of(with_u()), [5.0]),
+            DataError,
+            r"u_prev: expected values in U",
+        ),
+        Case(
+            "Gauss-Newton max_iter = -5",
+            lambda: uise(solver_options={"max_iter": -5}).run(traj().u, traj().y),
+            OptionError,
+            "max_iter",
+        ),
+        Case(
+            "Gauss-Newton max_iter a word",
+            lambda: uise(solver_options={"max_iter": "abc"}).run(traj().u, traj().y),
+            OptionError,
+            "max_iter",
+        ),
+        Case(
+            "Gauss-Newton step_tol < 0",
+            lambda: uise(solver_options={"step_tol": -1.0}).run(traj().u, traj().y),
+            OptionError,
+            "step_tol",
+        ),
+        # certificates
+        Case("certify: a model name", lambda: certify_strong_detectability("crop"), OptionError, "system"),
+        Case(
+            "certify: samples = 10**9",
+            lambda: certify_strong_detectability(s(), samples=10**9),
+            OptionError,
+            r"samples: expected an integer in \[10, 1_000_000\]",
+        ),
+        Case("certify: seed = -1", lambda: certify_strong_detectability(s(), seed=-1), OptionError, "seed"),
+        Case("certify: seed = 1.5", lambda: certify_strong_detectability(s(), seed=1.5), OptionError, "seed"),
+        Case("delta-IOSS: samples = -1", lambda: certify_delta_ioss(s(), samples=-1), OptionError, "samples"),
+        Case("delta-IOSS: eta = 1.5", lambda: certify_delta_ioss(s(), 1.5), OptionError, "eta"),
+        Case("delta-IOSS: w_spread < 0", lambda: certify_delta_ioss(s(), w_spread=-1.0), OptionError, "w_spread"),
+        Case(
+            "verify(10**12)",
+            lambda: linear_strong_detectability(*lin()[1:]).verify(10**12),
+            OptionError,
+            r"n_pairs: expected an integer in \[1, 1_000_000\]",
+        ),
+        Case(
+            "verify seed = -1",
+            lambda: linear_strong_detectability(*lin()[1:]).verify(100, seed=-1),
+            OptionError,
+            "seed",
+        ),
+        Case(
+            "window_information: noise_std a word",
+            lambda: window_information(s(), traj().x, traj().u, traj().w, k=4, N=2, noise_std="small"),
+            OptionError,
+            "noise_std",
+        ),
+        Case(
+            "window_information: w of width 2",
+            lambda: window_information(s(), traj().x, traj().u, np.zeros((8, 2)), k=4, N=2, noise_std=0.01),
+            DataError,
+            "w: expected shape",
+        ),
+        Case(
+            "window_information: x a Trajectory",
+            lambda: window_information(s(), traj(), traj().u, traj().w, k=4, N=2, noise_std=0.01),
+            DataError,
+            "x: expected",
+        ),
+        Case("full_state: y of length 3", lambda: reduced().full_state(np.zeros(3), np.zeros(1)), DataError, "y"),
+        Case("check_assumptions(n_points=0)", lambda: reduced().check_assumptions(n_points=0), OptionError, "n_points"),
+        # scenarios, reports, sweeps
+        Case("estimators of strings", lambda: scenario(estimators=("uise",)), OptionError, "estimators"),
+        Case("to_toml: a str path", lambda: scenario().to_toml(str(tmp / "s.toml")), ok=lambda r: r.exists()),
+        Case(
+            "to_toml: an unwritable folder",
+            lambda: scenario().to_toml(UNWRITABLE / "s.toml"),
+            OptionError,
+            "cannot write",
+        ),
+        Case(
+            "write_report: an unwritable folder",
+            lambda: write_report(run_study(scenario(), solver="gn"), UNWRITABLE / "report", wall_time=1.0),
+            OptionError,
+            "cannot write",
+        ),
+        Case("Sweep of a name", lambda: Sweep("x", grid={"N": (2,)}), OptionError, "scenario"),
+        Case(
+            "Sweep grid a list of pairs",
+            lambda: Sweep(scenario(), grid=[("N", (2, 3))]),
+            OptionError,
+            "sweep.grid: expected a mapping",
+        ),
+        Case(
+            "Sweep random = 10**8",
+            lambda: Sweep(scenario(), random=10**8, ranges={"mu": (0.1, 0.9)}),
+            OptionError,
+            "expected at most 100_000",
+        ),
+        Case(
+            "sweep: progress a word",
+            lambda: sweep(_tiny_sweep(), tmp / "progress", workers=1, progress="yes"),
+            OptionError,
+            "progress",
+        ),
+        Case(
+            "sweep: out/results.parquet is a folder",
+            lambda: sweep(_tiny_sweep(), _results_folder(tmp), workers=1),
+            OptionError,
+            "results.parquet is a folder",
+        ),
+    ]
+
+
+def _uise_of(system_: System) -> UISE:
+    return UISE(system_, weights=UISEWeights.from_scales(system_, 0.5, output=1e4), N=2, x0_prior=[0.0, 0.0])
+
+
+def _step_twice(estimator: Any, u_prev: Any) -> Any:
+    estimator.step(None, [0.0])
+    return estimator.step(u_prev, [0.0])
+
+
+def _plot_other_system() -> Any:
+    system_, *_ = linear_case()
+    truth = simulate(system_, np.zeros(3), 8, w=np.zeros((8, 1)))
+    return plot_estimates(trajectory(), {"lin": LinearUIO(system_, x0_prior=np.zeros(3)).run(None, truth.y)})
+
+
+def _saved(path: Any) -> Any:
+    return save_figure(plot_trajectory(trajectory()), path)
+
+
+def _results_folder(tmp: Path) -> Path:
+    out = tmp / "results-is-a-folder"
+    (out / "results.parquet").mkdir(parents=True, exist_ok=True)
+    return out
 
 
 def _file(tmp: Path, name: str, text: str) -> Path:
@@ -851,6 +1072,13 @@ def cli_cases(tmp: Path) -> list[CliCase]:
             ("sweep", str(_failing_sweep_file(tmp)), "--out", f"{out}-s", "--scheduler", "tcp://127.0.0.1:9"),
             2,
             "no Dask scheduler answers",
+        ),
+        CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
+        CliCase(
+            "sweep where out/results.parquet is a folder",
+            ("sweep", str(_sweep_file(tmp, "grid = {N = [3]}")), "--out", str(_results_folder(tmp)), "--workers", "1"),
+            2,
+            "results.parquet is a folder",
         ),
     ]
 

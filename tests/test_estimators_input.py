@@ -114,8 +114,12 @@ def test_bad_priors_and_options():
         UISE(SYSTEM, weights=WEIGHTS, N=3, v_prior=[1.0])
     with pytest.raises(OptionError, match="system"):
         UISE("crop", weights=WEIGHTS, N=3)
-    with pytest.raises(TypeError):
+    with pytest.raises(OptionError, match=r"options: unknown \['horizon'\]"):
         UISE(SYSTEM, weights=WEIGHTS, N=3, horizon=4)  # unknown keywords raise
+    with pytest.raises(OptionError, match="strict: expected True or False"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, strict="False")
+    with pytest.raises(OptionError, match="lag: expected 0 <= lag <= N = 3"):
+        UISE(SYSTEM, weights=WEIGHTS, N=3, lag=4)
     crop = crop_growth.system()
     crop_weights = MHEWeights.from_scales(crop, 0.48)
     with pytest.raises(DataError, match="w_prior: expected a point in the known range"):

@@ -9,14 +9,13 @@ import pytest
 from uiest import Box, CertificationError, DataError, OptionError, SolverError, System, UniformNoise, simulate
 from uiest.estimators import (
     EstimationResult,
-    InputFit,
     LinearUIO,
     TwoStageUISE,
     TwoStageWeights,
     UISEWeights,
-    two_stage_window_weights,
 )
 from uiest.estimators import base as base_module
+from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
 from uiest.estimators.two_stage import reduced_window_model
 from uiest.models import closed_form, crop_growth, get, linear
@@ -173,7 +172,7 @@ def test_n_flat_zero_is_a_one_step_ahead_mhe():
 def test_window_weights_are_the_papers_formulas(linear_case):
     weights = TwoStageWeights(mu=0.5, prior=np.diag([2.0, 3.0]), R_y=[[5.0]], R_v=[[7.0]])
     L = 3
-    W = two_stage_window_weights(weights, L)
+    W = weights.schedule().window(L, range(L))
     np.testing.assert_allclose(W.prior, 2 * 0.5**L * np.diag([2.0, 3.0]))
     assert W.y.shape == (L, 1, 1) and W.w is None  # y[k-L .. k-1]
     for i in range(L):  # node i is time k - j, j = L - i
@@ -263,7 +262,7 @@ def test_streaming_equals_run_with_bounded_memory(closed_form_case):
         if k:
             assert step.w_index == k - 1
             np.testing.assert_array_equal(step.w_hat, result.w_hat[k - 1])
-        assert len(est._u) <= N and len(est._gamma) <= N and len(est._priors) <= N
+        assert len(est._u) <= N and len(est._data) <= N and len(est._priors) <= N
     assert set(est._cache) == set(range(1, N + 1))  # one problem per window length 1..N
 
 

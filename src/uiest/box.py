@@ -8,6 +8,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from uiest.checks import real_array
 from uiest.errors import DataError, ModelError
 
 FloatArray = NDArray[np.float64]
@@ -18,10 +19,7 @@ def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] 
 
     A scalar is accepted for ``size == 1``. Raises ``error`` naming ``name`` otherwise.
     """
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise error(f"{name}: expected {size} real numbers, got {value!r}") from exc
+    arr = real_array(value, name, f"{size} real numbers", error=error)
     if arr.ndim == 0 and size == 1:
         arr = arr.reshape(1)
     if arr.shape != (size,):

@@ -13,6 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from uiest import models
+from uiest.checks import check_samples
 from uiest.errors import OptionError, UiestError
 from uiest.paths import writable_file, writable_folder
 
@@ -134,8 +135,7 @@ def certify(
 
     from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 
-    if verify < 1:
-        raise OptionError(f"--verify: expected a positive number of pairs, got {verify}")
+    check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")
     _positive(seed, "--seed", allow_zero=True)

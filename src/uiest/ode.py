@@ -18,7 +18,7 @@ hold). Two ways to treat w:
 - ``input_channel="rk4"``: w is held inside the RK4 stages (the accurate zero-order-hold step);
   the input's direction then depends on the state, which the certificate reports as such.
 
-RK4 takes ``substeps`` equal steps per sample.
+RK4 takes ``substeps`` equal steps per sample (at most ``MAX_SUBSTEPS``).
 """
 
 from __future__ import annotations
@@ -27,9 +27,12 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
+from uiest.checks import check_int
 from uiest.errors import ModelError, OptionError
 
 INPUT_CHANNELS = ("integral", "rk4")
+MAX_SUBSTEPS = 1000
+"""Most RK4 substeps per sample: the steps are unrolled into the model's expression graph."""
 
 
 def rk4_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, substeps: int) -> ca.SX:
@@ -69,8 +72,7 @@ def discretise(
     """
     if not (np.isfinite(dt) and dt > 0):
         raise ModelError(f"dt: expected a positive finite sampling time, got {dt!r}")
-    if isinstance(substeps, bool) or not isinstance(substeps, int | np.integer) or substeps < 1:
-        raise OptionError(f"substeps: expected a positive integer, got {substeps!r}")
+    substeps = check_int(substeps, "substeps", low=1, high=MAX_SUBSTEPS)
     if input_channel is not None and input_channel not in INPUT_CHANNELS:
         raise OptionError(f"input_channel: expected one of {INPUT_CHANNELS} or None, got {input_channel!r}")
     nx, nu, nw = (rhs.numel_in(i) for i in range(3))

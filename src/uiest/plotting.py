@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -13,11 +13,18 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from uiest.errors import DataError
+from uiest.checks import shown
+from uiest.errors import DataError, OptionError
+from uiest.paths import writable_file
 from uiest.results import Trajectory
 
 if TYPE_CHECKING:
     from uiest.estimators.results import EstimationResult
+
+
+def _check_trajectory(traj: object) -> None:
+    if not isinstance(traj, Trajectory):
+        raise DataError(f"traj: expected a uiest.Trajectory (the simulated truth), got {shown(traj)}")
 
 
 def _label(name: str, unit: str) -> str:
@@ -30,10 +37,18 @@ def plot_trajectory(traj: Trajectory, units: dict[str, tuple[str, ...]] | None =
     Parameters
     ----------
     traj : Trajectory
-    units : mapping from "x", "w", "y" to component units, optional (axis labels).
+    units : mapping from "x", "w", "y" (also "u", "v") to component units, optional (axis labels).
 
     """
-    units = units or {}
+    _check_trajectory(traj)
+    if units is not None and not isinstance(units, Mapping):
+        raise DataError(f"units: expected a mapping from 'x', 'w', 'y' to unit strings, got {shown(units)}")
+    units = dict(units or {})
+    for kind, given in units.items():
+        n = getattr(traj, kind).shape[1] if kind in ("x", "u", "w", "v", "y") else None
+        if n is None or isinstance(given, str) or not isinstance(given, Sequence) or len(given) != n:
+            expected = f"{n} unit strings" if n is not None else 'one of the keys "x", "u", "w", "v", "y"'
+            raise DataError(f"units[{kind!r}]: expected {expected}, got {given!r}")
     panels = [("x", i) for i in range(traj.x.shape[1])]
     panels += [("w", i) for i in range(traj.w.shape[1])]
     panels += [("y", i) for i in range(traj.y.shape[1])]
@@ -66,6 +81,18 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
         Plot ``|x - x_hat|`` on a log axis (else the signed error on a linear axis).
 
     """
+    from uiest.estimators.results import EstimationResult
+
+    _check_trajectory(traj)
+    if not isinstance(results, Mapping) or not all(isinstance(r, EstimationResult) for r in results.values()):
+        raise DataError(f"results: expected a mapping from a label to an EstimationResult, got {shown(results)}")
+    for label, result in results.items():
+        for name, got, truth in (("x_hat", result.x_hat, traj.x), ("w_hat", result.w_hat, traj.w)):
+            if got.shape != truth.shape:
+                raise DataError(
+                    f"results[{label!r}].{name}: expected the shape of the truth's {name[0]}, {truth.shape}, "
+                    f"got {got.shape} (a run of another system or record?)"
+                )
     nx, nw = traj.x.shape[1], traj.w.shape[1]
     x_names = traj.names.get("x") or tuple(f"x[{i}]" for i in range(nx))
     w_names = traj.names.get("w") or tuple(f"w[{i}]" for i in range(nw))
@@ -79,10 +106,6 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
         axes[i, 0].plot(t, truth, color="k", lw=1.4, label="true")
         for j, (label, result) in enumerate(results.items()):
             estimate = result.x_hat[:, i] if is_x else result.w_hat[:, i - nx]
-            if estimate.shape != truth.shape:
-                raise DataError(
-                    f"results[{label!r}]: expected {truth.shape[0]} samples of {name}, got {estimate.shape}"
-                )
             error = truth - estimate
             axes[i, 0].plot(t, estimate, lw=1.0, ls="--", color=f"C{j}", label=label)
             axes[i, 1].plot(t, np.abs(error) if log_error else error, lw=1.0, color=f"C{j}", label=label)
@@ -101,9 +124,13 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     return fig
 
 
-def save_figure(fig: Figure, path: Path) -> Path:
-    """Write ``fig`` to ``path`` (format from the suffix) and close it."""
-    path.parent.mkdir(parents=True, exist_ok=True)
+def save_figure(fig: Figure, path: Path | str) -> Path:
+    """Write ``fig`` to ``path`` (a Path or str; format from the suffix) and close it."""
+    path = Path(path)
+    formats = sorted(fig.canvas.get_supported_filetypes())
+    if path.suffix.lstrip(".").lower() not in formats:
+        raise OptionError(f"path: expected a file name ending in one of {formats}, got {str(path)!r}")
+    writable_file(path, "path")
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path

@@ -20,7 +20,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from uiest.box import Box, FloatArray
+from uiest.box import Box, FloatArray, as_vector
+from uiest.checks import check_int, check_samples, check_seed, shown
 from uiest.detectability import lmi
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
@@ -37,7 +38,7 @@ class AssumptionReport:
     Attributes
     ----------
     inverse_error : float
-        ``max |T_inv(T(x)) - x| / scale_x``.
+        ``max |T_inv(T(x)) - x| / (|x| + scale_x)`` (relative to |x|, so a wide X with a small scale is fine).
     psi_error : float
         eq:ass_1: ``max |psi(h(x, v), T_sharp(x), v) - T_flat(x)| / |T_flat|``.
     w_sensitivity : float
@@ -125,9 +126,11 @@ class ReducedModel:
         ``z_bounds`` defaults to the min/max of ``T_sharp`` over a 5-point grid of X (exact for
         linear T, whose extremes lie at the corners).
         """
+        if not isinstance(system, System):
+            raise ModelError(f"system: expected a uiest.System, got {shown(system)}")
         nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
-        if not isinstance(n_flat, int | np.integer) or not 0 <= n_flat <= nx:
-            raise ModelError(f"n_flat: expected an integer in [0, {nx}], got {n_flat!r}")
+        n_flat = check_int(n_flat, "n_flat", high=nx, error=ModelError)
+        check_points, seed = check_samples(check_points, "check_points"), check_seed(seed)
         n_sharp = nx - n_flat
         T_fun = as_function(T, "T", [("x", nx)], nx)
         T_inv_fun = as_function(T_inv, "T_inv", [("z", nx)], nx)
@@ -161,6 +164,7 @@ class ReducedModel:
 
     def check_assumptions(self, n_points: int = 1000, seed: int = 0) -> AssumptionReport:
         """Largest violations of Assumption ass on random points, and the remark's dominance margin d."""
+        n_points, seed = check_samples(n_points, "n_points"), check_seed(seed)
         z, g, u, w, v = (ca.SX.sym(s, k) for s, k in (("z", self.n_sharp), ("gamma", self.system.ny),
                          ("u", self.system.nu), ("w", self.system.nw), ("v", self.system.nv)))  # fmt: skip
         x = self.T_inv(ca.vertcat(self.psi(g, z, v), z))
@@ -169,11 +173,11 @@ class ReducedModel:
 
     def full_state(self, y: FloatArray, z_sharp: FloatArray, v: FloatArray | None = None) -> FloatArray:
         """eq:fullest: ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` (v defaults to the centre of V)."""
-        v = self.system.v.bounds.center if v is None else v
+        system = self.system
+        y, z_sharp = as_vector(y, system.ny, "y"), as_vector(z_sharp, self.n_sharp, "z_sharp")
+        v = system.v.bounds.center if v is None else as_vector(v, system.nv, "v")
         z_flat = np.asarray(self.psi(y, z_sharp, v), dtype=float).reshape(-1)
-        return np.asarray(self.T_inv(np.concatenate([z_flat, np.asarray(z_sharp, dtype=float)])), dtype=float).reshape(
-            -1
-        )
+        return np.asarray(self.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
 
     def certify(self, **options: Any) -> ReducedIOSS:
         """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain.
@@ -223,7 +227,7 @@ def _assumption_report(
         return np.asarray(fun.map(count)(*[c.T for c in cols]), dtype=float).reshape(-1, count).T
 
     z = run(T, x)
-    inverse = float((np.abs(run(T_inv, z) - x) / system.x.scale).max())
+    inverse = float((np.abs(run(T_inv, z) - x) / (np.abs(x) + system.x.scale)).max())  # relative to |x|
     y = system.output(x, v)
     z_flat, z_sharp = z[:, :n_flat], z[:, n_flat:]
     flat_scale = np.maximum(np.abs(z_flat).max(axis=0), 1e-300) if n_flat else np.ones(0)

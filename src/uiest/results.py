@@ -11,11 +11,12 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
+from uiest.checks import real_array
 from uiest.errors import DataError
 
 
-def _freeze(array: FloatArray) -> FloatArray:
-    out = np.array(array, dtype=float)
+def _freeze(array: FloatArray, name: str) -> FloatArray:
+    out = real_array(array, name, "an array of real numbers")
     out.setflags(write=False)
     return out
 
@@ -61,7 +62,15 @@ class Trajectory:
 
     def __post_init__(self) -> None:
         for name in ("t", "x", "u", "w", "v", "y"):
-            object.__setattr__(self, name, _freeze(getattr(self, name)))
+            object.__setattr__(self, name, _freeze(getattr(self, name), name))
+        if self.t.ndim != 1 or self.t.size < 1:
+            raise DataError(f"t: expected shape (K+1,) with K+1 >= 1, got {self.t.shape}")
+        samples = self.t.size
+        for name in ("x", "u", "w", "v", "y"):
+            arr, rows = getattr(self, name), samples - 1 if name in ("u", "w") else samples
+            if arr.ndim != 2 or arr.shape[0] != rows:
+                wanted = f"({'K' if rows < samples else 'K+1'}, n{name})"
+                raise DataError(f"{name}: expected shape {wanted} with K+1 = len(t) = {samples}, got {arr.shape}")
         for name in ("x_outside", "v_outside"):
             value = getattr(self, name)
             flags = np.zeros(self.t.shape[0], dtype=bool) if value is None else np.array(value, dtype=bool)

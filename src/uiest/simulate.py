@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import warnings
 from collections.abc import Callable
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
+from uiest.checks import DOMAIN_TOL, check_callable, check_int, check_seed, real_array
 from uiest.errors import DataError, DomainWarning, ModelError
 from uiest.noise import NoiseModel
 from uiest.results import Trajectory
@@ -18,18 +18,9 @@ from uiest.system import System
 InputLike = ArrayLike | Callable[[int, FloatArray], ArrayLike] | None
 
 
-def _check_steps(steps: Any) -> int:
-    if isinstance(steps, bool) or not isinstance(steps, int | np.integer) or steps < 0:
-        raise DataError(f"steps: expected a non-negative integer, got {steps!r}")
-    return int(steps)
-
-
 def _sequence(value: ArrayLike, rows: int, n: int, name: str) -> FloatArray:
     """A (rows, n) array from a (rows, n) array or a constant (n,) vector."""
-    try:
-        arr = np.asarray(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"{name}: expected an array of shape ({rows}, {n}), got {type(value).__name__}") from exc
+    arr = real_array(value, name, f"an array of shape ({rows}, {n})")
     if arr.ndim <= 1 and arr.size == n:
         arr = np.broadcast_to(arr.reshape(n), (rows, n))
     if arr.shape != (rows, n):
@@ -96,9 +87,10 @@ def simulate(
     """
     if not isinstance(system, System):
         raise DataError(f"system: expected a uiest.System, got {type(system).__name__}")
-    steps = _check_steps(steps)
-    if seed is not None and (isinstance(seed, bool) or not isinstance(seed, int | np.integer) or seed < 0):
-        raise DataError(f"seed: expected an integer >= 0 or None, got {seed!r}")
+    steps = check_int(steps, "steps", error=DataError)
+    if seed is not None:
+        check_seed(seed, error=DataError)
+    check_callable(progress, "progress")
     x_start = as_vector(x0, system.nx, "x0")
     if not system.x.bounds.contains(x_start):
         raise DataError(f"x0: expected a point in X = {system.x.bounds}, got {x_start.tolist()}")
@@ -130,7 +122,7 @@ def simulate(
         x_arr[k + 1] = x_next
         if progress is not None:
             progress(k + 1)
-    if not np.all(system.u.bounds.contains(u_arr, tol=1e-12)):
+    if not np.all(system.u.bounds.contains(u_arr, tol=DOMAIN_TOL)):
         raise DataError(f"u: expected values in U = {system.u.bounds}")
     y_arr = system.output(x_arr, v_arr)
     x_outside = ~np.asarray(system.x.bounds.contains(x_arr, tol=1e-12))

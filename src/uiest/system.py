@@ -19,6 +19,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
+from uiest.checks import check_int, check_real, real_array
 from uiest.errors import DataError, ModelError
 from uiest.signal import Signal
 
@@ -184,8 +185,7 @@ class System:
         self._check_functions()
         if self.w_range is not None and self.w_range.size != self.nw:
             raise ModelError(f"w_range: expected dimension {self.nw}, got {self.w_range.size}")
-        if not (np.isfinite(self.dt) and self.dt > 0):
-            raise ModelError(f"dt: expected a positive finite sampling time, got {self.dt!r}")
+        object.__setattr__(self, "dt", _check_dt(self.dt))
         if not self.w.bounds == Box.unbounded(self.nw):
             raise ModelError("w: the unknown input's domain is the whole space; give a known range as w_range")
         names = [n for s in self.signals for n in s.names]
@@ -277,7 +277,7 @@ class System:
         y = Signal.build(
             "y", ny, bounds=y_bounds, names=y_names, units=y_units, scale=y_scale, fallback_scale=y_fallback
         )
-        return cls(f=f, h=h, x=x, u=u, w=w, v=v, y=y, w_range=known_w, dt=float(dt), time_unit=time_unit, name=name)
+        return cls(f=f, h=h, x=x, u=u, w=w, v=v, y=y, w_range=known_w, dt=dt, time_unit=time_unit, name=name)
 
     @classmethod
     def from_expressions(
@@ -295,8 +295,8 @@ class System:
         ``u`` may be an empty symbol (``ca.SX.sym("u", 0)``). Further keywords as in
         :meth:`from_functions`.
         """
-        f = ca.Function("f", [x, u, w], [x_next], ["x", "u", "w"], ["x_next"])
-        h = ca.Function("h", [x, v], [y], ["x", "v"], ["y"])
+        f = _expression_function("f", [x, u, w], x_next, ["x", "u", "w"], "x_next")
+        h = _expression_function("h", [x, v], y, ["x", "v"], "y")
         return cls.from_functions(f, h, **spec)
 
     @classmethod
@@ -319,9 +319,7 @@ class System:
         return a 1-D array, a sequence of scalar expressions or a CasADi vector. Further
         keywords as in :meth:`from_functions`.
         """
-        for label, value in (("nx", nx), ("nu", nu), ("nw", nw), ("nv", nv)):
-            if not isinstance(value, int | np.integer) or value < 0 or (label == "nx" and value == 0):
-                raise ModelError(f"{label}: expected a non-negative integer (nx >= 1), got {value!r}")
+        nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
         (xs, xa), (us, ua), (ws, wa), (vs, va) = (
             _symbol_array(s, n) for s, n in (("x", nx), ("u", nu), ("w", nw), ("v", nv))
         )
@@ -363,22 +361,21 @@ class System:
         """
         from uiest import ode
 
-        for label, value in (("nx", nx), ("nu", nu), ("nw", nw), ("nv", nv)):
-            if not isinstance(value, int | np.integer) or value < 0 or (label == "nx" and value == 0):
-                raise ModelError(f"{label}: expected a non-negative integer (nx >= 1), got {value!r}")
+        nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
         rhs_f = as_function(rhs, "rhs", [("x", nx), ("u", nu), ("w", nw)], nx)
         h_f = as_function(h, "h", [("x", nx), ("v", nv)])
         w_range = spec.get("w_range")
+        dt = _check_dt(dt)
         f, _ = ode.discretise(
             rhs_f,
-            dt=float(dt),
+            dt=dt,
             substeps=substeps,
             input_channel=input_channel,
             x_ref=Box.coerce(spec.get("x_bounds"), nx, "x_bounds").center,
             u_ref=Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center,
             w_ref=np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center,
         )
-        return cls.from_functions(f, h_f, dt=float(dt), **spec)
+        return cls.from_functions(f, h_f, dt=dt, **spec)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -422,6 +419,8 @@ class System:
 
         ``u`` may be None when ``nu == 0``.
         """
+        if u is None and self.nu:
+            raise DataError(f"u: expected the known input of shape ({self.nu},) or (m, {self.nu}), got None")
         return self._evaluate(self.f, [("x", x, self.nx), ("u", u, self.nu), ("w", w, self.nw)])
 
     def output(self, x: ArrayLike, v: ArrayLike | None = None) -> FloatArray:
@@ -459,7 +458,9 @@ class System:
     def _evaluate(self, fun: ca.Function, args: list[tuple[str, ArrayLike | None, int]]) -> FloatArray:
         arrays = []
         for label, value, n in args:
-            arr = np.zeros(n) if value is None else np.asarray(value, dtype=float)
+            arr = (
+                np.zeros(n) if value is None else real_array(value, label, f"real numbers of shape ({n},) or (m, {n})")
+            )
             if arr.ndim == 0 and n == 1:
                 arr = arr.reshape(1)
             if arr.ndim not in (1, 2) or arr.shape[-1] != n:
@@ -467,9 +468,10 @@ class System:
             if not np.all(np.isfinite(arr)):
                 raise DataError(f"{label}: expected finite values")
             arrays.append(arr)
-        batch = {a.shape[0] for a in arrays if a.ndim == 2}
+        rows = {label: a.shape[0] for (label, _, _), a in zip(args, arrays, strict=True) if a.ndim == 2}
+        batch = set(rows.values())
         if len(batch) > 1:
-            raise DataError(f"batched arguments disagree in length: {sorted(batch)}")
+            raise DataError(f"{', '.join(rows)}: batched arguments disagree in length, got {rows}")
         if not batch:
             return np.asarray(fun(*arrays), dtype=float).reshape(-1)
         m = batch.pop()
@@ -481,6 +483,39 @@ class System:
             f"System(name={self.name!r}, nx={self.nx}, nu={self.nu}, nw={self.nw}, nv={self.nv}, "
             f"ny={self.ny}, dt={self.dt} {self.time_unit})"
         )
+
+
+def _check_sizes(nx: Any, nu: Any, nw: Any, nv: Any) -> tuple[int, int, int, int]:
+    """The dimensions given to from_callables / from_ode: integers, nx >= 1, the others >= 0."""
+    nu, nw, nv = (check_int(n, label, error=ModelError) for label, n in (("nu", nu), ("nw", nw), ("nv", nv)))
+    return check_int(nx, "nx", low=1, error=ModelError), nu, nw, nv
+
+
+def _check_dt(dt: Any) -> float:
+    expected = "a positive finite sampling time"
+    value = check_real(dt, "dt", expected, error=ModelError)
+    if not (np.isfinite(value) and value > 0):
+        raise ModelError(f"dt: expected {expected}, got {dt!r}")
+    return value
+
+
+def _expression_function(name: str, inputs: list[Any], output: Any, names: list[str], out_name: str) -> ca.Function:
+    """``ca.Function`` of expressions, or ModelError naming the symbols the output uses besides the inputs."""
+    try:
+        return ca.Function(name, inputs, [output], names, [out_name])
+    except (RuntimeError, NotImplementedError, TypeError) as exc:
+        try:
+            given = {str(s) for arg in inputs for s in ca.symvar(arg)}
+            free = sorted({str(s) for s in ca.symvar(output)} - given)
+        except Exception:  # not CasADi expressions at all
+            free = []
+        if free:
+            raise ModelError(
+                f"{out_name}: uses the symbols {free}, which are not among the inputs {names}; expected an "
+                f"expression of {', '.join(names)} only (substitute parameters by numbers)"
+            ) from None
+        first = (str(exc).strip().splitlines() or [type(exc).__name__])[-1]
+        raise ModelError(f"{name}: cannot build a casadi.Function of {names} -> {out_name}: {first}") from None
 
 
 def _usable_width(box: Box) -> FloatArray:

@@ -14,6 +14,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from uiest.box import Box, FloatArray
+from uiest.checks import check_samples, check_seed
 from uiest.errors import CertificationError, OptionError
 
 CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED = (
@@ -154,10 +155,10 @@ class Certificate:
 
     def verify(self, n_pairs: int = 100_000, seed: int = 0) -> Verification:
         """Test the certificate's inequality with the nonlinear model on random pairs."""
-        n_pairs = _count(n_pairs)
+        n_pairs, seed = check_samples(n_pairs, "n_pairs"), check_seed(seed)
         if not self.certified:
             return Verification(float("nan"), 0, 0, f"not certified: {self.reason}")
-        return self._verify(n_pairs, int(seed))
+        return self._verify(n_pairs, seed)
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         raise NotImplementedError
@@ -221,12 +222,6 @@ def _eig(matrix: FloatArray, index: int) -> float:
     if not np.all(np.isfinite(matrix)):
         return float("nan")
     return float(np.linalg.eigvalsh(0.5 * (matrix + matrix.T))[index])
-
-
-def _count(n_pairs: object) -> int:
-    if isinstance(n_pairs, bool) or not isinstance(n_pairs, int | np.integer) or n_pairs < 1:
-        raise OptionError(f"n_pairs: expected a positive integer, got {n_pairs!r}")
-    return int(n_pairs)
 
 
 def check_rate(value: object, name: str) -> float | None:

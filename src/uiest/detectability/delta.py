@@ -26,9 +26,10 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import Box, FloatArray
+from uiest.checks import check_real, shown
 from uiest.detectability import dissipation, lmi
-from uiest.detectability.certificate import Certificate, Verification
-from uiest.errors import ModelError
+from uiest.detectability.certificate import Certificate, Verification, check_rate
+from uiest.errors import ModelError, OptionError
 from uiest.system import System
 
 
@@ -144,7 +145,13 @@ def certify_delta_ioss(
 
     """
     start = time.perf_counter()
+    if not isinstance(system, System):
+        raise OptionError(f"system: expected a uiest.System, got {shown(system)}")
     dissipation.check_options(options, "certify_delta_ioss")
+    eta = check_rate(eta, "eta")
+    spread = check_real(w_spread, "w_spread", "a finite number > 0")
+    if not (np.isfinite(spread) and spread > 0):
+        raise OptionError(f"w_spread: expected a finite number > 0, got {w_spread!r}")
     if not system.x.bounds.is_bounded:
         raise ModelError(f"X: a certificate needs a bounded state domain, got {system.x.bounds}")
     if w_bounds is not None:
@@ -152,7 +159,7 @@ def certify_delta_ioss(
     elif system.w_range is not None:
         w_box = system.w_range
     else:
-        w_box = lmi.finite_box(Box.unbounded(system.nw), system.nominal_w, w_spread * system.w.scale)
+        w_box = lmi.finite_box(Box.unbounded(system.nw), system.nominal_w, spread * system.w.scale)
     if not w_box.is_bounded:
         raise ModelError(f"w_bounds: a delta-IOSS certificate needs a bounded range of w, got {w_box}")
     v_box = lmi.finite_box(system.v.bounds, system.v.bounds.center, system.v.scale)

@@ -34,6 +34,7 @@ import cvxpy as cp
 import numpy as np
 
 from uiest.box import Box, FloatArray
+from uiest.checks import check_samples, check_seed
 from uiest.detectability import lmi
 from uiest.detectability.certificate import (
     SOLVER_FAILED,
@@ -312,6 +313,10 @@ def check_options(options: dict[str, Any], caller: str) -> None:
     unknown = sorted(set(options) - known)
     if unknown:
         raise OptionError(f"{caller}: unknown options {unknown}; expected some of {sorted(known)}")
+    if "samples" in options:
+        check_samples(options["samples"], "samples", low=10)
+    if "seed" in options:
+        check_seed(options["seed"])
 
 
 def solve(

@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
+from uiest.checks import check_real, real_array, shown
 from uiest.errors import DataError, OptionError
 from uiest.system import System
 
@@ -86,21 +87,31 @@ def window_information(
         Discount of the estimator's output weights ``mu^(j)`` (j = distance from the window end).
 
     """
-    x = np.asarray(x, dtype=float)
-    w = np.asarray(w, dtype=float).reshape(-1, system.nw)
-    u_arr = (
-        np.zeros((w.shape[0], system.nu))
-        if u is None or system.nu == 0
-        else np.asarray(u, dtype=float).reshape(-1, system.nu)
-    )
+    if not isinstance(system, System):
+        raise OptionError(f"system: expected a uiest.System, got {shown(system)}")
+    x = real_array(x, "x", f"the true states, an array of shape (K+1, {system.nx}) (a Trajectory's .x)")
+    w = real_array(w, "w", f"the true unknown inputs, an array of shape (K, {system.nw})")
+    if w.ndim == 1 and system.nw == 1:
+        w = w.reshape(-1, 1)
+    if w.ndim != 2 or w.shape[1] != system.nw:
+        raise DataError(f"w: expected shape (K, {system.nw}), got {w.shape}")
+    if u is None or system.nu == 0:
+        u_arr = np.zeros((w.shape[0], system.nu))
+    else:
+        u_arr = real_array(u, "u", f"the known inputs, an array of shape ({w.shape[0]}, {system.nu})")
+        if u_arr.shape != (w.shape[0], system.nu):
+            raise DataError(f"u: expected shape ({w.shape[0]}, {system.nu}) (as many rows as w), got {u_arr.shape}")
     if isinstance(N, bool) or not isinstance(N, int) or N < 1 or not isinstance(k, int) or not N <= k <= w.shape[0]:
         raise OptionError(f"k, N: expected integers with 1 <= N <= k <= {w.shape[0]}, got k={k!r}, N={N!r}")
     if x.ndim != 2 or x.shape[1] != system.nx or x.shape[0] <= k:
         raise DataError(f"x: expected shape (>= {k + 1}, {system.nx}), got {x.shape}")
-    sigma = np.broadcast_to(np.asarray(noise_std, dtype=float), (system.ny,))
+    sigma = real_array(noise_std, "noise_std", f"a positive number or {system.ny} of them", error=OptionError)
+    if sigma.shape not in ((), (1,), (system.ny,)):
+        raise OptionError(f"noise_std: expected a positive number or {system.ny} of them, got shape {sigma.shape}")
+    sigma = np.broadcast_to(sigma, (system.ny,))
     if not np.all(np.isfinite(sigma) & (sigma > 0)):
         raise OptionError(f"noise_std: expected positive finite values, got {sigma.tolist()}")
-    if mu is not None and not 0.0 < mu <= 1.0:
+    if mu is not None and not 0.0 < check_real(mu, "mu", "a number in (0, 1]") <= 1.0:
         raise OptionError(f"mu: expected a number in (0, 1], got {mu!r}")
     start = k - N
     x0 = ca.SX.sym("x0", system.nx)

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.linalg
 
 from uiest.box import FloatArray
+from uiest.checks import check_samples, check_seed, shown
 from uiest.detectability import lmi
 from uiest.detectability.certificate import (
     SOLVER_FAILED,
@@ -164,14 +165,15 @@ def certify_strong_detectability(
 
     """
     start = time.perf_counter()
+    if not isinstance(system, System):
+        raise OptionError(f"system: expected a uiest.System, got {shown(system)}")
     mu = check_rate(mu, "mu")
-    if isinstance(samples, bool) or not isinstance(samples, int | np.integer) or samples < 10:
-        raise OptionError(f"samples: expected an integer >= 10, got {samples!r}")
+    samples, seed = check_samples(samples, "samples", low=10), check_seed(seed)
     if not (isinstance(tol, float | int) and 0.0 < tol < 0.1):
         raise OptionError(f"tol: expected a number in (0, 0.1), got {tol!r}")
     structure = input_structure(system, seed=seed)
     theta = None if parameters is None else _parameter_function(parameters, system)
-    covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=int(samples), seed=seed,
+    covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
     solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol)
     return _certificate(system, structure, covered, solution, time.perf_counter() - start)

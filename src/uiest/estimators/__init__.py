@@ -11,40 +11,25 @@ the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
-from uiest.estimators.base import WindowEstimator
+from uiest.estimators.base import WindowOptions
 from uiest.estimators.fie import FIE
-from uiest.estimators.input_fit import InputFit
 from uiest.estimators.linear_uio import LinearUIO
 from uiest.estimators.results import EstimationResult, StepEstimate
-from uiest.estimators.standard_mhe import StandardMHE, mhe_window_weights
-from uiest.estimators.two_stage import TwoStageUISE, two_stage_window_weights
-from uiest.estimators.uise import UISE, uise_window_weights
-from uiest.estimators.weights import (
-    DeltaCertificate,
-    MHEWeights,
-    ReducedCertificate,
-    StrongCertificate,
-    TwoStageWeights,
-    UISEWeights,
-)
+from uiest.estimators.standard_mhe import StandardMHE
+from uiest.estimators.two_stage import TwoStageUISE
+from uiest.estimators.uise import UISE
+from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 
 __all__ = [
     "FIE",
     "UISE",
-    "DeltaCertificate",
     "EstimationResult",
-    "InputFit",
     "LinearUIO",
     "MHEWeights",
-    "ReducedCertificate",
     "StandardMHE",
     "StepEstimate",
-    "StrongCertificate",
     "TwoStageUISE",
     "TwoStageWeights",
     "UISEWeights",
-    "WindowEstimator",
-    "mhe_window_weights",
-    "two_stage_window_weights",
-    "uise_window_weights",
+    "WindowOptions",
 ]

@@ -1,28 +1,35 @@
-"""The moving-window machinery every optimisation-based estimator shares.
+"""The one template every window estimator follows (UISE, FIE, standard MHE, two-stage UISE).
 
-:class:`WindowEstimator` keeps the last ``N`` inputs and measurements and the priors of the
-prior rule in bounded deques, builds one :class:`~uiest.window.WindowProblem` per window
-length ``N_k = min(N, k)`` (N+1 of them, lazily, cached: windows shorter than N at the start
-are separate problems rather than padded ones), warm-starts each solve with the previous
-solution shifted by one step (primal and dual), retries a failed solve once from a cold start
-and, if that fails too, propagates the previous estimate through the model and records the
-failure (``strict=True`` raises :class:`~uiest.errors.SolverError` instead).
+A step at time k: the window's data (``u``, ``y`` and, for the two-stage UISE, node data),
+the prior of its first node (the estimate delivered when that node was the newest, the
+prior rule), then one of
 
-Subclasses say which nodes carry a measurement (all of ``k-N_k .. k`` for the UISE and the
-FIE, ``k-N_k .. k-1`` for the one-step-ahead standard MHE), which weights the residuals get,
-and which box bounds ``w``. The two-stage UISE replaces the problem (:meth:`_build_problem`: its
-reduced model as a :class:`~uiest.window.WindowModel`) and :meth:`step`, and reuses the cache,
-the warm-started solve with cold retry (:meth:`_solve_window`), :meth:`reset` and :meth:`run`.
-:func:`collect_run` gathers an :class:`EstimationResult` from any object with ``step`` (the
-linear UIO uses it too). ``polish = True`` (attribute, set before running) refines every window
-solution by Gauss-Newton steps (:mod:`uiest.window.polish`).
+- no measured node yet (a one-step-ahead estimator at k = 0): the prior, status ``"prior"``;
+- a window model without state (two-stage, ``n_sharp = 0``): nothing to solve, ``"algebraic"``;
+- no measurement in the whole window (an outage longer than N): the model propagates the last
+  estimate, ``"propagated (no data)"``;
+- else the window problem, warm-started from the shifted last solution, retried once from a
+  cold start; if both fail the model propagates the last estimate and the status records the
+  solver's (``strict=True`` raises :class:`~uiest.errors.SolverError` instead);
+
+then the *post-map* from the window's newest node to ``x_hat[k]`` (identity for the full-order
+estimators; the two-stage UISE's eq:fullest_new), the unknown-input estimate, and the commit.
+The window problem has one weight schedule (:class:`~uiest.estimators.weights.Schedule`),
+passed as parameters, so a problem is built once per window length ``N_k = min(N, k)``.
+Subclasses say which window model, which schedule, which nodes are measured and the post-map.
+
+:class:`WindowOptions` holds how the problems are solved (backend, its options, warm start,
+strictness, Gauss-Newton polishing) and the fixed lag of the smoothed estimate; change them
+with :meth:`WindowEstimator.configure` (which drops the cached solvers).
 """
 
 from __future__ import annotations
 
+import warnings
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
 from typing import Any, ClassVar
 
 import numpy as np
@@ -30,26 +37,75 @@ from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.errors import CertificationError, DataError, OptionError, SolverError
-from uiest.estimators.checks import (
-    boundary_flag,
-    check_horizon,
-    check_run_data,
-    check_u_prev,
-    check_y,
-    window_bounds,
-)
+from uiest.estimators.checks import boundary_flag, check_run_data, check_u_prev, check_y, window_bounds
 from uiest.estimators.results import NO_DATA, EstimationResult, StepEstimate
+from uiest.estimators.weights import Schedule
 from uiest.system import System
-from uiest.window import WindowProblem, WindowSolution, WindowSolver, WindowTrajectory, WindowWeights, make_solver
+from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
+from uiest.window.problem import WIDE, WindowTrajectory
 from uiest.window.solvers import BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 
+@dataclass(frozen=True)
+class WindowOptions:
+    """How an estimator solves its window problems, and the lag of its smoothed estimate.
+
+    Attributes
+    ----------
+    solver : str
+        ``"gn"`` (Gauss-Newton SQP with IPOPT as its fallback), ``"ipopt"`` (the paper's
+        solver) or ``"rti"`` (one Gauss-Newton step per sample).
+    solver_options : mapping
+        Backend options (IPOPT options over :data:`uiest.window.IPOPT_DEFAULTS`, or keyword
+        arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`).
+    warm_start : bool
+        Primal-dual warm start from the shifted previous solution.
+    strict : bool
+        Raise :class:`~uiest.errors.SolverError` when a window problem is not solved.
+    polish : bool
+        Refine each window solution by Gauss-Newton steps (:mod:`uiest.window.polish`).
+    lag : int
+        ``d >= 0``: each step also delivers the window's estimate of ``x[k-d]`` (a fixed-lag
+        smoother; ``EstimationResult.x_lag``). At most N.
+
+    """
+
+    solver: str = DEFAULT_BACKEND
+    solver_options: Mapping[str, Any] = field(default_factory=dict)
+    warm_start: bool = True
+    strict: bool = False
+    polish: bool = False
+    lag: int = 0
+
+    def __post_init__(self) -> None:
+        if self.solver not in BACKENDS:
+            raise OptionError(f"solver: unknown backend {self.solver!r}; expected one of {list(BACKENDS)}")
+        if not isinstance(self.solver_options, Mapping):
+            raise OptionError(f"solver_options: expected a mapping of backend options, got {self.solver_options!r}")
+        object.__setattr__(self, "solver_options", MappingProxyType(dict(self.solver_options)))
+        for name in ("warm_start", "strict", "polish"):
+            if not isinstance(getattr(self, name), bool | np.bool_):
+                raise OptionError(f"{name}: expected True or False, got {getattr(self, name)!r}")
+        if isinstance(self.lag, bool) or not isinstance(self.lag, int | np.integer) or self.lag < 0:
+            raise OptionError(f"lag: expected an integer >= 0, got {self.lag!r}")
+
+    @classmethod
+    def build(cls, values: Mapping[str, Any]) -> WindowOptions:
+        """Options from keyword arguments; unknown names raise OptionError."""
+        known = [f.name for f in fields(cls)]
+        unknown = sorted(set(values) - set(known))
+        if unknown:
+            raise OptionError(f"options: unknown {unknown}; expected some of {known}")
+        return cls(**values)
+
+
 @dataclass
 class _Cached:
-    """A window problem and its solvers (the cold one is built on first need)."""
+    """A window problem, its weights' part of ``p`` and its solvers (the cold one built on first need)."""
 
     problem: WindowProblem
+    weights: FloatArray
     warm: WindowSolver
     cold: WindowSolver | None = None
 
@@ -89,66 +145,84 @@ class StreamingEstimator:
             self._x0_prior = prior
         self._clear()
 
+    def _require_prior(self) -> FloatArray:
+        if self._x0_prior is None:
+            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
+        return self._x0_prior
+
 
 class WindowEstimator(StreamingEstimator):
-    """Base class: streaming ``step``, batch ``run``, failure handling, warm starts.
-
-    Not used directly; see :class:`~uiest.estimators.UISE`, :class:`~uiest.estimators.FIE` and
-    :class:`~uiest.estimators.StandardMHE`.
-    """
+    """The window-estimator template (module docstring); not used directly."""
 
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
-    """True: the window at time k uses ``y[k-N_k .. k-1]`` (the estimate is a one-step prediction)."""
+    """True: the window at time k measures ``y[k-N_k .. k-1]`` (its newest node is a prediction)."""
 
     def __init__(
         self,
         system: System,
+        model: WindowModel,
         *,
+        schedule: Schedule | None,
         N: int | None,
         x0_prior: ArrayLike | None,
         v_prior: ArrayLike | None,
-        solver: str,
-        solver_options: Mapping[str, Any] | None,
-        warm_start: bool,
-        strict: bool,
+        options: Mapping[str, Any],
+        w_box: Box | None = None,
+        w_prior: FloatArray | None = None,
     ) -> None:
-        if not isinstance(system, System):
-            raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
-        self.system = system
-        self.N = None if N is None else check_horizon(N)
-        if solver not in BACKENDS:
-            raise OptionError(f"solver: unknown backend {solver!r}; expected one of {list(BACKENDS)}")
-        self.solver = solver
-        if solver_options is not None and not isinstance(solver_options, Mapping):
-            raise OptionError(f"solver_options: expected a mapping of backend options, got {solver_options!r}")
-        self.solver_options = dict(solver_options or {})
-        self.warm_start = bool(warm_start)
-        self.strict = bool(strict)
-        self.polish = getattr(self, "polish", False)
-        """Refine window solutions by Gauss-Newton steps (:func:`uiest.window.polish.refine`); set before running."""
+        self.system, self.model, self.schedule, self.N = system, model, schedule, N
+        self.w_box = w_box
+        self.w_prior = model.nominal_w if w_prior is None else w_prior
         v_bar = np.zeros(system.nv) if v_prior is None else as_vector(v_prior, system.nv, "v_prior")
         if not system.v.bounds.contains(v_bar):
             raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {v_bar.tolist()}")
         self.v_prior = v_bar
+        self._options = self._checked(WindowOptions.build(options))
         self._cache: dict[int, _Cached] = {}
         self._x0_prior: FloatArray | None = None
         self._clear()
         if x0_prior is not None:
             self.reset(x0_prior)
 
-    # ------------------------------------------------------------------ subclass hooks
-    def _window_weights(self, length: int) -> WindowWeights:
-        raise NotImplementedError
+    def reset(self, x0_prior: ArrayLike | None = None) -> None:
+        """Start over at k = 0 (see :meth:`StreamingEstimator.reset`); warns when X's scales dwarf the prior."""
+        super().reset(x0_prior)
+        if x0_prior is not None:
+            magnitude = max(float(np.max(np.abs(self._require_prior()), initial=0.0)), 1.0)
+            ratio = float(np.max(self.system.x.scale)) / magnitude
+            if ratio > WIDE:
+                warnings.warn(
+                    f"x_scale: the largest state scale ({np.max(self.system.x.scale):.3g}, X's width unless given) "
+                    f"is {ratio:.3g} times the prior's magnitude; a window solve resolves about 1e-8 of a scale. Give "
+                    "scales for the accuracy you need (System.with_scales, or x_scale= when building the system)",
+                    UserWarning,
+                    stacklevel=2,
+                )
 
-    def _w_box(self) -> Box | None:
-        """Bound on the unknown-input estimates (None: unbounded)."""
-        return None
+    # ------------------------------------------------------------------ options
+    @property
+    def options(self) -> WindowOptions:
+        """How the window problems are solved (read-only; see :meth:`configure`)."""
+        return self._options
 
-    def _w_bar(self) -> FloatArray:
-        """Prior of w (used as the guess of new transitions, and in the cost if w is weighted)."""
-        return self.system.nominal_w
+    def configure(self, **changes: Any) -> None:
+        """Change options (``solver``, ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``).
 
+        The cached solvers are dropped, so the change applies from the next step on.
+        """
+        self._options = self._checked(WindowOptions.build({**_as_dict(self._options), **changes}))
+        self._cache.clear()
+        self._last = None
+
+    def _checked(self, options: WindowOptions) -> WindowOptions:
+        if self.N is not None and options.lag > self.N:
+            raise OptionError(
+                f"lag: expected 0 <= lag <= N = {self.N} (the window holds x[k-N .. k]), got {options.lag}"
+            )
+        return options
+
+    # ------------------------------------------------------------------ guarantee
     @property
     def guarantee(self) -> str:
         """Which theorem's guarantee holds for this configuration, or why none does."""
@@ -156,13 +230,9 @@ class WindowEstimator(StreamingEstimator):
 
     @property
     def guaranteed(self) -> bool:
-        """Whether the guarantee named in :attr:`guarantee` applies.
-
-        A certified certificate gave the weights and ``N >= certificate.min_horizon()``.
-        """
+        """A certified certificate gave the weights and ``N >= certificate.min_horizon()``."""
         certificate = getattr(self, "certificate", None)
-        horizon = self.N
-        return certificate is not None and horizon is not None and certificate.min_horizon() <= horizon
+        return certificate is not None and self.N is not None and certificate.min_horizon() <= self.N
 
     # ------------------------------------------------------------------ state
     def _clear(self) -> None:
@@ -170,33 +240,57 @@ class WindowEstimator(StreamingEstimator):
         self._k = 0
         self._u: deque[FloatArray] = deque(maxlen=maxlen)
         self._y: deque[FloatArray] = deque(maxlen=maxlen)
+        self._data: deque[FloatArray] = deque(maxlen=maxlen)
         self._priors: deque[FloatArray] = deque(maxlen=maxlen)
         self._last: tuple[int, WindowProblem, WindowSolution] | None = None
         self._x_last: FloatArray | None = None
+        self._node_last: FloatArray | None = None
         self._w_last: FloatArray | None = None
 
-    # ------------------------------------------------------------------ problems
-    def _build_problem(self, length: int) -> WindowProblem:
-        """The window problem with ``length`` transitions (built once per length and cached)."""
-        measured = range(length) if self.one_step_ahead else range(length + 1)
-        return WindowProblem(self.system, length, list(measured), self._window_weights(length), w_box=self._w_box())
+    # ------------------------------------------------------------------ hooks of the subclasses
+    def _node_of(self, x: FloatArray) -> FloatArray:
+        """The window model's state of a full state (the prior of the first window)."""
+        return x
 
+    def _to_state(self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int) -> tuple[FloatArray, FloatArray]:
+        """The post-map: ``(x_hat[k], node data of k)`` from the newest node and ``y[k]``."""
+        return node, np.zeros(0)
+
+    def _node_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
+        """The full state of an older window node with its node data (for the lagged estimate)."""
+        return node
+
+    def _w_estimate(
+        self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
+    ) -> tuple[FloatArray | None, int | None]:
+        """The newest unknown-input estimate a measurement informs, and its time index."""
+        back = 2 if self.one_step_ahead else 1
+        if k < back:
+            return None, None
+        if window is None:
+            return self._w_guess().copy(), k - back
+        return window.w[-back].copy(), k - back
+
+    # ------------------------------------------------------------------ problems
     def _cached(self, length: int) -> _Cached:
         entry = self._cache.get(length)
         if entry is None:
-            problem = self._build_problem(length)
-            solver = make_solver(
-                self.solver, problem, warm_start=self.warm_start, options=self.solver_options, polish=self.polish
-            )
-            entry = _Cached(problem, solver, None if self.warm_start else solver)
+            assert self.schedule is not None  # models with state have weights
+            measured = list(range(length if self.one_step_ahead else length + 1))
+            weights = self.schedule.window(length, measured)
+            problem = WindowProblem(self.model, length, measured, weights, w_box=self.w_box)
+            opts = self._options
+            warm = make_solver(opts.solver, problem, warm_start=opts.warm_start, options=dict(opts.solver_options),
+                               polish=opts.polish)  # fmt: skip
+            entry = _Cached(problem, problem.weight_vector(weights), warm, None if opts.warm_start else warm)
             self._cache[length] = entry
         return entry
 
     def _cold(self, entry: _Cached) -> WindowSolver:
         if entry.cold is None:
-            entry.cold = make_solver(
-                self.solver, entry.problem, warm_start=False, options=self.solver_options, polish=self.polish
-            )
+            opts = self._options
+            entry.cold = make_solver(opts.solver, entry.problem, warm_start=False, options=dict(opts.solver_options),
+                                     polish=opts.polish)  # fmt: skip
         return entry.cold
 
     # ------------------------------------------------------------------ one step
@@ -210,80 +304,112 @@ class WindowEstimator(StreamingEstimator):
             when nu = 0).
         y : array_like (ny,)
             The measurement ``y[k]``; NaN entries are missing and their residuals are dropped.
-            The one-step-ahead standard MHE stores ``y[k]`` and uses it from step k+1 on.
+            One-step-ahead estimators store ``y[k]`` and use it in the window from step k+1 on.
 
         Returns
         -------
         StepEstimate
 
         """
-        if self._x0_prior is None:
-            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
+        x0_prior = self._require_prior()
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
         length, start = window_bounds(k, self.N)
-        stored_u = list(self._u)
-        u_win = np.array([*stored_u[len(stored_u) - length + 1 :], u_vec] if length else [], dtype=float)
+        u_win = np.array([*list(self._u)[len(self._u) - length + 1 :], u_vec] if length else [], dtype=float)
         u_win = u_win.reshape(length, self.system.nu)
         past = list(self._y)[len(self._y) - length :] if length else []
         y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
-        prior = self._x0_prior if start == 0 else self._priors[0]
-        entry = None
-        solution = None
-        if len(y_win) == 0:  # the one-step-ahead MHE at k = 0: nothing to fit, the estimate is the prior
-            x_hat, w_hat, w_index = prior.copy(), None, None
-            status, success, iterations, solve_time, cost = "prior", True, 0, 0.0, 0.0
+        prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
+        attempts: list[WindowSolution] = []
+        window = None
+        if len(y_win) == 0:
+            node, status = prior.copy(), "prior"
+        elif self.model.nx == 0:  # nothing to estimate by optimisation (two-stage, n_sharp = 0)
+            node, status, length = np.zeros(0), "algebraic", 0
         elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
-            x_hat, w_hat, w_index = self._propagate(u_vec, k)
-            status, success, iterations, solve_time, cost = NO_DATA, False, 0, 0.0, float("nan")
+            node, status = self._propagate(u_vec), NO_DATA
         else:
-            entry, attempts = self._solve_window(length, start, prior, u_win, y_win)
-            problem = entry.problem
+            data = self._window_data(length)
+            entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
             solution = attempts[-1]
-            iterations = sum(a.iterations for a in attempts)
-            solve_time = sum(a.solve_time for a in attempts)
-            success = solution.success
-            if success:
-                trajectory = problem.unpack(solution.z)
-                x_hat = trajectory.x[-1].copy()
-                status, cost = solution.status + boundary_flag(self.system, x_hat, y_vec, self.v_prior), solution.cost
-                w_hat, w_index = self._reported_w(trajectory, k)
+            if solution.success:
+                window = entry.problem.unpack(solution.z)
+                node, status = window.x[-1].copy(), solution.status
+                self._last = (start, entry.problem, solution)
+            elif self._options.strict:
+                raise SolverError(
+                    f"step k={k}: the window problem ({length} transitions) was not solved: "
+                    f"{' / '.join(a.status for a in attempts)}"
+                )
             else:
-                if self.strict:
-                    raise SolverError(
-                        f"step k={k}: the window problem ({length} transitions) was not solved: "
-                        f"{' / '.join(a.status for a in attempts)}"
-                    )
-                x_hat, w_hat, w_index = self._propagate(u_vec, k)
-                status, cost = f"propagated ({solution.status})", float("nan")
+                node, status = self._propagate(u_vec), f"propagated ({solution.status})"
+        success = status in ("algebraic", "prior") or bool(attempts and attempts[-1].success)
+        return self._finish(k, u_vec, y_vec, node, status, success, attempts, window, length)
 
-        if solution is not None and solution.success and entry is not None:
-            self._last = (start, entry.problem, solution)
-        self._commit(k, u_vec, y_vec, x_hat, w_hat)
+    def _finish(
+        self,
+        k: int,
+        u_vec: FloatArray,
+        y_vec: FloatArray,
+        node: FloatArray,
+        status: str,
+        success: bool,
+        attempts: list[WindowSolution],
+        window: WindowTrajectory | None,
+        length: int,
+    ) -> StepEstimate:
+        """Post-map, unknown-input estimate, lagged estimate; store step k and move to k + 1."""
+        x_hat, data_k = self._to_state(node, y_vec, u_vec, k)
+        w_hat, w_index = self._w_estimate(window, x_hat, u_vec, k)
+        x_lag = self._lagged(window, x_hat, data_k, k)
+        self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)
         return StepEstimate(
             k=k,
             x_hat=x_hat,
             w_hat=w_hat,
             w_index=w_index,
-            status=status,
+            status=status + boundary_flag(self.system, x_hat, y_vec, self.v_prior),
             success=success,
-            iterations=iterations,
-            solve_time=solve_time,
-            cost=cost,
+            iterations=sum(a.iterations for a in attempts),
+            solve_time=sum(a.solve_time for a in attempts),
+            cost=attempts[-1].cost if success and attempts else (0.0 if success else float("nan")),
             window=length,
             missing=np.isnan(y_vec),
+            trajectory=window,
+            x_lag=x_lag,
         )
 
+    def _lagged(
+        self, window: WindowTrajectory | None, x_hat: FloatArray, data_k: FloatArray, k: int
+    ) -> FloatArray | None:
+        """The window's estimate of ``x[k-lag]`` (None before time lag; NaN without a window solution)."""
+        lag = self._options.lag
+        if lag == 0:
+            return x_hat
+        if k < lag:
+            return None
+        if window is None or len(window.x) <= lag:
+            return np.full(self.system.nx, np.nan)
+        data = list(self._data)[len(self._data) - lag] if self.model.nd else np.zeros(0)
+        return self._node_state(window.x[-1 - lag], data)
+
     def _commit(
-        self, k: int, u_vec: FloatArray, y_vec: FloatArray, x_hat: FloatArray, w_hat: FloatArray | None
+        self,
+        k: int,
+        u_vec: FloatArray,
+        y_vec: FloatArray,
+        node: FloatArray,
+        data_k: FloatArray,
+        x_hat: FloatArray,
+        w_hat: FloatArray | None,
     ) -> None:
-        """Store step k's data and estimate, and move to k + 1."""
         if k > 0:
             self._u.append(u_vec)
         self._y.append(y_vec)
-        self._priors.append(self._x0_prior.copy() if k == 0 else x_hat.copy())  # type: ignore[union-attr]
-        self._x_last = x_hat
+        self._data.append(data_k)
+        self._priors.append(node.copy())
+        self._node_last, self._x_last = node, x_hat
         if w_hat is not None:
             self._w_last = w_hat
         self._k = k + 1
@@ -294,45 +420,40 @@ class WindowEstimator(StreamingEstimator):
         :func:`collect_run` calls it when :meth:`step` raised unexpectedly, so that a run keeps
         what it computed and goes on.
         """
-        if self._x0_prior is None:
-            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
+        self._require_prior()
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
-        x_hat, w_hat, w_index = self._propagate(u_vec, k)
-        self._commit(k, u_vec, y_vec, x_hat, w_hat)
-        return StepEstimate(k, x_hat, w_hat, w_index, f"propagated ({reason})", False, 0, 0.0, float("nan"),
-                            0, np.isnan(y_vec))  # fmt: skip
+        status = f"propagated ({reason})"
+        node = self._propagate(u_vec)
+        try:
+            return self._finish(k, u_vec, y_vec, node, status, False, [], None, 0)
+        except Exception:
+            x_hat = self._x0_prior if self._x_last is None else self._x_last
+            assert x_hat is not None
+            data_k = np.where(np.isnan(y_vec), self.system.output(x_hat, self.v_prior), y_vec)[: self.model.nd]
+            self._commit(k, u_vec, y_vec, node, data_k, x_hat, None)
+            return StepEstimate(k, x_hat.copy(), None, None, status, False, 0, 0.0, float("nan"), 0, np.isnan(y_vec))
 
-    def _reported_w(self, trajectory: WindowTrajectory, k: int) -> tuple[FloatArray | None, int | None]:
-        """The newest unknown-input estimate a measurement informs, and its time index."""
-        lag = 2 if self.one_step_ahead else 1
-        if len(trajectory.w) < lag:
-            return None, None
-        return trajectory.w[-lag].copy(), k - lag
+    def _propagate(self, u_prev: FloatArray) -> FloatArray:
+        """The model's step from the last node (the prior at k = 0), clipped to its bounds; held if not finite."""
+        if self._node_last is None:
+            return self._node_of(self._require_prior()).copy()
+        data = self._data[-1] if self.model.nd else np.zeros(0)
+        nxt = self.model.step(self._node_last, u_prev, self._w_guess(), self.v_prior, data)
+        return self.model.x_bounds.clip(nxt) if np.all(np.isfinite(nxt)) else self._node_last.copy()
 
-    def _propagate(self, u_prev: FloatArray, k: int) -> tuple[FloatArray, FloatArray | None, int | None]:
-        """After a failed solve: ``x_hat[k] = f(x_hat[k-1], u[k-1], w_last)`` clipped to X (the prior at k = 0)."""
-        if k == 0 or self._x_last is None:
-            return self._x0_prior.copy(), None, None  # type: ignore[union-attr]
-        w = self._w_guess()
-        x = self.system.x.bounds.clip(self.system.step(self._x_last, u_prev, w))
-        lag = 2 if self.one_step_ahead else 1
-        return x, (w.copy() if k - lag >= 0 else None), (k - lag if k - lag >= 0 else None)
+    def _window_data(self, length: int) -> FloatArray | None:
+        """Node data of the window (the stored data of k-N_k .. k-1, zeros at node k); None without."""
+        if not self.model.nd:
+            return None
+        stored = np.array(list(self._data)[len(self._data) - length :], dtype=float).reshape(length, self.model.nd)
+        return np.vstack([stored, np.zeros((1, self.model.nd))])
 
     def _solve_window(
-        self,
-        length: int,
-        start: int,
-        prior: FloatArray,
-        u_win: FloatArray,
-        y_win: FloatArray,
-        data: FloatArray | None = None,
+        self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
     ) -> tuple[_Cached, list[WindowSolution]]:
-        """Solve the window ``start .. start+length``: warm start from the shifted last solution, one cold retry.
-
-        Returns the cached problem entry and the attempts (the last one counts).
-        """
+        """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts."""
         entry = self._cached(length)
         problem = entry.problem
         p = problem.parameters(
@@ -340,10 +461,11 @@ class WindowEstimator(StreamingEstimator):
             u_win,
             y_win,
             v_bar=np.tile(self.v_prior, (problem.n_meas, 1)),
-            w_bar=np.tile(self._w_bar(), (length, 1)),
+            w_bar=np.tile(self.w_prior, (length, 1)),
             data=data,
+            weights=entry.weights,
         )
-        z0, duals = self._guess(problem, start, prior, u_win, data)
+        z0, duals = self._guess(problem, length, prior, u_win, data)
         attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
         if not attempts[-1].success:
             cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)
@@ -352,25 +474,17 @@ class WindowEstimator(StreamingEstimator):
 
     # ------------------------------------------------------------------ guesses
     def _w_guess(self) -> FloatArray:
-        return self._w_last if self._w_last is not None else self._w_bar()
+        return self._w_last if self._w_last is not None and self.model.nw else self.w_prior
 
     def _guess(
-        self, problem: WindowProblem, start: int, prior: FloatArray, u_win: FloatArray, data: FloatArray | None = None
+        self, problem: WindowProblem, length: int, prior: FloatArray, u_win: FloatArray, data: FloatArray | None
     ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
         """The last successful solution shifted onto the new window, else a prediction from the prior."""
         if self._last is not None:
             old_start, old_problem, old_solution = self._last
-            shifted = shifted_guess(
-                old_problem,
-                old_solution,
-                problem,
-                start - old_start,
-                u_win,
-                self._w_guess(),
-                self.v_prior,
-                duals=self.warm_start,
-                data=data,
-            )
+            shift = self._k - length - old_start
+            shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
+                                    duals=self._options.warm_start, data=data)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None
@@ -398,21 +512,29 @@ class WindowEstimator(StreamingEstimator):
         return collect_run(self, u_arr, y_arr)
 
 
+def _as_dict(options: WindowOptions) -> dict[str, Any]:
+    return {f.name: getattr(options, f.name) for f in fields(options)}
+
+
 def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> EstimationResult:
     """Call ``estimator.step`` for k = 0..K on checked data and gather an :class:`EstimationResult`.
 
     ``estimator`` needs ``system``, ``step(u_prev, y) -> StepEstimate``, ``estimator_name``, ``N``
-    and ``guarantee``; the caller has reset it.
+    and ``guarantee``; the caller has reset it. ``x_lag[j]`` is the estimate of ``x[j]`` delivered at
+    step ``j + lag`` (NaN for the last ``lag`` rows).
     """
     K = y_arr.shape[0] - 1
     s = estimator.system
+    options = getattr(estimator, "options", None)
+    lag = options.lag if options is not None else 0
+    strict = options.strict if options is not None else True
     x_hat = np.empty((K + 1, s.nx))
+    x_lag = np.full((K + 1, s.nx), np.nan)
     w_hat = np.full((K, s.nw), np.nan)
     status: list[str] = []
     success = np.zeros(K + 1, dtype=bool)
     iterations = np.zeros(K + 1, dtype=np.int64)
-    solve_time = np.zeros(K + 1)
-    cost = np.zeros(K + 1)
+    solve_time, cost = np.zeros(K + 1), np.zeros(K + 1)
     window = np.zeros(K + 1, dtype=np.int64)
     for k in range(K + 1):
         u_prev = None if k == 0 else u_arr[k - 1]
@@ -421,10 +543,12 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         except (OptionError, CertificationError):  # the configuration is wrong: no step will do better
             raise
         except Exception as exc:  # recorded; the run keeps what it computed and goes on
-            if getattr(estimator, "strict", False) or not hasattr(estimator, "skip"):
+            if strict or not hasattr(estimator, "skip"):
                 raise
             est = estimator.skip(u_prev, y_arr[k], f"{type(exc).__name__}: {exc}")
         x_hat[k] = est.x_hat
+        if est.x_lag is not None:
+            x_lag[k - lag] = est.x_lag
         if est.w_hat is not None and est.w_index is not None:
             w_hat[est.w_index] = est.w_hat
         status.append(est.status)
@@ -446,4 +570,9 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         guarantee=estimator.guarantee,
         names={"x": s.x.names, "w": s.w.names},
         time_unit=s.time_unit,
+        x_lag=x_lag if lag else None,
+        lag=lag,
     )
+
+
+__all__ = ["WindowEstimator", "WindowOptions", "collect_run"]

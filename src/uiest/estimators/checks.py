@@ -8,6 +8,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
+from uiest.checks import DOMAIN_TOL, real_array
 from uiest.errors import DataError, OptionError
 from uiest.estimators.results import BOUNDARY_FLAG
 from uiest.system import System
@@ -31,7 +32,17 @@ def check_u_prev(system: System, u_prev: ArrayLike | None, k: int) -> FloatArray
         if nu == 0:
             return np.zeros(0)
         raise DataError(f"u_prev: expected the known input u[{k - 1}] of shape ({nu},), got None")
-    return as_vector(u_prev, nu, "u_prev")
+    u_vec = as_vector(u_prev, nu, "u_prev")
+    _check_in_U(system, u_vec[None], "u_prev", k - 1)
+    return u_vec
+
+
+def _check_in_U(system: System, u: FloatArray, name: str, first: int = 0) -> None:
+    """DataError naming ``name`` when a row of ``u (m, nu)`` leaves U (tolerance as in :func:`~uiest.simulate`)."""
+    inside = np.asarray(system.u.bounds.contains(u, tol=DOMAIN_TOL)).reshape(-1)
+    if not inside.all():
+        bad = int(np.argmin(inside))
+        raise DataError(f"{name}: expected values in U = {system.u.bounds}, got {u[bad].tolist()} at k={first + bad}")
 
 
 def check_y(system: System, y: ArrayLike) -> FloatArray:
@@ -39,10 +50,7 @@ def check_y(system: System, y: ArrayLike) -> FloatArray:
     ny = system.ny
     if y is None:
         raise DataError(f"y: expected {ny} real numbers (NaN = missing), got None")
-    try:
-        arr = np.asarray(y, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"y: expected {ny} real numbers (NaN = missing), got {y!r}") from exc
+    arr = real_array(y, "y", f"{ny} real numbers (NaN = missing)")
     if arr.ndim == 0 and ny == 1:
         arr = arr.reshape(1)
     if arr.shape != (ny,):
@@ -63,10 +71,7 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
 
     NaN in y is missing; windows without any measurement are bridged by the model.
     """
-    try:
-        y_arr = np.asarray(y, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"y: expected an array of shape (K+1, {system.ny}), got {type(y).__name__}") from exc
+    y_arr = real_array(y, "y", f"an array of real numbers of shape (K+1, {system.ny}) (NaN = missing)")
     if y_arr.ndim != 2 or y_arr.shape[1] != system.ny or y_arr.shape[0] < 1:
         raise DataError(f"y: expected shape (K+1, {system.ny}) with K+1 >= 1, got {y_arr.shape}")
     if np.any(np.isinf(y_arr)):
@@ -79,10 +84,7 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
         if nu:
             raise DataError(f"u: required, the system has nu={nu} known inputs; expected shape ({K}, {nu})")
         return np.zeros((K, 0)), y_arr
-    try:
-        u_arr = np.asarray(u, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise DataError(f"u: expected an array of shape ({K}, {nu}), got {type(u).__name__}") from exc
+    u_arr = real_array(u, "u", f"an array of real numbers of shape ({K}, {nu})")
     if u_arr.size == 0 and nu == 0:
         u_arr = np.zeros((K, 0))
     if u_arr.ndim != 2 or u_arr.shape[1] != nu:
@@ -94,6 +96,7 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
     if not np.all(np.isfinite(u_arr)):
         bad = int(np.argwhere(~np.isfinite(u_arr))[0][0])
         raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
+    _check_in_U(system, u_arr, "u")
     return u_arr, y_arr
 
 

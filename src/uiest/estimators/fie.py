@@ -28,7 +28,6 @@ records.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
 from numpy.typing import ArrayLike
@@ -37,10 +36,10 @@ from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.checks import check_horizon, check_run_data
 from uiest.estimators.results import EstimationResult, StepEstimate
-from uiest.estimators.uise import resolve_uise_weights, uise_window_weights
-from uiest.estimators.weights import StrongCertificate, UISEWeights
+from uiest.estimators.uise import check_system
+from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.system import System
-from uiest.window import DEFAULT_BACKEND, WindowWeights
+from uiest.window import WindowModel
 
 
 class FIE(WindowEstimator):
@@ -66,27 +65,16 @@ class FIE(WindowEstimator):
         weights: UISEWeights | None = None,
         x0_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
-        solver: str = DEFAULT_BACKEND,
-        solver_options: Mapping[str, Any] | None = None,
-        warm_start: bool = True,
-        strict: bool = False,
         max_steps: int = 500,
+        **options: Any,
     ) -> None:
-        self.weights, self.certificate = resolve_uise_weights(system, certificate, weights)
-        self.max_steps = check_horizon(max_steps, "max_steps")
-        super().__init__(
-            system,
-            N=None,
-            x0_prior=x0_prior,
-            v_prior=v_prior,
-            solver=solver,
-            solver_options=solver_options,
-            warm_start=warm_start,
-            strict=strict,
+        check_system(system)
+        self.weights, self.certificate, _ = resolve_weights(
+            UISEWeights, certificate, weights, None, lambda w: w.check(system), needs_horizon=False
         )
-
-    def _window_weights(self, length: int) -> WindowWeights:
-        return uise_window_weights(self.weights, length)
+        self.max_steps = check_horizon(max_steps, "max_steps")
+        super().__init__(system, WindowModel.from_system(system), schedule=self.weights.schedule(), N=None,
+                         x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
 
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
         """As :meth:`WindowEstimator.step`; raises :class:`OptionError` beyond ``max_steps``."""

@@ -36,6 +36,7 @@ import scipy.signal
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
+from uiest.checks import real_array
 from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
@@ -128,11 +129,18 @@ class LinearUIO(StreamingEstimator):
         if poles is not None and gain is not None:
             raise OptionError("poles, gain: give at most one of them")
         if gain is not None:
-            K1 = np.asarray(gain, dtype=float)
+            K1 = real_array(gain, "gain", f"a matrix of shape ({nx}, {system.ny})", error=OptionError)
             if K1.shape != (nx, system.ny):
                 raise OptionError(f"gain: expected shape ({nx}, {system.ny}), got {K1.shape}")
+            if not np.all(np.isfinite(K1)):
+                raise OptionError(f"gain: expected finite entries, got {K1.tolist()}")
         elif poles is not None:
-            wanted = np.asarray(poles, dtype=complex).reshape(-1)
+            try:
+                wanted = np.asarray(poles, dtype=complex).reshape(-1)
+            except (TypeError, ValueError):
+                raise OptionError(f"poles: expected {nx} numbers, got {poles!r}") from None
+            if not np.all(np.isfinite(wanted)):
+                raise OptionError(f"poles: expected finite numbers, got {np.round(wanted, 6).tolist()}")
             if wanted.size != nx:
                 raise OptionError(f"poles: expected {nx} poles, got {wanted.size}")
             gaps = [np.min(np.abs(wanted - z), initial=np.inf) / (1 + abs(z)) for z in det.invariant_zeros]
@@ -152,8 +160,10 @@ class LinearUIO(StreamingEstimator):
         self.F = E - self.K1 @ self.C
         self.spectral_radius = float(np.max(np.abs(np.linalg.eigvals(self.F)), initial=0.0))
         if not self.spectral_radius < 1.0:
+            source = "poles" if poles is not None else "gain"
             raise OptionError(
-                f"gain: F = T A - K1 C has spectral radius {self.spectral_radius:.6g} >= 1; expected a Schur stable F"
+                f"{source}: F = T A - K1 C has spectral radius {self.spectral_radius:.6g} >= 1; "
+                "expected a Schur stable F"
             )
         self.K = self.K1 + self.F @ self.H
         self.v_prior = np.zeros(nv) if v_prior is None else as_vector(v_prior, nv, "v_prior")

@@ -12,7 +12,9 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
+from uiest.checks import real_array
 from uiest.errors import DataError
+from uiest.window.problem import WindowTrajectory
 
 
 def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
@@ -58,6 +60,12 @@ class StepEstimate:
         Number of transitions ``N_k`` of the window.
     missing : ndarray (ny,) of bool
         Which channels of ``y[k]`` were missing (NaN).
+    trajectory : WindowTrajectory or None
+        The solved window in the window model's coordinates (nodes ``k-N_k .. k``; the reduced
+        state for the two-stage UISE); None when no problem was solved.
+    x_lag : ndarray (nx,) or None
+        The window's estimate of ``x[k-lag]`` (the estimator's ``options.lag``; ``x_hat`` when
+        lag = 0, None for k < lag, NaN without a window solution).
 
     """
 
@@ -72,6 +80,8 @@ class StepEstimate:
     cost: float
     window: int
     missing: NDArray[np.bool_]
+    trajectory: WindowTrajectory | None = None
+    x_lag: FloatArray | None = None
 
 
 @dataclass(frozen=True, eq=False)
@@ -109,6 +119,10 @@ class EstimationResult:
     names : mapping
         Component names of "x" and "w".
     time_unit : str
+    x_lag : ndarray (K+1, nx) or None
+        Fixed-lag estimates: row j estimates ``x[j]`` from the window at step ``j + lag`` (the
+        last ``lag`` rows NaN); None when lag = 0.
+    lag : int
 
     """
 
@@ -127,6 +141,8 @@ class EstimationResult:
     guarantee: str
     names: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     time_unit: str = "s"
+    x_lag: FloatArray | None = None
+    lag: int = 0
 
     def __post_init__(self) -> None:
         for name, dtype in (
@@ -142,6 +158,8 @@ class EstimationResult:
             ("missing", bool),
         ):
             object.__setattr__(self, name, _frozen(getattr(self, name), dtype))
+        if self.x_lag is not None:
+            object.__setattr__(self, "x_lag", _frozen(self.x_lag, float))
         object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
 
     @property
@@ -166,7 +184,7 @@ class EstimationResult:
 
     def error(self, x: FloatArray) -> FloatArray:
         """``x - x_hat`` for the true states ``x (K+1, nx)``."""
-        arr = np.asarray(x, dtype=float)
+        arr = real_array(x, "x", f"the true states, an array of shape {self.x_hat.shape} (a Trajectory's .x)")
         if arr.shape != self.x_hat.shape:
             raise DataError(f"x: expected shape {self.x_hat.shape}, got {arr.shape}")
         return arr - self.x_hat

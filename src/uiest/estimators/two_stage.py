@@ -65,40 +65,21 @@ unknown input needed), status ``"propagated (<solver status>)"``; ``strict=True`
 
 from __future__ import annotations
 
-from collections import deque
-from collections.abc import Mapping
-from typing import Any, ClassVar
+from typing import Any
 
 import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
-from uiest.errors import OptionError, SolverError
+from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import boundary_flag, check_horizon, check_u_prev, check_y
+from uiest.estimators.checks import check_horizon
 from uiest.estimators.input_fit import InputFit
-from uiest.estimators.projection import PROJECTIONS, Projection
-from uiest.estimators.results import StepEstimate
-from uiest.estimators.weights import ReducedCertificate, TwoStageWeights
+from uiest.estimators.projection import Projection
+from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, reduced_scale, resolve_weights
 from uiest.reduction import ReducedModel
-from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowWeights
-from uiest.window.model import box_scale
-
-
-def two_stage_window_weights(weights: TwoStageWeights, length: int) -> WindowWeights:
-    """Residual weights of eq:cost_MHE for a window of ``length`` transitions (nodes 0..length-1 measured).
-
-    Node ``i`` (time ``k - length + i``) has ``j = length - i``: output weight ``mu^j R_y``,
-    noise weight ``2 mu^j R_v``; the prior weight is ``2 mu^length P_z``.
-    """
-    mu = weights.mu
-    discounts = mu ** (length - np.arange(length, dtype=float))
-    return WindowWeights(
-        prior=2.0 * mu**length * weights.prior,
-        y=discounts[:, None, None] * weights.R_y,
-        v=2.0 * discounts[:, None, None] * weights.R_v,
-    )
+from uiest.window import WindowModel, WindowTrajectory
 
 
 def reduced_window_model(reduced: ReducedModel, *, state_constraints: bool = True) -> WindowModel:
@@ -124,7 +105,7 @@ def reduced_window_model(reduced: ReducedModel, *, state_constraints: bool = Tru
         x_bounds=reduced.z_bounds,
         v_bounds=s.v.bounds,
         y_bounds=s.y.bounds,
-        x_scale=box_scale(reduced.z_bounds),
+        x_scale=reduced_scale(reduced),
         w_scale=np.ones(0),
         v_scale=s.v.scale,
         y_scale=s.y.scale,
@@ -168,18 +149,14 @@ class TwoStageUISE(WindowEstimator):
         The projection of eq:fullest_new.
     state_constraints : bool
         Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (eq:op_MHE).
-    polish : bool
-        Refine each window solution by Gauss-Newton steps solved by orthogonal factorisations
-        (:mod:`uiest.window.polish`). Off by default, like the other estimators' default: on the
-        crop model it takes the noise-free x^{d,1} error from ~5e-8 (ipopt) or ~2e-6 (gn) to
-        ~2e-11, for ~2-4 ms per step; with noise it changes nothing visible.
-    solver, solver_options, warm_start, strict
-        As for :class:`~uiest.estimators.UISE`.
+    **options
+        As for :class:`~uiest.estimators.UISE`. ``polish=True`` takes the crop model's noise-free
+        x^{d,1} error from ~5e-8 (ipopt) or ~2e-6 (gn) to ~2e-11, for ~2-4 ms per step.
 
     """
 
     estimator_name = "TwoStageUISE"
-    one_step_ahead: ClassVar[bool] = True
+    one_step_ahead = True
 
     def __init__(
         self,
@@ -192,226 +169,81 @@ class TwoStageUISE(WindowEstimator):
         v_prior: ArrayLike | None = None,
         projection: str = "clip",
         state_constraints: bool = True,
-        polish: bool = False,
-        solver: str = DEFAULT_BACKEND,
-        solver_options: Mapping[str, Any] | None = None,
-        warm_start: bool = True,
-        strict: bool = False,
+        **options: Any,
     ) -> None:
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
         self.reduced = reduced
         system = reduced.system
-        self.z_scale = box_scale(reduced.z_bounds)
-        self.certificate = certificate
         self.weights: TwoStageWeights | None = None
+        self.certificate = certificate
         if reduced.n_sharp == 0:
             if certificate is not None or weights is not None:
                 raise OptionError(
                     "certificate, weights: n_sharp = 0, the estimate is algebraic (remark after theo:stab) and has "
                     "no cost to weight; pass neither"
                 )
-            N = 1 if N is None else N  # no window: N only bounds the (empty) history
+            N = check_horizon(1 if N is None else N)  # no window: N only bounds the (empty) history
         else:
-            if (certificate is None) == (weights is None):
-                raise OptionError("certificate, weights: expected exactly one of them")
-            if weights is not None and not isinstance(weights, TwoStageWeights):
-                raise OptionError(f"weights: expected a TwoStageWeights, got {type(weights).__name__}")
-            resolved = TwoStageWeights.from_certificate(certificate) if certificate is not None else weights
-            assert resolved is not None  # exactly one was given
-            resolved.check(system, reduced.n_sharp)
-            self.weights = resolved
-            if N is None:
-                if certificate is None:
-                    raise OptionError("N: required with explicit weights (no certificate to take min_horizon() from)")
-                N = certificate.min_horizon()
-        check_horizon(N)
+            self.weights, self.certificate, N = resolve_weights(
+                TwoStageWeights, certificate, weights, N, lambda w: w.check(system, reduced.n_sharp)
+            )
         self.state_constraints = bool(state_constraints)
-        self.polish = bool(polish)
-        self.window_model = reduced_window_model(reduced, state_constraints=self.state_constraints)
         self.projection = Projection(reduced, projection)
         self._fit = InputFit(system)
         x = ca.SX.sym("x", system.nx)
-        self._T_split = ca.Function("T_split", [x], [reduced.T(x)[: reduced.n_flat], reduced.T(x)[reduced.n_flat :]])
-        super().__init__(
-            system,
-            N=N,
-            x0_prior=x0_prior,
-            v_prior=v_prior,
-            solver=solver,
-            solver_options=solver_options,
-            warm_start=warm_start,
-            strict=strict,
-        )
+        self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
+        super().__init__(system, reduced_window_model(reduced, state_constraints=self.state_constraints),
+                         schedule=None if self.weights is None else self.weights.schedule(), N=N,
+                         x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
 
-    # ------------------------------------------------------------------ hooks of the base class
-    def _window_weights(self, length: int) -> WindowWeights:
-        assert self.weights is not None  # only called when n_sharp > 0
-        return two_stage_window_weights(self.weights, length)
-
-    def _build_problem(self, length: int) -> WindowProblem:
-        return WindowProblem(self.window_model, length, list(range(length)), self._window_weights(length))
-
-    def _w_bar(self) -> FloatArray:
-        return np.zeros(0)  # the reduced model has no unknown input
-
-    def _w_guess(self) -> FloatArray:
-        return np.zeros(0)
+    @property
+    def z_hat(self) -> FloatArray | None:
+        """The latest reduced-state estimate ``z_hat[k-1]`` (None before the first step)."""
+        return self._node_last
 
     def _clear(self) -> None:
         super()._clear()
         self.projection.used = 0
-        self._gamma: deque[FloatArray] = deque(maxlen=self.N)
-        self._w_full: FloatArray | None = None
-        self.z_hat: FloatArray | None = None
-        """The latest reduced-state estimate ``z_hat[k-1]`` (None before the first step)."""
 
-    # ------------------------------------------------------------------ pieces
-    def _split(self, x: FloatArray) -> tuple[FloatArray, FloatArray]:
-        flat, sharp = self._T_split(x)
-        return np.asarray(flat, dtype=float).reshape(-1), np.asarray(sharp, dtype=float).reshape(-1)
+    # ------------------------------------------------------------------ hooks of the template
+    def _node_of(self, x: FloatArray) -> FloatArray:
+        """eq:prior: ``z_hat_0 = T_sharp(x_bar_0)``."""
+        return np.asarray(self._T_sharp(x), dtype=float).reshape(-1)
 
-    def _full_state(self, gamma: FloatArray, z_sharp: FloatArray) -> FloatArray:
-        """eq:fullest with ``v_bar`` (no projection)."""
+    def _node_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
+        """eq:fullest_new with ``v_bar``: ``proj(T^-1(psi(gamma, z_sharp, v_bar), z_sharp))``."""
         red = self.reduced
-        z_flat = np.asarray(red.psi(gamma, z_sharp, self.v_prior), dtype=float).reshape(-1)
-        return np.asarray(red.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
+        z_flat = np.asarray(red.psi(data, node, self.v_prior), dtype=float).reshape(-1)
+        return self.projection(np.asarray(red.T_inv(np.concatenate([z_flat, node])), dtype=float).reshape(-1))
+
+    def _to_state(self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int) -> tuple[FloatArray, FloatArray]:
+        gamma = self._fill(y, node, u_prev, k)
+        return self._node_state(node, gamma), gamma
+
+    def _w_estimate(
+        self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
+    ) -> tuple[FloatArray | None, int | None]:
+        """:class:`InputFit` of ``w_hat[k-1]`` to ``x_hat[k-1]`` and ``x_hat[k]``."""
+        if k == 0 or self._x_last is None:
+            return None, None
+        guess = self._w_last if self._w_last is not None else self.system.nominal_w
+        return self._fit(self._x_last, u_prev, x_hat, guess), k - 1
 
     def _fill(self, y: FloatArray, z_sharp: FloatArray, u_prev: FloatArray, k: int) -> FloatArray:
         """``y`` with missing channels replaced by the predicted output (module docstring)."""
         missing = np.isnan(y)
         if not missing.any():
             return y
-        s = self.system
-        if k == 0 or self._x_last is None:
-            x_pred = self._x0_prior
-        else:
-            w = self._w_full if self._w_full is not None else s.nominal_w
-            nxt = s.step(self._x_last, u_prev, w)
-            x_pred = nxt if np.all(np.isfinite(nxt)) else self._x_last
-        assert x_pred is not None
-        z_flat, _ = self._split(x_pred)
-        x_pred = np.asarray(self.reduced.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
-        y_pred = s.output(s.x.bounds.clip(x_pred), self.v_prior)
-        return np.where(missing, y_pred, y)
-
-    # ------------------------------------------------------------------ one step
-    def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
-        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]``.
-
-        Parameters
-        ----------
-        u_prev : array_like (nu,) or None
-            ``u[k-1]``; None at k = 0 (and when nu = 0).
-        y : array_like (ny,)
-            ``y[k]``; NaN entries are missing (see the module docstring).
-
-        Returns
-        -------
-        StepEstimate
-
-        """
-        if self._x0_prior is None:
-            raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
         s, red = self.system, self.reduced
-        k = self._k
-        u_vec = check_u_prev(s, u_prev, k)
-        y_vec = check_y(s, y)
-        iterations, solve_time, cost, success = 0, 0.0, 0.0, True
-        solution, problem, length, start = None, None, 0, k
-        if k == 0:
-            z_hat = self._split(self._x0_prior)[1]  # eq:prior: z_hat_0 = T_sharp(x_bar_0)
-            status = "prior"
-        elif red.n_sharp == 0:
-            z_hat = np.zeros(0)
-            status = "algebraic"
-        else:
-            assert self.N is not None
-            length = min(self.N, k)
-            start = k - length
-            stored_u = list(self._u)
-            u_win = np.array([*stored_u[len(stored_u) - length + 1 :], u_vec], dtype=float).reshape(length, s.nu)
-            y_win = np.array(list(self._y)[-length:], dtype=float).reshape(length, s.ny)
-            gamma = np.array(list(self._gamma)[-length:], dtype=float).reshape(length, s.ny)
-            data = np.vstack([gamma, np.zeros((1, s.ny))])  # node k carries no data (its y is not used)
-            prior = self._priors[0]
-            entry, attempts = self._solve_window(length, start, prior, u_win, y_win, data)
-            problem, solution = entry.problem, attempts[-1]
-            iterations = sum(a.iterations for a in attempts)
-            solve_time = sum(a.solve_time for a in attempts)
-            success = solution.success
-            if success:
-                z_hat = problem.unpack(solution.z).x[-1].copy()
-                status, cost = solution.status, solution.cost
-            else:
-                if self.strict:
-                    raise SolverError(
-                        f"step k={k}: the reduced window problem ({length} transitions) was not solved: "
-                        f"{' / '.join(a.status for a in attempts)}"
-                    )
-                assert self.z_hat is not None
-                nxt = np.asarray(red.f_sharp(self.z_hat, self._gamma[-1], u_vec, self.v_prior), dtype=float)
-                nxt = nxt.reshape(-1)
-                z_hat = red.z_bounds.clip(nxt) if np.all(np.isfinite(nxt)) else self.z_hat.copy()
-                status, cost = f"propagated ({solution.status})", float("nan")
-
-        # stage 2: eq:fullest_new with the current measurement (missing channels predicted)
-        gamma_k = self._fill(y_vec, z_hat, u_vec, k)
-        x_hat = self.projection(self._full_state(gamma_k, z_hat))
-        status += boundary_flag(s, x_hat, y_vec, self.v_prior)
-        if solution is not None and solution.success and problem is not None:
-            self._last = (start, problem, solution)
-        w_hat, w_index = self._commit_two_stage(k, u_vec, y_vec, gamma_k, z_hat, x_hat)
-        return StepEstimate(
-            k=k,
-            x_hat=x_hat,
-            w_hat=w_hat,
-            w_index=w_index,
-            status=status,
-            success=success,
-            iterations=iterations,
-            solve_time=solve_time,
-            cost=cost,
-            window=length,
-            missing=np.isnan(y_vec),
-        )
-
-    def _commit_two_stage(
-        self, k: int, u_vec: FloatArray, y_vec: FloatArray, gamma_k: FloatArray, z_hat: FloatArray, x_hat: FloatArray
-    ) -> tuple[FloatArray | None, int | None]:
-        """Fit ``w_hat[k-1]``, store step k and move to k + 1; returns (w_hat, its time index)."""
-        w_hat, w_index = None, None
+        x_pred = self._x0_prior if self._x_last is None else self._x_last
+        assert x_pred is not None
         if k > 0 and self._x_last is not None:
-            guess = self._w_full if self._w_full is not None else self.system.nominal_w
-            w_hat, w_index = self._fit(self._x_last, u_vec, x_hat, guess), k - 1
-        if k > 0:
-            self._u.append(u_vec)
-        self._y.append(y_vec)
-        self._gamma.append(gamma_k)
-        self._priors.append(z_hat.copy())
-        self._x_last = x_hat
-        self.z_hat = z_hat
-        if w_hat is not None:
-            self._w_full = w_hat
-        self._k = k + 1
-        return w_hat, w_index
-
-    def skip(self, u_prev: ArrayLike | None, y: ArrayLike, reason: str) -> StepEstimate:
-        """Step k without solving: the full model propagates ``x_hat[k-1]`` (see :meth:`WindowEstimator.skip`)."""
-        s, k = self.system, self._k
-        u_vec = check_u_prev(s, u_prev, k)
-        y_vec = check_y(s, y)
-        if k == 0 or self._x_last is None:
-            x_hat = self._x0_prior.copy()  # type: ignore[union-attr]
-        else:
-            w = self._w_full if self._w_full is not None else s.nominal_w
-            nxt = s.step(self._x_last, u_vec, w)
-            x_hat = s.x.bounds.clip(nxt) if np.all(np.isfinite(nxt)) else self._x_last.copy()
-        z_hat = self._split(x_hat)[1]
-        gamma_k = np.where(np.isnan(y_vec), s.output(x_hat, self.v_prior), y_vec)
-        w_hat, w_index = self._commit_two_stage(k, u_vec, y_vec, gamma_k, z_hat, x_hat)
-        return StepEstimate(k, x_hat, w_hat, w_index, f"propagated ({reason})", False, 0, 0.0, float("nan"), 0,
-                            np.isnan(y_vec))  # fmt: skip
+            nxt = s.step(self._x_last, u_prev, self._w_last if self._w_last is not None else s.nominal_w)
+            x_pred = nxt if np.all(np.isfinite(nxt)) else self._x_last
+        z_flat = np.asarray(red.T(x_pred), dtype=float).reshape(-1)[: red.n_flat]
+        x_pred = np.asarray(red.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
+        return np.where(missing, s.output(s.x.bounds.clip(x_pred), self.v_prior), y)
 
     # ------------------------------------------------------------------ guarantee
     @property
@@ -449,12 +281,3 @@ class TwoStageUISE(WindowEstimator):
             f"TwoStageUISE(system={self.system.name!r}, n_flat={self.reduced.n_flat}, n_sharp={self.reduced.n_sharp}, "
             f"N={self.N}, mu={mu}, projection={self.projection.mode!r}, guaranteed={self.guaranteed})"
         )
-
-
-__all__ = [
-    "PROJECTIONS",
-    "Projection",
-    "TwoStageUISE",
-    "reduced_window_model",
-    "two_stage_window_weights",
-]

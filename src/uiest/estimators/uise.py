@@ -28,49 +28,22 @@ where P is small. ``sigma_v(2 r) = 4 |r|_{R_v}^2`` gives the factor 8 of the noi
 
 from __future__ import annotations
 
-from collections.abc import Mapping
 from typing import Any
 
-import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.errors import OptionError
-from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_horizon
-from uiest.estimators.weights import StrongCertificate, UISEWeights
+from uiest.estimators.base import WindowEstimator, WindowOptions
+from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.system import System
-from uiest.window import DEFAULT_BACKEND, WindowWeights
+from uiest.window import WindowModel
 
 
-def uise_window_weights(weights: UISEWeights, length: int) -> WindowWeights:
-    """Residual weights of eq:cost_MHE_full for a window of ``length`` transitions (all nodes measured).
-
-    Node ``i`` (time ``k - length + i``) has ``j = length - i``: output weight ``2 mu^{j-1} R_y``,
-    noise weight ``8 mu^{j-1} R_v``; the prior weight is ``4 mu^length P``.
-    """
-    mu = weights.mu
-    discounts = mu ** (length - np.arange(length + 1) - 1.0)
-    return WindowWeights(
-        prior=4.0 * mu**length * weights.P,
-        y=2.0 * discounts[:, None, None] * weights.R_y,
-        v=8.0 * discounts[:, None, None] * weights.R_v,
-    )
-
-
-def resolve_uise_weights(
-    system: System, certificate: StrongCertificate | None, weights: UISEWeights | None
-) -> tuple[UISEWeights, StrongCertificate | None]:
-    """Weights from exactly one of ``certificate=`` and ``weights=``; checked against ``system``."""
+def check_system(system: Any) -> System:
+    """``system`` if it is a :class:`~uiest.system.System`, else OptionError."""
     if not isinstance(system, System):
         raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
-    if (certificate is None) == (weights is None):
-        raise OptionError("certificate, weights: expected exactly one of them")
-    if weights is not None and not isinstance(weights, UISEWeights):
-        raise OptionError(f"weights: expected a UISEWeights, got {type(weights).__name__}")
-    resolved = UISEWeights.from_certificate(certificate) if certificate is not None else weights
-    assert resolved is not None  # for mypy; exactly one was given
-    resolved.check(system)
-    return resolved, certificate
+    return system
 
 
 class UISE(WindowEstimator):
@@ -98,17 +71,9 @@ class UISE(WindowEstimator):
         Prior ``x_bar_0`` in X (or give it to :meth:`reset` / :meth:`run`).
     v_prior : array_like (nv,), optional
         Noise prior ``v_bar`` in V (default 0).
-    solver : str
-        Window backend: ``"gn"`` (default, Gauss-Newton SQP with IPOPT as its fallback),
-        ``"ipopt"`` (the paper's solver) or ``"rti"`` (one Gauss-Newton step per sample).
-    solver_options : mapping, optional
-        Backend options: for IPOPT, options overriding :data:`uiest.window.IPOPT_DEFAULTS`;
-        for gn/rti, keyword arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`.
-    warm_start : bool
-        Primal-dual warm start from the shifted previous solution (default True).
-    strict : bool
-        Raise :class:`~uiest.errors.SolverError` when a window problem is not solved, instead of
-        propagating the previous estimate and recording the status.
+    **options
+        :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
+        ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``.
 
     """
 
@@ -123,30 +88,34 @@ class UISE(WindowEstimator):
         N: int | None = None,
         x0_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
-        solver: str = DEFAULT_BACKEND,
-        solver_options: Mapping[str, Any] | None = None,
-        warm_start: bool = True,
-        strict: bool = False,
+        **options: Any,
     ) -> None:
-        self.weights, self.certificate = resolve_uise_weights(system, certificate, weights)
-        if N is None:
-            if self.certificate is None:
-                raise OptionError("N: required with explicit weights (no certificate to take min_horizon() from)")
-            N = self.certificate.min_horizon()
-        check_horizon(N)
-        super().__init__(
-            system,
-            N=N,
-            x0_prior=x0_prior,
-            v_prior=v_prior,
-            solver=solver,
-            solver_options=solver_options,
-            warm_start=warm_start,
-            strict=strict,
+        check_system(system)
+        self.design_report: Any = None
+        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
+        self.weights, self.certificate, N = resolve_weights(
+            UISEWeights, certificate, weights, N, lambda w: w.check(system)
         )
+        super().__init__(system, WindowModel.from_system(system), schedule=self.weights.schedule(), N=N,
+                         x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
 
-    def _window_weights(self, length: int) -> WindowWeights:
-        return uise_window_weights(self.weights, length)
+    @classmethod
+    def design(cls, system: System, *, x0_prior: ArrayLike, **design_options: Any) -> UISE:
+        """A certified UISE whose mu and N are chosen for accuracy under noise (:func:`uiest.design.design_uise`).
+
+        ``x0_prior`` is the prior and where the design's noise trials start; ``design_options``
+        go to :func:`~uiest.design.design_uise` (``max_horizon``, ``rates``, ``budget``, ``trials``,
+        ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
+        the guaranteed bound and the simulated error of every candidate) is :attr:`design_report`.
+        """
+        from uiest.design import design_uise
+
+        check_system(system)
+        window = {k: design_options[k] for k in list(design_options) if k in WindowOptions.__dataclass_fields__}
+        design = design_uise(system, x0_prior, **design_options)
+        est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior, **window)
+        est.design_report = design
+        return est
 
     @property
     def guarantee(self) -> str:
@@ -154,8 +123,7 @@ class UISE(WindowEstimator):
         if self.certificate is None:
             return "none: explicit weights without a strong-detectability certificate, theo:MHE_full does not apply"
         n_min = self.certificate.min_horizon()
-        horizon = self.N
-        if horizon is not None and horizon < n_min:
+        if self.N is not None and n_min > self.N:
             return f"none: N={self.N} < min_horizon()={n_min} (eq:MHE_full_horizon), theo:MHE_full does not apply"
         return (
             f"theo:MHE_full: strongly detectable with mu={self.weights.mu:.4g}, N={self.N} >= "

@@ -18,18 +18,21 @@ All matrices are in original units.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import CertificationError, OptionError
+from uiest.estimators.checks import check_horizon
 from uiest.reduction import ReducedModel
 from uiest.system import System
 from uiest.window.model import box_scale
-from uiest.window.problem import sqrt_psd
+from uiest.window.problem import WindowWeights, sqrt_psd
 
 
 @runtime_checkable
@@ -124,6 +127,70 @@ def _diag_scaled(weight: ArrayLike, scale: FloatArray, name: str) -> FloatArray:
     return np.diag(w / scale**2)
 
 
+@dataclass(frozen=True, eq=False)
+class Schedule:
+    r"""A discounted weight schedule: the one form every window estimator's cost takes.
+
+    For a window of ``L`` transitions (node ``i`` at time ``k - L + i``, ``j = L - i`` steps
+    before the window's end), the residual weights are::
+
+        prior:                       rate^L P
+        output, noise at node i:     rate^(j - shift) R_y,  rate^(j - shift) R_v
+        unknown input of transition i:  rate^(j - shift) Q_w        (only if ``w`` is given)
+
+    with the paper's constants already in ``P, R_y, R_v, Q_w`` (``4 P, 2 R_y, 8 R_v`` for the
+    UISE; see each weights class's :meth:`schedule`).
+    """
+
+    rate: float
+    prior: FloatArray
+    y: FloatArray
+    v: FloatArray
+    w: FloatArray | None = None
+    shift: int = 1
+
+    def window(self, length: int, measured: ArrayLike) -> WindowWeights:
+        """The :class:`~uiest.window.WindowWeights` of a window of ``length`` transitions and these measured nodes."""
+        nodes = length - np.asarray(measured, dtype=float).reshape(-1)
+        transitions = length - np.arange(length, dtype=float)
+        at = self.rate ** (nodes - self.shift)[:, None, None]
+        return WindowWeights(
+            prior=self.rate**length * self.prior,
+            y=at * self.y,
+            v=at * self.v,
+            w=None if self.w is None else self.rate ** (transitions - self.shift)[:, None, None] * self.w,
+        )
+
+
+def resolve_weights(
+    kind: type[Any],
+    certificate: object | None,
+    weights: object | None,
+    N: int | None,
+    fits: Callable[[Any], None],
+    *,
+    needs_horizon: bool = True,
+) -> tuple[Any, Any, int | None]:
+    """``(weights, certificate, N)`` from exactly one of a certificate and explicit weights of type ``kind``.
+
+    ``fits(weights)`` checks the shapes against the model; N defaults to ``certificate.min_horizon()``
+    and is required with explicit weights (unless ``needs_horizon`` is False: the FIE has none).
+    """
+    if (certificate is None) == (weights is None):
+        raise OptionError("certificate, weights: expected exactly one of them")
+    if weights is not None and not isinstance(weights, kind):
+        raise OptionError(f"weights: expected a {kind.__name__}, got {type(weights).__name__}")
+    resolved = kind.from_certificate(certificate) if certificate is not None else weights
+    fits(resolved)
+    if not needs_horizon:
+        return resolved, certificate, None
+    if N is None:
+        if certificate is None:
+            raise OptionError("N: required with explicit weights (no certificate to take min_horizon() from)")
+        N = certificate.min_horizon()  # type: ignore[attr-defined]
+    return resolved, certificate, check_horizon(N)
+
+
 @dataclass(frozen=True)
 class UISEWeights:
     r"""Weights of eq:cost_MHE_full (and eq:cost_FIE_full) with quadratic functions.
@@ -182,6 +249,10 @@ class UISEWeights:
             R_y=_diag_scaled(output, system.y.scale, "output"),
             R_v=_diag_scaled(noise, system.v.scale, "noise"),
         )
+
+    def schedule(self) -> Schedule:
+        """eq:cost_MHE_full: prior ``4 mu^L P``, node ``j``: ``2 mu^{j-1} R_y``, ``8 mu^{j-1} R_v``."""
+        return Schedule(self.mu, 4.0 * self.P, 2.0 * self.R_y, 8.0 * self.R_v, shift=1)
 
     def check(self, system: System) -> None:
         """Raise OptionError unless the shapes fit ``system``."""
@@ -249,6 +320,10 @@ class MHEWeights:
             R=_diag_scaled(output, system.y.scale, "output"),
         )
 
+    def schedule(self) -> Schedule:
+        """Schiller et al. eq. (6): prior ``2 eta^L P``; ``eta^{j-1} R``, ``2 eta^{j-1} Q_v``, ``2 eta^{j-1} Q_w``."""
+        return Schedule(self.eta, 2.0 * self.P, self.R, 2.0 * self.Q_v, 2.0 * self.Q_w, shift=1)
+
     def check(self, system: System) -> None:
         """Raise OptionError unless the shapes fit ``system``."""
         for name, n in (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)):
@@ -273,6 +348,24 @@ class ReducedCertificate(Protocol):
     def min_horizon(self) -> int:
         """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
         ...
+
+
+def reduced_scale(reduced: ReducedModel) -> FloatArray:
+    """Nominal magnitudes of ``z_sharp``: ``|dT_sharp/dx| s_x`` at X's working centre, capped by T(X)'s widths.
+
+    From the state scales, not from T(X)'s widths alone, so that a wide X with small state scales
+    gives small z scales (for a linear T and ``s_x`` = X's widths both are the same).
+    """
+    from uiest.window.problem import working_center
+
+    system = reduced.system
+    x = ca.SX.sym("x", system.nx)
+    jac = ca.Function("dT_sharp", [x], [ca.jacobian(reduced.T(x)[reduced.n_flat :], x)])
+    centre = working_center(system.x.bounds, system.x.scale)
+    spread = np.abs(np.asarray(jac(centre), dtype=float)).reshape(reduced.n_sharp, system.nx) @ system.x.scale
+    width = box_scale(reduced.z_bounds)
+    usable = np.isfinite(spread) & (spread > 0)
+    return np.where(usable, np.minimum(np.where(usable, spread, 1.0), width), width)
 
 
 def certificate_z_scale(certificate: object) -> FloatArray | None:
@@ -344,18 +437,22 @@ class TwoStageWeights:
     ) -> TwoStageWeights:
         """Diagonal weights per *scaled* unit: ``prior = diag(prior / s_z^2)``, ``R_y = diag(output / s_y^2)``, ...
 
-        ``s_z`` are the reduced state's scales (the widths of ``reduced.z_bounds`` where finite
-        and positive, else 1, as the two-stage UISE's window uses), ``s_y``, ``s_v`` the system's
+        ``s_z`` are the reduced state's scales (:func:`reduced_scale`, as the two-stage UISE's
+        window uses), ``s_y``, ``s_v`` the system's
         output and noise scales. For models without a certificate (the crop model, whose
         certificate only gives mu ~ 0.9995: the paper uses mu = 0.48); scalars or per-component.
         """
         system = reduced.system
         return cls(
             mu=mu,
-            prior=_diag_scaled(prior, box_scale(reduced.z_bounds), "prior"),
+            prior=_diag_scaled(prior, reduced_scale(reduced), "prior"),
             R_y=_diag_scaled(output, system.y.scale, "output"),
             R_v=_diag_scaled(noise, system.v.scale, "noise"),
         )
+
+    def schedule(self) -> Schedule:
+        """eq:cost_MHE: prior ``2 mu^L prior``, node ``j``: ``mu^j R_y``, ``2 mu^j R_v``."""
+        return Schedule(self.mu, 2.0 * self.prior, self.R_y, 2.0 * self.R_v, shift=0)
 
     def check(self, system: System, n_sharp: int) -> None:
         """Raise OptionError unless the shapes fit ``system`` and the reduced state's size."""

@@ -14,6 +14,7 @@ from matplotlib.figure import Figure
 from uiest.experiments import provenance
 from uiest.experiments.metrics import accuracy, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
+from uiest.paths import writable_folder
 
 PAPER_T_MAX_MS = {
     "noise-free": {"standard MHE": 51.9, "UISE": 59.4, "two-stage UISE": 26.0},
@@ -278,8 +279,8 @@ def outcome_lines(study: StudyResult) -> list[str]:
 
 
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
-    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out``."""
-    out.mkdir(parents=True, exist_ok=True)
+    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created)."""
+    out = writable_folder(Path(out), "out")
     scenario = study.scenario
     written: list[Path] = []
     steps_path = out / "steps.parquet"

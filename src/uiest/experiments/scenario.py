@@ -16,6 +16,7 @@ from typing import Any
 import tomli_w
 
 from uiest.errors import OptionError
+from uiest.paths import writable_file
 
 ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "fie")
 CASES = ("noise-free", "noisy")
@@ -189,6 +190,11 @@ class Scenario:
             raise OptionError(f"cases: expected a non-empty subset of {CASES} without repeats, got {self.cases!r}")
         if not self.estimators:
             raise OptionError("estimators: expected at least one estimator")
+        if not isinstance(self.estimators, list | tuple) or not all(
+            isinstance(spec, EstimatorSpec) for spec in self.estimators
+        ):
+            raise OptionError(f"estimators: expected a list of EstimatorSpec, got {self.estimators!r:.200}")
+        object.__setattr__(self, "estimators", tuple(self.estimators))
         names = [spec.name for spec in self.estimators]
         if len(set(names)) != len(names):
             raise OptionError(f"estimators: names must be unique, got {names}")
@@ -245,9 +251,9 @@ class Scenario:
         data["prior_from_output"] = [list(pair) for pair in self.prior_from_output]
         return data
 
-    def to_toml(self, path: Path) -> Path:
-        """Write the scenario as TOML."""
-        path.parent.mkdir(parents=True, exist_ok=True)
+    def to_toml(self, path: Path | str) -> Path:
+        """Write the scenario as TOML (the folder is created; OptionError naming ``path`` if it cannot be written)."""
+        path = writable_file(Path(path), "path")
         path.write_bytes(tomli_w.dumps(self.to_dict()).encode())
         return path
 

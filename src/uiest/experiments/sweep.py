@@ -33,13 +33,17 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from uiest import models
+from uiest.checks import check_callable, shown
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
 from uiest.experiments.scenario import Scenario
 from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
-from uiest.paths import writable_folder
+from uiest.paths import writable_file, writable_folder
 from uiest.window import DEFAULT_BACKEND
+
+OUTPUT_FILES = ("results.parquet", "summary.csv", "manifest.json", "lost_tasks.log")
+"""Files a sweep writes into ``out`` (besides ``runs/`` and the plots); each is checked to be writable first."""
 
 __all__ = ["SWEEPABLE", "Sweep", "SweepProgress", "Task", "apply", "collect", "run_task", "sweep"]
 
@@ -182,12 +186,17 @@ def sweep(
         raise OptionError(f"workers: expected an integer >= 1 or None (all cores), got {workers!r}")
     if max_tasks is not None and (isinstance(max_tasks, bool) or not isinstance(max_tasks, int) or max_tasks < 0):
         raise OptionError(f"max_tasks: expected an integer >= 0, got {max_tasks!r}")
+    check_callable(progress, "progress")
+    if not isinstance(design, Sweep):
+        raise OptionError(f"design: expected a Sweep, got {shown(design)}")
     tasks = design.tasks(solver)
     out = Path(out)
     runs_dir = out / "runs"
     if runs_dir.exists() and not runs_dir.is_dir():
         raise OptionError(f"out: {runs_dir} is a file; expected a folder for the stored tasks")
     writable_folder(runs_dir, "out")
+    for name in OUTPUT_FILES:
+        writable_file(out / name, "out")
     model = models.get(design.scenario.model).build()
     design.scenario.check_model(model.nx, model.ny)
     stored, other = _stored(runs_dir, {task.key for task in tasks}, retry_failed)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from itertools import product
 from pathlib import Path
@@ -19,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from uiest.checks import shown
 from uiest.errors import OptionError
 from uiest.experiments.provenance import code_version
 from uiest.experiments.scenario import Scenario, read_toml
@@ -33,6 +35,8 @@ INTEGER = ("N", "steps")
 MAX_INTEGER = {"N": 100_000, "steps": 10_000_000}
 """Sanity bounds of the integer parameters (a larger horizon or run is a typo, not a study)."""
 CHOICES = ("estimator", "solver")
+MAX_TASKS = 100_000
+"""Most tasks (design points x cases x runs) one sweep may hold: its points are generated and checked up front."""
 
 
 def _check_value(name: str, value: Any, estimators: set[str]) -> Any:
@@ -106,6 +110,12 @@ class Sweep:
     ranges: dict[str, tuple[float, float]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
+        if not isinstance(self.scenario, Scenario):
+            raise OptionError(f"scenario: expected a Scenario, got {shown(self.scenario)}")
+        for key, wanted in (("grid", "lists of values"), ("ranges", "[low, high] pairs")):
+            if not isinstance(getattr(self, key), Mapping):
+                raise OptionError(f"sweep.{key}: expected a mapping from parameters to {wanted}, got "
+                                  f"{shown(getattr(self, key))}")  # fmt: skip
         for name in [*self.grid, *self.ranges]:
             if name not in SWEEPABLE:
                 raise OptionError(f"sweep: {name!r} cannot be swept; expected one of {SWEEPABLE}")
@@ -123,6 +133,13 @@ class Sweep:
                 raise OptionError(f"sweep.grid.{name}: expected distinct values, got {list(values)}")
         object.__setattr__(self, "grid", grid)
         object.__setattr__(self, "ranges", {name: _check_range(name, b) for name, b in self.ranges.items()})
+        points = (math.prod(len(values) for values in grid.values()) if grid else int(not self.random)) + self.random
+        count = points * len(self.scenario.cases) * self.scenario.runs
+        if count > MAX_TASKS:
+            raise OptionError(
+                f"sweep: {count:_} tasks ({points:_} points x {len(self.scenario.cases)} cases x "
+                f"{self.scenario.runs} runs); expected at most {MAX_TASKS:_}: split the design (random, grid)"
+            )
         for point in self.points():  # every point must give a valid scenario
             try:
                 apply(self.scenario, point)

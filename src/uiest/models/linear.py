@@ -10,12 +10,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
+from uiest.checks import check_int, check_seed, real_array
 from uiest.errors import ModelError
 from uiest.system import System
 
 
 def _matrix(value: ArrayLike, name: str, rows: int | None = None, cols: int | None = None) -> FloatArray:
-    arr = np.asarray(value, dtype=float)
+    arr = real_array(value, name, "a real matrix", error=ModelError)
     if arr.ndim == 1 and rows is not None and cols == 1:
         arr = arr.reshape(-1, 1)
     if arr.ndim != 2 or (rows is not None and arr.shape[0] != rows) or (cols is not None and arr.shape[1] != cols):
@@ -114,7 +115,9 @@ def with_invariant_zeros(
         The System and its matrices (A (n, n), B (n, nw), C (ny, n)).
 
     """
-    rng = np.random.default_rng(seed)
+    nw = check_int(nw, "nw", low=1, error=ModelError)
+    extra_outputs = check_int(extra_outputs, "extra_outputs", error=ModelError)
+    rng = np.random.default_rng(check_seed(seed))
     Z = _real_block(zeros) if len(zeros) else np.zeros((0, 0))
     nh = Z.shape[0]
     n = nw + nh

@@ -43,6 +43,7 @@ N = 100 at costs up to about 3e-4 (relative) above IPOPT's).
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -50,6 +51,8 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.checks import check_int, check_real
+from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
@@ -134,12 +137,17 @@ class GaussNewtonSolver:
         polish: bool = False,
     ) -> None:
         self.problem = problem
-        self.max_iter = int(max_iter)
-        self.step_tol = float(step_tol)
-        self.cost_tol = float(cost_tol)
-        self.fallback = fallback
-        self.min_damping = float(min_damping)
-        self.kkt_tol = float(kkt_tol)
+        self.max_iter = check_int(max_iter, "solver_options: max_iter", low=1)
+        tolerances = {"step_tol": step_tol, "cost_tol": cost_tol, "min_damping": min_damping, "kkt_tol": kkt_tol}
+        for name, value in tolerances.items():
+            number = check_real(value, f"solver_options: {name}", "a finite number >= 0")
+            if not (math.isfinite(number) and number >= 0.0):
+                raise OptionError(f"solver_options: {name}: expected a finite number >= 0, got {value!r}")
+        self.step_tol, self.cost_tol, self.min_damping, self.kkt_tol = (float(v) for v in tolerances.values())
+        for name, value in (("fallback", fallback), ("polish", polish)):
+            if not isinstance(value, bool | np.bool_):
+                raise OptionError(f"solver_options: {name}: expected True or False, got {value!r}")
+        self.fallback = bool(fallback)
         self.polish = bool(polish)
         z, p = problem.z, problem.p
         J = ca.jacobian(problem.r, z)

@@ -10,7 +10,7 @@ decision variables, stacked stage by stage as ``[x_0, v_0, w_0, x_1, v_1, w_1, .
 
     x_i = c_x + S_x x~_i,   w_i = c_w + S_w w~_i,   v_i = c_v + S_v v~_i,
 
-with ``S = diag(signal.scale)`` and ``c`` the centre of the signal's domain (``Box.center``;
+with ``S = diag(signal.scale)`` and ``c`` the centre of the signal's domain (:func:`working_center`;
 for w the centre of the range the problem is given, else ``system.nominal_w``). Multiple
 shooting: the dynamics are equality constraints
 
@@ -87,6 +87,20 @@ def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
         raise OptionError(f"{name}: expected a positive semidefinite matrix, smallest eigenvalue {eigval.min():.3g}")
     root: FloatArray = (eigvec * np.sqrt(np.clip(eigval, 0.0, None))) @ eigvec.T
     return root
+
+
+WIDE = 1e6
+"""A box wider than this many scales is not centred on its midpoint (see :func:`working_center`)."""
+
+
+def working_center(box: Box, scale: FloatArray) -> FloatArray:
+    """The origin of the scaled coordinates: the box's centre, or the point of the box nearest 0.
+
+    The latter where the box is wider than ``WIDE`` scales (a domain meant as "unbounded"), so that
+    values of the scale's magnitude are not resolved against a centre of the width's magnitude.
+    """
+    wide = ~(box.width <= WIDE * scale)
+    return np.where(wide, np.clip(0.0, box.lower, box.upper), box.center)
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,11 +219,13 @@ class WindowProblem:
         self.weighted_w = bool(weights is not None and weights.w is not None) if weighted_w is None else weighted_w
 
         # scaling: z = c + s * z~
-        self.x_center, self.x_scale = self.x_box.center, model.x_scale
-        self.v_center, self.v_scale = self.v_box.center, model.v_scale
-        self.w_center = self.w_box.center if self.w_box != Box.unbounded(nw) else model.nominal_w
+        self.x_center, self.x_scale = working_center(self.x_box, model.x_scale), model.x_scale
+        self.v_center, self.v_scale = working_center(self.v_box, model.v_scale), model.v_scale
+        self.w_center = (
+            working_center(self.w_box, model.w_scale) if self.w_box != Box.unbounded(nw) else model.nominal_w
+        )
         self.w_scale = model.w_scale
-        self.y_center, self.y_scale = model.y_bounds.center, model.y_scale
+        self.y_center, self.y_scale = working_center(model.y_bounds, model.y_scale), model.y_scale
 
         # index layout, stage-wise [x_i, v_i (if measured), w_i (if i < L)]
         x_index = np.empty((L + 1, nx), dtype=int)
@@ -340,7 +356,7 @@ class WindowProblem:
         rows = [int(r) for r in self.node_rows]
         if rows:
             assert s.node_constraint is not None and s.node_bounds is not None and s.node_scale is not None
-            c_center = s.node_bounds.center[rows]
+            c_center = working_center(s.node_bounds, s.node_scale)[rows]
             c_scale = s.node_scale[rows]
             for m, node in enumerate(self.measured):
                 c = s.node_constraint(xs[int(node)], vs[m], ds[int(node)])[rows]
@@ -369,7 +385,7 @@ class WindowProblem:
             ubg[self.n_dyn : self.n_dyn + self.n_out_con] = np.tile(hi, M)
         if rows:
             assert s.node_bounds is not None and s.node_scale is not None
-            c_center, c_scale = s.node_bounds.center[rows], s.node_scale[rows]
+            c_center, c_scale = working_center(s.node_bounds, s.node_scale)[rows], s.node_scale[rows]
             start = self.n_dyn + self.n_out_con
             lbg[start:] = np.tile((s.node_bounds.lower[rows] - c_center) / c_scale, M)
             ubg[start:] = np.tile((s.node_bounds.upper[rows] - c_center) / c_scale, M)

@@ -1,0 +1,68 @@
+"""UISE.design: mu and N chosen for accuracy, against the linear UIO on systems without invariant zeros."""
+
+import numpy as np
+import pytest
+
+from uiest import CertificationError, OptionError, simulate
+from uiest.design import settled_bound
+from uiest.detectability import certify_strong_detectability
+from uiest.estimators import UISE, LinearUIO
+from uiest.models import linear
+
+
+def benchmark(seed: int):
+    """A random stable 3-state system, one unknown input, two outputs (no invariant zeros), noise +-0.05."""
+    rng = np.random.default_rng(seed)
+    A = rng.standard_normal((3, 3))
+    A *= 0.9 / max(abs(np.linalg.eigvals(A)))
+    B, C = rng.standard_normal((3, 1)), rng.standard_normal((2, 3))
+    system = linear.linear_system(A, B, C, x_bounds=(-50, 50), v_bounds=(-0.05, 0.05))
+    K = 300
+    w = (3 * np.sin(0.05 * np.arange(K)) + rng.uniform(-1, 1, K))[:, None]
+    v = rng.uniform(-0.05, 0.05, (K + 1, 2))
+    return system, simulate(system, [1.0, -1.0, 2.0], K, w=w, v=v), v
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_designed_uise_is_as_accurate_as_the_linear_uio(seed):
+    system, traj, v = benchmark(seed)
+    uio = LinearUIO(system, x0_prior=np.zeros(3))
+    reference = uio.run(None, traj.y)
+    # the known answer: x_hat - x = -e + H v[k] with e = T x - z, e[k+1] = F e[k] - K v[k], whatever w
+    e = uio.T @ traj.x[0] - uio.T @ np.zeros(3)
+    for k in range(traj.steps + 1):
+        np.testing.assert_allclose(reference.x_hat[k] - traj.x[k], -e + uio.H @ v[k], atol=1e-9)
+        e = uio.F @ e - uio.K @ v[k]
+    designed = UISE.design(system, x0_prior=np.zeros(3))
+    report = designed.design_report
+    assert designed.guaranteed and designed.N == report.N and designed.weights.mu == report.certificate.mu
+    chosen = [c for c in report.candidates if c.mu == report.certificate.mu and c.N == report.N]
+    assert len(chosen) == 1 and np.all(chosen[0].bound == report.bound)
+    assert max(chosen[0].rms / system.x.scale) == min(max(c.rms / system.x.scale) for c in report.candidates)
+
+    def rmse(r):
+        return float(np.sqrt(np.mean(r.error(traj.x)[50:] ** 2)))
+
+    result = designed.run(None, traj.y)
+    assert rmse(result) <= 1.2 * rmse(reference)
+    minimal = certify_strong_detectability(system)  # the fastest certified rate: the worse design under noise
+    assert minimal.mu == report.candidates[0].mu
+    fastest = UISE(system, certificate=minimal, N=report.candidates[0].N, x0_prior=np.zeros(3)).run(None, traj.y)
+    assert rmse(fastest) > 1.2 * rmse(result)
+
+
+def test_settled_bound_is_the_proofs_formula():
+    gain = np.array([1.0, 2.0])
+    lam = 8 ** (1 / 10) * 0.5
+    np.testing.assert_allclose(settled_bound(gain, 0.5, 10), gain * 4 / np.sqrt(lam * (1 - lam)))
+    assert np.all(np.isinf(settled_bound(gain, 0.9, 1)))  # 8 mu >= 1: no contraction within one step
+
+
+def test_design_refuses_what_it_cannot_do():
+    system, _, _ = benchmark(0)
+    with pytest.raises(OptionError, match="rates: expected numbers in"):
+        UISE.design(system, x0_prior=np.zeros(3), rates=(0.5, 1.5))
+    with pytest.raises(OptionError, match="max_horizon: expected an integer"):
+        UISE.design(system, x0_prior=np.zeros(3), max_horizon=0)
+    with pytest.raises(CertificationError, match="max_horizon: no certified rate"):
+        UISE.design(system, x0_prior=np.zeros(3), max_horizon=1, rates=(0.5,))
