@@ -20,7 +20,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from uiest import DataError, ModelError, OptionError, System, Trajectory, UniformNoise, simulate
+from uiest import DataError, GaussianNoise, ModelError, OptionError, System, Trajectory, UniformNoise, simulate
 from uiest.detectability import (
     certify_delta_ioss,
     certify_reduced_ioss,
@@ -744,6 +744,18 @@ def _fuzz_cases(tmp: Path) -> list[Case]:
             "progress",
         ),
         Case(
+            "simulate: UniformNoise(1, -1)",
+            lambda: simulate(s(), [0, 0], 3, u=[0.0], v=UniformNoise(1.0, -1.0)),
+            DataError,
+            "UniformNoise: ",
+        ),
+        Case(
+            "simulate: GaussianNoise mean NaN",
+            lambda: simulate(s(), [0, 0], 3, u=[0.0], v=GaussianNoise(0.01, mean=np.nan)),
+            DataError,
+            "GaussianNoise.mean",
+        ),
+        Case(
             "Trajectory of disagreeing lengths",
             lambda: Trajectory(
                 np.arange(3.0), np.zeros((5, 2)), np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((3, 1)), np.zeros((3, 1))
@@ -851,6 +863,13 @@ def _fuzz_cases(tmp: Path) -> list[Case]:
         Case("full_state: y of length 3", lambda: reduced().full_state(np.zeros(3), np.zeros(1)), DataError, "y"),
         Case("check_assumptions(n_points=0)", lambda: reduced().check_assumptions(n_points=0), OptionError, "n_points"),
         # scenarios, reports, sweeps
+        Case(
+            "x0 box beyond X",
+            lambda: run_study(scenario(runs=2, x0_lower=(0.0, 0.0), x0_upper=(100.0, 100.0)), solver="gn"),
+            OptionError,
+            "x0_upper: expected a point in X",
+        ),
+        Case("run_study: solver x", lambda: run_study(scenario(), solver="x"), OptionError, "solver"),
         Case("estimators of strings", lambda: scenario(estimators=("uise",)), OptionError, "estimators"),
         Case("to_toml: a str path", lambda: scenario().to_toml(str(tmp / "s.toml")), ok=lambda r: r.exists()),
         Case(
@@ -1073,6 +1092,12 @@ def cli_cases(tmp: Path) -> list[CliCase]:
             2,
             "no Dask scheduler answers",
         ),
+        CliCase(
+            "reproduce --steps 1 below the scenario's settle",
+            ("reproduce", "--scenario", str(_scenario_file(tmp)), "--steps", "1", "--out", out),
+            2,
+            "--steps 1: settle",
+        ),
         CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
         CliCase(
             "sweep where out/results.parquet is a folder",
@@ -1081,6 +1106,10 @@ def cli_cases(tmp: Path) -> list[CliCase]:
             "results.parquet is a folder",
         ),
     ]
+
+
+def _scenario_file(tmp: Path) -> Path:
+    return scenario().to_toml(tmp / "settle-2.toml")
 
 
 def _cases3(tmp: Path) -> Path:

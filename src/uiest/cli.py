@@ -241,7 +241,13 @@ def reproduce(
         setting = crop_growth_scenario()
     else:
         raise OptionError(f"study: expected 'crop-growth' or --scenario FILE.toml, got {study!r}")
-    setting = setting.with_overrides(runs=2 if quick and runs is None else runs, steps=steps)
+    try:
+        setting = setting.with_overrides(runs=2 if quick and runs is None else runs, steps=steps)
+    except OptionError as exc:  # e.g. the scenario's settle does not fit the given --steps
+        given = " ".join(
+            f"{flag} {value}" for flag, value in (("--runs", runs), ("--steps", steps)) if value is not None
+        )
+        raise OptionError(f"{given}: {exc}" if given else str(exc)) from None
     folder = out if out is not None else Path("out") / setting.name
     writable_folder(folder, "--out")
     total = setting.runs * len(setting.cases) * len(setting.estimators)

@@ -13,7 +13,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray
-from uiest.errors import DataError
+from uiest.checks import real_array
+from uiest.errors import DataError, ModelError
 
 
 @runtime_checkable
@@ -26,7 +27,7 @@ class NoiseModel(Protocol):
 
 
 def _broadcast(value: ArrayLike, n: int, name: str) -> FloatArray:
-    arr = np.asarray(value, dtype=float)
+    arr = real_array(value, name, f"a scalar or {n} real numbers")
     try:
         return np.broadcast_to(arr, (n,)).astype(float)
     except ValueError as exc:
@@ -51,7 +52,10 @@ class UniformNoise:
 
     def box(self, n: int) -> Box:
         """The support as a Box of dimension n."""
-        return Box(_broadcast(self.lower, n, "UniformNoise.lower"), _broadcast(self.upper, n, "UniformNoise.upper"))
+        try:
+            return Box(_broadcast(self.lower, n, "UniformNoise.lower"), _broadcast(self.upper, n, "UniformNoise.upper"))
+        except ModelError as exc:
+            raise DataError(f"UniformNoise: {exc}") from None
 
     def sample(self, rng: np.random.Generator, count: int, n: int) -> FloatArray:
         """Draw ``count`` samples, shape (count, n)."""
@@ -73,4 +77,7 @@ class GaussianNoise:
         std = _broadcast(self.std, n, "GaussianNoise.std")
         if not np.all(np.isfinite(std)) or np.any(std < 0):
             raise DataError(f"GaussianNoise.std: expected non-negative finite values, got {std.tolist()}")
-        return _broadcast(self.mean, n, "GaussianNoise.mean") + std * rng.standard_normal((count, n))
+        mean = _broadcast(self.mean, n, "GaussianNoise.mean")
+        if not np.all(np.isfinite(mean)):
+            raise DataError(f"GaussianNoise.mean: expected finite values, got {mean.tolist()}")
+        return mean + std * rng.standard_normal((count, n))

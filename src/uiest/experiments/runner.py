@@ -34,6 +34,7 @@ from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
 from uiest.simulate import simulate
 from uiest.system import System
+from uiest.window.solvers import BACKENDS
 
 Builder = Callable[[System, EstimatorSpec, FloatArray, str], object]
 
@@ -204,11 +205,13 @@ def run_study(
 
     ``progress(label)`` is called after each estimator run (for progress bars).
     """
+    if solver not in BACKENDS:
+        raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
     model = models.get(scenario.model).build()
-    scenario.check_model(model.nx, model.ny)
+    scenario.check_model(model.nx, model.ny, model.x.bounds)
     certificates = []
     for spec in scenario.estimators:
         if spec.weights == "certificate":

@@ -220,12 +220,17 @@ class Scenario:
         if not math.isfinite(self.w_gain):
             raise OptionError(f"w_gain: expected a finite number, got {self.w_gain!r}")
 
-    def check_model(self, nx: int, ny: int) -> None:
-        """Raise OptionError unless the sizes in this scenario fit a model with ``nx`` states and ``ny`` outputs."""
+    def check_model(self, nx: int, ny: int, x_bounds: Any = None) -> None:
+        """Raise OptionError unless the sizes in this scenario fit a model with ``nx`` states and ``ny`` outputs.
+
+        With ``x_bounds`` (the model's X, a Box) the initial states x0 and the box [x0_lower, x0_upper] must lie in X.
+        """
         for label in ("x0", "x0_lower", "x0_upper", "prior"):
             value = getattr(self, label)
             if value and len(value) != nx:
                 raise OptionError(f"{label}: expected {nx} values (the model's states), got {len(value)}")
+            if value and label != "prior" and x_bounds is not None and not x_bounds.contains(value):
+                raise OptionError(f"{label}: expected a point in X = {x_bounds}, got {list(value)}")
         if not 0 <= self.focus_state < nx:
             raise OptionError(f"focus_state: expected a state index in [0, {nx}), got {self.focus_state}")
         for state, output in self.prior_from_output:

@@ -198,7 +198,7 @@ def sweep(
     for name in OUTPUT_FILES:
         writable_file(out / name, "out")
     model = models.get(design.scenario.model).build()
-    design.scenario.check_model(model.nx, model.ny)
+    design.scenario.check_model(model.nx, model.ny, model.x.bounds)
     stored, other = _stored(runs_dir, {task.key for task in tasks}, retry_failed)
     todo = [task for task in tasks if task.key not in stored]
     skipped = len(tasks) - len(todo)
