@@ -388,11 +388,11 @@ def test_noise_free_crop_standard_mhe_error_is_the_bias_of_its_unknown_input_pri
 def test_standard_mhe_raises_a_tiny_certified_eta_to_keep_the_window_well_scaled():
     system = linear.example()
     weights = MHEWeights(eta=2e-4, P=np.eye(3), Q_w=[[1.0]], Q_v=[[1.0]], R=[[1.0]])
-    est = StandardMHE(system, weights=weights, N=10, x0_prior=np.zeros(3))
+    est = StandardMHE(system, weights=weights, N=10, x0_prior=np.zeros(3), normalise=True)
     assert est.eta_given == 2e-4 and est.weights.eta == pytest.approx(1e-8 ** (1 / 10))
     window = est.schedule.window(10, range(10))
     assert window.y[-1, 0, 0] / window.y[0, 0, 0] <= 1e8 * (1 + 1e-9)
-    kept = StandardMHE(system, weights=weights, N=10, normalise=False)
+    kept = StandardMHE(system, weights=weights, N=10)  # explicit weights keep their eta by default
     assert kept.weights.eta == 2e-4
 
 

@@ -73,7 +73,8 @@ class StandardMHE(WindowEstimator):
         Noise prior in V (default 0).
     use_w_range : bool
         Constrain the unknown-input estimates to ``system.w_range`` (default True, as in the paper).
-    normalise : bool
+    normalise : bool, optional
+        Default: True with a certificate, False with explicit weights (the user's eta is kept).
         Raise eta to ``SPAN^(-1/N)`` when it is smaller, so that the window's weights span at
         most ``SPAN = 1e8`` (a certified eta ~ 2e-4 with N = 10 spans 37 orders of magnitude and
         the solves fail). The guarantee survives: a delta-IOSS bound with eta holds with any
@@ -98,7 +99,7 @@ class StandardMHE(WindowEstimator):
         w_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
         use_w_range: bool = True,
-        normalise: bool = True,
+        normalise: bool | None = None,
         **options: Any,
     ) -> None:
         check_system(system)
@@ -106,7 +107,7 @@ class StandardMHE(WindowEstimator):
             MHEWeights, certificate, weights, N, lambda w: w.check(system)
         )
         self.eta_given = self.weights.eta
-        if normalise and self.weights.eta < SPAN ** (-1.0 / N):
+        if (certificate is not None if normalise is None else normalise) and self.weights.eta < SPAN ** (-1.0 / N):
             self.weights = replace(self.weights, eta=SPAN ** (-1.0 / N))
         self.w_range = system.w_range if use_w_range else None
         w_bar = system.nominal_w if w_prior is None else as_vector(w_prior, system.nw, "w_prior")
