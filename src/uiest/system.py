@@ -9,6 +9,8 @@ sizes, names, units, box domains X, U, V, Y, nominal scales and the sampling tim
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
@@ -20,7 +22,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_int, check_real, real_array
-from uiest.errors import DataError, ModelError
+from uiest.errors import DataError, ModelError, OptionError
 from uiest.signal import Signal
 
 BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
@@ -413,6 +415,38 @@ class System:
         """Centre of ``w_range`` if known, else zeros; shape (nw,)."""
         return np.zeros(self.nw) if self.w_range is None else self.w_range.center
 
+    def with_scales(self, trajectory: Any = None, **scales: ArrayLike) -> System:
+        """The same system with other nominal scales (what solvers and certificates divide by).
+
+        Parameters
+        ----------
+        trajectory : Trajectory, optional
+            A simulated or measured record: each signal's scale becomes the largest magnitude of
+            each component over the record (``max_k |x_i[k]|``; NaN entries ignored), where that
+            is positive and finite; components that are zero throughout keep their scale.
+        **scales : array_like
+            ``x=``, ``u=``, ``w=``, ``v=``, ``y=``: explicit scales (positive; a scalar broadcasts),
+            applied after the trajectory's.
+
+        Use it when X is a wide safety box (say ``±1e9`` for "unbounded"): scales from X's width
+        would make a solve resolve only about 1e-8 of that width.
+
+        """
+        unknown = sorted(set(scales) - {"x", "u", "w", "v", "y"})
+        if unknown:
+            raise OptionError(f"scales: unknown signals {unknown}; expected some of ['x', 'u', 'w', 'v', 'y']")
+        new = {s.kind: s.scale for s in self.signals}
+        if trajectory is not None:
+            for kind in new:
+                new[kind] = _peak_scale(trajectory, kind, new[kind])
+        for kind, value in scales.items():
+            given = real_array(value, f"{kind}", "positive scales", error=OptionError)
+            if given.size not in (1, len(new[kind])) or not np.all(np.isfinite(given) & (given > 0)):
+                raise OptionError(f"{kind}: expected {len(new[kind])} positive finite scales, got {given.tolist()}")
+            new[kind] = np.broadcast_to(given.reshape(-1), new[kind].shape)
+        signals = {s.kind: dataclasses.replace(s, scale=np.array(new[s.kind], dtype=float)) for s in self.signals}
+        return dataclasses.replace(self, **signals)
+
     # ------------------------------------------------------------------ numerics
     def step(self, x: ArrayLike, u: ArrayLike | None, w: ArrayLike) -> FloatArray:
         """Evaluate ``f``: shapes (nx,), (nu,), (nw,) -> (nx,), or a batch (m, .) -> (m, nx).
@@ -483,6 +517,22 @@ class System:
             f"System(name={self.name!r}, nx={self.nx}, nu={self.nu}, nw={self.nw}, nv={self.nv}, "
             f"ny={self.ny}, dt={self.dt} {self.time_unit})"
         )
+
+
+def _peak_scale(trajectory: Any, kind: str, fallback: FloatArray) -> FloatArray:
+    """Largest magnitude per component of ``trajectory.<kind>`` (NaN ignored); ``fallback`` where not positive."""
+    if not hasattr(trajectory, kind):
+        raise DataError(f"trajectory: expected a Trajectory with x, u, w, v, y, got {type(trajectory).__name__}")
+    values = real_array(getattr(trajectory, kind), f"trajectory.{kind}", "a real array")
+    if not len(fallback):
+        return fallback
+    if values.size % max(len(fallback), 1):
+        raise DataError(f"trajectory.{kind}: expected {len(fallback)} columns, got shape {values.shape}")
+    values = values.reshape(-1, len(fallback))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
+        peak = np.nanmax(np.abs(values), axis=0) if len(values) else np.zeros(len(fallback))
+    return np.where(np.isfinite(peak) & (peak > 0), peak, fallback)
 
 
 def _check_sizes(nx: Any, nu: Any, nw: Any, nv: Any) -> tuple[int, int, int, int]:

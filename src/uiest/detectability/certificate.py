@@ -189,22 +189,27 @@ class Certificate:
 
 
 @dataclass(frozen=True, eq=False)
-class StrongDetectabilityBase(Certificate):
+class MuCertificate(Certificate):
+    """A certificate whose rate the paper calls mu (strong detectability, reduced e-IOSS)."""
+
+    @property
+    def mu(self) -> float:
+        """The design discount (``rate``)."""
+        return self.rate
+
+    @property
+    def mu_min(self) -> float:
+        """Smallest discount found (``rate_min``)."""
+        return self.rate_min
+
+
+@dataclass(frozen=True, eq=False)
+class StrongDetectabilityBase(MuCertificate):
     """What the nonlinear and the linear strong-detectability certificates share.
 
     mu, the horizon of eq:MHE_full_horizon and the UISE's weights ``(mu, P, R_y, R_v)``
     (subclasses hold ``R_y`` and ``R_v``).
     """
-
-    @property
-    def mu(self) -> float:
-        """Discount of eq:Lyapunov_2 (the design rate)."""
-        return self.rate
-
-    @property
-    def mu_min(self) -> float:
-        """Smallest discount found."""
-        return self.rate_min
 
     def _horizon(self) -> int:
         """eq:MHE_full_horizon in the scaled norm: :func:`strong_horizon`."""

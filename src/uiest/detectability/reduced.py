@@ -26,12 +26,12 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import dissipation
-from uiest.detectability.certificate import Certificate, Verification
+from uiest.detectability.certificate import MuCertificate, Verification
 from uiest.errors import ModelError
 
 
 @dataclass(frozen=True, eq=False)
-class ReducedIOSS(Certificate):
+class ReducedIOSS(MuCertificate):
     """An exponential i-IOSS certificate of a reduced-order model (ass:e-ioss).
 
     Beyond :class:`~uiest.detectability.certificate.Certificate` (``rate`` is mu):
@@ -53,16 +53,6 @@ class ReducedIOSS(Certificate):
     r: float
 
     kind = "reduced_eioss"
-
-    @property
-    def mu(self) -> float:
-        """Discount of eq:p-eioss_quadratic."""
-        return self.rate
-
-    @property
-    def mu_min(self) -> float:
-        """Smallest feasible discount (bisection)."""
-        return self.rate_min
 
     @property
     def c_x(self) -> float:

@@ -97,8 +97,10 @@ def _depends(expr: ca.SX, symbols: list[ca.SX]) -> bool:
     return any(ca.depends_on(expr, s) for s in symbols if s.numel())
 
 
-def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> InputStructure:
+def input_structure(system: System, *, samples: int = 2000, seed: int = 0, matching: bool = True) -> InputStructure:
     """Read ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` off ``system`` (see the module docstring).
+
+    ``matching=False`` skips the matching condition (for :mod:`uiest.delay`, which handles its failure).
 
     Raises
     ------
@@ -164,7 +166,7 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0) -> In
     if rank_B < len(s) and evidence.startswith("sampled"):
         evidence += f"; other directions below {float(s[rank_B] / s[0]):.1e} of the largest (rounding)"
     rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
-    if rank_CB < rank_B:
+    if matching and rank_CB < rank_B:
         varying = (
             f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
             f"dimension {rank_B} while df/dw has rank "

@@ -3,6 +3,7 @@
 - :class:`UISE`: MHE-based unknown input state estimator (theo:MHE_full).
 - :class:`FIE`: full information estimator (lem:FIE), growing window.
 - :class:`StandardMHE`: robust MHE of Schiller et al. 2023, one-step-ahead (baseline).
+- :class:`DelayedUISE`: the UISE of the delayed system, x[k-lag] for an input of relative degree 2.
 - :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (theo:stab).
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
 
@@ -12,6 +13,7 @@ covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
 from uiest.estimators.base import WindowOptions
+from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
 from uiest.estimators.linear_uio import LinearUIO
 from uiest.estimators.results import EstimationResult, StepEstimate
@@ -23,6 +25,7 @@ from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 __all__ = [
     "FIE",
     "UISE",
+    "DelayedUISE",
     "EstimationResult",
     "LinearUIO",
     "MHEWeights",

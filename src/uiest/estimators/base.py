@@ -157,6 +157,8 @@ class WindowEstimator(StreamingEstimator):
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
     """True: the window at time k measures ``y[k-N_k .. k-1]`` (its newest node is a prediction)."""
+    status_note: str = ""
+    """Appended to every step's status (a forced estimator's " [no guarantee: ...]")."""
 
     def __init__(
         self,
@@ -252,13 +254,15 @@ class WindowEstimator(StreamingEstimator):
         """The window model's state of a full state (the prior of the first window)."""
         return x
 
-    def _to_state(self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int) -> tuple[FloatArray, FloatArray]:
-        """The post-map: ``(x_hat[k], node data of k)`` from the newest node and ``y[k]``."""
+    def _to_state(
+        self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int, window: WindowTrajectory | None
+    ) -> tuple[FloatArray, FloatArray]:
+        """The post-map: ``(x_hat[k], node data of k)`` from the newest node, ``y[k]`` and the window."""
         return node, np.zeros(0)
 
-    def _node_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
-        """The full state of an older window node with its node data (for the lagged estimate)."""
-        return node
+    def _node_state(self, window: WindowTrajectory, j: int, data: FloatArray) -> FloatArray:
+        """The full state of window node ``j`` (negative: from the newest) with its node data (lagged estimates)."""
+        return window.x[j]
 
     def _w_estimate(
         self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
@@ -360,7 +364,7 @@ class WindowEstimator(StreamingEstimator):
         length: int,
     ) -> StepEstimate:
         """Post-map, unknown-input estimate, lagged estimate; store step k and move to k + 1."""
-        x_hat, data_k = self._to_state(node, y_vec, u_vec, k)
+        x_hat, data_k = self._to_state(node, y_vec, u_vec, k, window)
         w_hat, w_index = self._w_estimate(window, x_hat, u_vec, k)
         x_lag = self._lagged(window, x_hat, data_k, k)
         self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)
@@ -369,7 +373,7 @@ class WindowEstimator(StreamingEstimator):
             x_hat=x_hat,
             w_hat=w_hat,
             w_index=w_index,
-            status=status + boundary_flag(self.system, x_hat, y_vec, self.v_prior),
+            status=status + boundary_flag(self.system, x_hat, y_vec, self.v_prior) + self.status_note,
             success=success,
             iterations=sum(a.iterations for a in attempts),
             solve_time=sum(a.solve_time for a in attempts),
@@ -392,7 +396,7 @@ class WindowEstimator(StreamingEstimator):
         if window is None or len(window.x) <= lag:
             return np.full(self.system.nx, np.nan)
         data = list(self._data)[len(self._data) - lag] if self.model.nd else np.zeros(0)
-        return self._node_state(window.x[-1 - lag], data)
+        return self._node_state(window, -1 - lag, data)
 
     def _commit(
         self,

@@ -211,15 +211,20 @@ class TwoStageUISE(WindowEstimator):
         """eq:prior: ``z_hat_0 = T_sharp(x_bar_0)``."""
         return np.asarray(self._T_sharp(x), dtype=float).reshape(-1)
 
-    def _node_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
+    def _node_state(self, window: WindowTrajectory, j: int, data: FloatArray) -> FloatArray:
+        return self._full_state(window.x[j], data)
+
+    def _full_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
         """eq:fullest_new with ``v_bar``: ``proj(T^-1(psi(gamma, z_sharp, v_bar), z_sharp))``."""
         red = self.reduced
         z_flat = np.asarray(red.psi(data, node, self.v_prior), dtype=float).reshape(-1)
         return self.projection(np.asarray(red.T_inv(np.concatenate([z_flat, node])), dtype=float).reshape(-1))
 
-    def _to_state(self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int) -> tuple[FloatArray, FloatArray]:
+    def _to_state(
+        self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int, window: WindowTrajectory | None
+    ) -> tuple[FloatArray, FloatArray]:
         gamma = self._fill(y, node, u_prev, k)
-        return self._node_state(node, gamma), gamma
+        return self._full_state(node, gamma), gamma
 
     def _w_estimate(
         self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int

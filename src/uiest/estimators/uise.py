@@ -32,7 +32,8 @@ from typing import Any
 
 from numpy.typing import ArrayLike
 
-from uiest.errors import OptionError
+from uiest.delay import matching_ranks
+from uiest.errors import ModelError, OptionError
 from uiest.estimators.base import WindowEstimator, WindowOptions
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.system import System
@@ -71,6 +72,11 @@ class UISE(WindowEstimator):
         Prior ``x_bar_0`` in X (or give it to :meth:`reset` / :meth:`run`).
     v_prior : array_like (nv,), optional
         Noise prior ``v_bar`` in V (default 0).
+    force : bool
+        Build the estimator although matching fails (``rank(C B) < rank(B)`` at a sampled point,
+        :func:`~uiest.delay.matching_ranks`): x[k] is then not determined by y[..k] and every
+        step's status says "[no guarantee: ...]". Without it such a system raises ModelError
+        (for relative degree 2, :class:`~uiest.estimators.DelayedUISE` estimates x[k-1]).
     **options
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
         ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``.
@@ -88,9 +94,22 @@ class UISE(WindowEstimator):
         N: int | None = None,
         x0_prior: ArrayLike | None = None,
         v_prior: ArrayLike | None = None,
+        force: bool = False,
         **options: Any,
     ) -> None:
         check_system(system)
+        rank_CB, rank_B = matching_ranks(system)
+        self.matching = rank_CB == rank_B
+        """Whether matching holds at every sampled point (False only when built with ``force=True``)."""
+        detail = f"rank(C B) = {rank_CB} < rank(B) = {rank_B}"
+        if not self.matching:
+            if not force:
+                raise ModelError(
+                    f"matching fails ({detail} at a point of X): the unknown input moves the state without changing "
+                    "the next output, so x[k] is not determined by y[..k]. For relative degree 2, DelayedUISE(system, "
+                    "lag=1) estimates x[k-1]; force=True builds this estimator without guarantee"
+                )
+            self.status_note = f" [no guarantee: {detail}]"
         self.design_report: Any = None
         """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
         self.weights, self.certificate, N = resolve_weights(
@@ -118,8 +137,15 @@ class UISE(WindowEstimator):
         return est
 
     @property
+    def guaranteed(self) -> bool:
+        """Matching holds, a certified certificate gave the weights and ``N >= certificate.min_horizon()``."""
+        return self.matching and super().guaranteed
+
+    @property
     def guarantee(self) -> str:
         """Which guarantee holds (theo:MHE_full) or why none does."""
+        if not self.matching:
+            return f"none: matching fails ({self.status_note.strip(' []')}), x[k] is not determined by y[..k]"
         if self.certificate is None:
             return "none: explicit weights without a strong-detectability certificate, theo:MHE_full does not apply"
         n_min = self.certificate.min_horizon()

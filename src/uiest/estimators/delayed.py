@@ -1,0 +1,149 @@
+r"""The delayed UISE: an unknown input of relative degree 2, estimated with a lag.
+
+When the next output does not see some directions of the unknown input (``rank(C B) <
+rank(B)``), x[k] is not determined by y[..k], but x[k-1] can be (:mod:`uiest.delay`). The
+delayed UISE runs the UISE of theo:MHE_full on the delayed system (state ``b = T_b x``,
+unknown input ``(w, a)`` with ``a = T_a x``) and reads the original state from its window::
+
+    x_lag[k]   = M_a a*_{k-lag|k} + M_b b*_{k-lag|k}     (the estimate of x[k-lag], lag >= 1)
+    x_hat[k]   = M_a a*_{k-1|k}   + M_b b*_{k|k}         (a[k] is not determined by y[..k]: held from k-1)
+    w_hat[k-lag-1] = least-squares fit of f(x_lag[k-lag-1], u, w) = x_lag[k-lag]   (same window)
+
+Its weights and certificate are those of the delayed system: ``certify_strong_detectability(
+delayed_system(system).system)``.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray
+from uiest.delay import delayed_system
+from uiest.errors import OptionError
+from uiest.estimators.base import WindowEstimator, WindowOptions
+from uiest.estimators.input_fit import InputFit
+from uiest.estimators.uise import check_system
+from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
+from uiest.system import System
+from uiest.window import WindowModel, WindowTrajectory
+
+
+class DelayedUISE(WindowEstimator):
+    r"""UISE of the delayed system (module docstring): estimates ``x[k-lag]``, ``lag >= 1``.
+
+    Parameters
+    ----------
+    system : System
+        A system whose unknown input has relative degree 2 (:func:`~uiest.delay.delayed_system`
+        raises ModelError otherwise, naming the ranks).
+    certificate : StrongDetectability, optional
+        Of the delayed system (``delayed.system``, see :attr:`delayed`).
+    weights : UISEWeights, optional
+        Explicit weights of the delayed system instead (then N is required, no guarantee).
+    N : int, optional
+        Horizon >= lag + 1; default ``certificate.min_horizon()`` (at least lag + 1).
+    lag : int
+        The delay d >= 1 of the estimate ``x_lag`` (``EstimationResult.x_lag``).
+    x0_prior, v_prior, **options
+        As for :class:`~uiest.estimators.UISE`.
+
+    """
+
+    estimator_name = "DelayedUISE"
+
+    def __init__(
+        self,
+        system: System,
+        *,
+        certificate: StrongCertificate | None = None,
+        weights: UISEWeights | None = None,
+        N: int | None = None,
+        lag: int = 1,
+        x0_prior: ArrayLike | None = None,
+        v_prior: ArrayLike | None = None,
+        **options: Any,
+    ) -> None:
+        self.delayed = delayed_system(check_system(system))
+        inner = self.delayed.system
+        self.weights, self.certificate, N = resolve_weights(
+            UISEWeights, certificate, weights, N, lambda w: w.check(inner)
+        )
+        if certificate is not None and isinstance(lag, int) and N is not None and lag >= N:
+            N = lag + 1
+        self._fit = InputFit(system)
+        self._a_last: FloatArray | None = None
+        super().__init__(system, WindowModel.from_system(inner), schedule=self.weights.schedule(), N=N,
+                         x0_prior=x0_prior, v_prior=v_prior, options={**options, "lag": lag},
+                         w_prior=self.delayed.nominal_w)  # fmt: skip
+
+    def _checked(self, options: WindowOptions) -> WindowOptions:
+        if options.lag < 1:
+            raise OptionError(
+                f"lag: expected >= 1, got {options.lag}: the unknown input has relative degree 2, so x[k] is not "
+                "determined by y[..k]; the delayed UISE estimates x[k-lag]"
+            )
+        return super()._checked(options)
+
+    def _clear(self) -> None:
+        super()._clear()
+        self._a_last = None
+
+    # ------------------------------------------------------------------ hooks of the template
+    def _node_of(self, x: FloatArray) -> FloatArray:
+        return self.delayed.T_b @ x
+
+    def _a_of(self, window: WindowTrajectory, j: int) -> FloatArray:
+        """``a`` at window node j (negative index >= -len(window.w)): the unknown input of transition j."""
+        return window.w[len(window.w) + 1 + j if j < 0 else j][self.system.nw :]
+
+    def _node_state(self, window: WindowTrajectory, j: int, data: FloatArray) -> FloatArray:
+        return self.delayed.state(window.x[j], self._a_of(window, j))
+
+    def _to_state(
+        self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int, window: WindowTrajectory | None
+    ) -> tuple[FloatArray, FloatArray]:
+        if window is not None and len(window.w):
+            self._a_last = self._a_of(window, -2)
+        if self._a_last is None:
+            self._a_last = self.delayed.T_a @ self._require_prior()
+        return self.system.x.bounds.clip(self.delayed.state(node, self._a_last)), np.zeros(0)
+
+    def _w_guess(self) -> FloatArray:
+        return self.w_prior if self._a_last is None else np.concatenate([self.w_prior[: self.system.nw], self._a_last])
+
+    def _w_estimate(
+        self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
+    ) -> tuple[FloatArray | None, int | None]:
+        """Fit of ``w[k-lag-1]`` to the window's ``x[k-lag-1]`` and ``x[k-lag]``."""
+        lag = self.options.lag
+        if window is None or len(window.w) < lag + 1:
+            return None, None
+        j = -2 - lag
+        u = self._u[-lag]  # u[k-lag-1]: u[k-1] is not stored yet
+        x_prev, x_next = self._node_state(window, j, np.zeros(0)), self._node_state(window, j + 1, np.zeros(0))
+        guess = self._w_last if self._w_last is not None else self.system.nominal_w
+        return self._fit(x_prev, u, x_next, guess), k - lag - 1
+
+    # ------------------------------------------------------------------ guarantee
+    @property
+    def guarantee(self) -> str:
+        """Which guarantee holds (theo:MHE_full for the delayed system) or why none does."""
+        if self.certificate is None:
+            return "none: explicit weights without a certificate of the delayed system, theo:MHE_full does not apply"
+        n_min = self.certificate.min_horizon()
+        if self.N is not None and n_min > self.N:
+            return f"none: N={self.N} < min_horizon()={n_min} (eq:MHE_full_horizon), theo:MHE_full does not apply"
+        return (
+            f"theo:MHE_full for the delayed system (state b = T_b x, unknown input (w, a = T_a x)) with "
+            f"mu={self.weights.mu:.4g}, N={self.N} >= min_horizon()={n_min}: its estimate of b[k] converges under "
+            f"convergent noise whatever the unknown input; x[k-{self.options.lag}] is read from the same window"
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"DelayedUISE(system={self.system.name!r}, N={self.N}, lag={self.options.lag}, mu={self.weights.mu:.4g}, "
+            f"guaranteed={self.guaranteed})"
+        )
