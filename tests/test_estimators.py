@@ -399,8 +399,8 @@ def test_standard_mhe_raises_a_tiny_certified_eta_to_keep_the_window_well_scaled
 @pytest.mark.parametrize("solver", ["gn", "ipopt"])
 def test_a_domain_meant_as_unbounded_needs_scales_not_widths(solver):
     # X = +-1e9: with scales from X's width a noise-free UISE errs by ~0.5 (gn); with state scales
-    # given the UISE and the two-stage UISE recover the state to 1e-8 of |x|, and the width-derived
-    # scales are warned about.
+    # from a trajectory's magnitudes the UISE and the two-stage UISE recover the state to 1e-8 of
+    # |x|, and the width-derived scales are warned about.
     from uiest.estimators import TwoStageUISE, TwoStageWeights
     from uiest.reduction import reduce_quasi_state_affine
 
@@ -409,9 +409,10 @@ def test_a_domain_meant_as_unbounded_needs_scales_not_widths(solver):
     wide = linear.linear_system(A, B, C, x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3))
     with pytest.warns(UserWarning, match=r"x_scale: the largest state scale \(2e\+09.*2e\+09 times the prior"):
         UISE(wide, weights=UISEWeights.from_scales(wide, 0.5), N=10, x0_prior=np.zeros(3))
-    system = linear.linear_system(A, B, C, x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3), x_scale=1.0)
     rng = np.random.default_rng(0)
-    traj = simulate(system, [1.0, -1.0, 2.0], 150, w=(5 * rng.standard_normal(150))[:, None])
+    traj = simulate(wide, [1.0, -1.0, 2.0], 150, w=(5 * rng.standard_normal(150))[:, None])
+    system = wide.with_scales(traj)  # the magnitudes of a simulated record
+    assert np.all(system.x.scale < 100) and np.all(system.x.scale == np.abs(traj.x).max(axis=0))
     scale = np.abs(traj.x[-20:]).max()
     uise = UISE(system, weights=UISEWeights.from_scales(system, 0.5), N=10, x0_prior=np.zeros(3), solver=solver)
     assert np.abs(uise.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
