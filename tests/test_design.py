@@ -66,3 +66,30 @@ def test_design_refuses_what_it_cannot_do():
         UISE.design(system, x0_prior=np.zeros(3), max_horizon=0)
     with pytest.raises(CertificationError, match="max_horizon: no certified rate"):
         UISE.design(system, x0_prior=np.zeros(3), max_horizon=1, rates=(0.5,))
+
+
+def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
+    from uiest.design import two_stage_bound
+    from uiest.estimators import TwoStageUISE
+    from uiest.reduction import reduce_quasi_state_affine
+
+    system, traj, _ = benchmark(0)
+    reduced = reduce_quasi_state_affine(system)
+    designed = TwoStageUISE.design(reduced, x0_prior=np.zeros(3), rates=(0.5, 0.8), projection="none")
+    report = designed.design_report
+    assert designed.guaranteed and designed.N == report.N and designed.projection.mode == "none"
+    assert [c.mu for c in report.candidates] == [report.candidates[0].mu, 0.5, 0.8]
+    diameter = float(np.linalg.norm(system.v.bounds.width / system.v.scale))
+    np.testing.assert_allclose(report.bound, two_stage_bound(report.certificate, report.N, diameter))
+    lam = max(np.sqrt(report.certificate.mu) * (2 * np.sqrt(report.certificate.c_x)) ** (1 / report.N),
+              np.sqrt(report.certificate.mu))  # fmt: skip
+    assert lam < 1 and report.bound.shape == (reduced.n_sharp,)
+    assert max(c.rms.max() for c in report.candidates if c.mu == report.certificate.mu) == min(
+        c.rms.max() for c in report.candidates
+    )  # all states share the scale 100 (X = +-50)
+    uio = LinearUIO(system, x0_prior=np.zeros(3)).run(None, traj.y)
+
+    def rmse(r):
+        return float(np.sqrt(np.mean(r.error(traj.x)[50:] ** 2)))
+
+    assert rmse(designed.run(None, traj.y)) <= 1.2 * rmse(uio)

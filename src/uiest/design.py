@@ -31,7 +31,7 @@ The result carries both numbers per candidate, the guaranteed bound and the simu
 from __future__ import annotations
 
 import time
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -63,12 +63,13 @@ class Design:
 
     Attributes
     ----------
-    certificate : StrongDetectability
+    certificate : StrongDetectability or ReducedIOSS
         Certified at the chosen rate.
     N : int
-    bound : ndarray (nx,)
-        ``noise_gain * 4 / sqrt(lambda (1 - lambda))``: the error the noise can leave, per state
-        (guaranteed by theo:MHE_full).
+    bound : ndarray
+        The error the noise can leave, guaranteed by the theorem: per state for the UISE
+        (:func:`settled_bound`, theo:MHE_full), per ``z_sharp`` component for the two-stage
+        UISE (:func:`two_stage_bound`, theo:stab).
     candidates : tuple of Candidate
     seconds : float
         CPU time of the certifications.
@@ -93,12 +94,35 @@ class Design:
         return "\n".join(rows)
 
 
+DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "certify_options")
+"""Keywords of :func:`design_uise` / :func:`design_two_stage`; the others go to the estimators."""
+
+
+def estimator_options(options: Mapping[str, Any]) -> dict[str, Any]:
+    """The keywords of ``options`` that are not :data:`DESIGN_KEYS` (the designed estimator's own)."""
+    return {k: v for k, v in options.items() if k not in DESIGN_KEYS}
+
+
 def settled_bound(noise_gain: FloatArray, mu: float, N: int) -> FloatArray:
     """``noise_gain * 4 / sqrt(lambda (1 - lambda))`` with ``lambda = 8^{1/N} mu``; inf when lambda >= 1."""
     lam = 8.0 ** (1.0 / N) * mu
     if not 0.0 < lam < 1.0:
         return np.full(np.shape(noise_gain), np.inf)
     return np.asarray(noise_gain, dtype=float) * 4.0 / np.sqrt(lam * (1.0 - lam))
+
+
+def two_stage_bound(certificate: Any, N: int, diameter: float) -> FloatArray:
+    """theo:stab's settled error of ``z_sharp`` per component (its units), noise of scaled diameter ``diameter``.
+
+    From eq:rges_proof_4 with ``|v - v_bar| <= diameter``: ``2 sqrt(c_v) diameter lambda / (1 - lambda)``
+    scaled units, ``lambda = max(sqrt(mu) (2 sqrt(c_x))^{1/N}, sqrt(mu))``; inf when ``lambda >= 1``.
+    """
+    eta = np.sqrt(certificate.mu)
+    lam = max(eta * (2.0 * np.sqrt(certificate.c_x)) ** (1.0 / N), eta)
+    scale = np.asarray(certificate.scale, dtype=float)
+    if not lam < 1.0:
+        return np.full(scale.shape, np.inf)
+    return 2.0 * np.sqrt(certificate.c_v) * diameter * lam / (1.0 - lam) * scale
 
 
 def design_uise(
@@ -143,6 +167,70 @@ def design_uise(
     from uiest.detectability import certify_strong_detectability
     from uiest.estimators import UISE
 
+    certify = dict(certify_options or {})
+    scale = system.x.scale
+
+    def bound(cert: Any, n: int) -> FloatArray:
+        return settled_bound(np.asarray(cert.noise_gain, dtype=float), cert.mu, n)
+
+    return _design(
+        system, x0, lambda mu: certify_strong_detectability(system, mu=mu, **certify), bound,
+        lambda cert, n, prior: UISE(system, certificate=cert, N=n, x0_prior=prior, **options),
+        bound_scale=scale, what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
+        trials=trials, steps=steps, seed=seed,
+    )  # fmt: skip
+
+
+def design_two_stage(
+    reduced: Any,
+    x0: ArrayLike,
+    *,
+    max_horizon: int = 30,
+    rates: tuple[float, ...] = DEFAULT_RATES,
+    budget: float = 60.0,
+    trials: int = 2,
+    steps: int = 80,
+    seed: int = 0,
+    certify_options: Mapping[str, Any] | None = None,
+    **options: Any,
+) -> Design:
+    """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and :func:`two_stage_bound`.
+
+    ``reduced`` is a :class:`~uiest.reduction.ReducedModel`; ``options`` are the
+    :class:`~uiest.estimators.TwoStageUISE` keywords (``projection``, window options). The
+    candidates' ``bound`` is the settled error of ``z_sharp`` (theo:stab, per component).
+    """
+    from uiest.estimators import TwoStageUISE
+
+    system = reduced.system
+    certify = dict(certify_options or {})
+    V = system.v.bounds
+    diameter = float(np.linalg.norm(np.where(np.isfinite(V.width), V.width, 0.0) / system.v.scale))
+    return _design(
+        system, x0, lambda mu: reduced.certify(mu=mu, **certify), lambda cert, n: two_stage_bound(cert, n, diameter),
+        lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
+        bound_scale=None, what="reduced e-IOSS (ass:e-ioss)", max_horizon=max_horizon, rates=rates, budget=budget,
+        trials=trials, steps=steps, seed=seed,
+    )  # fmt: skip
+
+
+def _design(
+    system: System,
+    x0: ArrayLike,
+    certify: Callable[[float | None], Any],
+    bound: Callable[[Any, int], FloatArray],
+    build: Callable[[Any, int, FloatArray], Any],
+    *,
+    bound_scale: FloatArray | None,
+    what: str,
+    max_horizon: int,
+    rates: tuple[float, ...],
+    budget: float,
+    trials: int,
+    steps: int,
+    seed: int,
+) -> Design:
+    """The design loop of the module docstring; ``bound_scale`` divides the bound when ranking N (None: as is)."""
     max_horizon = check_horizon(max_horizon, "max_horizon")
     trials, steps = check_horizon(trials, "trials"), check_horizon(steps, "steps")
     prior = as_vector(x0, system.nx, "x0")
@@ -152,30 +240,29 @@ def design_uise(
         raise OptionError(f"rates: expected numbers in (0, 1), got {rates!r}") from None
     if any(not 0.0 < r < 1.0 for r in grid):
         raise OptionError(f"rates: expected numbers in (0, 1), got {list(rates)}")
-    certify = dict(certify_options or {})
     start = time.thread_time()
-    first = certify_strong_detectability(system, **certify)
+    first = certify(None)
     if not first.certified:
-        raise CertificationError(f"system: strong detectability is not certified ({first.reason}); nothing to design")
+        raise CertificationError(f"system: {what} is not certified ({first.reason}); nothing to design")
     certificates = [first]
     for mu in grid:
         if mu > first.mu and time.thread_time() - start <= budget:
-            cert = certify_strong_detectability(system, mu=mu, **certify)
+            cert = certify(mu)
             if cert.certified:
                 certificates.append(cert)
     records = _noise_records(system, prior, trials, steps, seed)
     scale = system.x.scale
     candidates: list[tuple[Candidate, Any]] = []
     for cert in certificates:
-        gain = np.asarray(cert.noise_gain, dtype=float)
         horizons = range(cert.min_horizon(), max_horizon + 1)
-        N = min(horizons, key=lambda n: float(np.max(settled_bound(gain / scale, cert.mu, n))), default=None)
+        divide = 1.0 if bound_scale is None else bound_scale
+        N = min(horizons, key=lambda n: float(np.max(bound(cert, n) / divide)), default=None)
         if N is None:
             continue
-        estimator = UISE(system, certificate=cert, N=N, x0_prior=prior, **options)
+        estimator = build(cert, N, prior)
         errors = [estimator.run(u, y).error(x)[steps // 4 :] for u, y, x in records]
         rms = np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0))
-        candidates.append((Candidate(cert.mu, N, settled_bound(gain, cert.mu, N), rms), cert))
+        candidates.append((Candidate(cert.mu, N, bound(cert, N), rms), cert))
     if not candidates:
         raise CertificationError(
             f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} "

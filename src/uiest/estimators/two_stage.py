@@ -174,6 +174,8 @@ class TwoStageUISE(WindowEstimator):
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
         self.reduced = reduced
+        self.design_report: Any = None
+        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
         system = reduced.system
         self.weights: TwoStageWeights | None = None
         self.certificate = certificate
@@ -196,6 +198,22 @@ class TwoStageUISE(WindowEstimator):
         super().__init__(system, reduced_window_model(reduced, state_constraints=self.state_constraints),
                          schedule=None if self.weights is None else self.weights.schedule(), N=N,
                          x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
+
+    @classmethod
+    def design(cls, reduced: ReducedModel, *, x0_prior: ArrayLike, **design_options: Any) -> TwoStageUISE:
+        """A certified two-stage UISE whose mu and N are chosen for accuracy (:func:`uiest.design.design_two_stage`).
+
+        As :meth:`UISE.design <uiest.estimators.UISE.design>`; the chosen design is :attr:`design_report`.
+        """
+        from uiest.design import design_two_stage, estimator_options
+
+        if not isinstance(reduced, ReducedModel):
+            raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
+        design = design_two_stage(reduced, x0_prior, **design_options)
+        est = cls(reduced, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
+                  **estimator_options(design_options))  # fmt: skip
+        est.design_report = design
+        return est
 
     @property
     def z_hat(self) -> FloatArray | None:

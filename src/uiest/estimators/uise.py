@@ -34,7 +34,7 @@ from numpy.typing import ArrayLike
 
 from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
-from uiest.estimators.base import WindowEstimator, WindowOptions
+from uiest.estimators.base import WindowEstimator
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.system import System
 from uiest.window import WindowModel
@@ -127,12 +127,11 @@ class UISE(WindowEstimator):
         ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
         the guaranteed bound and the simulated error of every candidate) is :attr:`design_report`.
         """
-        from uiest.design import design_uise
+        from uiest.design import design_uise, estimator_options
 
-        check_system(system)
-        window = {k: design_options[k] for k in list(design_options) if k in WindowOptions.__dataclass_fields__}
-        design = design_uise(system, x0_prior, **design_options)
-        est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior, **window)
+        design = design_uise(check_system(system), x0_prior, **design_options)
+        est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
+                  **estimator_options(design_options))  # fmt: skip
         est.design_report = design
         return est
 
