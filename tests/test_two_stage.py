@@ -17,7 +17,6 @@ from uiest.estimators import (
 from uiest.estimators import base as base_module
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
-from uiest.estimators.two_stage import reduced_window_model
 from uiest.models import closed_form, crop_growth, get, linear
 from uiest.reduction import ReducedModel, reduce_quasi_state_affine
 from uiest.window import WindowModel, WindowProblem, WindowWeights, make_solver
@@ -334,10 +333,10 @@ def test_missing_measurements_are_predicted_and_recorded():
 
 def test_reduced_window_model_and_node_constraints():
     reduced = crop_growth.reduction()
-    model = reduced_window_model(reduced)
+    model = WindowModel.from_reduced(reduced)
     assert (model.nx, model.nu, model.nw, model.nv, model.nd, model.ny, model.nc) == (2, 1, 0, 2, 2, 2, 3)
     assert model.f_uses_v  # psi(y, z, v) = y^c - v^c enters the reduced dynamics
-    without = reduced_window_model(reduced, state_constraints=False)
+    without = WindowModel.from_reduced(reduced, state_constraints=False)
     assert without.node_constraint is None
     W = WindowWeights(prior=np.eye(2), y=np.tile(np.eye(2), (3, 1, 1)), v=np.tile(np.eye(2), (3, 1, 1)))
     problem = WindowProblem(model, 3, [0, 1, 2], W)

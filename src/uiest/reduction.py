@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass, field
+from functools import cached_property
 from typing import Any
 
 import casadi as ca
@@ -104,6 +105,25 @@ class ReducedModel:
     def n_sharp(self) -> int:
         """Dimension of the reduced state."""
         return self.system.nx - self.n_flat
+
+    @cached_property
+    def z_scale(self) -> FloatArray:
+        """Nominal magnitudes of ``z_sharp``: ``|dT_sharp/dx| s_x`` at X's working centre, capped by T(X)'s widths.
+
+        From the state scales, not from T(X)'s widths alone, so that a wide X with small state
+        scales gives small z scales (for a linear T and ``s_x`` = X's widths both are the same).
+        """
+        from uiest.window.model import box_scale
+        from uiest.window.problem import working_center
+
+        s = self.system
+        x = ca.SX.sym("x", s.nx)
+        jac = ca.Function("dT_sharp", [x], [ca.jacobian(self.T(x)[self.n_flat :], x)])
+        spread = np.abs(np.asarray(jac(working_center(s.x.bounds, s.x.scale)), dtype=float))
+        spread = spread.reshape(self.n_sharp, s.nx) @ s.x.scale
+        width = box_scale(self.z_bounds)
+        usable = np.isfinite(spread) & (spread > 0)
+        return np.where(usable, np.minimum(np.where(usable, spread, 1.0), width), width)
 
     @classmethod
     def from_maps(

@@ -77,44 +77,9 @@ from uiest.estimators.base import WindowEstimator
 from uiest.estimators.checks import check_horizon
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
-from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, reduced_scale, resolve_weights
+from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, resolve_weights
 from uiest.reduction import ReducedModel
 from uiest.window import WindowModel, WindowTrajectory
-
-
-def reduced_window_model(reduced: ReducedModel, *, state_constraints: bool = True) -> WindowModel:
-    """eq:sys_red as a :class:`~uiest.window.WindowModel`: state ``z_sharp``, node data ``gamma``, no w.
-
-    With ``state_constraints`` the node constraint ``T^-1(psi(gamma, z, v), z) in X`` of eq:op_MHE.
-    """
-    s = reduced.system
-    n = reduced.n_sharp
-    z, u, w, v, d = (ca.SX.sym(name, size) for name, size in (("z", n), ("u", s.nu), ("w", 0), ("v", s.nv),
-                                                              ("gamma", s.ny)))  # fmt: skip
-    f = ca.Function("f_sharp", [z, u, w, v, d], [reduced.f_sharp(z, d, u, v)], ["x", "u", "w", "v", "d"], ["x_next"])
-    h = ca.Function("h_sharp", [z, v, d], [reduced.h_sharp(z, d, v)], ["x", "v", "d"], ["y"])
-    x_box = s.x.bounds
-    has_x_side = bool(np.isfinite(x_box.lower).any() or np.isfinite(x_box.upper).any())
-    node = None
-    if state_constraints and has_x_side:
-        x = reduced.T_inv(ca.vertcat(reduced.psi(d, z, v), z))
-        node = ca.Function("x_of_node", [z, v, d], [x], ["x", "v", "d"], ["c"])
-    return WindowModel(
-        f=f,
-        h=h,
-        x_bounds=reduced.z_bounds,
-        v_bounds=s.v.bounds,
-        y_bounds=s.y.bounds,
-        x_scale=reduced_scale(reduced),
-        w_scale=np.ones(0),
-        v_scale=s.v.scale,
-        y_scale=s.y.scale,
-        nominal_w=np.zeros(0),
-        node_constraint=node,
-        node_bounds=x_box if node is not None else None,
-        node_scale=s.x.scale if node is not None else None,
-        name=f"{s.name} (reduced)",
-    )
 
 
 class TwoStageUISE(WindowEstimator):
@@ -195,7 +160,7 @@ class TwoStageUISE(WindowEstimator):
         self._fit = InputFit(system)
         x = ca.SX.sym("x", system.nx)
         self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
-        super().__init__(system, reduced_window_model(reduced, state_constraints=self.state_constraints),
+        super().__init__(system, WindowModel.from_reduced(reduced, state_constraints=self.state_constraints),
                          schedule=None if self.weights is None else self.weights.schedule(), N=N,
                          x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
 

@@ -50,13 +50,7 @@ def check_system(system: Any) -> System:
 class UISE(WindowEstimator):
     r"""MHE-based UISE (theo:MHE_full) with the cost eq:cost_MHE_full and the prior rule eq:prior_rule.
 
-    Index convention::
-
-        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = min(N, k)
-        x_hat[k]   = x^*_{k|k}    from u[k-N_k .. k-1], y[k-N_k .. k]  (current measurement used)
-        w_hat[k-1] = w^*_{k-1|k}  (the window ending at k)
-
-    See the module docstring for the cost and the choice of P for ``alpha_2``.
+    The module docstring gives the index convention, the cost and the choice of P for ``alpha_2``.
 
     Parameters
     ----------

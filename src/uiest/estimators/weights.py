@@ -22,7 +22,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, Protocol, runtime_checkable
 
-import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -31,7 +30,6 @@ from uiest.errors import CertificationError, OptionError
 from uiest.estimators.checks import check_horizon
 from uiest.reduction import ReducedModel
 from uiest.system import System
-from uiest.window.model import box_scale
 from uiest.window.problem import WindowWeights, sqrt_psd
 
 
@@ -92,6 +90,13 @@ def _require_certified(certificate: object, names: tuple[str, ...], expected: st
     if not certificate.certified:  # type: ignore[attr-defined]
         reason = getattr(certificate, "reason", "")
         raise CertificationError(f"certificate: {not_certified.format(reason=reason)}")
+
+
+def _check_shapes(weights: object, sizes: tuple[tuple[str, int], ...]) -> None:
+    """OptionError unless each named matrix of ``weights`` is (n, n)."""
+    for name, n in sizes:
+        if getattr(weights, name).shape != (n, n):
+            raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(weights, name).shape}")
 
 
 def _discount(value: float, name: str) -> float:
@@ -256,9 +261,7 @@ class UISEWeights:
 
     def check(self, system: System) -> None:
         """Raise OptionError unless the shapes fit ``system``."""
-        for name, n in (("P", system.nx), ("R_y", system.ny), ("R_v", system.nv)):
-            if getattr(self, name).shape != (n, n):
-                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")
+        _check_shapes(self, (("P", system.nx), ("R_y", system.ny), ("R_v", system.nv)))
 
 
 @dataclass(frozen=True)
@@ -326,9 +329,7 @@ class MHEWeights:
 
     def check(self, system: System) -> None:
         """Raise OptionError unless the shapes fit ``system``."""
-        for name, n in (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)):
-            if getattr(self, name).shape != (n, n):
-                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")
+        _check_shapes(self, (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)))
 
 
 @runtime_checkable
@@ -348,24 +349,6 @@ class ReducedCertificate(Protocol):
     def min_horizon(self) -> int:
         """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
         ...
-
-
-def reduced_scale(reduced: ReducedModel) -> FloatArray:
-    """Nominal magnitudes of ``z_sharp``: ``|dT_sharp/dx| s_x`` at X's working centre, capped by T(X)'s widths.
-
-    From the state scales, not from T(X)'s widths alone, so that a wide X with small state scales
-    gives small z scales (for a linear T and ``s_x`` = X's widths both are the same).
-    """
-    from uiest.window.problem import working_center
-
-    system = reduced.system
-    x = ca.SX.sym("x", system.nx)
-    jac = ca.Function("dT_sharp", [x], [ca.jacobian(reduced.T(x)[reduced.n_flat :], x)])
-    centre = working_center(system.x.bounds, system.x.scale)
-    spread = np.abs(np.asarray(jac(centre), dtype=float)).reshape(reduced.n_sharp, system.nx) @ system.x.scale
-    width = box_scale(reduced.z_bounds)
-    usable = np.isfinite(spread) & (spread > 0)
-    return np.where(usable, np.minimum(np.where(usable, spread, 1.0), width), width)
 
 
 def certificate_z_scale(certificate: object) -> FloatArray | None:
@@ -437,7 +420,7 @@ class TwoStageWeights:
     ) -> TwoStageWeights:
         """Diagonal weights per *scaled* unit: ``prior = diag(prior / s_z^2)``, ``R_y = diag(output / s_y^2)``, ...
 
-        ``s_z`` are the reduced state's scales (:func:`reduced_scale`, as the two-stage UISE's
+        ``s_z`` are the reduced state's scales (:attr:`ReducedModel.z_scale`, as the two-stage UISE's
         window uses), ``s_y``, ``s_v`` the system's
         output and noise scales. For models without a certificate (the crop model, whose
         certificate only gives mu ~ 0.9995: the paper uses mu = 0.48); scalars or per-component.
@@ -445,7 +428,7 @@ class TwoStageWeights:
         system = reduced.system
         return cls(
             mu=mu,
-            prior=_diag_scaled(prior, reduced_scale(reduced), "prior"),
+            prior=_diag_scaled(prior, reduced.z_scale, "prior"),
             R_y=_diag_scaled(output, system.y.scale, "output"),
             R_v=_diag_scaled(noise, system.v.scale, "noise"),
         )
@@ -456,6 +439,4 @@ class TwoStageWeights:
 
     def check(self, system: System, n_sharp: int) -> None:
         """Raise OptionError unless the shapes fit ``system`` and the reduced state's size."""
-        for name, n in (("prior", n_sharp), ("R_y", system.ny), ("R_v", system.nv)):
-            if getattr(self, name).shape != (n, n):
-                raise OptionError(f"weights.{name}: expected shape ({n}, {n}), got {getattr(self, name).shape}")
+        _check_shapes(self, (("prior", n_sharp), ("R_y", system.ny), ("R_v", system.nv)))

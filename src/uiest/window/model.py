@@ -10,7 +10,7 @@ measurement noise ``v`` (per measured node), and node data ``d`` (per node, a pa
 
 - :meth:`WindowModel.from_system`: a full :class:`~uiest.system.System` (``f(x, u, w)``,
   ``h(x, v)``; no node data, no node constraints). Every full-order estimator uses it.
-- the reduced-order model of the two-stage UISE (built in :mod:`uiest.estimators.two_stage`):
+- :meth:`WindowModel.from_reduced`: the reduced-order model of the two-stage UISE:
   ``x = z_sharp``, no ``w``, ``d = gamma`` (the measurement entering eq:sys_red), f depends on
   ``v`` and the node constraint ``T^-1(psi(gamma, z_sharp, v), z_sharp) in X`` of eq:op_MHE.
 
@@ -21,6 +21,7 @@ node ``0 .. L-1`` of a window must carry one (be "measured").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import casadi as ca
 import numpy as np
@@ -29,6 +30,9 @@ from numpy.typing import ArrayLike
 from uiest.box import Box, FloatArray
 from uiest.errors import ModelError
 from uiest.system import System
+
+if TYPE_CHECKING:
+    from uiest.reduction import ReducedModel
 
 
 def _scale(values: ArrayLike, n: int, name: str) -> FloatArray:
@@ -185,4 +189,41 @@ class WindowModel:
             y_scale=system.y.scale,
             nominal_w=system.nominal_w,
             name=system.name,
+        )
+
+    @classmethod
+    def from_reduced(cls, reduced: ReducedModel, *, state_constraints: bool = True) -> WindowModel:
+        """eq:sys_red as a :class:`~uiest.window.WindowModel`: state ``z_sharp``, node data ``gamma``, no w.
+
+        With ``state_constraints`` the node constraint ``T^-1(psi(gamma, z, v), z) in X`` of eq:op_MHE.
+        """
+        s = reduced.system
+        n = reduced.n_sharp
+        z, u, w, v, d = (ca.SX.sym(name, size) for name, size in (("z", n), ("u", s.nu), ("w", 0), ("v", s.nv),
+                                                                  ("gamma", s.ny)))  # fmt: skip
+        f = ca.Function(
+            "f_sharp", [z, u, w, v, d], [reduced.f_sharp(z, d, u, v)], ["x", "u", "w", "v", "d"], ["x_next"]
+        )
+        h = ca.Function("h_sharp", [z, v, d], [reduced.h_sharp(z, d, v)], ["x", "v", "d"], ["y"])
+        x_box = s.x.bounds
+        has_x_side = bool(np.isfinite(x_box.lower).any() or np.isfinite(x_box.upper).any())
+        node = None
+        if state_constraints and has_x_side:
+            x = reduced.T_inv(ca.vertcat(reduced.psi(d, z, v), z))
+            node = ca.Function("x_of_node", [z, v, d], [x], ["x", "v", "d"], ["c"])
+        return cls(
+            f=f,
+            h=h,
+            x_bounds=reduced.z_bounds,
+            v_bounds=s.v.bounds,
+            y_bounds=s.y.bounds,
+            x_scale=reduced.z_scale,
+            w_scale=np.ones(0),
+            v_scale=s.v.scale,
+            y_scale=s.y.scale,
+            nominal_w=np.zeros(0),
+            node_constraint=node,
+            node_bounds=x_box if node is not None else None,
+            node_scale=s.x.scale if node is not None else None,
+            name=f"{s.name} (reduced)",
         )
