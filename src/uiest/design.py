@@ -39,8 +39,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
+from uiest.checks import check_int
 from uiest.errors import CertificationError, OptionError
-from uiest.estimators.checks import check_horizon
 from uiest.system import System
 
 DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
@@ -231,8 +231,8 @@ def _design(
     seed: int,
 ) -> Design:
     """The design loop of the module docstring; ``bound_scale`` divides the bound when ranking N (None: as is)."""
-    max_horizon = check_horizon(max_horizon, "max_horizon")
-    trials, steps = check_horizon(trials, "trials"), check_horizon(steps, "steps")
+    max_horizon = check_int(max_horizon, "max_horizon", low=1)
+    trials, steps = check_int(trials, "trials", low=1), check_int(steps, "steps", low=1)
     prior = as_vector(x0, system.nx, "x0")
     try:
         grid = sorted({float(r) for r in rates})

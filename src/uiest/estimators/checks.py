@@ -2,23 +2,14 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import DOMAIN_TOL, real_array
-from uiest.errors import DataError, OptionError
+from uiest.errors import DataError
 from uiest.estimators.results import BOUNDARY_FLAG
 from uiest.system import System
-
-
-def check_horizon(N: Any, name: str = "N") -> int:
-    """Return N as an int >= 1 or raise OptionError naming ``name``."""
-    if isinstance(N, bool) or not isinstance(N, int | np.integer) or N < 1:
-        raise OptionError(f"{name}: expected an integer >= 1, got {N!r}")
-    return int(N)
 
 
 def check_u_prev(system: System, u_prev: ArrayLike | None, k: int) -> FloatArray:

@@ -32,9 +32,10 @@ from typing import Any
 
 from numpy.typing import ArrayLike
 
+from uiest.checks import check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_horizon, check_run_data
+from uiest.estimators.checks import check_run_data
 from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
@@ -72,7 +73,7 @@ class FIE(WindowEstimator):
         self.weights, self.certificate, _ = resolve_weights(
             UISEWeights, certificate, weights, None, lambda w: w.check(system), needs_horizon=False
         )
-        self.max_steps = check_horizon(max_steps, "max_steps")
+        self.max_steps = check_int(max_steps, "max_steps", low=1)
         super().__init__(system, WindowModel.from_system(system), schedule=self.weights.schedule(), N=None,
                          x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
 

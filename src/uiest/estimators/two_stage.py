@@ -72,9 +72,9 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
+from uiest.checks import check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_horizon
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, resolve_weights
@@ -150,7 +150,7 @@ class TwoStageUISE(WindowEstimator):
                     "certificate, weights: n_sharp = 0, the estimate is algebraic (remark after theo:stab) and has "
                     "no cost to weight; pass neither"
                 )
-            N = check_horizon(1 if N is None else N)  # no window: N only bounds the (empty) history
+            N = check_int(1 if N is None else N, "N", low=1)  # no window: N only bounds the (empty) history
         else:
             self.weights, self.certificate, N = resolve_weights(
                 TwoStageWeights, certificate, weights, N, lambda w: w.check(system, reduced.n_sharp)

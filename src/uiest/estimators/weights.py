@@ -26,8 +26,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
+from uiest.checks import check_int
 from uiest.errors import CertificationError, OptionError
-from uiest.estimators.checks import check_horizon
 from uiest.reduction import ReducedModel
 from uiest.system import System
 from uiest.window.problem import WindowWeights, sqrt_psd
@@ -193,7 +193,7 @@ def resolve_weights(
         if certificate is None:
             raise OptionError("N: required with explicit weights (no certificate to take min_horizon() from)")
         N = certificate.min_horizon()  # type: ignore[attr-defined]
-    return resolved, certificate, check_horizon(N)
+    return resolved, certificate, check_int(N, "N", low=1)
 
 
 @dataclass(frozen=True)
