@@ -110,3 +110,23 @@ def test_scales_from_a_trajectory_and_explicit_scales():
         system.with_scales(x=[1.0, -2.0])
     with pytest.raises(OptionError, match="unknown signals"):
         system.with_scales(z=1.0)
+
+
+def test_an_oblique_invisible_direction_certifies_and_stays_in_X():
+    # w enters along (1, 1, 0)/sqrt(2) and the output sees x1 - x2: C B = 0 with B0 not a coordinate axis
+    A = np.array([[0.5, 0.2, 0.1], [0.1, 0.4, 0.0], [0.2, -0.1, 0.6]])
+    B = np.array([[1.0], [1.0], [0.0]]) / np.sqrt(2)
+    system = linear.linear_system(A, B, [[1.0, -1.0, 0.0]], x_bounds=((-1, -100, -10), (1, 100, 10)),
+                                  v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    delayed = delayed_system(system)
+    np.testing.assert_allclose(delayed.M_a @ delayed.T_a + delayed.M_b @ delayed.T_b, np.eye(3), atol=1e-12)
+    cert = certify_strong_detectability(delayed.system)  # rounding in T_b B must not count as an input direction
+    assert cert.certified, cert.reason
+    rng = np.random.default_rng(0)
+    truth = simulate(system, [0.3, 2.0, -1.0], 60, w=(0.3 * rng.standard_normal(60))[:, None])
+    est = DelayedUISE(system, certificate=cert, lag=1, x0_prior=np.zeros(3))
+    result = est.run(None, truth.y)
+    assert np.abs(result.x_lag[30:-1] - truth.x[30:-1]).max() < 1e-6
+    assert all(system.x.bounds.contains(x) for x in result.x_lag[:-1])
+    with pytest.raises(OptionError, match=r"lag: expected 1 <= lag <= N - 1 = 3"):
+        DelayedUISE(system, certificate=cert, N=4, lag=4)

@@ -17,11 +17,12 @@ Because d moves ``a`` freely, ``a[k]`` is as free as an unknown input, while ``b
 
     b+ = T_b f(M_a a + M_b b, u, w),   y = h(M_b b + M_a a_c, v)   (C B0 = 0: y does not see a)
 
-a system with state b and unknown input ``(w, a)``. If *it* satisfies matching, the input a[k]
-shows in y[k+2] (relative degree 2), a UISE on it estimates b[k] from y[..k], and the same
-window holds a[k-1] as its newest unknown input, so ``x[k-1] = M_a a[k-1] + M_b b[k-1]`` is a
-delayed estimate (:class:`~uiest.estimators.DelayedUISE`). When B0 is spanned by coordinate
-axes (an input that acts on some states only), b and a are those states, in their own units.
+a system with state b and unknown input ``(w, a)``. If *it* satisfies matching, a[k] moves
+b[k+1] and shows in y[k+1] (so w[k-1], which moved a[k], shows in y[k+1]: relative degree 2), a
+UISE on it estimates b[k] from y[..k], and the same window holds a[k-1] as its newest unknown
+input, so ``x[k-1] = M_a a[k-1] + M_b b[k-1]`` is a delayed estimate
+(:class:`~uiest.estimators.DelayedUISE`). When B0 is spanned by coordinate axes (an input that
+acts on some states only), b and a are those states, in their own units.
 
 Not covered: relative degree 3 or more (the delayed system fails matching again; a chain of
 reductions would also have to invert the inner levels' inputs) and inputs that never reach the
@@ -150,6 +151,9 @@ def delayed_system(system: System) -> DelayedSystem:
         relative degree is 3 or more; each names the ranks measured.
 
     """
+    if not system.x.bounds.is_bounded:
+        raise ModelError(f"X: delayed_system needs a bounded state domain (to find the input's directions), got "
+                         f"{system.x.bounds}")  # fmt: skip
     structure = input_structure(system, matching=False)
     n, B, C = system.nx, structure.B, structure.C
     if structure.rank_CB == structure.rank_B:
@@ -178,6 +182,16 @@ def delayed_system(system: System) -> DelayedSystem:
     u, w, v = ca.SX.sym("u", system.nu), ca.SX.sym("w", system.nw), ca.SX.sym("v", system.nv)
     x = ca.mtimes(ca.DM(M_a), a) + ca.mtimes(ca.DM(M_b), b)
     b_next = ca.mtimes(ca.DM(T_b), system.f(x, u, w))
+    G = ca.jacobian(b_next, w)
+    if system.nw and not ca.depends_on(G, ca.vertcat(b, a, u, w)):
+        # f affine in w: T_b df/dw kills the invisible directions exactly, not up to rounding (which a
+        # certificate would read as another input direction)
+        G_num = np.asarray(ca.Function("G", [b, a, u, w], [G])(np.zeros(nb), np.zeros(r0), np.zeros(system.nu),
+                                                              system.nominal_w))  # fmt: skip
+        Bw = system.linearize(system.x.bounds.center).B_w
+        G_num[np.abs(G_num) <= 1e-12 * (np.abs(T_b) @ np.abs(Bw))] = 0.0  # cancellation down to rounding
+        w0 = ca.DM(system.nominal_w)
+        b_next = ca.mtimes(ca.DM(T_b), system.f(x, u, w0)) + ca.mtimes(ca.DM(G_num), w - w0)
     y = system.h(ca.mtimes(ca.DM(M_b), b) + ca.DM(M_a @ a_bounds.center), v)
 
     def names(basis: FloatArray, prefix: str) -> list[str]:

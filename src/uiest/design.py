@@ -5,9 +5,11 @@ its past at once and the estimate follows every noise sample. theo:MHE_full's pr
 error the noise leaves: for a quadratic certificate (``V = |e|_P^2``, ``sigma_v(r) = sigma_v r^2``)
 and ``N`` with ``rho = 8 mu^N < 1`` (the P-norm form of eq:MHE_full_horizon, see
 :mod:`uiest.estimators.uise`), the proof's last lines give
-``V(e_k) <= rho lambda^k / mu^N V(e_0) + sum_i 8 lambda^{i-1} sigma_v(2 |dv_{k-i}|)`` with
-``lambda = max(mu, rho^{1/N}) = 8^{1/N} mu``; with ``|dv| <= d`` (V's diameter) the error settles
-within::
+``V(e_k) <= rho lambda^k / mu^N V(e_0) + sum_{i>=0} 8 lambda^{i-1} sigma_v(2 |dv_{k-i}|)`` with
+``lambda = max(mu, rho^{1/N}) = 8^{1/N} mu``, where the term ``i = 0`` is the current sample's
+(weight ``mu^{-1}`` in eq:cost_MHE_full; the paper's last line drops it, we keep it); with
+``|dv| <= d`` (V's diameter) the sum is at most ``8 sigma_v(2 d) / (lambda (1 - lambda))`` and the
+error settles within::
 
     |e_i| <= noise_gain_i * 4 / sqrt(lambda (1 - lambda))      (settled_bound)
 
@@ -17,7 +19,7 @@ independent noise a slower forgetting averages more samples and errs less (measu
 3-state linear systems: the bound's choice, mu ~ 0.3-0.6, gave 1.0-1.4x the linear UIO's RMSE,
 mu = 0.9 gave 1.04x). :func:`design_uise` therefore
 
-1. certifies at the minimal rate and at a grid of rates (``rates``, those above mu_min), within a
+1. certifies at the minimal rate and at a grid of rates (``rates``, those above its design rate), within a
    CPU budget; each certified rate gets the horizon ``N <= max_horizon`` that minimises its bound
    (only pairs with ``N >= min_horizon()`` are candidates, so every candidate is guaranteed);
 2. runs each candidate on ``trials`` noise records (uniform in V, the true state starting at

@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from uiest.box import FloatArray
+from uiest.box import Box, FloatArray
 from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator, WindowOptions
@@ -44,7 +44,8 @@ class DelayedUISE(WindowEstimator):
     weights : UISEWeights, optional
         Explicit weights of the delayed system instead (then N is required, no guarantee).
     N : int, optional
-        Horizon >= lag + 1; default ``certificate.min_horizon()`` (at least lag + 1).
+        Horizon >= lag + 1 (the window must hold the transition before ``x[k-lag]`` for ``w_hat``);
+        default ``max(certificate.min_horizon(), lag + 1)``.
     lag : int
         The delay d >= 1 of the estimate ``x_lag`` (``EstimationResult.x_lag``).
     x0_prior, v_prior, **options
@@ -68,16 +69,20 @@ class DelayedUISE(WindowEstimator):
     ) -> None:
         self.delayed = delayed_system(check_system(system))
         inner = self.delayed.system
+        given = N
         self.weights, self.certificate, N = resolve_weights(
             UISEWeights, certificate, weights, N, lambda w: w.check(inner)
         )
-        if certificate is not None and isinstance(lag, int) and N is not None and lag >= N:
-            N = lag + 1
+        if given is None and isinstance(lag, int | np.integer) and N is not None and lag >= N:
+            N = int(lag) + 1
         self._fit = InputFit(system)
         self._a_last: FloatArray | None = None
+        a_box = self.delayed.a_bounds  # a = T_a x stays in T_a X (with b in T_b X: x in X's bounding box)
+        w_box = Box(np.concatenate([np.full(system.nw, -np.inf), a_box.lower]),
+                    np.concatenate([np.full(system.nw, np.inf), a_box.upper]))  # fmt: skip
         super().__init__(system, WindowModel.from_system(inner), schedule=self.weights.schedule(), N=N,
                          x0_prior=x0_prior, v_prior=v_prior, options={**options, "lag": lag},
-                         w_prior=self.delayed.nominal_w)  # fmt: skip
+                         w_box=w_box, w_prior=self.delayed.nominal_w)  # fmt: skip
 
     def _checked(self, options: WindowOptions) -> WindowOptions:
         if options.lag < 1:
@@ -85,7 +90,12 @@ class DelayedUISE(WindowEstimator):
                 f"lag: expected >= 1, got {options.lag}: the unknown input has relative degree 2, so x[k] is not "
                 "determined by y[..k]; the delayed UISE estimates x[k-lag]"
             )
-        return super()._checked(options)
+        if self.N is not None and options.lag >= self.N:
+            raise OptionError(
+                f"lag: expected 1 <= lag <= N - 1 = {self.N - 1} (w_hat[k-lag-1] needs the transition before "
+                f"x[k-lag] in the window), got {options.lag}"
+            )
+        return options
 
     def _clear(self) -> None:
         super()._clear()
@@ -96,11 +106,11 @@ class DelayedUISE(WindowEstimator):
         return self.delayed.T_b @ x
 
     def _a_of(self, window: WindowTrajectory, j: int) -> FloatArray:
-        """``a`` at window node j (negative index >= -len(window.w)): the unknown input of transition j."""
+        """``a`` at window node j (``-len(window.x) <= j <= -2``): the unknown input of the transition from node j."""
         return window.w[len(window.w) + 1 + j if j < 0 else j][self.system.nw :]
 
     def _node_state(self, window: WindowTrajectory, j: int, data: FloatArray) -> FloatArray:
-        return self.delayed.state(window.x[j], self._a_of(window, j))
+        return self.system.x.bounds.clip(self.delayed.state(window.x[j], self._a_of(window, j)))
 
     def _to_state(
         self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int, window: WindowTrajectory | None
