@@ -19,7 +19,7 @@ from uiest.paths import writable_file
 from uiest.results import Trajectory
 
 if TYPE_CHECKING:
-    from uiest.estimators.results import EstimationResult
+    from uiest.results import EstimationResult
 
 
 def _check_trajectory(traj: object) -> None:
@@ -81,7 +81,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
         Plot ``|x - x_hat|`` on a log axis (else the signed error on a linear axis).
 
     """
-    from uiest.estimators.results import EstimationResult
+    from uiest.results import EstimationResult
 
     _check_trajectory(traj)
     if not isinstance(results, Mapping) or not all(isinstance(r, EstimationResult) for r in results.values()):

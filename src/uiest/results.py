@@ -1,10 +1,15 @@
-"""Result containers: frozen dataclasses of time-first arrays."""
+"""Result containers: frozen dataclasses of time-first arrays.
+
+:class:`Trajectory` (a simulated or measured record), and what the estimators return:
+:class:`StepEstimate` per step, :class:`EstimationResult` per run.
+"""
 
 from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -13,6 +18,9 @@ from numpy.typing import NDArray
 from uiest.box import FloatArray
 from uiest.checks import real_array
 from uiest.errors import DataError
+
+if TYPE_CHECKING:
+    from uiest.window.problem import WindowTrajectory
 
 
 def _freeze(array: FloatArray, name: str) -> FloatArray:
@@ -98,5 +106,204 @@ class Trajectory:
         frame = pd.DataFrame(columns)
         frame["x_outside"] = self.x_outside
         frame["v_outside"] = self.v_outside
+        frame.index.name = "k"
+        return frame
+
+
+def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
+    arr = np.array(value, dtype=dtype)
+    arr.setflags(write=False)
+    return arr
+
+
+NO_DATA = "propagated (no data)"
+"""Status of a step whose whole window had no measurement: the model bridged it."""
+
+BOUNDARY_FLAG = "[on the boundary of X"
+"""Start of the status suffix of an estimate held on the boundary of X (see ``checks.boundary_flag``)."""
+
+
+@dataclass(frozen=True, eq=False)
+class StepEstimate:
+    """The result of one ``step(u_prev, y)`` at time k.
+
+    Attributes
+    ----------
+    k : int
+        Time index of the estimate.
+    x_hat : ndarray (nx,)
+        Estimate of ``x[k]``.
+    w_hat : ndarray (nw,) or None
+        The unknown-input estimate delivered at this step, for time ``w_index``; None when the
+        window holds no transition informed by a measurement.
+    w_index : int or None
+        Time index of ``w_hat`` (``k-1`` for the UISE and FIE, ``k-2`` for the one-step-ahead MHE).
+    status : str
+        Solver status (``"prior"`` when no problem had to be solved; ``"propagated (...)"`` after a
+        failed solve, with the solver's status in brackets).
+    success : bool
+        Whether the window problem was solved.
+    iterations : int
+        Solver iterations (all attempts).
+    solve_time : float
+        Wall-clock seconds spent in the solver (all attempts).
+    cost : float
+        Optimal cost of the window problem (NaN after a failure).
+    window : int
+        Number of transitions ``N_k`` of the window.
+    missing : ndarray (ny,) of bool
+        Which channels of ``y[k]`` were missing (NaN).
+    trajectory : WindowTrajectory or None
+        The solved window in the window model's coordinates (nodes ``k-N_k .. k``; the reduced
+        state for the two-stage UISE); None when no problem was solved.
+    x_lag : ndarray (nx,) or None
+        The window's estimate of ``x[k-lag]`` (the estimator's ``options.lag``; ``x_hat`` when
+        lag = 0, None for k < lag, NaN without a window solution).
+
+    """
+
+    k: int
+    x_hat: FloatArray
+    w_hat: FloatArray | None
+    w_index: int | None
+    status: str
+    success: bool
+    iterations: int
+    solve_time: float
+    cost: float
+    window: int
+    missing: NDArray[np.bool_]
+    trajectory: WindowTrajectory | None = None
+    x_lag: FloatArray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class EstimationResult:
+    """A whole run of an estimator over ``u (K, nu)``, ``y (K+1, ny)``.
+
+    Index convention: ``x_hat[k]`` estimates ``x[k]``; ``w_hat[k]`` estimates ``w[k]``, which
+    acts between ``k`` and ``k+1``. Rows of ``w_hat`` that no window informs are NaN (for the
+    one-step-ahead standard MHE the last one).
+
+    Attributes
+    ----------
+    t : ndarray (K+1,)
+        Times ``k * dt``.
+    x_hat : ndarray (K+1, nx)
+    w_hat : ndarray (K, nw)
+    status : ndarray (K+1,) of str
+        Per-step solver status (see :class:`StepEstimate`).
+    success : ndarray (K+1,) of bool
+    iterations : ndarray (K+1,) of int
+    solve_time : ndarray (K+1,)
+        Seconds per step.
+    cost : ndarray (K+1,)
+        Optimal window cost per step.
+    window : ndarray (K+1,) of int
+        ``N_k`` per step.
+    missing : ndarray (K+1, ny) of bool
+        Missing measurements (NaN in y).
+    estimator : str
+        Name of the estimator (``"UISE"``, ``"FIE"``, ``"StandardMHE"``).
+    horizon : int or None
+        N (None for the FIE).
+    guarantee : str
+        Which theorem's guarantee holds for this configuration, or why none does.
+    names : mapping
+        Component names of "x" and "w".
+    time_unit : str
+    x_lag : ndarray (K+1, nx) or None
+        Fixed-lag estimates: row j estimates ``x[j]`` from the window at step ``j + lag`` (the
+        last ``lag`` rows NaN); None when lag = 0.
+    lag : int
+
+    """
+
+    t: FloatArray
+    x_hat: FloatArray
+    w_hat: FloatArray
+    status: NDArray[np.str_]
+    success: NDArray[np.bool_]
+    iterations: NDArray[np.int64]
+    solve_time: FloatArray
+    cost: FloatArray
+    window: NDArray[np.int64]
+    missing: NDArray[np.bool_]
+    estimator: str
+    horizon: int | None
+    guarantee: str
+    names: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
+    time_unit: str = "s"
+    x_lag: FloatArray | None = None
+    lag: int = 0
+
+    def __post_init__(self) -> None:
+        for name, dtype in (
+            ("t", float),
+            ("x_hat", float),
+            ("w_hat", float),
+            ("status", str),
+            ("success", bool),
+            ("iterations", np.int64),
+            ("solve_time", float),
+            ("cost", float),
+            ("window", np.int64),
+            ("missing", bool),
+        ):
+            object.__setattr__(self, name, _frozen(getattr(self, name), dtype))
+        if self.x_lag is not None:
+            object.__setattr__(self, "x_lag", _frozen(self.x_lag, float))
+        object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
+
+    @property
+    def steps(self) -> int:
+        """Number of transitions K."""
+        return int(self.w_hat.shape[0])
+
+    @property
+    def failures(self) -> int:
+        """Steps whose window problem was not solved (estimate propagated); outage steps excluded."""
+        return int(np.count_nonzero(~self.success & (self.status != "prior") & (self.status != NO_DATA)))
+
+    @property
+    def bridged(self) -> int:
+        """Steps of an outage longer than the window, bridged by the model (status ``NO_DATA``)."""
+        return int(np.count_nonzero(self.status == NO_DATA))
+
+    @property
+    def on_boundary(self) -> FloatArray:
+        """(K+1,) bool: estimates held on the boundary of X with a large output residual (see the status)."""
+        return np.char.find(self.status.astype(str), BOUNDARY_FLAG) >= 0
+
+    def error(self, x: FloatArray) -> FloatArray:
+        """``x - x_hat`` for the true states ``x (K+1, nx)``."""
+        arr = real_array(x, "x", f"the true states, an array of shape {self.x_hat.shape} (a Trajectory's .x)")
+        if arr.shape != self.x_hat.shape:
+            raise DataError(f"x: expected shape {self.x_hat.shape}, got {arr.shape}")
+        return arr - self.x_hat
+
+    def to_pandas(self) -> pd.DataFrame:
+        """One row per k = 0..K: t, estimates (``<name>_hat``), status, success, iterations, solve_time, cost.
+
+        The unknown-input columns are NaN in the last row (no transition after K).
+        """
+        columns: dict[str, object] = {"t": self.t}
+        x_names = self.names.get("x") or tuple(f"x[{i}]" for i in range(self.x_hat.shape[1]))
+        w_names = self.names.get("w") or tuple(f"w[{i}]" for i in range(self.w_hat.shape[1]))
+        for i, name in enumerate(x_names):
+            columns[f"{name}_hat"] = self.x_hat[:, i]
+        w_full = np.vstack([self.w_hat, np.full((1, self.w_hat.shape[1]), np.nan)])
+        for i, name in enumerate(w_names):
+            columns[f"{name}_hat"] = w_full[:, i]
+        columns.update(
+            status=self.status,
+            success=self.success,
+            iterations=self.iterations,
+            solve_time=self.solve_time,
+            cost=self.cost,
+            window=self.window,
+            missing=self.missing.sum(axis=1),
+        )
+        frame = pd.DataFrame(columns)
         frame.index.name = "k"
         return frame

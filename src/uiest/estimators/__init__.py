@@ -16,11 +16,11 @@ from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
 from uiest.estimators.linear_uio import LinearUIO
-from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
+from uiest.results import EstimationResult, StepEstimate
 
 __all__ = [
     "FIE",

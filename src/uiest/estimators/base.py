@@ -36,10 +36,11 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
+from uiest.checks import check_run_data, check_u_prev, check_y
 from uiest.errors import CertificationError, DataError, OptionError, SolverError
-from uiest.estimators.checks import boundary_flag, check_run_data, check_u_prev, check_y, window_bounds
-from uiest.estimators.results import NO_DATA, EstimationResult, StepEstimate
+from uiest.estimators.checks import boundary_flag, window_bounds
 from uiest.estimators.weights import Schedule
+from uiest.results import NO_DATA, EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
 from uiest.window.problem import WIDE, WindowTrajectory

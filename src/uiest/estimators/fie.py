@@ -32,13 +32,12 @@ from typing import Any
 
 from numpy.typing import ArrayLike
 
-from uiest.checks import check_int
+from uiest.checks import check_int, check_run_data
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
-from uiest.estimators.checks import check_run_data
-from uiest.estimators.results import EstimationResult, StepEstimate
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
+from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import WindowModel
 

@@ -36,13 +36,12 @@ import scipy.signal
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import real_array
+from uiest.checks import check_run_data, check_u_prev, check_y, real_array
 from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
-from uiest.estimators.checks import check_run_data, check_u_prev, check_y
-from uiest.estimators.results import EstimationResult, StepEstimate
+from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
 
 
