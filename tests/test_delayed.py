@@ -130,3 +130,18 @@ def test_an_oblique_invisible_direction_certifies_and_stays_in_X():
     assert all(system.x.bounds.contains(x) for x in result.x_lag[:-1])
     with pytest.raises(OptionError, match=r"lag: expected 1 <= lag <= N - 1 = 3"):
         DelayedUISE(system, certificate=cert, N=4, lag=4)
+
+
+def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise():
+    # On the chain x_lag[j] - x[j] = (v[j+1], v[j], ...) for any weights that fit y exactly at interior nodes;
+    # the design certifies the delayed system, keeps N >= lag + 1 and the RMS error is the noise's.
+    system = _chain()
+    rng = np.random.default_rng(4)
+    K = 200
+    v = rng.uniform(-V_MAX, V_MAX, (K + 1, 1))
+    u = np.sin(0.2 * np.arange(K))[:, None]
+    truth = simulate(system, [2.0, -1.0, 3.0], K, u=u, w=(2.0 * rng.standard_normal(K))[:, None], v=v)
+    est = DelayedUISE.design(system, x0_prior=np.zeros(3), lag=2, rates=(0.5, 0.9))
+    assert est.guaranteed and est.options.lag == 2 and est.N >= 3 and est.design_report.N <= est.N
+    error = est.run(u, truth.y).x_lag[50:-2] - truth.x[50:-2]
+    np.testing.assert_allclose(error[:, :2], np.column_stack([v[51:-1, 0], v[50:-2, 0]]), atol=1e-6)

@@ -231,6 +231,15 @@ class WindowEstimator(StreamingEstimator):
         """Which theorem's guarantee holds for this configuration, or why none does."""
         return "none"
 
+    def _horizon_guarantee(self, theorem: str, certificate_kind: str, horizon_eq: str, holds: str) -> str:
+        """``holds`` (formatted with ``n_min``) when certified with ``N >= min_horizon()``, else why not."""
+        if self.certificate is None:  # type: ignore[attr-defined]
+            return f"none: explicit weights without a {certificate_kind} certificate, {theorem} does not apply"
+        n_min = self.certificate.min_horizon()  # type: ignore[attr-defined]
+        if self.N is not None and n_min > self.N:
+            return f"none: N={self.N} < min_horizon()={n_min} ({horizon_eq}), {theorem} does not apply"
+        return f"{theorem}: " + holds.format(n_min=n_min)
+
     @property
     def guaranteed(self) -> bool:
         """A certified certificate gave the weights and ``N >= certificate.min_horizon()``."""

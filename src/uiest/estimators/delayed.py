@@ -20,18 +20,17 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from uiest.box import Box, FloatArray
+from uiest.box import Box, FloatArray, as_vector
 from uiest.delay import delayed_system
 from uiest.errors import OptionError
-from uiest.estimators.base import WindowEstimator, WindowOptions
+from uiest.estimators.base import WindowOptions
 from uiest.estimators.input_fit import InputFit
-from uiest.estimators.uise import check_system
-from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
+from uiest.estimators.uise import UISE, check_system
 from uiest.system import System
-from uiest.window import WindowModel, WindowTrajectory
+from uiest.window import WindowTrajectory
 
 
-class DelayedUISE(WindowEstimator):
+class DelayedUISE(UISE):
     r"""UISE of the delayed system (module docstring): estimates ``x[k-lag]``, ``lag >= 1``.
 
     Parameters
@@ -39,50 +38,53 @@ class DelayedUISE(WindowEstimator):
     system : System
         A system whose unknown input has relative degree 2 (:func:`~uiest.delay.delayed_system`
         raises ModelError otherwise, naming the ranks).
-    certificate : StrongDetectability, optional
-        Of the delayed system (``delayed.system``, see :attr:`delayed`).
-    weights : UISEWeights, optional
-        Explicit weights of the delayed system instead (then N is required, no guarantee).
-    N : int, optional
-        Horizon >= lag + 1 (the window must hold the transition before ``x[k-lag]`` for ``w_hat``);
-        default ``max(certificate.min_horizon(), lag + 1)``.
     lag : int
-        The delay d >= 1 of the estimate ``x_lag`` (``EstimationResult.x_lag``).
-    x0_prior, v_prior, **options
-        As for :class:`~uiest.estimators.UISE`.
+        The delay d >= 1 of the estimate ``x_lag`` (``EstimationResult.x_lag``), at most N - 1
+        (the window must hold the transition before ``x[k-lag]`` for ``w_hat``).
+    certificate, weights, N, x0_prior, v_prior, **options
+        As for :class:`~uiest.estimators.UISE`, but the certificate and weights are those of the
+        delayed system (:attr:`delayed` ``.system``); N defaults to
+        ``max(certificate.min_horizon(), lag + 1)``.
 
     """
 
     estimator_name = "DelayedUISE"
 
-    def __init__(
-        self,
-        system: System,
-        *,
-        certificate: StrongCertificate | None = None,
-        weights: UISEWeights | None = None,
-        N: int | None = None,
-        lag: int = 1,
-        x0_prior: ArrayLike | None = None,
-        v_prior: ArrayLike | None = None,
-        **options: Any,
-    ) -> None:
+    def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
         self.delayed = delayed_system(check_system(system))
-        inner = self.delayed.system
-        given = N
-        self.weights, self.certificate, N = resolve_weights(
-            UISEWeights, certificate, weights, N, lambda w: w.check(inner)
-        )
-        if given is None and isinstance(lag, int | np.integer) and N is not None and lag >= N:
-            N = int(lag) + 1
+        certificate = keywords.get("certificate")
+        if keywords.get("N") is None and getattr(certificate, "certified", False) and isinstance(lag, int | np.integer):
+            keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)  # type: ignore[union-attr]
         self._fit = InputFit(system)
         self._a_last: FloatArray | None = None
+        super().__init__(system, lag=lag, **keywords)
+
+    @classmethod
+    def design(cls, system: System, *, x0_prior: ArrayLike, lag: int = 1, **design_options: Any) -> DelayedUISE:
+        """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
+        from uiest.design import design_uise, estimator_options
+
+        delayed = delayed_system(check_system(system))
+        design = design_uise(delayed.system, delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior"), **design_options)
+        est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
+                  **estimator_options(design_options))  # fmt: skip
+        est.design_report = design
+        return est
+
+    def _window_system(self, system: System, force: bool) -> System:
+        if force:
+            raise OptionError("force: the delayed UISE needs no force (its delayed system satisfies matching)")
+        self.matching = True
+        return self.delayed.system
+
+    def _window_inputs(self) -> dict[str, Any]:
         a_box = self.delayed.a_bounds  # a = T_a x stays in T_a X (with b in T_b X: x in X's bounding box)
-        w_box = Box(np.concatenate([np.full(system.nw, -np.inf), a_box.lower]),
-                    np.concatenate([np.full(system.nw, np.inf), a_box.upper]))  # fmt: skip
-        super().__init__(system, WindowModel.from_system(inner), schedule=self.weights.schedule(), N=N,
-                         x0_prior=x0_prior, v_prior=v_prior, options={**options, "lag": lag},
-                         w_box=w_box, w_prior=self.delayed.nominal_w)  # fmt: skip
+        nw = self.delayed.original.nw  # called before the template sets self.system
+        lower, upper = np.full(nw, -np.inf), np.full(nw, np.inf)
+        return {
+            "w_box": Box(np.concatenate([lower, a_box.lower]), np.concatenate([upper, a_box.upper])),
+            "w_prior": self.delayed.nominal_w,
+        }
 
     def _checked(self, options: WindowOptions) -> WindowOptions:
         if options.lag < 1:
@@ -141,16 +143,12 @@ class DelayedUISE(WindowEstimator):
     @property
     def guarantee(self) -> str:
         """Which guarantee holds (theo:MHE_full for the delayed system) or why none does."""
-        if self.certificate is None:
-            return "none: explicit weights without a certificate of the delayed system, theo:MHE_full does not apply"
-        n_min = self.certificate.min_horizon()
-        if self.N is not None and n_min > self.N:
-            return f"none: N={self.N} < min_horizon()={n_min} (eq:MHE_full_horizon), theo:MHE_full does not apply"
-        return (
-            f"theo:MHE_full for the delayed system (state b = T_b x, unknown input (w, a = T_a x)) with "
-            f"mu={self.weights.mu:.4g}, N={self.N} >= min_horizon()={n_min}: its estimate of b[k] converges under "
-            f"convergent noise whatever the unknown input; x[k-{self.options.lag}] is read from the same window"
-        )
+        return self._horizon_guarantee(
+            "theo:MHE_full", "delayed system's strong-detectability", "eq:MHE_full_horizon",
+            f"for the delayed system (state b = T_b x, unknown input (w, a = T_a x)) with mu={self.weights.mu:.4g}, "
+            f"N={self.N} >= min_horizon()={{n_min}}: its estimate of b[k] converges under convergent noise whatever "
+            f"the unknown input; x[k-{self.options.lag}] is read from the same window",
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         return (

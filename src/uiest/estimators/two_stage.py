@@ -252,16 +252,12 @@ class TwoStageUISE(WindowEstimator):
                 "remark after theo:stab (n_sharp = 0): x_hat = T^-1(psi(y, v_bar)) is a UISE, its error bounded by "
                 f"a Lipschitz constant times |v - v_bar|{proj}"
             )
-        if self.certificate is None:
-            return "none: explicit weights without a reduced i-IOSS certificate (ass:e-ioss), theo:stab does not apply"
-        n_min = self.certificate.min_horizon()
-        if self.N is not None and n_min > self.N:
-            return f"none: N={self.N} < min_horizon()={n_min} (eq:N_cond), theo:stab does not apply"
         assert self.weights is not None
-        return (
-            f"theo:stab: the reduced model is exponentially i-IOSS with mu={self.weights.mu:.4g}, N={self.N} >= "
-            f"min_horizon()={n_min}; the error converges under convergent noise whatever the unknown input{proj}"
-        )
+        return self._horizon_guarantee(
+            "theo:stab", "reduced i-IOSS (ass:e-ioss)", "eq:N_cond",
+            f"the reduced model is exponentially i-IOSS with mu={self.weights.mu:.4g}, N={self.N} >= "
+            f"min_horizon()={{n_min}}; the error converges under convergent noise whatever the unknown input{proj}",
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         mu = "none" if self.weights is None else f"{self.weights.mu:.4g}"

@@ -91,7 +91,17 @@ class UISE(WindowEstimator):
         force: bool = False,
         **options: Any,
     ) -> None:
-        check_system(system)
+        window_system = self._window_system(check_system(system), force)
+        self.design_report: Any = None
+        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
+        self.weights, self.certificate, N = resolve_weights(
+            UISEWeights, certificate, weights, N, lambda w: w.check(window_system)
+        )
+        super().__init__(system, WindowModel.from_system(window_system), schedule=self.weights.schedule(), N=N,
+                         x0_prior=x0_prior, v_prior=v_prior, options=options, **self._window_inputs())  # fmt: skip
+
+    def _window_system(self, system: System, force: bool) -> System:
+        """The system the window estimates: ``system`` itself, after the matching test (``force``: see above)."""
         rank_CB, rank_B = matching_ranks(system)
         self.matching = rank_CB == rank_B
         """Whether matching holds at every sampled point (False only when built with ``force=True``)."""
@@ -104,13 +114,11 @@ class UISE(WindowEstimator):
                     "lag=1) estimates x[k-1]; force=True builds this estimator without guarantee"
                 )
             self.status_note = f" [no guarantee: {detail}]"
-        self.design_report: Any = None
-        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
-        self.weights, self.certificate, N = resolve_weights(
-            UISEWeights, certificate, weights, N, lambda w: w.check(system)
-        )
-        super().__init__(system, WindowModel.from_system(system), schedule=self.weights.schedule(), N=N,
-                         x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
+        return system
+
+    def _window_inputs(self) -> dict[str, Any]:
+        """Extra keywords of the window template (the delayed UISE's box and prior of its unknown input)."""
+        return {}
 
     @classmethod
     def design(cls, system: System, *, x0_prior: ArrayLike, **design_options: Any) -> UISE:
@@ -139,15 +147,11 @@ class UISE(WindowEstimator):
         """Which guarantee holds (theo:MHE_full) or why none does."""
         if not self.matching:
             return f"none: matching fails ({self.status_note.strip(' []')}), x[k] is not determined by y[..k]"
-        if self.certificate is None:
-            return "none: explicit weights without a strong-detectability certificate, theo:MHE_full does not apply"
-        n_min = self.certificate.min_horizon()
-        if self.N is not None and n_min > self.N:
-            return f"none: N={self.N} < min_horizon()={n_min} (eq:MHE_full_horizon), theo:MHE_full does not apply"
-        return (
-            f"theo:MHE_full: strongly detectable with mu={self.weights.mu:.4g}, N={self.N} >= "
-            f"min_horizon()={n_min}; the error converges under convergent noise whatever the unknown input"
-        )
+        return self._horizon_guarantee(
+            "theo:MHE_full", "strong-detectability", "eq:MHE_full_horizon",
+            f"strongly detectable with mu={self.weights.mu:.4g}, N={self.N} >= min_horizon()={{n_min}}; the error "
+            "converges under convergent noise whatever the unknown input",
+        )  # fmt: skip
 
     def __repr__(self) -> str:
         return f"UISE(system={self.system.name!r}, N={self.N}, mu={self.weights.mu:.4g}, guaranteed={self.guaranteed})"
