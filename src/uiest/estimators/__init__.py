@@ -6,6 +6,7 @@
 - :class:`DelayedUISE`: the UISE of the delayed system, x[k-lag] for an input of relative degree 2.
 - :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (theo:stab).
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
+- :class:`EKF`, :class:`UKF`: Kalman filters with the unknown input as a random walk (:mod:`uiest.kalman`).
 
 Index convention: ``u[k]``, ``w[k]`` act between k and k+1; ``x_hat[k]`` estimates ``x[k]``;
 the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
@@ -22,9 +23,21 @@ from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 from uiest.results import EstimationResult, StepEstimate
 
+
+def __getattr__(name: str) -> object:
+    """``EKF`` and ``UKF`` from :mod:`uiest.kalman` (imported on first use: it imports this package)."""
+    if name in ("EKF", "UKF"):
+        from uiest import kalman
+
+        return getattr(kalman, name)
+    raise AttributeError(f"module 'uiest.estimators' has no attribute {name!r}")
+
+
 __all__ = [
+    "EKF",
     "FIE",
     "UISE",
+    "UKF",
     "DelayedUISE",
     "EstimationResult",
     "LinearUIO",

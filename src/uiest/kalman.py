@@ -1,0 +1,344 @@
+r"""The practitioner's baselines: an EKF and a UKF with the unknown input as a random walk.
+
+The state is augmented with the unknown input ``d`` (time-first, the UISE's index convention)::
+
+    x[k+1] = f(x[k], u[k], d[k]) + e_x[k],   d[k+1] = d[k] + e_d[k],   y[k] = h(x[k], v[k])
+    Cov(e_x) = Q_x (``x_variance``),  Cov(e_d) = Q_w (``w_variance``, the random walk's step variance),
+    Cov(v) = Sigma_v (``v_covariance``; default: V's uniform variance width^2/12, or v's scale^2)
+
+Each step predicts ``z = (x, d)`` with ``u[k-1]`` and updates it with ``y[k]`` (missing channels
+dropped), so ``x_hat[k]`` uses ``y[0..k]`` as the UISE does. The measurement noise enters as
+``R = D Sigma_v D^T`` with ``D = dh/dv`` at ``(x_hat, v_bar)``. ``w_hat[k-1]`` is the posterior
+mean of d at k: the random walk's step after k-1 is independent of ``y[..k]``, so that is also
+the smoothed estimate of ``d[k-1]``, the input that moved ``x[k-1]`` to ``x[k]``.
+
+- :class:`EKF`: Jacobians from CasADi; ``P+ = F P F^T + Q``, Kalman update in Joseph form.
+- :class:`UKF`: the unscented transform (Wan and van der Merwe's scaled sigma points, ``alpha``,
+  ``beta``, ``kappa``) with additive noises; exact for linear models.
+
+Neither has a guarantee when the unknown input is unbounded or fast: a random walk is the prior
+they assume. :meth:`KalmanFilter.tuned` picks ``w_variance`` on a separate simulated record.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import casadi as ca
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray, as_vector
+from uiest.checks import check_real, check_run_data, check_u_prev, check_y, real_array
+from uiest.errors import DataError, OptionError
+from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.results import EstimationResult, StepEstimate, Trajectory
+from uiest.system import System
+
+
+def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str) -> FloatArray:
+    """A covariance (n, n) from None (``diag(default)``), variances (n,) or a matrix; OptionError if not PSD."""
+    arr = np.diag(default) if value is None else real_array(value, name, "a covariance", error=OptionError)
+    if arr.ndim < 2 and arr.size in (1, n):
+        arr = np.diag(np.broadcast_to(arr.reshape(-1), (n,)))
+    if arr.shape != (n, n) or not np.all(np.isfinite(arr)) or not np.allclose(arr, arr.T):
+        raise OptionError(f"{name}: expected variances ({n},) or a symmetric ({n}, {n}) matrix, got shape {arr.shape}")
+    if n and np.linalg.eigvalsh(arr)[0] < -1e-12 * max(float(np.abs(arr).max()), 1e-300):
+        raise OptionError(f"{name}: expected a positive semidefinite covariance")
+    return 0.5 * (arr + arr.T)
+
+
+@dataclass(frozen=True)
+class Tuning:
+    """What :meth:`KalmanFilter.tuned` tried: ``w_variance = factor * w.scale^2``, and the scaled state RMS of each."""
+
+    factors: FloatArray
+    rms: FloatArray
+
+    @property
+    def chosen(self) -> float:
+        """The factor with the smallest error."""
+        return float(self.factors[int(np.nanargmin(self.rms))])
+
+
+class KalmanFilter(StreamingEstimator):
+    """What the EKF and the UKF share: the augmented model, noises, the step loop (module docstring).
+
+    Parameters
+    ----------
+    system : System
+    w_variance : float or array_like (nw,) or (nw, nw)
+        Covariance of the random walk's step ``e_d`` (scalars broadcast).
+    x_variance : float or array_like, optional
+        Covariance of the state noise ``e_x`` (default 0).
+    v_covariance : array_like, optional
+        Covariance of v (default: ``width^2 / 12`` over V's finite sides, ``scale^2`` elsewhere).
+    x0_prior : array_like (nx,), optional
+        Mean of x[0] (or give it to :meth:`reset` / :meth:`run`).
+    P0 : array_like, optional
+        Covariance of x[0] (default ``diag(x.scale^2 / 12)``: uniform over a box one scale wide).
+    w0, W0 : array_like, optional
+        Mean and covariance of d[0] (default: the nominal w and ``diag(w.scale^2)``).
+
+    """
+
+    N = None
+    v_prior: FloatArray
+    tuning: Tuning | None = None
+    """The tuning record when built by :meth:`tuned`, else None."""
+
+    def __init__(
+        self,
+        system: System,
+        *,
+        w_variance: ArrayLike,
+        x_variance: ArrayLike | None = None,
+        v_covariance: ArrayLike | None = None,
+        x0_prior: ArrayLike | None = None,
+        P0: ArrayLike | None = None,
+        w0: ArrayLike | None = None,
+        W0: ArrayLike | None = None,
+    ) -> None:
+        if not isinstance(system, System):
+            raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
+        self.system = s = system
+        V = s.v.bounds
+        v_var = np.where(np.isfinite(V.width), V.width**2 / 12.0, s.v.scale**2)
+        self.v_prior = np.where(np.isfinite(V.center), V.center, 0.0)
+        self.Q = np.zeros((s.nx + s.nw, s.nx + s.nw))
+        self.Q[: s.nx, : s.nx] = _covariance(x_variance, s.nx, np.zeros(s.nx), "x_variance")
+        self.Q[s.nx :, s.nx :] = _covariance(w_variance, s.nw, np.zeros(s.nw), "w_variance")
+        self.Sigma_v = _covariance(v_covariance, s.nv, v_var, "v_covariance")
+        self.P0 = _covariance(P0, s.nx, s.x.scale**2 / 12.0, "P0")
+        self.w0 = s.nominal_w if w0 is None else as_vector(w0, s.nw, "w0")
+        self.W0 = _covariance(W0, s.nw, s.w.scale**2, "W0")
+        x, u, d, v = (ca.SX.sym(n, m) for n, m in (("x", s.nx), ("u", s.nu), ("d", s.nw), ("v", s.nv)))
+        fx, hx = s.f(x, u, d), s.h(x, v)
+        self._f = ca.Function("f_aug", [x, u, d], [fx, ca.jacobian(fx, ca.vertcat(x, d))])
+        self._h = ca.Function("h_aug", [x, v], [hx, ca.jacobian(hx, x), ca.jacobian(hx, v)])
+        self._x0_prior = None
+        self._clear()
+        if x0_prior is not None:
+            self.reset(x0_prior)
+
+    def _clear(self) -> None:
+        self._k = 0
+        self._z: FloatArray | None = None
+        self._P: FloatArray | None = None
+
+    @property
+    def covariance(self) -> FloatArray | None:
+        """The posterior covariance of ``(x[k-1], d[k-1])`` after the last step (None before the first)."""
+        return self._P
+
+    # ------------------------------------------------------------------ the filter
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        raise NotImplementedError
+
+    def _update(
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        raise NotImplementedError
+
+    def _noise(self, x: FloatArray, observed: FloatArray) -> FloatArray:
+        """``R = D Sigma_v D^T`` of the observed channels, D at ``(x, v_bar)``."""
+        D = np.asarray(self._h(x, self.v_prior)[2], dtype=float).reshape(self.system.ny, self.system.nv)[observed]
+        return D @ self.Sigma_v @ D.T
+
+    def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
+        """Predict with ``u[k-1]`` (k > 0), update with ``y[k]``; return the estimate of ``x[k]``."""
+        x0 = self._require_prior()
+        start = time.perf_counter()
+        s, k = self.system, self._k
+        u_vec = check_u_prev(s, u_prev, k)
+        y_vec = check_y(s, y)
+        if k == 0 or self._z is None or self._P is None:
+            z = np.concatenate([x0, self.w0])
+            P = np.zeros((s.nx + s.nw, s.nx + s.nw))
+            P[: s.nx, : s.nx], P[s.nx :, s.nx :] = self.P0, self.W0
+        else:
+            z, P = self._predict(self._z, self._P, u_vec)
+        observed = ~np.isnan(y_vec)
+        status = "updated"
+        try:
+            if observed.any():
+                z, P = self._update(z, P, y_vec, observed)
+            else:
+                status = "predicted (no data)"
+            if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
+                raise np.linalg.LinAlgError("the estimate is not finite")
+        except np.linalg.LinAlgError as exc:
+            if self._z is None:
+                raise DataError(f"step k={k}: the first update failed ({exc})") from exc
+            z, P, status = self._z, self._P, f"held ({exc})"
+        self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
+        return StepEstimate(
+            k=k,
+            x_hat=z[: s.nx].copy(),
+            w_hat=z[s.nx :].copy() if k > 0 else None,
+            w_index=k - 1 if k > 0 else None,
+            status=status,
+            success=not status.startswith("held"),
+            iterations=0,
+            solve_time=time.perf_counter() - start,
+            cost=0.0,
+            window=0,
+            missing=~observed,
+        )
+
+    def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
+        """Estimate ``x[0..K]`` from ``u (K, nu)`` and ``y (K+1, ny)``, starting from a reset."""
+        u_arr, y_arr = check_run_data(self.system, u, y)
+        self.reset(x0_prior)
+        return collect_run(self, u_arr, y_arr)
+
+    @classmethod
+    def tuned(
+        cls,
+        system: System,
+        training: Trajectory,
+        *,
+        x0_prior: ArrayLike,
+        variances: ArrayLike | None = None,
+        **keywords: Any,
+    ) -> KalmanFilter:
+        """The filter whose ``w_variance`` gives the smallest state error on ``training`` (a separate record).
+
+        ``variances`` (scalars, times ``w.scale^2``) default to ``10^-8 .. 10^2`` (21 values); the
+        error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all.
+        """
+        if not isinstance(training, Trajectory):
+            raise DataError(
+                f"training: expected a simulated Trajectory (with its states), got {type(training).__name__}"
+            )
+        grid = np.logspace(-8, 2, 21) if variances is None else np.asarray(variances, dtype=float).reshape(-1)
+        if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
+            raise OptionError(f"variances: expected positive numbers, got {np.asarray(variances).tolist()}")
+        rms = np.full(grid.shape, np.nan)
+        for i, q in enumerate(grid):
+            result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
+                training.u if system.nu else None, training.y
+            )
+            rms[i] = np.sqrt(np.mean((result.error(training.x) / system.x.scale) ** 2))
+        tuning = Tuning(grid, rms)
+        estimator = cls(system, w_variance=tuning.chosen * system.w.scale**2, x0_prior=x0_prior, **keywords)
+        estimator.tuning = tuning
+        return estimator
+
+    @property
+    def guaranteed(self) -> bool:
+        """Always False: no theorem covers an unbounded unknown input."""
+        return False
+
+    @property
+    def guarantee(self) -> str:
+        """Why there is none."""
+        return (
+            f"none: the {self.estimator_name} assumes the unknown input is a random walk (its error grows with how "
+            "far w departs from one); no bound holds for an unbounded unknown input"
+        )
+
+    def __repr__(self) -> str:
+        return f"{self.estimator_name}(system={self.system.name!r}, w_variance={np.diag(self.Q)[self.system.nx :]})"
+
+
+class EKF(KalmanFilter):
+    """Extended Kalman filter on the augmented model (see :class:`KalmanFilter` for the parameters)."""
+
+    estimator_name = "EKF"
+
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        s = self.system
+        x_next, J = self._f(z[: s.nx], u, z[s.nx :])
+        F = np.eye(s.nx + s.nw)
+        F[: s.nx] = np.asarray(J, dtype=float).reshape(s.nx, s.nx + s.nw)
+        z_next = np.concatenate([np.asarray(x_next, dtype=float).reshape(-1), z[s.nx :]])
+        return z_next, F @ P @ F.T + self.Q
+
+    def _update(
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        s = self.system
+        y_pred, C, _ = self._h(z[: s.nx], self.v_prior)
+        H = np.zeros((int(observed.sum()), s.nx + s.nw))
+        H[:, : s.nx] = np.asarray(C, dtype=float).reshape(s.ny, s.nx)[observed]
+        innovation = y[observed] - np.asarray(y_pred, dtype=float).reshape(-1)[observed]
+        R = self._noise(z[: s.nx], observed)
+        S = H @ P @ H.T + R
+        K = np.linalg.solve(S, H @ P).T
+        I_KH = np.eye(len(z)) - K @ H
+        return z + K @ innovation, I_KH @ P @ I_KH.T + K @ R @ K.T
+
+
+class UKF(KalmanFilter):
+    """Unscented Kalman filter on the augmented model.
+
+    ``alpha``, ``beta``, ``kappa``: the scaled sigma points (default 1, 2, 0: points at
+    ``sqrt(n)`` standard deviations, exact for linear models); other parameters as
+    :class:`KalmanFilter`.
+    """
+
+    estimator_name = "UKF"
+
+    def __init__(
+        self, system: System, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **keywords: Any
+    ) -> None:
+        super().__init__(system, **keywords)
+        n = system.nx + system.nw
+        alpha = check_real(alpha, "alpha", "a number in (0, 1]")
+        if not 0.0 < alpha <= 1.0:
+            raise OptionError(f"alpha: expected a number in (0, 1], got {alpha}")
+        lam = alpha**2 * (n + check_real(kappa, "kappa", "a number")) - n
+        if n + lam <= 0:
+            raise OptionError(f"kappa: expected n + lambda > 0, got {n + lam}")
+        self._spread = np.sqrt(n + lam)
+        self._wm = np.full(2 * n + 1, 0.5 / (n + lam))
+        self._wm[0] = lam / (n + lam)
+        self._wc = self._wm.copy()
+        self._wc[0] += 1.0 - alpha**2 + check_real(beta, "beta", "a number")
+        m = 2 * n + 1
+        self._f_map = system.f.map(m)
+        self._h_map = system.h.map(m)
+
+    def _points(self, z: FloatArray, P: FloatArray) -> FloatArray:
+        """Sigma points (2n+1, n): z and ``z +- spread * columns of chol(P)``."""
+        try:
+            L = np.linalg.cholesky(P)
+        except np.linalg.LinAlgError:  # semidefinite: a symmetric square root
+            vals, vecs = np.linalg.eigh(P)
+            L = vecs * np.sqrt(np.clip(vals, 0.0, None))
+        step = self._spread * L.T
+        return np.vstack([z, z + step, z - step])
+
+    def _moments(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
+        mean = self._wm @ points
+        dev = points - mean
+        return mean, (self._wc[:, None] * dev).T @ dev
+
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+        s = self.system
+        chi = self._points(z, P)
+        m = len(chi)
+        x_next = np.asarray(self._f_map(chi[:, : s.nx].T, np.tile(u, (m, 1)).T, chi[:, s.nx :].T), dtype=float)
+        mean, cov = self._moments(np.hstack([x_next.reshape(s.nx, m).T, chi[:, s.nx :]]))
+        return mean, cov + self.Q
+
+    def _update(
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+    ) -> tuple[FloatArray, FloatArray]:
+        s = self.system
+        chi = self._points(z, P)
+        m = len(chi)
+        ys = np.asarray(self._h_map(chi[:, : s.nx].T, np.tile(self.v_prior, (m, 1)).T), dtype=float)
+        ys = ys.reshape(s.ny, m).T[:, observed]
+        y_mean = self._wm @ ys
+        dy, dz = ys - y_mean, chi - self._wm @ chi
+        S = (self._wc[:, None] * dy).T @ dy + self._noise(z[: s.nx], observed)
+        Pzy = (self._wc[:, None] * dz).T @ dy
+        K = np.linalg.solve(S, Pzy.T).T
+        return z + K @ (y[observed] - y_mean), P - K @ S @ K.T
+
+
+__all__ = ["EKF", "UKF", "KalmanFilter", "Tuning"]
