@@ -7,6 +7,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
 
+import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -76,7 +77,7 @@ def list_models() -> None:
 @app.command()
 @_user_errors
 def simulate(
-    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`).")],
+    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`) or a model file (.py).")],
     steps: Annotated[int | None, typer.Option(help="Number of steps K (default: the model's).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the measurement noise.")] = 0,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/simulate"),
@@ -88,9 +89,9 @@ def simulate(
 
     _positive(steps, "--steps", allow_zero=True)
     writable_folder(out, "--out")
-    entry = models.get(model)
+    entry = models.load(model)
     system = entry.build()
-    setup = entry.setup()
+    setup = entry.simulation()
     length = setup.steps if steps is None else steps
     with Progress(
         TextColumn(f"simulating {model}"),
@@ -122,8 +123,70 @@ def simulate(
 
 @app.command()
 @_user_errors
+def estimate(
+    model: Annotated[
+        str, typer.Argument(help="Registered model name, or a model file (.py with `system` or build()).")
+    ],
+    data: Annotated[
+        Path, typer.Option(help="Measurements: .csv or .parquet with u and y columns named as the model's.")
+    ],
+    estimator: Annotated[
+        list[str] | None, typer.Option(help="uise, delayed, two-stage, mhe, ekf, ukf or uio; repeat for several.")
+    ] = None,
+    out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
+    lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
+    horizon: Annotated[int | None, typer.Option(help="N when the model does not certify (default 20).")] = None,
+    w_variance: Annotated[
+        float | None, typer.Option(help="EKF/UKF random-walk variance, times w's scale^2 (default: tuned).")
+    ] = None,
+    x0: Annotated[str | None, typer.Option(help="Prior of x[0], comma separated (default: the model's).")] = None,
+) -> None:
+    """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
+    from uiest.box import as_vector
+    from uiest.estimate import build_estimator, default_prior, errors_against_truth, run_estimators, write_estimates
+    from uiest.results import read_record
+
+    kinds = estimator or ["uise"]
+    _positive(lag, "--lag", allow_zero=True)
+    _positive(horizon, "--horizon")
+    if w_variance is not None and not w_variance > 0:
+        raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
+    writable_folder(out, "--out")
+    entry = models.load(model)
+    system = entry.build()
+    record = read_record(data, system)
+    if x0 is None:
+        prior = default_prior(entry, system)
+    else:
+        try:
+            values = [float(part) for part in x0.split(",")]
+        except ValueError:
+            raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
+        prior = as_vector(values, system.nx, "--x0")
+    built, notes = {}, {}
+    with console.status("building estimators") as status:
+        for kind in kinds:
+            status.update(f"building {kind}")
+            built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
+                                                       w_variance=w_variance)  # fmt: skip
+        status.update(f"estimating over {record.steps} steps")
+        results = run_estimators(built, record, prior)
+    rmse = errors_against_truth(record, results)
+    table = Table(title=f"{entry.name}: {record.steps} steps from {data}")
+    for column in ("estimator", "weights", "failed steps", "state RMSE vs truth", "guarantee"):
+        table.add_column(column)
+    for kind, result in results.items():
+        error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
+        table.add_row(kind, notes[kind], str(result.failures), error, result.guarantee)
+    console.print(table)
+    written = write_estimates(out, system, record, results)
+    console.print(f"wrote {', '.join(str(p) for p in written)}")
+
+
+@app.command()
+@_user_errors
 def certify(
-    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`).")],
+    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`) or a model file (.py).")],
     out: Annotated[Path, typer.Option(help="JSON file for the certificates.")] = Path("out/certify/certificates.json"),
     structure: Annotated[str, typer.Option(help="P of the delta-IOSS certificate: full or identity.")] = "full",
     verify: Annotated[int, typer.Option(help="Random pairs for each certificate's sampled verification.")] = 100_000,
@@ -140,7 +203,7 @@ def certify(
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")
     _positive(seed, "--seed", allow_zero=True)
     writable_file(out, "--out")
-    entry = models.get(model)
+    entry = models.load(model)
     system = entry.build()
     parameters = entry.jacobian_parameters() if entry.jacobian_parameters is not None else None
     jobs: list[tuple[str, Callable[[], Any]]] = [

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
@@ -120,6 +120,54 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     for ax in axes[-1]:
         ax.set_xlabel(f"time [{traj.time_unit}]")
     fig.suptitle(f"{traj.system_name}: estimates and errors", fontsize=10)
+    fig.tight_layout()
+    return fig
+
+
+def _robust_limits(ax: plt.Axes, values: np.ndarray) -> None:
+    """Y limits from the 1st-99th percentiles widened by 20 % (a start-up transient does not set the scale)."""
+    finite = values[np.isfinite(values)]
+    if finite.size < 10:
+        return
+    lo, hi = np.percentile(finite, [1, 99])
+    pad = 0.2 * (hi - lo) if hi > lo else max(abs(hi), 1.0) * 0.1
+    ax.set_ylim(lo - pad, hi + pad)
+
+
+def plot_record(system: Any, record: Trajectory, results: Mapping[str, EstimationResult]) -> Figure:
+    """Measured outputs beside each estimator's predicted output, then the state and unknown-input estimates.
+
+    No truth is needed: the true states and unknown inputs are drawn where ``record`` has them.
+    Axis limits are robust (1st-99th percentiles of what is drawn), so a start-up transient does
+    not flatten the rest; axes carry the signals' units.
+    """
+    _check_trajectory(record)
+    units = {sig.kind: sig.units for sig in system.signals}
+    panels = [("y", i) for i in range(system.ny)] + [("x", i) for i in range(system.nx)]
+    panels += [("w", i) for i in range(system.nw)]
+    fig, axes = plt.subplots(len(panels), 1, figsize=(7.5, 1.6 * len(panels) + 0.6), sharex=True, squeeze=False)
+    for ax, (kind, i) in zip(axes[:, 0], panels, strict=True):
+        drawn = []
+        if kind == "y":
+            ax.plot(record.t, record.y[:, i], ".", ms=2.5, color="0.4", label="measured")
+            drawn.append(record.y[:, i])
+        elif record.has_states:
+            truth = getattr(record, kind)[:, i]
+            ax.plot(record.t[: len(truth)], truth, color="k", lw=1.3, label="true")
+            drawn.append(truth)
+        for j, (label, result) in enumerate(results.items()):
+            if kind == "y":
+                values = system.output(result.x_hat, np.zeros(system.nv))[:, i]
+            else:
+                values = (result.x_hat if kind == "x" else result.w_hat)[:, i]
+            ax.plot(record.t[: len(values)], values, lw=1.0, color=f"C{j}", label=label)
+            drawn.append(values)
+        _robust_limits(ax, np.concatenate(drawn))
+        ax.set_ylabel(_label(getattr(system, kind).names[i], units[kind][i]), fontsize=8)
+        ax.tick_params(labelsize=7)
+        ax.grid(alpha=0.3)
+    axes[0, 0].legend(fontsize=7, ncol=min(len(results) + 1, 4))
+    axes[-1, 0].set_xlabel(f"time [{record.time_unit}]")
     fig.tight_layout()
     return fig
 

@@ -93,6 +93,50 @@ class Trajectory:
         """Number of transitions K."""
         return int(self.u.shape[0])
 
+    @property
+    def has_states(self) -> bool:
+        """Whether the record holds true states (a simulation, or measured truth columns)."""
+        return bool(self.x.size) and not np.all(np.isnan(self.x))
+
+    @classmethod
+    def from_pandas(cls, frame: pd.DataFrame, system: Any) -> Trajectory:
+        """A measured or simulated record of ``system`` from a table, one row per time index k = 0..K.
+
+        Columns are named by the system's signals (``system.y.names`` etc., as :meth:`to_pandas`
+        writes them). Required: every output (NaN = missing) and, when ``nu > 0``, every known
+        input in rows 0..K-1 (the last row's u is not used). Optional: ``t`` (default ``k dt``),
+        the states, unknown inputs and noise (NaN when absent: measured data has no truth).
+        """
+        if not isinstance(frame, pd.DataFrame):
+            raise DataError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
+        rows = len(frame)
+        if rows < 1:
+            raise DataError("frame: expected at least one row (time index k = 0)")
+        arrays: dict[str, FloatArray] = {}
+        for sig in system.signals:
+            present = [n for n in sig.names if n in frame.columns]
+            required = sig.kind == "y" or (sig.kind == "u" and sig.size > 0)
+            if required and len(present) < sig.size:
+                missing = [n for n in sig.names if n not in frame.columns]
+                raise DataError(f"frame: missing {sig.kind} columns {missing} (has {list(frame.columns)})")
+            if present and len(present) < sig.size:
+                raise DataError(f"frame: {sig.kind} columns must be all present or all absent, got only {present}")
+            data = (
+                real_array(frame[list(sig.names)].to_numpy(), f"frame[{sig.kind}]", "real numbers")
+                if present else np.full((rows, sig.size), np.nan)
+            )  # fmt: skip
+            arrays[sig.kind] = data[:-1] if sig.kind in ("u", "w") else data
+        if not np.all(np.isfinite(arrays["u"])):
+            bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
+            raise DataError(f"frame: the known input u must be given at every k < K; row {bad} has {arrays['u'][bad]}")
+        t = (
+            real_array(frame["t"].to_numpy(), "frame[t]", "times")
+            if "t" in frame.columns
+            else np.arange(rows) * system.dt
+        )
+        names = {sig.kind: sig.names for sig in system.signals}
+        return cls(t=t, names=names, system_name=system.name, time_unit=system.time_unit, **arrays)
+
     def to_pandas(self) -> pd.DataFrame:
         """One row per time index k = 0..K (u and w are NaN in the last row: no transition), then the flags."""
         columns: dict[str, FloatArray] = {"t": self.t}
@@ -307,3 +351,26 @@ class EstimationResult:
         frame = pd.DataFrame(columns)
         frame.index.name = "k"
         return frame
+
+
+def read_record(path: Any, system: Any) -> Trajectory:
+    """:meth:`Trajectory.from_pandas` of a CSV or Parquet file (a ``k`` column, from ``to_pandas``, is the index)."""
+    from pathlib import Path
+
+    file = Path(path)
+    if not file.is_file():
+        raise DataError(f"data: no file at {file}")
+    try:
+        if file.suffix.lower() == ".csv":
+            frame = pd.read_csv(file)
+        elif file.suffix.lower() in (".parquet", ".pq"):
+            frame = pd.read_parquet(file)
+        else:
+            raise DataError(f"data: expected a .csv or .parquet file, got {file.name}")
+    except DataError:
+        raise
+    except Exception as exc:  # a damaged file: name it
+        raise DataError(f"data: could not read {file} ({type(exc).__name__}: {exc})") from exc
+    if "k" in frame.columns:
+        frame = frame.set_index("k")
+    return Trajectory.from_pandas(frame, system)

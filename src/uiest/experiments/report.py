@@ -191,7 +191,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
     entry = models.get(scenario.model)
-    noise = noise_model(scenario, entry.setup().noise)
+    noise = noise_model(scenario, entry.simulation().noise)
     if not isinstance(noise, UniformNoise):
         return pd.DataFrame()
     system = entry.build()

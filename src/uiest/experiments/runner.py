@@ -178,7 +178,7 @@ def simulate_run(scenario: Scenario, case: str, run: int) -> tuple[System, Traje
     """
     entry = models.get(scenario.model)
     system = entry.build()
-    setup = entry.setup()
+    setup = entry.simulation()
     x0 = initial_state(scenario, setup.x0, run)
     noise = noise_model(scenario, setup.noise) if case == "noisy" else None
     w = setup.w

@@ -1,18 +1,26 @@
 """Registered models: the paper's crop-growth process and small systems with known answers.
 
-``get(name)`` returns a :class:`ModelEntry`; ``names()`` lists what exists.
+``get(name)`` returns a :class:`ModelEntry`; ``names()`` lists what exists; ``register(...)`` adds
+a model of one's own; ``load(spec)`` takes a registered name or the path of a model file.
+
+A model file is a Python file whose module has ``system`` (a :class:`~uiest.system.System`) or
+``build()`` returning one, and optionally ``setup()`` returning a :class:`SimulationSetup` (its
+default simulation, needed by ``uiest simulate``), ``reduction()`` and ``jacobian_parameters()``.
 """
 
 from __future__ import annotations
 
+import importlib.util
+import sys
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from uiest.box import FloatArray
-from uiest.errors import OptionError
+from uiest.errors import ModelError, OptionError
 from uiest.models import closed_form, crop_growth, linear
 from uiest.noise import NoiseModel, UniformNoise
 from uiest.reduction import ReducedModel
@@ -38,10 +46,19 @@ class ModelEntry:
     name: str
     summary: str
     build: Callable[[], System]
-    setup: Callable[[], SimulationSetup]
+    setup: Callable[[], SimulationSetup] | None = None
     reduction: Callable[[], ReducedModel] | None = None
     jacobian_parameters: Callable[[], Callable[..., Any]] | None = None
     """Returns ``theta(x, u)``, the functions the state Jacobian is affine in (an exact certificate cover)."""
+
+    def simulation(self) -> SimulationSetup:
+        """The default simulation; OptionError when the model has none (a model file without ``setup()``)."""
+        if self.setup is None:
+            raise OptionError(
+                f"model: {self.name!r} has no default simulation; give its file a setup() returning "
+                "uiest.models.SimulationSetup(x0, steps, u, w, noise)"
+            )
+        return self.setup()
 
 
 def _crop_setup() -> SimulationSetup:
@@ -120,4 +137,79 @@ def get(name: str) -> ModelEntry:
     try:
         return _REGISTRY[name]
     except KeyError:
-        raise OptionError(f"model: unknown name {name!r}; expected one of {names()}") from None
+        raise OptionError(
+            f"model: unknown name {name!r}; expected one of {names()} or the path of a model file (.py)"
+        ) from None
+
+
+def register(
+    name: str,
+    build: Callable[[], System],
+    *,
+    summary: str = "",
+    setup: Callable[[], SimulationSetup] | None = None,
+    reduction: Callable[[], ReducedModel] | None = None,
+    jacobian_parameters: Callable[[], Callable[..., Any]] | None = None,
+    replace: bool = False,
+) -> ModelEntry:
+    """Register a model under ``name`` (usable wherever a model name is, e.g. in a Scenario).
+
+    ``build()`` returns the :class:`~uiest.system.System`; ``setup()`` its default simulation.
+    Raises OptionError for a name already taken (unless ``replace``) or a ``build`` that is not callable.
+    """
+    if not isinstance(name, str) or not name or name.endswith(".py"):
+        raise OptionError(f"name: expected a non-empty model name (not a file name), got {name!r}")
+    if name in _REGISTRY and not replace:
+        raise OptionError(f"name: a model called {name!r} is registered already; pass replace=True to replace it")
+    if not callable(build):
+        raise OptionError(f"build: expected a function returning a System, got {build!r}")
+    for label, fun in (("setup", setup), ("reduction", reduction), ("jacobian_parameters", jacobian_parameters)):
+        if fun is not None and not callable(fun):
+            raise OptionError(f"{label}: expected a function or None, got {fun!r}")
+    entry = ModelEntry(name, summary, build, setup, reduction, jacobian_parameters)
+    _REGISTRY[name] = entry
+    return entry
+
+
+def load(spec: str | Path) -> ModelEntry:
+    """A registered model by name, or the model defined in a Python file (module docstring).
+
+    A file's model is named after the file (``reactor.py`` -> ``reactor``) and registered under
+    that name, so studies and sweeps run in this process find it.
+    """
+    text = str(spec)
+    if not text.endswith(".py"):
+        return get(text)
+    path = Path(text)
+    if not path.is_file():
+        raise OptionError(f"model: no model file at {path} (expected a .py file or a registered name {names()})")
+    module_name = f"uiest_user_model_{path.stem}"
+    module_spec = importlib.util.spec_from_file_location(module_name, path)
+    assert module_spec is not None and module_spec.loader is not None
+    module = importlib.util.module_from_spec(module_spec)
+    sys.modules[module_name] = module
+    try:
+        module_spec.loader.exec_module(module)
+    except Exception as exc:
+        raise ModelError(f"model: {path} raised {type(exc).__name__}: {exc}") from exc
+    if isinstance(getattr(module, "system", None), System):
+        system = module.system
+        build: Callable[[], System] = lambda: system  # noqa: E731
+    elif callable(getattr(module, "build", None)):
+        build = _checked_build(module.build, path)
+    else:
+        raise ModelError(f"model: {path} defines neither `system` (a uiest.System) nor `build()` returning one")
+    summary = (module.__doc__ or "").strip().splitlines()[0] if module.__doc__ else f"model file {path}"
+    return register(path.stem, build, summary=summary, setup=getattr(module, "setup", None),
+                    reduction=getattr(module, "reduction", None),
+                    jacobian_parameters=getattr(module, "jacobian_parameters", None), replace=True)  # fmt: skip
+
+
+def _checked_build(build: Callable[[], Any], path: Path) -> Callable[[], System]:
+    def checked() -> System:
+        system = build()
+        if not isinstance(system, System):
+            raise ModelError(f"model: build() in {path} returned {type(system).__name__}, expected a uiest.System")
+        return system
+
+    return checked

@@ -1,0 +1,160 @@
+"""Estimation on one's own measurements: what ``uiest estimate MODEL --data FILE`` runs.
+
+:func:`build_estimator` makes each estimator from the model alone, with a guarantee where the
+model certifies:
+
+- ``uise``: :meth:`UISE.design <uiest.estimators.UISE.design>` (certified mu and N <= ``horizon``,
+  default 30, chosen for accuracy); when the model does not certify, explicit weights
+  ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon`` (default 20), and the run says it has no
+  guarantee.
+- ``delayed``: the same for :class:`~uiest.estimators.DelayedUISE` (relative degree 2, ``lag >= 1``).
+- ``two-stage``: :meth:`TwoStageUISE.design <uiest.estimators.TwoStageUISE.design>` on the
+  model's reduction (a model without ``reduction()`` is refused), same fallback.
+- ``mhe``: the standard MHE with ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon`` (20).
+- ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else tuned on
+  a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
+- ``uio``: the linear UIO (linear models only).
+
+:func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, status, and
+``<state>_lag`` columns with a lag) and ``estimates.png`` (measured outputs beside each
+estimator's predicted output ``h(x_hat, 0)``, the state and unknown-input estimates, and the
+truth where the record has it).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from uiest.box import FloatArray
+from uiest.errors import CertificationError, ModelError, OptionError
+from uiest.models import ModelEntry
+from uiest.results import EstimationResult, Trajectory
+from uiest.system import System
+
+ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "ekf", "ukf", "uio")
+FALLBACK_RATE = 0.8
+"""Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
+DEFAULT_HORIZON = 20
+
+
+def default_prior(entry: ModelEntry, system: System) -> FloatArray:
+    """The prior of x[0]: the model's default initial state if it has one, else the centre of X (0 where unbounded)."""
+    if entry.setup is not None:
+        return np.asarray(entry.setup().x0, dtype=float)
+    center = system.x.bounds.center
+    return np.where(np.isfinite(center), center, 0.0)
+
+
+def build_estimator(
+    kind: str,
+    entry: ModelEntry,
+    system: System,
+    x0: FloatArray,
+    *,
+    lag: int = 0,
+    horizon: int | None = None,
+    w_variance: float | None = None,
+) -> tuple[Any, str]:
+    """The estimator ``kind`` (module docstring) and a note on how its weights were chosen."""
+    from uiest import estimators as est
+
+    if kind not in ESTIMATORS:
+        raise OptionError(f"--estimator: expected one of {list(ESTIMATORS)}, got {kind!r}")
+    N = DEFAULT_HORIZON if horizon is None else horizon
+    options: dict[str, Any] = {"lag": lag} if lag else {}
+    if kind in ("uise", "delayed", "two-stage"):
+        longest = 30 if horizon is None else horizon  # the designs' default max_horizon
+        design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
+        try:
+            if kind == "uise":
+                built = est.UISE.design(system, x0_prior=x0, **design_kw)
+            elif kind == "delayed":
+                built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
+            else:
+                built = est.TwoStageUISE.design(_reduction(entry), x0_prior=x0, **design_kw)
+            return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
+        except (CertificationError, ModelError) as exc:
+            if isinstance(exc, ModelError) and "matching" in str(exc) and kind != "delayed":
+                raise
+            note = f"not certified ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
+        if kind == "uise":
+            return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
+                            **options), note  # fmt: skip
+        if kind == "delayed":
+            delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 2),
+                                      x0_prior=x0, lag=max(lag, 1))  # fmt: skip
+            return delayed, note
+        reduced = _reduction(entry)
+        weights = est.TwoStageWeights.from_scales(reduced, FALLBACK_RATE)
+        return est.TwoStageUISE(reduced, weights=weights, N=N, x0_prior=x0, **options), note
+    if kind == "mhe":
+        weights = est.MHEWeights.from_scales(system, FALLBACK_RATE)
+        return est.StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options), (
+            f"explicit weights eta={FALLBACK_RATE}, N={N} (a baseline: the unknown input is penalised as a disturbance)"
+        )
+    if kind == "uio":
+        return est.LinearUIO(system, x0_prior=x0), "Chen-Patton-Zhang observer (DARE gain)"
+    cls = est.EKF if kind == "ekf" else est.UKF
+    if w_variance is not None:
+        return cls(system, w_variance=w_variance * system.w.scale**2, x0_prior=x0), (
+            f"random-walk variance {w_variance:g} w.scale^2 (given)"
+        )
+    if entry.setup is None:
+        raise OptionError(
+            f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
+        )
+    from uiest.simulate import simulate
+
+    setup = entry.setup()
+    training = simulate(system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=12345)
+    tuned = cls.tuned(system, training, x0_prior=x0)
+    assert tuned.tuning is not None
+    return tuned, f"random-walk variance {tuned.tuning.chosen:g} w.scale^2, tuned on a separate simulation (seed 12345)"
+
+
+def _reduction(entry: ModelEntry) -> Any:
+    if entry.reduction is None:
+        raise OptionError(f"--estimator two-stage: the model {entry.name!r} has no reduction() (T, psi)")
+    return entry.reduction()
+
+
+def _delayed_weights(system: System) -> Any:
+    from uiest.delay import delayed_system
+    from uiest.estimators import UISEWeights
+
+    return UISEWeights.from_scales(delayed_system(system).system, FALLBACK_RATE)
+
+
+def run_estimators(estimators: dict[str, Any], record: Trajectory, x0: FloatArray) -> dict[str, EstimationResult]:
+    """Each estimator's run on the record's u and y."""
+    u = record.u if record.u.shape[1] else None
+    return {label: estimator.run(u, record.y, x0_prior=x0) for label, estimator in estimators.items()}
+
+
+def write_estimates(out: Path, system: System, record: Trajectory, results: dict[str, EstimationResult]) -> list[Path]:
+    """``estimates_<label>.csv`` per estimator and ``estimates.png`` (module docstring); returns the paths."""
+    from uiest.plotting import plot_record, save_figure
+
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for label, result in results.items():
+        frame = result.to_pandas()
+        if result.x_lag is not None:
+            lagged = pd.DataFrame(result.x_lag, columns=[f"{n}_lag" for n in system.x.names], index=frame.index)
+            frame = pd.concat([frame, lagged], axis=1)
+        path = out / f"estimates_{label}.csv"
+        frame.to_csv(path)
+        written.append(path)
+    written.append(save_figure(plot_record(system, record, results), out / "estimates.png"))
+    return written
+
+
+def errors_against_truth(record: Trajectory, results: dict[str, EstimationResult]) -> dict[str, float]:
+    """State RMSE of each estimator where the record has true states (NaN otherwise)."""
+    if not record.has_states:
+        return {label: float("nan") for label in results}
+    return {label: float(np.sqrt(np.nanmean(r.error(record.x) ** 2))) for label, r in results.items()}

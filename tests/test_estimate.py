@@ -1,0 +1,78 @@
+"""Models of one's own (register, model files), measured records (from_pandas, CSV) and `uiest estimate`."""
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+from uiest import DataError, ModelError, OptionError, simulate
+from uiest.cli import app
+from uiest.models import get, load, names, register
+from uiest.models import linear as linear_models
+from uiest.results import Trajectory, read_record
+
+ROOT = Path(__file__).resolve().parents[1]
+REACTOR = ROOT / "examples" / "reactor.py"
+REACTOR_DATA = ROOT / "examples" / "data" / "reactor.csv"
+
+
+def test_model_files_and_registration(tmp_path):
+    entry = load(REACTOR)
+    assert entry.name == "reactor" and "reactor" in names() and get("reactor") is entry
+    system = entry.build()
+    assert system.nx == 2 and system.x.names == ("c_A", "T") and system.dt == 0.05
+    assert entry.simulation().steps == 400
+    register("my-linear", linear_models.example, summary="mine")
+    assert get("my-linear").build().nx == 3 and get("my-linear").setup is None
+    with pytest.raises(OptionError, match="has no default simulation"):
+        get("my-linear").simulation()
+    with pytest.raises(OptionError, match="registered already"):
+        register("my-linear", linear_models.example)
+    bad = tmp_path / "bad.py"
+    bad.write_text("x = 1\n")
+    with pytest.raises(ModelError, match="defines neither `system`"):
+        load(bad)
+    with pytest.raises(OptionError, match="no model file"):
+        load(tmp_path / "missing.py")
+    with pytest.raises(OptionError, match="unknown name 'nope'"):
+        load("nope")
+
+
+def test_measured_records_round_trip_and_refuse_what_is_missing(tmp_path):
+    entry = get("closed-form")
+    system, setup = entry.build(), entry.setup()
+    traj = simulate(system, setup.x0, 30, u=setup.u, w=setup.w, v=setup.noise, seed=2)
+    path = tmp_path / "record.csv"
+    traj.to_pandas().to_csv(path)
+    record = read_record(path, system)
+    np.testing.assert_array_equal(record.y, traj.y)
+    np.testing.assert_array_equal(record.x, traj.x)
+    measured = Trajectory.from_pandas(traj.to_pandas()[[*system.u.names, *system.y.names]], system)
+    assert not measured.has_states and np.all(np.isnan(measured.x)) and measured.t[1] == system.dt
+    frame = traj.to_pandas()
+    with pytest.raises(DataError, match=r"missing y columns"):
+        Trajectory.from_pandas(frame.drop(columns=[system.y.names[0]]), system)
+    frame.loc[3, system.u.names[0]] = np.nan
+    with pytest.raises(DataError, match="the known input u must be given at every k < K; row 3"):
+        Trajectory.from_pandas(frame, system)
+    with pytest.raises(DataError, match=r"expected a \.csv or \.parquet"):
+        (tmp_path / "record.txt").write_text("t\n0\n")
+        read_record(tmp_path / "record.txt", system)
+
+
+def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
+    # the README's third command, with a second estimator and the lag
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "uise",
+                                      "--estimator", "ekf", "--lag", "2", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    uise = pd.read_csv(out / "estimates_uise.csv")
+    truth = pd.read_csv(REACTOR_DATA)
+    assert len(uise) == len(truth) == 401 and {"c_A_hat", "T_hat", "fault_hat", "status", "c_A_lag"} <= set(uise)
+    assert np.sqrt(np.mean((uise["c_A_hat"] - truth["c_A"]) ** 2)) < 5e-3  # measured 8e-4
+    assert (out / "estimates_ekf.csv").is_file() and (out / "estimates.png").stat().st_size > 10_000
+    refused = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "kf",
+                                       "--out", str(out)])  # fmt: skip
+    assert refused.exit_code == 2 and "--estimator: expected one of" in refused.output
