@@ -55,8 +55,13 @@ def fault(k: int, x: np.ndarray) -> np.ndarray:
 
 def setup() -> SimulationSetup:
     """400 samples (20 time units) from the steady state, a stepped duty, +-2e-3 sensor noise."""
-    u = np.where((np.arange(400) // 100) % 2 == 0, 0.0, 0.2)[:, None]
-    return SimulationSetup(x0=np.array([0.6696, 1.0826]), steps=400, u=u, w=fault, noise=UniformNoise.symmetric(2e-3))
+    noise = UniformNoise.symmetric(2e-3)
+    return SimulationSetup(x0=np.array([0.6696, 1.0826]), steps=400, u=duty, w=fault, noise=noise)
+
+
+def duty(k: int, x: np.ndarray) -> np.ndarray:
+    """The known input: 0 and 0.2 in turn, every 100 samples."""
+    return np.array([0.0 if (k // 100) % 2 == 0 else 0.2])
 
 
 if __name__ == "__main__":  # writes examples/data/reactor.csv: the measurements (and, for checking, the truth)
