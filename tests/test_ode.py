@@ -81,6 +81,7 @@ def test_rk4_sampling_matches_solve_ivp_over_a_horizon():
     for k in range(100):
         u, w = np.array([0.2 * (k >= 50)]), np.array([-0.25 * np.sin(0.1 * k)])
         sampled = fine.step(sampled, u, w)
-        flow = solve_ivp(lambda t, z: module.rhs(z, u, w), (0.0, system.dt), reference, rtol=1e-12, atol=1e-14)
+        flow = solve_ivp(lambda t, z, u=u, w=w: module.rhs(z, u, w), (0.0, system.dt), reference, rtol=1e-12,
+                         atol=1e-14)  # fmt: skip
         reference = flow.y[:, -1]
         np.testing.assert_allclose(sampled, reference, rtol=1e-8)
