@@ -145,3 +145,16 @@ def test_a_state_leaving_x_is_counted_and_reported(tmp_path):
     write_report(study, tmp_path, wall_time=1.0)
     report = (tmp_path / "report.md").read_text()
     assert "The true state left X in 1 runs" in report and "held on the boundary of X" in report
+
+
+def test_runs_in_worker_processes_give_the_same_numbers():
+    scenario = tiny()
+    serial = run_study(scenario, solver="gn")
+    labels = []
+    parallel = run_study(scenario, solver="gn", workers=2, progress=labels.append)
+    assert len(labels) == 2 * 2 * 2
+    columns = ["case", "run", "estimator", "k", "x1_hat", "x2_hat", "w_hat", "status"]
+    pd.testing.assert_frame_equal(serial.steps[columns], parallel.steps[columns])
+    assert serial.runs[["case", "run", "estimator", "failures"]].equals(parallel.runs[["case", "run", "estimator",
+                                                                                       "failures"]])  # fmt: skip
+    assert set(parallel.results) == set(serial.results) and set(parallel.truths) == set(serial.truths)

@@ -286,6 +286,7 @@ def reproduce(
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
+    workers: Annotated[int | None, typer.Option(help="Processes running the runs (default: all cores).")] = None,
 ) -> None:
     """Reproduce the paper's crop-growth study: figures, Table 1, report.md (or run a scenario file)."""
     import time
@@ -298,6 +299,7 @@ def reproduce(
     _choice(solver, BACKENDS, "--solver")
     _positive(runs, "--runs")
     _positive(steps, "--steps")
+    _positive(workers, "--workers")
     if scenario is not None:
         setting = Scenario.from_toml(scenario)
     elif study == "crop-growth":
@@ -325,7 +327,10 @@ def reproduce(
     ) as bar:
         task = bar.add_task(f"{setting.name}", total=total)
         result = run_study(
-            setting, solver=solver, progress=lambda label: bar.update(task, advance=1, description=label)
+            setting,
+            solver=solver,
+            workers=workers,
+            progress=lambda label: bar.update(task, advance=1, description=label),
         )
     manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
     console.print((folder / "table1.md").read_text(), highlight=False, markup=False)

@@ -29,8 +29,23 @@ def _freeze(array: FloatArray, name: str) -> FloatArray:
     return out
 
 
+class _PicklableNames:
+    """Pickling for frozen records whose ``names`` is a read-only mapping (sent to worker processes)."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        state = dict(self.__dict__)
+        state["names"] = dict(state["names"])
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        for key, value in state.items():
+            if isinstance(value, np.ndarray):
+                value.setflags(write=False)
+            object.__setattr__(self, key, MappingProxyType(value) if key == "names" else value)
+
+
 @dataclass(frozen=True, eq=False)
-class Trajectory:
+class Trajectory(_PicklableNames):
     """A simulated trajectory of ``x[k+1] = f(x[k], u[k], w[k]), y[k] = h(x[k], v[k])``.
 
     Index convention: ``u[k]`` and ``w[k]`` act between ``k`` and ``k+1``; ``x[k]``, ``v[k]``,
@@ -222,7 +237,7 @@ class StepEstimate:
 
 
 @dataclass(frozen=True, eq=False)
-class EstimationResult:
+class EstimationResult(_PicklableNames):
     """A whole run of an estimator over ``u (K, nu)``, ``y (K+1, ny)``.
 
     Index convention: ``x_hat[k]`` estimates ``x[k]``; ``w_hat[k]`` estimates ``w[k]``, which

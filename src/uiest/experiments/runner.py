@@ -7,9 +7,13 @@ the study goes on.
 
 from __future__ import annotations
 
+import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -200,10 +204,14 @@ def run_study(
     *,
     solver: str = "ipopt",
     progress: Callable[[str], None] | None = None,
+    workers: int | None = 1,
 ) -> StudyResult:
-    """Simulate every (case, run) and run every estimator on it.
+    """Simulate every (case, run) and run every estimator on it, the runs spread over ``workers`` processes.
 
-    ``progress(label)`` is called after each estimator run (for progress bars).
+    ``workers``: 1 (default) runs in this process; None uses every core (``uiest reproduce`` does).
+    Seeds depend only on (case, run), so the numbers do not depend on the number of workers (the
+    timings do, through the load).
+    ``progress(label)`` is called for each estimator run as its (case, run) completes.
     """
     if solver not in BACKENDS:
         raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
@@ -222,41 +230,82 @@ def run_study(
     step_frames, run_rows = [], []
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
-    for case in scenario.cases:
-        for run in range(scenario.runs):
-            system, truth, prior = simulate_run(scenario, case, run)
-            truths[(case, run)] = truth
-            x0 = truth.x[0]
+    tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
+    for outcome in _outcomes(scenario, tasks, solver, workers):
+        truths[(outcome.case, outcome.run)] = outcome.truth
+        for name, result in outcome.results.items():
+            results[(outcome.case, outcome.run, name)] = result
+        step_frames.extend(outcome.frames)
+        run_rows.extend(outcome.rows)
+        if progress is not None:
             for spec in scenario.estimators:
-                start = time.perf_counter()
-                error = ""
-                try:
-                    estimator = BUILDERS[spec.kind](system, spec, prior, solver)
-                    result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
-                except Exception as exc:  # recorded, whatever it is; the study goes on
-                    error = f"{type(exc).__name__}: {exc}"
-                    result = None
-                wall = time.perf_counter() - start
-                if result is not None:
-                    results[(case, run, spec.name)] = result
-                    step_frames.append(_step_frame(case, run, spec.name, truth, result))
-                run_rows.append(
-                    {
-                        "case": case,
-                        "run": run,
-                        "estimator": spec.name,
-                        "x0": list(map(float, x0)),
-                        "wall_time_s": wall,
-                        "failures": result.failures if result is not None else -1,
-                        "x_outside": int(truth.x_outside.sum()),
-                        "on_boundary": -1 if result is None else int(result.on_boundary.sum()),
-                        "error": error,
-                    }
-                )
-                if progress is not None:
-                    progress(f"{case} run {run + 1}/{scenario.runs}: {spec.name}")
+                progress(f"{outcome.case} run {outcome.run + 1}/{scenario.runs}: {spec.name}")
+    run_rows.sort(key=lambda row: (scenario.cases.index(row["case"]), row["run"]))
+    step_frames.sort(key=lambda frame: (scenario.cases.index(frame["case"].iat[0]), int(frame["run"].iat[0])))
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
     return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, solver, tuple(certificates))
+
+
+@dataclass(frozen=True, eq=False)
+class RunOutcome:
+    """What one (case, run) of a study produces: the truth, each estimator's result, step frames and run rows."""
+
+    case: str
+    run: int
+    truth: Trajectory
+    results: dict[str, EstimationResult]
+    frames: list[pd.DataFrame]
+    rows: list[dict[str, Any]]
+
+
+def run_case(scenario: Scenario, case: str, run: int, solver: str) -> RunOutcome:
+    """Simulate run ``run`` of ``case`` and run every estimator on it (each one's exception recorded)."""
+    system, truth, prior = simulate_run(scenario, case, run)
+    results, frames, rows = {}, [], []
+    for spec in scenario.estimators:
+        start = time.perf_counter()
+        error = ""
+        try:
+            estimator = BUILDERS[spec.kind](system, spec, prior, solver)
+            result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+        except Exception as exc:  # recorded, whatever it is; the study goes on
+            error = f"{type(exc).__name__}: {exc}"
+            result = None
+        wall = time.perf_counter() - start
+        if result is not None:
+            results[spec.name] = result
+            frames.append(_step_frame(case, run, spec.name, truth, result))
+        rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
+                     "wall_time_s": wall, "failures": result.failures if result is not None else -1,
+                     "x_outside": int(truth.x_outside.sum()), "error": error,
+                     "on_boundary": -1 if result is None else int(result.on_boundary.sum())})  # fmt: skip
+    return RunOutcome(case, run, truth, results, frames, rows)
+
+
+def _outcomes(
+    scenario: Scenario, tasks: list[tuple[str, int]], solver: str, workers: int | None
+) -> Iterator[RunOutcome]:
+    """Each (case, run)'s outcome as it completes: in this process, or in a pool of ``workers`` processes.
+
+    A pool that breaks (a worker killed) is abandoned and the remaining runs go on in this process.
+    """
+    width = min(len(tasks), os.cpu_count() or 1) if workers is None else min(workers, len(tasks))
+    if width <= 1:
+        for case, run in tasks:
+            yield run_case(scenario, case, run, solver)
+        return
+    done: set[tuple[str, int]] = set()
+    try:
+        with ProcessPoolExecutor(max_workers=width, mp_context=get_context("spawn")) as pool:
+            futures = [pool.submit(run_case, scenario, case, run, solver) for case, run in tasks]
+            for future in as_completed(futures):
+                outcome = future.result()
+                done.add((outcome.case, outcome.run))
+                yield outcome
+    except BrokenProcessPool:
+        for case, run in tasks:
+            if (case, run) not in done:
+                yield run_case(scenario, case, run, solver)
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
