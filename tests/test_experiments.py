@@ -1,5 +1,6 @@
 """The study runner, metrics and report files on a tiny scenario."""
 
+import dataclasses
 import json
 import math
 
@@ -158,3 +159,13 @@ def test_runs_in_worker_processes_give_the_same_numbers():
     assert serial.runs[["case", "run", "estimator", "failures"]].equals(parallel.runs[["case", "run", "estimator",
                                                                                        "failures"]])  # fmt: skip
     assert set(parallel.results) == set(serial.results) and set(parallel.truths) == set(serial.truths)
+
+
+def test_studies_run_the_ekf_and_the_ukf_tuned_or_given():
+    specs = (EstimatorSpec("EKF (tuned)", "ekf"), EstimatorSpec("UKF", "ukf", w_variance=0.01))
+    scenario = dataclasses.replace(tiny(), runs=1, estimators=specs)
+    study = run_study(scenario, solver="gn")
+    assert study.runs["error"].eq("").all() and set(study.runs["estimator"]) == {"EKF (tuned)", "UKF"}
+    assert runner_module.tuned_variance("closed-form", "ekf") > 0
+    with pytest.raises(OptionError, match="w_variance"):
+        EstimatorSpec("EKF", "ekf", w_variance=-1.0)

@@ -107,13 +107,12 @@ def build_estimator(
         raise OptionError(
             f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
         )
-    from uiest.simulate import simulate
+    from uiest.experiments.runner import TUNING_SEED, tuned_variance
 
-    setup = entry.setup()
-    training = simulate(system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=12345)
-    tuned = cls.tuned(system, training, x0_prior=x0)
-    assert tuned.tuning is not None
-    return tuned, f"random-walk variance {tuned.tuning.chosen:g} w.scale^2, tuned on a separate simulation (seed 12345)"
+    factor = tuned_variance(entry.name, kind)
+    return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
+        f"random-walk variance {factor:g} w.scale^2, tuned on a separate simulation (seed {TUNING_SEED})"
+    )
 
 
 def _reduction(entry: ModelEntry) -> Any:

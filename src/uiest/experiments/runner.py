@@ -7,6 +7,7 @@ the study goes on.
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -100,7 +101,33 @@ def _two_stage(system: System, spec: EstimatorSpec, prior: FloatArray, solver: s
     return TwoStageUISE(reduced, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe, "two-stage": _two_stage}
+def _kalman(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    from uiest.kalman import EKF, UKF
+
+    cls = EKF if spec.kind == "ekf" else UKF
+    if spec.w_variance > 0:
+        return cls(system, w_variance=spec.w_variance * system.w.scale**2, x0_prior=prior)
+    return cls(system, w_variance=tuned_variance(system.name, spec.kind) * system.w.scale**2, x0_prior=prior)
+
+
+@functools.cache
+def tuned_variance(model: str, kind: str) -> float:
+    """The EKF/UKF random-walk factor tuned on a separate simulation of the model's default setup (per process)."""
+    from uiest.kalman import EKF, UKF
+
+    entry = models.get(model)
+    system, setup = entry.build(), entry.simulation()
+    training = simulate(system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=TUNING_SEED)
+    tuned = (EKF if kind == "ekf" else UKF).tuned(system, training, x0_prior=setup.x0)
+    assert tuned.tuning is not None
+    return tuned.tuning.chosen
+
+
+TUNING_SEED = 12345
+"""Seed of the separate simulation the EKF and UKF are tuned on (not a study run's seed)."""
+
+BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe, "two-stage": _two_stage,
+                                "ekf": _kalman, "ukf": _kalman}  # fmt: skip
 """Estimator factories by ``EstimatorSpec.kind``."""
 
 

@@ -18,7 +18,7 @@ import tomli_w
 from uiest.errors import OptionError
 from uiest.paths import writable_file
 
-ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "fie")
+ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "fie", "ekf", "ukf")
 CASES = ("noise-free", "noisy")
 WEIGHT_SOURCES = ("explicit", "certificate")
 
@@ -47,6 +47,9 @@ class EstimatorSpec:
         "certificate": weights from the model's certificate (strong detectability for the UISE
         and FIE, the reduced model's e-IOSS for the two-stage UISE, delta-IOSS for the standard
         MHE), computed once per study; the estimator then states whether its theorem applies.
+    w_variance : float
+        EKF and UKF: the random walk's step variance in units of ``w.scale^2``; 0 (default):
+        tuned on a separate simulation of the model's default setup (seed 12345).
 
     """
 
@@ -59,6 +62,7 @@ class EstimatorSpec:
     noise_weight: float = 1.0
     disturbance_weight: float = 1.0
     weights: str = "explicit"
+    w_variance: float = 0.0
 
     def __post_init__(self) -> None:
         if self.weights not in WEIGHT_SOURCES:
@@ -72,11 +76,11 @@ class EstimatorSpec:
             raise OptionError(f"estimators.name: expected a non-empty string, got {self.name!r}")
         if not _number(self.mu) or not 0.0 < self.mu < 1.0:
             raise OptionError(f"estimators.mu: expected a number in (0, 1), got {self.mu!r}")
-        for label in ("output_weight", "prior_weight", "noise_weight", "disturbance_weight"):
+        for label in ("output_weight", "prior_weight", "noise_weight", "disturbance_weight", "w_variance"):
             value = getattr(self, label)
             if not _number(value) or not (math.isfinite(value) and value >= 0.0):
                 raise OptionError(f"estimators.{label}: expected a finite number >= 0, got {value!r}")
-        for label in ("mu", "output_weight", "prior_weight", "noise_weight", "disturbance_weight"):
+        for label in ("mu", "output_weight", "prior_weight", "noise_weight", "disturbance_weight", "w_variance"):
             object.__setattr__(self, label, float(getattr(self, label)))  # 1000000 and 1e6 are one spec
 
 
