@@ -124,14 +124,18 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     return fig
 
 
-def _robust_limits(ax: plt.Axes, values: np.ndarray) -> None:
-    """Y limits from the 1st-99th percentiles widened by 20 % (a start-up transient does not set the scale)."""
+def robust_limits(ax: plt.Axes, values: np.ndarray) -> bool:
+    """Y limits from the 1st-99th percentiles widened by 20 % (a start-up transient does not set the scale).
+
+    Returns whether some of ``values`` fall outside the limits (clipped from view).
+    """
     finite = values[np.isfinite(values)]
     if finite.size < 10:
-        return
+        return False
     lo, hi = np.percentile(finite, [1, 99])
     pad = 0.2 * (hi - lo) if hi > lo else max(abs(hi), 1.0) * 0.1
     ax.set_ylim(lo - pad, hi + pad)
+    return bool(np.any((finite < lo - pad) | (finite > hi + pad)))
 
 
 def plot_record(system: Any, record: Trajectory, results: Mapping[str, EstimationResult]) -> Figure:
@@ -162,7 +166,7 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
                 values = (result.x_hat if kind == "x" else result.w_hat)[:, i]
             ax.plot(record.t[: len(values)], values, lw=1.0, color=f"C{j}", label=label)
             drawn.append(values)
-        _robust_limits(ax, np.concatenate(drawn))
+        robust_limits(ax, np.concatenate(drawn))
         ax.set_ylabel(_label(getattr(system, kind).names[i], units[kind][i]), fontsize=8)
         ax.tick_params(labelsize=7)
         ax.grid(alpha=0.3)
