@@ -169,3 +169,17 @@ def test_studies_run_the_ekf_and_the_ukf_tuned_or_given():
     assert runner_module.tuned_variance("closed-form", "ekf") > 0
     with pytest.raises(OptionError, match="w_variance"):
         EstimatorSpec("EKF", "ekf", w_variance=-1.0)
+
+
+def test_a_study_of_a_model_file():
+    from pathlib import Path
+
+    reactor = Path(__file__).resolve().parents[1] / "examples" / "reactor.py"
+    scenario = Scenario(name="reactor-study", model=str(reactor), steps=60, runs=1, x0_lower=(0.6, 1.0),
+                        x0_upper=(0.7, 1.1), prior=(0.65, 1.05), settle=20, focus_state=0,
+                        estimators=(EstimatorSpec("UISE", "uise", N=10, mu=0.8, output_weight=1.0),
+                                    EstimatorSpec("EKF", "ekf")))  # fmt: skip
+    study = run_study(scenario, solver="gn")
+    assert study.runs["error"].eq("").all() and study.runs["failures"].eq(0).all()
+    acc = accuracy(study)
+    assert acc[(acc.case == "noise-free") & (acc.state == "c_A")].rmse.max() < 0.01

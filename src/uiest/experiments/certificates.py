@@ -27,7 +27,7 @@ def certificate_for(model: str, kind: str, mu: float) -> Certificate:
     Certified at ``mu`` when ``mu`` is at least the smallest rate found, else at the
     certificate's default rate. Raises :class:`CertificationError` when it does not hold.
     """
-    entry = models.get(model)
+    entry = models.load(model)
     make: Callable[[float | None], Certificate]
     if kind in ("uise", "fie"):
         system = entry.build()

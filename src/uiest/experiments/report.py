@@ -65,7 +65,7 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     from uiest.plotting import robust_limits
 
     scenario = study.scenario
-    system = models.get(scenario.model).build()
+    system = models.load(scenario.model).build()
     names = state_names(study)
     focus, focus_unit = names[scenario.focus_state], system.x.units[scenario.focus_state]
     cases = list(scenario.cases)
@@ -232,7 +232,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
-    entry = models.get(scenario.model)
+    entry = models.load(scenario.model)
     noise = noise_model(scenario, entry.simulation().noise)
     if not isinstance(noise, UniformNoise):
         return pd.DataFrame()

@@ -207,7 +207,7 @@ def simulate_run(scenario: Scenario, case: str, run: int) -> tuple[System, Traje
     Seeds depend only on (scenario.seed, run): the noise of run r is the same in every case and
     every design point of a sweep (common random numbers).
     """
-    entry = models.get(scenario.model)
+    entry = models.load(scenario.model)
     system = entry.build()
     setup = entry.simulation()
     x0 = initial_state(scenario, setup.x0, run)
@@ -245,7 +245,7 @@ def run_study(
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
-    model = models.get(scenario.model).build()
+    model = models.load(scenario.model).build()
     scenario.check_model(model.nx, model.ny, model.x.bounds)
     certificates = []
     for spec in scenario.estimators:

@@ -125,7 +125,8 @@ class Scenario:
     name : str
         Name of the study (used in file names and titles).
     model : str
-        Registered model (``uiest.models.names()``); its default inputs, unknown-input law and
+        Registered model (``uiest.models.names()``) or the path of a model file (``.py``, see
+        :func:`uiest.models.load`); its default inputs, unknown-input law and
         noise model are used.
     steps : int
         Length K of each run.

@@ -197,7 +197,7 @@ def sweep(
     writable_folder(runs_dir, "out")
     for name in OUTPUT_FILES:
         writable_file(out / name, "out")
-    model = models.get(design.scenario.model).build()
+    model = models.load(design.scenario.model).build()
     design.scenario.check_model(model.nx, model.ny, model.x.bounds)
     stored, other = _stored(runs_dir, {task.key for task in tasks}, retry_failed)
     todo = [task for task in tasks if task.key not in stored]
@@ -297,7 +297,7 @@ def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Pat
 
     from uiest import models
 
-    names = models.get(scenario.model).build().x.names
+    names = models.load(scenario.model).build().x.names
     focus = f"rmse_{names[scenario.focus_state]}"
     for param in swept:
         if param in ("estimator", "solver") or not pd.api.types.is_numeric_dtype(summary[param]):

@@ -200,9 +200,14 @@ def load(spec: str | Path) -> ModelEntry:
     else:
         raise ModelError(f"model: {path} defines neither `system` (a uiest.System) nor `build()` returning one")
     summary = (module.__doc__ or "").strip().splitlines()[0] if module.__doc__ else f"model file {path}"
-    return register(path.stem, build, summary=summary, setup=getattr(module, "setup", None),
-                    reduction=getattr(module, "reduction", None),
-                    jacobian_parameters=getattr(module, "jacobian_parameters", None), replace=True)  # fmt: skip
+    keywords = {"summary": summary, "setup": getattr(module, "setup", None), "replace": True,
+                "reduction": getattr(module, "reduction", None),
+                "jacobian_parameters": getattr(module, "jacobian_parameters", None)}  # fmt: skip
+    entry = register(path.stem, build, **keywords)
+    system_name = build().name  # studies look a model up by its system's name too
+    if system_name != path.stem and system_name not in _REGISTRY:
+        register(system_name, build, **keywords)
+    return entry
 
 
 def _checked_build(build: Callable[[], Any], path: Path) -> Callable[[], System]:
