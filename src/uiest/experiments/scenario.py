@@ -342,5 +342,7 @@ def crop_growth_scenario() -> Scenario:
             EstimatorSpec("standard MHE", "standard-mhe"),
             EstimatorSpec("UISE (certified)", "uise", N=0, weights="certificate"),
             EstimatorSpec("two-stage UISE (certified)", "two-stage", weights="certificate"),
+            EstimatorSpec("EKF (tuned)", "ekf"),
+            EstimatorSpec("UKF (tuned)", "ukf"),
         ),
     )
