@@ -85,3 +85,43 @@ def test_rk4_sampling_matches_solve_ivp_over_a_horizon():
                          atol=1e-14)  # fmt: skip
         reference = flow.y[:, -1]
         np.testing.assert_allclose(sampled, reference, rtol=1e-8)
+
+
+def test_collocation_is_stable_on_a_stiff_model_where_rk4_is_not():
+    import scipy.linalg
+
+    A = np.array([[-1000.0, 0.0], [1.0, -1.0]])  # a fast mode at -1000 and a slow one at -1
+
+    def build(method):
+        return System.from_ode(lambda x, u, w: A @ x + np.array([[1.0], [0.0]]) @ w, lambda x, v: [x[1] + v[0]],
+                               nx=2, nw=1, nv=1, dt=0.1, method=method, x_bounds=(-10, 10))  # fmt: skip
+
+    exact = scipy.linalg.expm(A * 0.1)
+    x_rk4 = x_col = x_exact = np.array([1.0, 1.0])
+    rk4, collocation = build("rk4"), build("collocation")
+    for _ in range(20):
+        x_rk4, x_col, x_exact = rk4.step(x_rk4, None, [0.0]), collocation.step(x_col, None, [0.0]), exact @ x_exact
+    assert abs(x_rk4[0]) > 1e100  # RK4 at dt = 0.1 is far outside its stability region for -1000
+    np.testing.assert_allclose(x_col, x_exact, rtol=1e-3, atol=1e-12)
+    with pytest.raises(OptionError, match="method"):
+        build("euler")
+
+
+def test_collocation_matches_solve_ivp_on_the_nonlinear_reactor():
+    from scipy.integrate import solve_ivp
+
+    from uiest.models import load
+
+    entry = load(Path(__file__).resolve().parents[1] / "examples" / "reactor.py")
+    module = sys.modules["uiest_user_model_reactor"]
+    system = entry.build()
+    options = {"substeps": 4, "method": "collocation", "input_channel": "rk4", "x_bounds": system.x.bounds}
+    colloc = System.from_ode(module.rhs, lambda x, v: [x[1] + v[0]], nx=2, nu=1, nw=1, nv=1, dt=system.dt, **options)
+    x = reference = np.array([0.6696, 1.0826])
+    for k in range(40):
+        u, w = np.array([0.2 * (k >= 20)]), np.array([-0.25])
+        x = colloc.step(x, u, w)
+        flow = solve_ivp(lambda t, z, u=u, w=w: module.rhs(z, u, w), (0.0, system.dt), reference, rtol=1e-12,
+                         atol=1e-14)  # fmt: skip
+        reference = flow.y[:, -1]
+    np.testing.assert_allclose(x, reference, rtol=1e-6)

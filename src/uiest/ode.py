@@ -18,7 +18,13 @@ hold). Two ways to treat w:
 - ``input_channel="rk4"``: w is held inside the RK4 stages (the accurate zero-order-hold step);
   the input's direction then depends on the state, which the certificate reports as such.
 
-RK4 takes ``substeps`` equal steps per sample (at most ``MAX_SUBSTEPS``).
+The integrator (``method``) takes ``substeps`` equal steps per sample (at most ``MAX_SUBSTEPS``):
+
+- ``"rk4"``: the classical explicit Runge-Kutta method (order 4);
+- ``"collocation"``: Radau IIA collocation with two stages (order 3, L-stable: for stiff models,
+  where RK4 needs a step below ``2.8 / |fastest eigenvalue|``). Its implicit stage equations are
+  solved by ``NEWTON_ITERATIONS`` Newton iterations unrolled into the expression (so the step
+  stays a CasADi SX expression with exact derivatives); one iteration is exact for a linear model.
 """
 
 from __future__ import annotations
@@ -31,6 +37,11 @@ from uiest.checks import check_int
 from uiest.errors import ModelError, OptionError
 
 INPUT_CHANNELS = ("integral", "rk4")
+METHODS = ("rk4", "collocation")
+NEWTON_ITERATIONS = 4
+"""Newton iterations per collocation step, from the explicit Euler stages (quadratic convergence)."""
+RADAU_A = np.array([[5.0 / 12.0, -1.0 / 12.0], [3.0 / 4.0, 1.0 / 4.0]])
+RADAU_B = np.array([3.0 / 4.0, 1.0 / 4.0])
 MAX_SUBSTEPS = 1000
 """Most RK4 substeps per sample: the steps are unrolled into the model's expression graph."""
 
@@ -44,6 +55,24 @@ def rk4_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, 
         k3 = rhs(x + 0.5 * h * k2, u, w)
         k4 = rhs(x + h * k3, u, w)
         x = x + (h / 6.0) * (k1 + 2.0 * k2 + 2.0 * k3 + k4)
+    return x
+
+
+def radau_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, substeps: int) -> ca.SX:
+    """``substeps`` two-stage Radau IIA steps of ``dx/dt = rhs(x, u, w)`` over ``dt`` (module docstring)."""
+    h, n = dt / substeps, x.numel()
+    stages = RADAU_A.shape[0]
+    k = ca.SX.sym("k", n * stages)
+    x0 = ca.SX.sym("x0", n)
+    points = [x0 + h * sum(RADAU_A[i, j] * k[j * n : (j + 1) * n] for j in range(stages)) for i in range(stages)]
+    residual = k - ca.vertcat(*[rhs(p, u, w) for p in points])
+    newton = ca.Function("newton", [k, x0, u] + ([w] if isinstance(w, ca.SX) else []),
+                         [k - ca.solve(ca.jacobian(residual, k), residual)])  # fmt: skip
+    for _ in range(substeps):
+        guess = ca.repmat(rhs(x, u, w), stages, 1)
+        for _ in range(NEWTON_ITERATIONS):
+            guess = newton(guess, x, u, *([w] if isinstance(w, ca.SX) else []))
+        x = x + h * sum(RADAU_B[j] * guess[j * n : (j + 1) * n] for j in range(stages))
     return x
 
 
@@ -61,6 +90,7 @@ def discretise(
     dt: float,
     substeps: int = 1,
     input_channel: str | None = None,
+    method: str = "rk4",
     x_ref: np.ndarray,
     u_ref: np.ndarray,
     w_ref: np.ndarray,
@@ -73,6 +103,9 @@ def discretise(
     if not (np.isfinite(dt) and dt > 0):
         raise ModelError(f"dt: expected a positive finite sampling time, got {dt!r}")
     substeps = check_int(substeps, "substeps", low=1, high=MAX_SUBSTEPS)
+    if method not in METHODS:
+        raise OptionError(f"method: expected one of {METHODS}, got {method!r}")
+    step = rk4_step if method == "rk4" else radau_step
     if input_channel is not None and input_channel not in INPUT_CHANNELS:
         raise OptionError(f"input_channel: expected one of {INPUT_CHANNELS} or None, got {input_channel!r}")
     nx, nu, nw = (rhs.numel_in(i) for i in range(3))
@@ -81,7 +114,7 @@ def discretise(
     constant = not any(ca.depends_on(G_expr, s) for s in (x, u, w) if s.numel())
     channel = input_channel or ("integral" if constant else "rk4")
     if channel == "rk4":
-        x_next = rk4_step(rhs, x, u, w, dt, int(substeps))
+        x_next = step(rhs, x, u, w, dt, int(substeps))
     else:
         if not constant:
             raise ModelError(
@@ -94,5 +127,5 @@ def discretise(
         )
         Gamma = input_integral(A_ref, G, dt)
         w0 = ca.DM(np.asarray(w_ref, dtype=float))
-        x_next = rk4_step(rhs, x, u, w0, dt, int(substeps)) + ca.mtimes(ca.DM(Gamma), w - w0)
+        x_next = step(rhs, x, u, w0, dt, int(substeps)) + ca.mtimes(ca.DM(Gamma), w - w0)
     return ca.Function("f", [x, u, w], [x_next], ["x", "u", "w"], ["x_next"]), channel

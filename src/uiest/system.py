@@ -350,13 +350,15 @@ class System:
         dt: float,
         substeps: int = 1,
         input_channel: str | None = None,
+        method: str = "rk4",
         **spec: Any,
     ) -> System:
         """Sample the continuous-time model ``dx/dt = rhs(x, u, w)``, ``y = h(x, v)`` every ``dt``.
 
         ``rhs`` and ``h`` are callables (traced as in :meth:`from_callables`) or CasADi Functions.
-        u and w are held over each sample. The drift is integrated by RK4 (``substeps`` steps
-        per sample); where rhs is affine in w with a constant matrix G, the unknown input enters
+        u and w are held over each sample. The drift is integrated by RK4 (``method="rk4"``) or,
+        for stiff models, by Radau IIA collocation (``method="collocation"``), ``substeps`` steps
+        per sample; where rhs is affine in w with a constant matrix G, the unknown input enters
         through its per-sample integral ``Gamma (w - w0)`` (constant direction, linearised at
         the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
         :mod:`uiest.ode` for the discretisation error. Further keywords as in :meth:`from_functions`.
@@ -373,6 +375,7 @@ class System:
             dt=dt,
             substeps=substeps,
             input_channel=input_channel,
+            method=method,
             x_ref=Box.coerce(spec.get("x_bounds"), nx, "x_bounds").center,
             u_ref=Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center,
             w_ref=np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center,
