@@ -36,6 +36,13 @@ def test_model_files_and_registration(tmp_path):
         load(bad)
     with pytest.raises(OptionError, match="no model file"):
         load(tmp_path / "missing.py")
+    raising = tmp_path / "raising.py"
+    raising.write_text("def build():\n    raise ValueError('no')\n\ndef setup():\n    return {}\n")
+    entry = load(raising)
+    with pytest.raises(ModelError, match=r"build\(\) in .*raising.py raised ValueError: no"):
+        entry.build()
+    with pytest.raises(ModelError, match=r"setup\(\) in .*raising.py returned dict"):
+        entry.simulation()
     with pytest.raises(OptionError, match="unknown name 'nope'"):
         load("nope")
 
@@ -57,6 +64,10 @@ def test_measured_records_round_trip_and_refuse_what_is_missing(tmp_path):
     frame.loc[3, system.u.names[0]] = np.nan
     with pytest.raises(DataError, match="the known input u must be given at every k < K; row 3"):
         Trajectory.from_pandas(frame, system)
+    shifted = traj.to_pandas()
+    shifted["t"] = shifted["t"] * 2.0
+    with pytest.raises(DataError, match="spaced by the model's dt"):
+        Trajectory.from_pandas(shifted, system)
     with pytest.raises(DataError, match=r"expected a \.csv or \.parquet"):
         (tmp_path / "record.txt").write_text("t\n0\n")
         read_record(tmp_path / "record.txt", system)

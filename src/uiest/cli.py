@@ -135,7 +135,9 @@ def estimate(
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
     lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
-    horizon: Annotated[int | None, typer.Option(help="N when the model does not certify (default 20).")] = None,
+    horizon: Annotated[
+        int | None, typer.Option(help="Largest N of a design (default 30); N when the model does not certify (20).")
+    ] = None,
     w_variance: Annotated[
         float | None, typer.Option(help="EKF/UKF random-walk variance, times w's scale^2 (default: tuned).")
     ] = None,

@@ -142,6 +142,7 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
     written = []
     for label, result in results.items():
         frame = result.to_pandas()
+        frame["t"] = record.t  # the data's own times
         if result.x_lag is not None:
             lagged = pd.DataFrame(result.x_lag, columns=[f"{n}_lag" for n in system.x.names], index=frame.index)
             frame = pd.concat([frame, lagged], axis=1)

@@ -130,7 +130,7 @@ class KalmanFilter(StreamingEstimator):
 
     @property
     def covariance(self) -> FloatArray | None:
-        """The posterior covariance of ``(x[k-1], d[k-1])`` after the last step (None before the first)."""
+        """The posterior covariance of ``(x[k], d[k])`` after step k (None before the first)."""
         return self._P
 
     # ------------------------------------------------------------------ the filter
@@ -162,17 +162,20 @@ class KalmanFilter(StreamingEstimator):
             z, P = self._predict(self._z, self._P, u_vec)
         observed = ~np.isnan(y_vec)
         status = "updated"
-        try:
-            if observed.any():
-                z, P = self._update(z, P, y_vec, observed)
-            else:
-                status = "predicted (no data)"
-            if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
-                raise np.linalg.LinAlgError("the estimate is not finite")
-        except np.linalg.LinAlgError as exc:
+        if not observed.any():
+            status = "predicted (no data)"
+        else:
+            try:
+                z_new, P_new = self._update(z, P, y_vec, observed)
+                if not (np.all(np.isfinite(z_new)) and np.all(np.isfinite(P_new))):
+                    raise np.linalg.LinAlgError("the update is not finite")
+                z, P = z_new, P_new
+            except np.linalg.LinAlgError as exc:  # keep the prediction, as for a missing measurement
+                status = f"predicted (update failed: {exc})"
+        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
             if self._z is None:
-                raise DataError(f"step k={k}: the first update failed ({exc})") from exc
-            z, P, status = self._z, self._P, f"held ({exc})"
+                raise DataError(f"step k={k}: the prior gives no finite estimate")
+            z, P, status = self._z, self._P, "held (the prediction is not finite)"
         self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
         return StepEstimate(
             k=k,
@@ -180,7 +183,7 @@ class KalmanFilter(StreamingEstimator):
             w_hat=z[s.nx :].copy() if k > 0 else None,
             w_index=k - 1 if k > 0 else None,
             status=status,
-            success=not status.startswith("held"),
+            success=status == "updated" or status == "predicted (no data)",
             iterations=0,
             solve_time=time.perf_counter() - start,
             cost=0.0,

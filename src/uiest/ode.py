@@ -23,8 +23,9 @@ The integrator (``method``) takes ``substeps`` equal steps per sample (at most `
 - ``"rk4"``: the classical explicit Runge-Kutta method (order 4);
 - ``"collocation"``: Radau IIA collocation with two stages (order 3, L-stable: for stiff models,
   where RK4 needs a step below ``2.8 / |fastest eigenvalue|``). Its implicit stage equations are
-  solved by ``NEWTON_ITERATIONS`` Newton iterations unrolled into the expression (so the step
-  stays a CasADi SX expression with exact derivatives); one iteration is exact for a linear model.
+  solved by ``NEWTON_ITERATIONS`` Newton iterations from zero stage derivatives, unrolled into the
+  expression (so the step stays a CasADi SX expression with exact derivatives); one iteration is
+  exact for a linear model, and a stiff nonlinear model needs substeps small enough to converge.
 """
 
 from __future__ import annotations
@@ -38,8 +39,10 @@ from uiest.errors import ModelError, OptionError
 
 INPUT_CHANNELS = ("integral", "rk4")
 METHODS = ("rk4", "collocation")
-NEWTON_ITERATIONS = 4
-"""Newton iterations per collocation step, from the explicit Euler stages (quadratic convergence)."""
+NEWTON_ITERATIONS = 6
+"""Newton iterations per collocation step, from zero stage derivatives (the stage points at x): exact
+for a linear model after one; for a stiff nonlinear model the step must be small enough that six
+converge (the residual is not checked inside the expression)."""
 RADAU_A = np.array([[5.0 / 12.0, -1.0 / 12.0], [3.0 / 4.0, 1.0 / 4.0]])
 RADAU_B = np.array([3.0 / 4.0, 1.0 / 4.0])
 MAX_SUBSTEPS = 1000
@@ -69,7 +72,7 @@ def radau_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float
     newton = ca.Function("newton", [k, x0, u] + ([w] if isinstance(w, ca.SX) else []),
                          [k - ca.solve(ca.jacobian(residual, k), residual)])  # fmt: skip
     for _ in range(substeps):
-        guess = ca.repmat(rhs(x, u, w), stages, 1)
+        guess = ca.SX.zeros(n * stages)
         for _ in range(NEWTON_ITERATIONS):
             guess = newton(guess, x, u, *([w] if isinstance(w, ca.SX) else []))
         x = x + h * sum(RADAU_B[j] * guess[j * n : (j + 1) * n] for j in range(stages))

@@ -144,11 +144,16 @@ class Trajectory(_PicklableNames):
         if not np.all(np.isfinite(arrays["u"])):
             bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
             raise DataError(f"frame: the known input u must be given at every k < K; row {bad} has {arrays['u'][bad]}")
-        t = (
-            real_array(frame["t"].to_numpy(), "frame[t]", "times")
-            if "t" in frame.columns
-            else np.arange(rows) * system.dt
-        )
+        has_t = "t" in frame.columns
+        t = real_array(frame["t"].to_numpy(), "frame[t]", "times") if has_t else np.arange(rows) * system.dt
+        if has_t and rows > 1:
+            steps = np.diff(t)
+            if not (np.all(np.isfinite(t)) and np.allclose(steps, system.dt, rtol=1e-6, atol=1e-9 * abs(system.dt))):
+                raise DataError(
+                    f"frame[t]: expected finite times spaced by the model's dt = {system.dt}, got steps from "
+                    f"{np.nanmin(steps):.6g} to {np.nanmax(steps):.6g} (resample the data, or build the model with "
+                    "its sampling time)"
+                )
         names = {sig.kind: sig.names for sig in system.signals}
         return cls(t=t, names=names, system_name=system.name, time_unit=system.time_unit, **arrays)
 
@@ -387,5 +392,7 @@ def read_record(path: Any, system: Any) -> Trajectory:
     except Exception as exc:  # a damaged file: name it
         raise DataError(f"data: could not read {file} ({type(exc).__name__}: {exc})") from exc
     if "k" in frame.columns:
-        frame = frame.set_index("k")
+        frame = frame.set_index("k").sort_index()
+        if not np.array_equal(frame.index.to_numpy(), np.arange(len(frame))):
+            raise DataError(f"data: the k column must be 0, 1, ..., K without gaps or repeats ({file})")
     return Trajectory.from_pandas(frame, system)

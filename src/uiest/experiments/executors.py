@@ -52,7 +52,7 @@ def serial(tasks: list[Task], run: Callable[[Task], pd.DataFrame]) -> Iterator[O
 
 
 @contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
+def single_threaded_children() -> Iterator[None]:
     """One BLAS/OpenMP thread in spawned worker processes (they inherit the environment at spawn)."""
     names = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
     previous = {name: os.environ.get(name) for name in names}
@@ -79,12 +79,13 @@ def _exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
-def _pool(width: int) -> ProcessPoolExecutor:
+def spawn_pool(width: int) -> ProcessPoolExecutor:
+    """A pool of ``width`` spawned processes that end themselves when this process is gone."""
     return ProcessPoolExecutor(max_workers=width, mp_context=get_context("spawn"), initializer=_exit_with_parent,
                                initargs=(os.getpid(),))  # fmt: skip
 
 
-def _stop(pool: ProcessPoolExecutor, *, abandon: bool) -> None:
+def stop_pool(pool: ProcessPoolExecutor, *, abandon: bool) -> None:
     """Shut ``pool`` down; ``abandon``: cancel what has not started and end the running workers now."""
     if not abandon:
         pool.shutdown(wait=True)
@@ -100,7 +101,7 @@ def processes(tasks: list[Task], run: Callable[[Task], pd.DataFrame], workers: i
     """Tasks in a pool of spawned processes (see the module docstring for crashes and interruptions)."""
     width = workers or os.cpu_count() or 1
     pending, suspects = deque(tasks), deque[Task]()
-    with _single_threaded_children():
+    with single_threaded_children():
         while pending or suspects:
             if pending:
                 yield from _until_broken(pending, suspects, run, width)
@@ -112,7 +113,7 @@ def _until_broken(
     pending: deque[Task], suspects: deque[Task], run: Callable[[Task], pd.DataFrame], width: int
 ) -> Iterator[Outcome]:
     """Run ``pending`` in one pool until it is done or a worker dies (the running tasks go to ``suspects``)."""
-    pool = _pool(width)
+    pool = spawn_pool(width)
     in_flight: dict[Future[pd.DataFrame], Task] = {}
     finished = False
     try:
@@ -142,12 +143,12 @@ def _until_broken(
         in_flight.clear()
         finished = True
     finally:
-        _stop(pool, abandon=not finished)
+        stop_pool(pool, abandon=not finished)
 
 
 def _alone(task: Task, run: Callable[[Task], pd.DataFrame]) -> Iterator[Outcome]:
     """Run a suspect in a fresh single-worker pool: a death now is the task's own."""
-    pool = _pool(1)
+    pool = spawn_pool(1)
     finished = False
     try:
         try:
@@ -158,7 +159,7 @@ def _alone(task: Task, run: Callable[[Task], pd.DataFrame]) -> Iterator[Outcome]
             outcome = (task, None, f"{type(exc).__name__}: {exc}")
         finished = True
     finally:
-        _stop(pool, abandon=not finished)
+        stop_pool(pool, abandon=not finished)
     yield outcome
 
 

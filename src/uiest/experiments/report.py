@@ -76,20 +76,18 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
         truth = study.truths[(case, run)]
         hours = truth.time_unit == "s"
         t = truth.t / 3600.0 if hours else truth.t
-        spread = col > 0 and scenario.runs > 2
+        spread = case != "noise-free" and scenario.runs > 2
         if not spread:
             axes1[0, col].plot(t, truth.x[:, scenario.focus_state], color="k", lw=1.6, label="true")
         for j, spec in enumerate(scenario.estimators):
             if spread:
-                errors = [study.results[(case, r, spec.name)] for r in range(scenario.runs)
-                          if (case, r, spec.name) in study.results]  # fmt: skip
-                if not errors:
+                pairs = [(r, study.results[(case, r, spec.name)]) for r in range(scenario.runs)
+                         if (case, r, spec.name) in study.results]  # fmt: skip
+                if not pairs:
                     continue
                 focus_err = np.array([np.abs(study.truths[(case, r)].x[:, scenario.focus_state]
-                                             - res.x_hat[:, scenario.focus_state])
-                                      for r, res in zip(range(scenario.runs), errors, strict=False)])  # fmt: skip
-                norms = np.array([np.linalg.norm(study.truths[(case, r)].x - res.x_hat, axis=1)
-                                  for r, res in zip(range(scenario.runs), errors, strict=False)])  # fmt: skip
+                                             - res.x_hat[:, scenario.focus_state]) for r, res in pairs])  # fmt: skip
+                norms = np.array([np.linalg.norm(study.truths[(case, r)].x - res.x_hat, axis=1) for r, res in pairs])
                 for axes, data in ((axes1, focus_err), (axes2, norms)):
                     lo, mid, hi = np.percentile(np.maximum(data, 1e-16), [10, 50, 90], axis=0)
                     axes[0, col].semilogy(t, mid, lw=1.1, color=f"C{j}", label=f"{spec.name} (median)")

@@ -7,14 +7,14 @@ the study goes on.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import os
 import time
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
-from multiprocessing import get_context
 from typing import Any
 
 import numpy as np
@@ -33,6 +33,7 @@ from uiest.estimators import (
     TwoStageWeights,
     UISEWeights,
 )
+from uiest.experiments import executors
 from uiest.experiments.certificates import certificate_for, summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
@@ -41,19 +42,20 @@ from uiest.simulate import simulate
 from uiest.system import System
 from uiest.window.solvers import BACKENDS
 
-Builder = Callable[[System, EstimatorSpec, FloatArray, str], object]
+Builder = Callable[[str, System, EstimatorSpec, FloatArray, str], object]
+"""``(model, system, spec, prior, solver) -> estimator``; ``model`` is the scenario's model (a name or a file)."""
 
 STUDY_MAX_STEPS = 10_000_000
 """A study's FIE runs as long as the scenario says: its length is the author's choice, not an accident."""
 
 
-def _certificate(system: System, spec: EstimatorSpec) -> Any:
+def _certificate(model: str, spec: EstimatorSpec) -> Any:
     """The certificate of a spec with ``weights = "certificate"`` (cached per process), else None."""
-    return certificate_for(system.name, spec.kind, spec.mu) if spec.weights == "certificate" else None
+    return certificate_for(model, spec.kind, spec.mu) if spec.weights == "certificate" else None
 
 
-def _uise(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(system, spec)
+def _uise(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(model, spec)
     if certificate is not None:
         return UISE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = UISEWeights.from_scales(
@@ -62,8 +64,8 @@ def _uise(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -
     return UISE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _fie(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(system, spec)
+def _fie(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(model, spec)
     if certificate is not None:
         return FIE(system, certificate=certificate, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
     weights = UISEWeights.from_scales(
@@ -72,8 +74,8 @@ def _fie(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) ->
     return FIE(system, weights=weights, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
 
 
-def _standard_mhe(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(system, spec)
+def _standard_mhe(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate = _certificate(model, spec)
     if certificate is not None:
         return StandardMHE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = MHEWeights.from_scales(
@@ -87,12 +89,12 @@ def _standard_mhe(system: System, spec: EstimatorSpec, prior: FloatArray, solver
     return StandardMHE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _two_stage(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    entry = models.get(system.name)
+def _two_stage(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    entry = models.load(model)
     if entry.reduction is None:
-        raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {system.name!r} registers none")
+        raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {model!r} registers none")
     reduced = entry.reduction()
-    certificate = _certificate(system, spec)
+    certificate = _certificate(model, spec)
     if certificate is not None:
         return TwoStageUISE(reduced, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = TwoStageWeights.from_scales(
@@ -101,13 +103,13 @@ def _two_stage(system: System, spec: EstimatorSpec, prior: FloatArray, solver: s
     return TwoStageUISE(reduced, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _kalman(system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _kalman(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
     from uiest.kalman import EKF, UKF
 
     cls = EKF if spec.kind == "ekf" else UKF
     if spec.w_variance > 0:
         return cls(system, w_variance=spec.w_variance * system.w.scale**2, x0_prior=prior)
-    return cls(system, w_variance=tuned_variance(system.name, spec.kind) * system.w.scale**2, x0_prior=prior)
+    return cls(system, w_variance=tuned_variance(model, spec.kind) * system.w.scale**2, x0_prior=prior)
 
 
 @functools.cache
@@ -115,7 +117,7 @@ def tuned_variance(model: str, kind: str) -> float:
     """The EKF/UKF random-walk factor tuned on a separate simulation of the model's default setup (per process)."""
     from uiest.kalman import EKF, UKF
 
-    entry = models.get(model)
+    entry = models.load(model)
     system, setup = entry.build(), entry.simulation()
     training = simulate(system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=TUNING_SEED)
     tuned = (EKF if kind == "ekf" else UKF).tuned(system, training, x0_prior=setup.x0)
@@ -258,15 +260,16 @@ def run_study(
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    for outcome in _outcomes(scenario, tasks, solver, workers):
-        truths[(outcome.case, outcome.run)] = outcome.truth
-        for name, result in outcome.results.items():
-            results[(outcome.case, outcome.run, name)] = result
-        step_frames.extend(outcome.frames)
-        run_rows.extend(outcome.rows)
-        if progress is not None:
-            for spec in scenario.estimators:
-                progress(f"{outcome.case} run {outcome.run + 1}/{scenario.runs}: {spec.name}")
+    with contextlib.closing(_outcomes(scenario, tasks, solver, workers)) as outcomes:
+        for outcome in outcomes:
+            truths[(outcome.case, outcome.run)] = outcome.truth
+            for name, result in outcome.results.items():
+                results[(outcome.case, outcome.run, name)] = result
+            step_frames.extend(outcome.frames)
+            run_rows.extend(outcome.rows)
+            if progress is not None:
+                for spec in scenario.estimators:
+                    progress(f"{outcome.case} run {outcome.run + 1}/{scenario.runs}: {spec.name}")
     run_rows.sort(key=lambda row: (scenario.cases.index(row["case"]), row["run"]))
     step_frames.sort(key=lambda frame: (scenario.cases.index(frame["case"].iat[0]), int(frame["run"].iat[0])))
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
@@ -293,7 +296,7 @@ def run_case(scenario: Scenario, case: str, run: int, solver: str) -> RunOutcome
         start = time.perf_counter()
         error = ""
         try:
-            estimator = BUILDERS[spec.kind](system, spec, prior, solver)
+            estimator = BUILDERS[spec.kind](scenario.model, system, spec, prior, solver)
             result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
         except Exception as exc:  # recorded, whatever it is; the study goes on
             error = f"{type(exc).__name__}: {exc}"
@@ -314,22 +317,31 @@ def _outcomes(
 ) -> Iterator[RunOutcome]:
     """Each (case, run)'s outcome as it completes: in this process, or in a pool of ``workers`` processes.
 
-    A pool that breaks (a worker killed) is abandoned and the remaining runs go on in this process.
+    Spawned workers know the built-in models and model files; a model registered at run time in
+    this process runs here. The pool is shut down when the generator ends or is closed; a pool
+    that breaks (a worker killed) is abandoned and the remaining runs go on in this process.
     """
     width = min(len(tasks), os.cpu_count() or 1) if workers is None else min(workers, len(tasks))
-    if width <= 1:
+    if width <= 1 or not models.loadable_elsewhere(scenario.model):
         for case, run in tasks:
             yield run_case(scenario, case, run, solver)
         return
     done: set[tuple[str, int]] = set()
+    with executors.single_threaded_children():
+        pool = executors.spawn_pool(width)
+    broken = finished = False
     try:
-        with ProcessPoolExecutor(max_workers=width, mp_context=get_context("spawn")) as pool:
-            futures = [pool.submit(run_case, scenario, case, run, solver) for case, run in tasks]
-            for future in as_completed(futures):
-                outcome = future.result()
-                done.add((outcome.case, outcome.run))
-                yield outcome
+        futures = [pool.submit(run_case, scenario, case, run, solver) for case, run in tasks]
+        for future in as_completed(futures):
+            outcome = future.result()
+            done.add((outcome.case, outcome.run))
+            yield outcome
+        finished = True
     except BrokenProcessPool:
+        broken = True
+    finally:  # also when the consumer stops early: the workers end now
+        executors.stop_pool(pool, abandon=not finished)
+    if broken:
         for case, run in tasks:
             if (case, run) not in done:
                 yield run_case(scenario, case, run, solver)

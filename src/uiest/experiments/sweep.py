@@ -71,7 +71,7 @@ def run_task(task: Task) -> pd.DataFrame:
     for spec in scenario.estimators:
         row: dict[str, Any] = {**base, "estimator": spec.name, "error": ""}
         try:
-            estimator = BUILDERS[spec.kind](system, spec, prior, task.solver)
+            estimator = BUILDERS[spec.kind](scenario.model, system, spec, prior, task.solver)
             result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
         except Exception as exc:  # recorded, whatever it is; the sweep goes on
             row["error"] = f"{type(exc).__name__}: {exc}"

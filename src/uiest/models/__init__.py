@@ -142,6 +142,15 @@ def get(name: str) -> ModelEntry:
         ) from None
 
 
+BUILT_IN = frozenset(_REGISTRY)
+"""The models every process knows (a spawned worker too)."""
+
+
+def loadable_elsewhere(spec: str | Path) -> bool:
+    """Whether another process can load ``spec``: a built-in name or a model file (not a run-time registration)."""
+    return str(spec).endswith(".py") or str(spec) in BUILT_IN
+
+
 def register(
     name: str,
     build: Callable[[], System],
@@ -200,21 +209,49 @@ def load(spec: str | Path) -> ModelEntry:
     else:
         raise ModelError(f"model: {path} defines neither `system` (a uiest.System) nor `build()` returning one")
     summary = (module.__doc__ or "").strip().splitlines()[0] if module.__doc__ else f"model file {path}"
-    keywords = {"summary": summary, "setup": getattr(module, "setup", None), "replace": True,
-                "reduction": getattr(module, "reduction", None),
-                "jacobian_parameters": getattr(module, "jacobian_parameters", None)}  # fmt: skip
-    entry = register(path.stem, build, **keywords)
-    system_name = build().name  # studies look a model up by its system's name too
-    if system_name != path.stem and system_name not in _REGISTRY:
-        register(system_name, build, **keywords)
-    return entry
+    keywords = {"summary": summary, "setup": _checked_setup(getattr(module, "setup", None), path), "replace": True,
+                "reduction": _checked_call(getattr(module, "reduction", None), "reduction()", path),
+                "jacobian_parameters": _checked_call(getattr(module, "jacobian_parameters", None),
+                                                     "jacobian_parameters()", path)}  # fmt: skip
+    return register(path.stem, build, **keywords)
 
 
 def _checked_build(build: Callable[[], Any], path: Path) -> Callable[[], System]:
     def checked() -> System:
-        system = build()
+        system = _user_call(build, "build()", path)
         if not isinstance(system, System):
             raise ModelError(f"model: build() in {path} returned {type(system).__name__}, expected a uiest.System")
         return system
 
     return checked
+
+
+def _user_call(fun: Callable[[], Any], label: str, path: Path) -> Any:
+    """Call a model file's function; its exception (other than uiest's typed ones) becomes a ModelError naming it."""
+    from uiest.errors import UiestError
+
+    try:
+        return fun()
+    except UiestError:
+        raise
+    except Exception as exc:
+        raise ModelError(f"model: {label} in {path} raised {type(exc).__name__}: {exc}") from exc
+
+
+def _checked_setup(setup: Callable[[], Any] | None, path: Path) -> Callable[[], SimulationSetup] | None:
+    if setup is None:
+        return None
+
+    def checked() -> SimulationSetup:
+        value = _user_call(setup, "setup()", path)
+        if not isinstance(value, SimulationSetup):
+            raise ModelError(
+                f"model: setup() in {path} returned {type(value).__name__}, expected uiest.models.SimulationSetup"
+            )
+        return value
+
+    return checked
+
+
+def _checked_call(fun: Callable[[], Any] | None, label: str, path: Path) -> Callable[[], Any] | None:
+    return None if fun is None else (lambda: _user_call(fun, label, path))
