@@ -87,3 +87,16 @@ def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
     refused = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "kf",
                                        "--out", str(out)])  # fmt: skip
     assert refused.exit_code == 2 and "--estimator: expected one of" in refused.output
+
+
+def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one():
+    from uiest.estimate import build_estimator
+
+    A = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 0, 0.5]])
+    system = linear_models.linear_system(A, [[1.0], [0.0], [0.0]], [[0.0, 1.0, 0.0]], x_bounds=(-100, 100),
+                                         v_bounds=(-0.05, 0.05))  # fmt: skip
+    entry = register("chain-for-estimate", lambda: system, replace=True)
+    with pytest.raises(ModelError, match=r"matching fails .* use --estimator delayed"):
+        build_estimator("uise", entry, system, np.zeros(3))
+    with pytest.raises(OptionError, match="has no reduction"):
+        build_estimator("two-stage", entry, system, np.zeros(3))

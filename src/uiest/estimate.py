@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from uiest.box import FloatArray
+from uiest.delay import matching_ranks
 from uiest.errors import CertificationError, ModelError, OptionError
 from uiest.models import ModelEntry
 from uiest.results import EstimationResult, Trajectory
@@ -66,6 +67,15 @@ def build_estimator(
         raise OptionError(f"--estimator: expected one of {list(ESTIMATORS)}, got {kind!r}")
     N = DEFAULT_HORIZON if horizon is None else horizon
     options: dict[str, Any] = {"lag": lag} if lag else {}
+    if kind == "two-stage":
+        _reduction(entry)  # a model without a reduction is refused before any design work
+    if kind in ("uise", "two-stage"):
+        rank_CB, rank_B = matching_ranks(system)
+        if rank_CB < rank_B:  # no fallback weights help: x[k] is not determined by y[..k]
+            raise ModelError(
+                f"--estimator {kind}: matching fails (rank(C B) = {rank_CB} < rank(B) = {rank_B}); for an unknown "
+                "input of relative degree 2 use --estimator delayed"
+            )
     if kind in ("uise", "delayed", "two-stage"):
         longest = 30 if horizon is None else horizon  # the designs' default max_horizon
         design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
@@ -77,9 +87,7 @@ def build_estimator(
             else:
                 built = est.TwoStageUISE.design(_reduction(entry), x0_prior=x0, **design_kw)
             return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
-        except (CertificationError, ModelError) as exc:
-            if isinstance(exc, ModelError) and "matching" in str(exc) and kind != "delayed":
-                raise
+        except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
             note = f"not certified ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
         if kind == "uise":
             return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
