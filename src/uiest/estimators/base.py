@@ -29,6 +29,7 @@ import warnings
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
+from itertools import islice
 from types import MappingProxyType
 from typing import Any, ClassVar
 
@@ -330,9 +331,9 @@ class WindowEstimator(StreamingEstimator):
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
         length, start = window_bounds(k, self.N)
-        u_win = np.array([*list(self._u)[len(self._u) - length + 1 :], u_vec] if length else [], dtype=float)
+        u_win = np.array([*islice(self._u, len(self._u) - length + 1, None), u_vec] if length else [], dtype=float)
         u_win = u_win.reshape(length, self.system.nu)
-        past = list(self._y)[len(self._y) - length :] if length else []
+        past = list(islice(self._y, len(self._y) - length, None)) if length else []
         y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
         prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
         attempts: list[WindowSolution] = []
@@ -405,7 +406,7 @@ class WindowEstimator(StreamingEstimator):
             return None
         if window is None or len(window.x) <= lag:
             return np.full(self.system.nx, np.nan)
-        data = list(self._data)[len(self._data) - lag] if self.model.nd else np.zeros(0)
+        data = self._data[-lag] if self.model.nd else np.zeros(0)
         return self._node_state(window, -1 - lag, data)
 
     def _commit(
@@ -461,7 +462,9 @@ class WindowEstimator(StreamingEstimator):
         """Node data of the window (the stored data of k-N_k .. k-1, zeros at node k); None without."""
         if not self.model.nd:
             return None
-        stored = np.array(list(self._data)[len(self._data) - length :], dtype=float).reshape(length, self.model.nd)
+        stored = np.array(list(islice(self._data, len(self._data) - length, None)), dtype=float).reshape(
+            length, self.model.nd
+        )
         return np.vstack([stored, np.zeros((1, self.model.nd))])
 
     def _solve_window(
