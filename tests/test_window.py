@@ -102,6 +102,32 @@ def test_ipopt_solution_equals_linear_least_squares(L, one_step_ahead, with_w):
     assert problem.n_res == r.size
 
 
+@pytest.mark.parametrize("backend", ["ipopt", "gn"])
+def test_weights_spanning_1e12_are_solved_to_the_least_squares_optimum(backend):
+    """A certificate's output weight can be ~1e12 times its prior weight (the crop model's at mu = 0.48).
+
+    Unscaled, IPOPT's step computation broke down on such windows; the NLP's cost is scaled
+    (``objective_scale``) without moving the optimum, and the reported cost is still ``|r|^2``.
+    """
+    rng = np.random.default_rng(7)
+    L, measured = 4, list(range(5))
+    base = weights(L, measured, rng, with_w=True)
+    W = WindowWeights(prior=base.prior, y=1e12 * base.y, v=1e12 * base.v, w=base.w)
+    problem = WindowProblem(small_system(), L, measured, W)
+    prior, u = rng.standard_normal(2), rng.standard_normal((L, 1))
+    y, v_bar, w_bar = rng.standard_normal((5, 1)), 0.1 * rng.standard_normal((5, 1)), rng.standard_normal((L, 1))
+    p = problem.parameters(prior, u, y, v_bar=v_bar, w_bar=w_bar)
+    assert problem.objective_scale(p) < 1e-5
+    solution = make_solver(backend, problem).solve(np.zeros(problem.n_var), p)
+    assert solution.success and (backend == "ipopt" or solution.status.startswith("Converged")), solution.status
+    x, w, _ = lstsq_reference(L, measured, W, prior, u, y, v_bar, w_bar)
+    got = problem.unpack(solution.z)
+    np.testing.assert_allclose(got.x, x, atol=1e-7)
+    np.testing.assert_allclose(got.w, w, atol=1e-7)
+    r = np.asarray(problem.residual_function(solution.z, p)).ravel()
+    assert solution.cost == pytest.approx(float(r @ r), rel=1e-6)
+
+
 def test_missing_measurement_drops_its_residual():
     rng = np.random.default_rng(3)
     system = small_system()

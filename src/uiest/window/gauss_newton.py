@@ -169,6 +169,7 @@ class GaussNewtonSolver:
             ca.conic("gn_qp", "qrqp", {"h": self._h_sparsity, "a": self._a_sparsity}, dict(QP_OPTIONS))
         )
         self._ipopt: IpoptSolver | None = None
+        self._objective_scale = 1.0
         self._singular = False
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
@@ -199,13 +200,13 @@ class GaussNewtonSolver:
         self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], warm: bool
     ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
         """``(dz, lam_x, lam_a)`` of the QP by qrqp, or None; ``warm``: start from the last QP's active set."""
-        n, m = self.problem.n_var, self.problem.n_con
-        lam_x0, lam_a0 = (self._lam_x, self._lam_a) if warm else (np.zeros(n), np.zeros(m))
+        n, m, c = self.problem.n_var, self.problem.n_con, self._objective_scale
+        lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else (np.zeros(n), np.zeros(m))
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
-        x, _, lam_a, lam_x = self._qrqp(h, q, a, *bounds, np.zeros(n), lam_x0, lam_a0, np.zeros(0), np.zeros(0))
+        x, _, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, np.zeros(n), lam_x0, lam_a0, np.zeros(0), np.zeros(0))
         if not (self._qrqp.stats().get("success", False) and np.all(np.isfinite(x))):
             return None
-        return x.copy(), lam_x.copy(), lam_a[:m].copy()
+        return x.copy(), lam_x / c, lam_a[:m] / c
 
     def _linearise(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, ...]:
         """``(r, q = J^T r, nonzeros of J^T J, g, nonzeros of G)`` at ``z`` (copies)."""
@@ -247,6 +248,7 @@ class GaussNewtonSolver:
         start = time.perf_counter()
         z = np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx)
         p = np.asarray(p, dtype=float)
+        self._objective_scale = prob.objective_scale(p)  # the QP's cost scaled as IPOPT's (same steps)
         status, converged, iterations, regularised = "Maximum_Iterations_Exceeded", False, 0, self._singular
         linearisation = self._linearise(z, p)
         r, g = linearisation[0], linearisation[3]

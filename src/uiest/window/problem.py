@@ -89,6 +89,10 @@ def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
     return root
 
 
+LARGEST_WEIGHT = 1e6
+"""The NLP's cost is scaled so that no squared weight root exceeds this (see :meth:`WindowProblem.objective_scale`)."""
+
+
 WIDE = 1e6
 """A box wider than this many scales is not centred on its midpoint (see :func:`working_center`)."""
 
@@ -418,8 +422,25 @@ class WindowProblem:
         )
 
     def nlp(self) -> dict[str, ca.SX]:
-        """The NLP ``{x: z, p: p, f: |r|^2, g: g}`` for ``casadi.nlpsol``."""
-        return {"x": self.z, "p": self.p, "f": ca.sumsqr(self.r), "g": self.g}
+        """The NLP ``{x: z, p: p, f: c(p) |r|^2, g: g}`` for ``casadi.nlpsol``, ``c`` from :meth:`objective_scale`."""
+        return {"x": self.z, "p": self.p, "f": self._objective_scale(self.p) * ca.sumsqr(self.r), "g": self.g}
+
+    def objective_scale(self, p: FloatArray) -> float:
+        """The factor ``c = min(1, LARGEST_WEIGHT / w_max)`` on the NLP's cost (w_max: largest squared weight root).
+
+        The minimiser does not change. IPOPT's step computation breaks down when the weights span
+        ~1e12 (a certificate's output weight against a unit prior: Error_In_Step_Computation in 59
+        of 60 crop windows); with the largest weight brought to ``LARGEST_WEIGHT`` it solves them all.
+        Weights up to ``LARGEST_WEIGHT`` (the explicit designs') are left as they are.
+        """
+        return float(self._objective_scale(ca.DM(p)))
+
+    def _objective_scale(self, p: ca.SX | ca.DM) -> ca.SX | ca.DM:
+        roots = p[self.parameter_slices["weights"]]
+        if roots.numel() == 0:
+            return 1.0
+        largest = ca.mmax(ca.fabs(roots)) ** 2
+        return ca.fmin(1.0, LARGEST_WEIGHT / ca.fmax(largest, LARGEST_WEIGHT))
 
     # ------------------------------------------------------------------ data in and out
     def parameters(

@@ -197,7 +197,7 @@ class IpoptSolver:
         success = bool(np.all(np.isfinite(z))) and (
             status in SUCCESS_STATUSES or (status in NEAR_SUCCESS_STATUSES and self.violation(z, p) <= FEASIBILITY_TOL)
         )
-        cost = float(out["f"])
+        cost = float(out["f"]) / prob.objective_scale(p)
         if success and self.polish:
             z, cost, _ = refine(prob, z, p)
         elapsed = time.perf_counter() - start
