@@ -11,12 +11,12 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
-from uiest.experiments import crop_growth_scenario
 from uiest.experiments.sweep import Sweep, sweep
+from uiest.models.crop_growth import study as crop_growth_study
 
 
 def main() -> None:
-    base = crop_growth_scenario()
+    base = crop_growth_study()
     scenario = replace(
         base,
         runs=8,

@@ -64,6 +64,33 @@ def duty(k: int, x: np.ndarray) -> np.ndarray:
     return np.array([0.0 if (k // 100) % 2 == 0 else 0.2])
 
 
+def study():
+    """Ten runs from initial states around the steady state: the UISE beside the practitioner's filters.
+
+    ``uiest reproduce examples/reactor.py`` runs it (``--quick``: two runs).
+    """
+    from uiest.experiments import EstimatorSpec, Scenario
+
+    return Scenario(
+        name="reactor",
+        model=__file__,
+        steps=400,
+        runs=10,
+        x0_lower=(0.6, 1.0),
+        x0_upper=(0.7, 1.1),
+        prior=(0.65, 1.05),
+        settle=40,
+        focus_state=0,
+        estimators=(
+            EstimatorSpec("UISE", "uise", N=10, mu=0.8, output_weight=1.0),
+            EstimatorSpec("UISE (certified)", "uise", N=0, weights="certificate"),
+            EstimatorSpec("standard MHE", "standard-mhe", N=10, mu=0.8, output_weight=1.0),
+            EstimatorSpec("EKF (tuned)", "ekf"),
+            EstimatorSpec("UKF (tuned)", "ukf"),
+        ),
+    )
+
+
 if __name__ == "__main__":  # writes examples/data/reactor.csv: the measurements (and, for checking, the truth)
     from pathlib import Path
 

@@ -1,15 +1,23 @@
 import pandas as pd
 from typer.testing import CliRunner
 
+from uiest import models
 from uiest.cli import app
 
 runner = CliRunner()
 
 
-def test_models_lists_the_registry():
-    result = runner.invoke(app, ["models"])
-    assert result.exit_code == 0
-    assert "crop-growth" in result.output and "closed-form" in result.output
+def test_models_lists_the_registry_and_a_broken_model_beside_the_others(tmp_path):
+    broken = tmp_path / "broken_model.py"
+    broken.write_text("def build():\n    raise ValueError('no')\n")
+    models.load(broken)
+    try:
+        result = runner.invoke(app, ["models"], terminal_width=300)
+        assert result.exit_code == 0, result.output
+        assert "crop-growth" in result.output and "closed-form" in result.output
+        assert "broken_model" in result.output and "cannot be built" in result.output
+    finally:
+        models._REGISTRY.pop("broken_model")
 
 
 def test_simulate_writes_csv_and_png(tmp_path):
@@ -59,8 +67,21 @@ def test_reproduce_runs_a_scenario_file(tmp_path):
     result = runner.invoke(app, ["reproduce", "--scenario", str(path), "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
     assert (tmp_path / "out" / "report.md").exists() and "UISE (measured)" in result.output
-    bad = runner.invoke(app, ["reproduce", "no-such-study", "--out", str(tmp_path)])
-    assert bad.exit_code == 2 and "study" in bad.output
+    bad = runner.invoke(app, ["reproduce", "no-such-model", "--out", str(tmp_path)])
+    assert bad.exit_code == 2 and "unknown name" in bad.output
+    none = runner.invoke(app, ["reproduce", "closed-form", "--out", str(tmp_path)])
+    assert none.exit_code == 2 and "has no study()" in none.output
+
+
+def test_reproduce_runs_the_study_of_a_model_file(tmp_path):
+    from pathlib import Path
+
+    reactor = Path(__file__).resolve().parents[1] / "examples" / "reactor.py"
+    args = ["reproduce", str(reactor), "--runs", "1", "--steps", "60", "--solver", "gn", "--out", str(tmp_path)]
+    result = runner.invoke(app, args)
+    assert result.exit_code == 0, result.output
+    report = (tmp_path / "report.md").read_text()
+    assert report.startswith("# reactor:") and "UISE (certified)" in report and "EKF (tuned)" in report
 
 
 def test_sweep_command_runs_and_resumes(tmp_path):

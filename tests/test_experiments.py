@@ -13,12 +13,13 @@ from uiest.experiments import (
     EstimatorSpec,
     Scenario,
     accuracy,
-    crop_growth_scenario,
     run_study,
     timing,
     write_report,
 )
 from uiest.experiments import runner as runner_module
+from uiest.experiments.study_model import study_model
+from uiest.models import crop_growth
 
 
 def tiny():
@@ -41,7 +42,7 @@ def tiny():
 
 
 def test_scenario_round_trips_through_toml(tmp_path):
-    scenario = crop_growth_scenario()
+    scenario = crop_growth.study()
     path = scenario.to_toml(tmp_path / "s.toml")
     back = Scenario.from_toml(path)
     assert back.to_dict() == scenario.to_dict()
@@ -166,7 +167,7 @@ def test_studies_run_the_ekf_and_the_ukf_tuned_or_given():
     scenario = dataclasses.replace(tiny(), runs=1, estimators=specs)
     study = run_study(scenario, solver="gn")
     assert study.runs["error"].eq("").all() and set(study.runs["estimator"]) == {"EKF (tuned)", "UKF"}
-    assert runner_module.tuned_variance("closed-form", "ekf") > 0
+    assert study_model("closed-form").tuned_variance("ekf") > 0
     with pytest.raises(OptionError, match="w_variance"):
         EstimatorSpec("EKF", "ekf", w_variance=-1.0)
 
@@ -183,3 +184,22 @@ def test_a_study_of_a_model_file():
     assert study.runs["error"].eq("").all() and study.runs["failures"].eq(0).all()
     acc = accuracy(study)
     assert acc[(acc.case == "noise-free") & (acc.state == "c_A")].rmse.max() < 0.01
+
+
+def test_a_study_of_a_model_given_as_an_object_computes_each_certificate_once(monkeypatch):
+    from uiest import models
+    from uiest.experiments import study_model as study_module
+
+    entry = models.get("closed-form")
+    mine = models.ModelEntry("not-registered", "a model handed to the runner", entry.build, entry.setup)
+    certified = EstimatorSpec("UISE (certified)", "uise", N=0, mu=0.9, weights="certificate")
+    scenario = dataclasses.replace(tiny(), model="not-registered", estimators=(*tiny().estimators, certified))
+    calls = []
+    real = study_module.certify_strong_detectability
+    monkeypatch.setattr(study_module, "certify_strong_detectability", lambda *a, **k: calls.append(1) or real(*a, **k))
+    study = run_study(scenario, model=mine, workers=2)
+    assert study.runs["error"].eq("").all() and len(study.runs) == 2 * 2 * 3
+    assert study.certificates[0]["status"] == "certified"
+    assert len(calls) == 2  # the default rate and mu = 0.9, once for the whole study
+    with pytest.raises(OptionError, match="unknown name"):
+        run_study(scenario)  # by name, the runner finds no such model

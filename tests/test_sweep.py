@@ -59,11 +59,11 @@ def test_a_failing_estimator_is_recorded_and_the_sweep_goes_on(tmp_path, monkeyp
     calls = {"n": 0}
     real = runner_module.BUILDERS["uise"]
 
-    def flaky(model, system, spec, prior, solver):
+    def flaky(study, spec, prior, solver):
         calls["n"] += 1
         if calls["n"] == 2:
             raise OptionError("broken on purpose")
-        return real(model, system, spec, prior, solver)
+        return real(study, spec, prior, solver)
 
     monkeypatch.setitem(runner_module.BUILDERS, "uise", flaky)
     results = sweep(design(), tmp_path, workers=1)

@@ -88,9 +88,9 @@ def test_a_task_that_kills_its_worker_is_recorded_and_the_others_complete(tmp_pa
         "import os\n"
         "from uiest.experiments import runner\n"
         "real = runner.BUILDERS['uise']\n"
-        "def crash(model, system, spec, prior, solver):\n"
+        "def crash(study, spec, prior, solver):\n"
         "    if spec.N == 4:\n        os._exit(9)\n"
-        "    return real(model, system, spec, prior, solver)\n"
+        "    return real(study, spec, prior, solver)\n"
         "runner.BUILDERS['uise'] = crash\n"
     )
     monkeypatch.setenv("PYTHONPATH", f"{inject}{os.pathsep}{os.environ.get('PYTHONPATH', '')}")

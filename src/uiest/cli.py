@@ -15,7 +15,7 @@ from rich.table import Table
 
 from uiest import models
 from uiest.checks import check_samples
-from uiest.errors import OptionError, UiestError
+from uiest.errors import ModelError, OptionError, UiestError
 from uiest.paths import writable_file, writable_folder
 
 app = typer.Typer(
@@ -68,7 +68,11 @@ def list_models() -> None:
         table.add_column(column)
     for name in models.names():
         entry = models.get(name)
-        system = entry.build()
+        try:
+            system = entry.build()
+        except UiestError as exc:  # one broken model (a file registered this session) does not hide the others
+            table.add_row(name, *"------", f"cannot be built: {exc}")
+            continue
         sizes = (system.nx, system.nu, system.nw, system.nv, system.ny)
         table.add_row(name, *map(str, sizes), f"{system.dt:g} {system.time_unit}", entry.summary)
     console.print(table)
@@ -278,7 +282,11 @@ def _number(value: Any) -> str:
 @_user_errors
 def reproduce(
     study: Annotated[
-        str, typer.Argument(help="Study to reproduce: crop-growth (ignored with --scenario).")
+        str,
+        typer.Argument(
+            help="A model with a study: crop-growth (the paper's), or a model file with study() "
+            "(ignored with --scenario)."
+        ),
     ] = "crop-growth",
     quick: Annotated[bool, typer.Option(help="2 runs instead of 20 (a check in under 2 minutes).")] = False,
     runs: Annotated[int | None, typer.Option(help="Monte Carlo runs per case.")] = None,
@@ -290,12 +298,12 @@ def reproduce(
     out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
     workers: Annotated[int | None, typer.Option(help="Processes running the runs (default: all cores).")] = None,
 ) -> None:
-    """Reproduce the paper's crop-growth study: figures, Table 1, report.md (or run a scenario file)."""
+    """Run a model's study (default: the paper's crop-growth study): figures, Table 1, report.md; or a scenario file."""
     import time
 
     from rich.progress import SpinnerColumn
 
-    from uiest.experiments import Scenario, crop_growth_scenario, run_study, write_report
+    from uiest.experiments import Scenario, run_study, write_report
     from uiest.window.solvers import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
@@ -304,10 +312,18 @@ def reproduce(
     _positive(workers, "--workers")
     if scenario is not None:
         setting = Scenario.from_toml(scenario)
-    elif study == "crop-growth":
-        setting = crop_growth_scenario()
     else:
-        raise OptionError(f"study: expected 'crop-growth' or --scenario FILE.toml, got {study!r}")
+        try:
+            entry = models.load(study)
+        except OptionError as exc:
+            raise OptionError(f"study: {exc}") from None
+        if entry.study is None:
+            raise OptionError(
+                f"study: the model {study!r} has no study(); give one in its file, or --scenario FILE.toml"
+            )
+        setting = entry.study()
+        if not isinstance(setting, Scenario):
+            raise ModelError(f"study: {study!r}'s study() returned {type(setting).__name__}, expected a Scenario")
     try:
         setting = setting.with_overrides(runs=2 if quick and runs is None else runs, steps=steps)
     except OptionError as exc:  # e.g. the scenario's settle does not fit the given --steps

@@ -115,9 +115,9 @@ def build_estimator(
         raise OptionError(
             f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
         )
-    from uiest.experiments.runner import TUNING_SEED, tuned_variance
+    from uiest.experiments.study_model import TUNING_SEED, StudyModel
 
-    factor = tuned_variance(entry.name, kind)
+    factor = StudyModel(entry.name, system, entry).tuned_variance(kind)
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
         f"random-walk variance {factor:g} w.scale^2, tuned on a separate simulation (seed {TUNING_SEED})"
     )

@@ -3,14 +3,15 @@
 from uiest.experiments.metrics import accuracy, timing
 from uiest.experiments.report import write_report
 from uiest.experiments.runner import StudyResult, run_study
-from uiest.experiments.scenario import EstimatorSpec, Scenario, crop_growth_scenario
+from uiest.experiments.scenario import EstimatorSpec, Scenario
+from uiest.experiments.study_model import StudyModel
 
 __all__ = [
     "EstimatorSpec",
     "Scenario",
+    "StudyModel",
     "StudyResult",
     "accuracy",
-    "crop_growth_scenario",
     "run_study",
     "timing",
     "write_report",

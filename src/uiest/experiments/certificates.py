@@ -1,63 +1,12 @@
-"""Certificates for the estimators of a study: computed once per process, summarised for the report."""
+"""What the report says of the certificates of a study's estimators (computed by its StudyModel)."""
 
 from __future__ import annotations
 
-import functools
 import math
-from collections.abc import Callable
-from typing import Any
 
-from uiest import models
-from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
-from uiest.errors import CertificationError, OptionError
+from uiest.detectability import Certificate
 from uiest.experiments.scenario import EstimatorSpec
-
-KIND_CERTIFICATE = {
-    "uise": "strong detectability (theo:Lyapunov)",
-    "fie": "strong detectability (theo:Lyapunov)",
-    "two-stage": "reduced model's e-IOSS (ass:e-ioss)",
-    "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
-}
-
-
-@functools.lru_cache(maxsize=32)
-def certificate_for(model: str, kind: str, mu: float) -> Certificate:
-    """The certificate that designs the weights of an estimator of ``kind`` on a registered model.
-
-    Certified at ``mu`` when ``mu`` is at least the smallest rate found, else at the
-    certificate's default rate. Raises :class:`CertificationError` when it does not hold.
-    """
-    entry = models.load(model)
-    make: Callable[[float | None], Certificate]
-    if kind in ("uise", "fie"):
-        system = entry.build()
-        parameters = entry.jacobian_parameters() if entry.jacobian_parameters is not None else None
-        make = functools.partial(_strong, system, parameters)
-    elif kind == "two-stage":
-        if entry.reduction is None:
-            raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {model!r} registers none")
-        reduced = entry.reduction()
-        make = lambda rate: reduced.certify(mu=rate)  # noqa: E731
-    elif kind == "standard-mhe":
-        system = entry.build()
-        make = lambda rate: certify_delta_ioss(system, rate)  # noqa: E731
-    else:
-        raise OptionError(f"estimators.kind: no certificate for {kind!r}")
-    default = make(None)
-    if not default.certified:
-        raise CertificationError(
-            f"{KIND_CERTIFICATE[kind]} of {model!r} does not hold ({default.status}: {default.reason}); "
-            "use explicit weights"
-        )
-    if default.rate_min <= mu < 1.0 and mu != default.rate:
-        at_mu = make(mu)
-        if at_mu.certified:
-            return at_mu
-    return default
-
-
-def _strong(system: Any, parameters: Any, rate: float | None) -> Certificate:
-    return certify_strong_detectability(system, rate, parameters=parameters)
+from uiest.experiments.study_model import KIND_CERTIFICATE
 
 
 def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "") -> dict[str, object]:

@@ -309,12 +309,14 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
         runs = study.runs[study.runs["estimator"] == spec.name]
         failed = {case: int(runs[runs["case"] == case]["failures"].clip(lower=0).sum()) for case in scenario.cases}
         ok = row is not None and row.get("status") == "certified"
+        kalman = spec.kind in FILTER_KINDS  # no window, no discount: a random walk's variance
+        weights = "certificate" if spec.weights == "certificate" else "explicit"
         rows.append(
             {
                 "estimator": spec.name,
-                "weights": "certificate" if spec.weights == "certificate" else "explicit",
-                "mu": f"{float(row['rate']):.6g}" if ok else f"{spec.mu:.6g}",  # type: ignore[arg-type, index]
-                "N": "-" if spec.kind == "fie" else (row["N"] if ok else spec.N),  # type: ignore[index]
+                "weights": "random walk" if kalman else weights,
+                "mu": "-" if kalman else f"{float(row['rate']):.6g}" if ok else f"{spec.mu:.6g}",  # type: ignore[arg-type, index]
+                "N": "-" if spec.kind == "fie" or kalman else (row["N"] if ok else spec.N),  # type: ignore[index]
                 "min horizon": row["min_horizon"] if ok else "-",  # type: ignore[index]
                 "theorem applies": ("yes" if row["guarantee"] else "no") if ok else "no",  # type: ignore[index]
                 f"noise gain {name}": gain if gain is not None else "-",

@@ -8,7 +8,6 @@ the study goes on.
 from __future__ import annotations
 
 import contextlib
-import functools
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -34,28 +33,30 @@ from uiest.estimators import (
     UISEWeights,
 )
 from uiest.experiments import executors
-from uiest.experiments.certificates import certificate_for, summary
+from uiest.experiments.certificates import summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
+from uiest.experiments.study_model import StudyModel, study_model
+from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
 from uiest.simulate import simulate
 from uiest.system import System
 from uiest.window.solvers import BACKENDS
 
-Builder = Callable[[str, System, EstimatorSpec, FloatArray, str], object]
-"""``(model, system, spec, prior, solver) -> estimator``; ``model`` is the scenario's model (a name or a file)."""
+Builder = Callable[[StudyModel, EstimatorSpec, FloatArray, str], object]
+"""``(study model, spec, prior, solver) -> estimator``."""
 
 STUDY_MAX_STEPS = 10_000_000
 """A study's FIE runs as long as the scenario says: its length is the author's choice, not an accident."""
 
 
-def _certificate(model: str, spec: EstimatorSpec) -> Any:
-    """The certificate of a spec with ``weights = "certificate"`` (cached per process), else None."""
-    return certificate_for(model, spec.kind, spec.mu) if spec.weights == "certificate" else None
+def _certificate(study: StudyModel, spec: EstimatorSpec) -> Any:
+    """The certificate of a spec with ``weights = "certificate"``, else None."""
+    return study.certificate(spec.kind, spec.mu) if spec.weights == "certificate" else None
 
 
-def _uise(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(model, spec)
+def _uise(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return UISE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = UISEWeights.from_scales(
@@ -64,8 +65,8 @@ def _uise(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, so
     return UISE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _fie(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(model, spec)
+def _fie(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return FIE(system, certificate=certificate, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
     weights = UISEWeights.from_scales(
@@ -74,8 +75,8 @@ def _fie(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, sol
     return FIE(system, weights=weights, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
 
 
-def _standard_mhe(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    certificate = _certificate(model, spec)
+def _standard_mhe(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return StandardMHE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = MHEWeights.from_scales(
@@ -89,12 +90,8 @@ def _standard_mhe(model: str, system: System, spec: EstimatorSpec, prior: FloatA
     return StandardMHE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _two_stage(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
-    entry = models.load(model)
-    if entry.reduction is None:
-        raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {model!r} registers none")
-    reduced = entry.reduction()
-    certificate = _certificate(model, spec)
+def _two_stage(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    reduced, certificate = study.reduction, _certificate(study, spec)
     if certificate is not None:
         return TwoStageUISE(reduced, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
     weights = TwoStageWeights.from_scales(
@@ -103,30 +100,13 @@ def _two_stage(model: str, system: System, spec: EstimatorSpec, prior: FloatArra
     return TwoStageUISE(reduced, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _kalman(model: str, system: System, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
     from uiest.kalman import EKF, UKF
 
-    cls = EKF if spec.kind == "ekf" else UKF
-    if spec.w_variance > 0:
-        return cls(system, w_variance=spec.w_variance * system.w.scale**2, x0_prior=prior)
-    return cls(system, w_variance=tuned_variance(model, spec.kind) * system.w.scale**2, x0_prior=prior)
+    factor = spec.w_variance if spec.w_variance > 0 else study.tuned_variance(spec.kind)
+    system = study.system
+    return (EKF if spec.kind == "ekf" else UKF)(system, w_variance=factor * system.w.scale**2, x0_prior=prior)
 
-
-@functools.cache
-def tuned_variance(model: str, kind: str) -> float:
-    """The EKF/UKF random-walk factor tuned on a separate simulation of the model's default setup (per process)."""
-    from uiest.kalman import EKF, UKF
-
-    entry = models.load(model)
-    system, setup = entry.build(), entry.simulation()
-    training = simulate(system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=TUNING_SEED)
-    tuned = (EKF if kind == "ekf" else UKF).tuned(system, training, x0_prior=setup.x0)
-    assert tuned.tuning is not None
-    return tuned.tuning.chosen
-
-
-TUNING_SEED = 12345
-"""Seed of the separate simulation the EKF and UKF are tuned on (not a study run's seed)."""
 
 BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe, "two-stage": _two_stage,
                                 "ekf": _kalman, "ukf": _kalman}  # fmt: skip
@@ -203,15 +183,17 @@ def noise_model(scenario: Scenario, noise: NoiseModel | None) -> NoiseModel | No
     raise OptionError(f"noise_scale: cannot scale a {type(noise).__name__}")
 
 
-def simulate_run(scenario: Scenario, case: str, run: int) -> tuple[System, Trajectory, FloatArray]:
+def simulate_run(
+    scenario: Scenario, case: str, run: int, study: StudyModel | None = None
+) -> tuple[System, Trajectory, FloatArray]:
     """The system, the simulated truth and the estimators' prior of run ``run`` of ``case``.
 
+    ``study``: the resolved model (default: ``scenario.model``'s, kept per process).
     Seeds depend only on (scenario.seed, run): the noise of run r is the same in every case and
     every design point of a sweep (common random numbers).
     """
-    entry = models.load(scenario.model)
-    system = entry.build()
-    setup = entry.simulation()
+    study = study_model(scenario.model) if study is None else study
+    system, setup = study.system, study.setup
     x0 = initial_state(scenario, setup.x0, run)
     noise = noise_model(scenario, setup.noise) if case == "noisy" else None
     w = setup.w
@@ -231,13 +213,18 @@ def simulate_run(scenario: Scenario, case: str, run: int) -> tuple[System, Traje
 def run_study(
     scenario: Scenario,
     *,
+    model: ModelEntry | StudyModel | None = None,
     solver: str = "ipopt",
     progress: Callable[[str], None] | None = None,
     workers: int | None = 1,
 ) -> StudyResult:
     """Simulate every (case, run) and run every estimator on it, the runs spread over ``workers`` processes.
 
-    ``workers``: 1 (default) runs in this process; None uses every core (``uiest reproduce`` does).
+    ``model``: the model to study (a :class:`~uiest.models.ModelEntry` or a resolved
+    :class:`StudyModel`); default: ``scenario.model``, a registered name or a model file. It is
+    resolved once: its certificates and EKF/UKF tunings are computed here, once, and handed to
+    the workers. ``workers``: 1 (default) runs in this process; None uses every core (``uiest
+    reproduce`` does); a model given as an object, or registered at run time, runs in this process.
     Seeds depend only on (case, run), so the numbers do not depend on the number of workers (the
     timings do, through the load).
     ``progress(label)`` is called for each estimator run as its (case, run) completes.
@@ -247,20 +234,23 @@ def run_study(
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
-    model = models.load(scenario.model).build()
-    scenario.check_model(model.nx, model.ny, model.x.bounds)
+    given = model is not None
+    study = model if isinstance(model, StudyModel) else StudyModel.of(scenario.model if model is None else model)
+    system = study.system
+    scenario.check_model(system.nx, system.ny, system.x.bounds)
+    study.prepare(scenario.estimators)
     certificates = []
     for spec in scenario.estimators:
         if spec.weights == "certificate":
             try:
-                certificates.append(summary(spec, certificate_for(scenario.model, spec.kind, spec.mu)))
+                certificates.append(summary(spec, study.certificate(spec.kind, spec.mu)))
             except UiestError as exc:  # the estimator's runs record the same error; the study goes on
                 certificates.append(summary(spec, None, f"{type(exc).__name__}: {exc}"))
     step_frames, run_rows = [], []
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    with contextlib.closing(_outcomes(scenario, tasks, solver, workers)) as outcomes:
+    with contextlib.closing(_outcomes(scenario, study, given, tasks, solver, workers)) as outcomes:
         for outcome in outcomes:
             truths[(outcome.case, outcome.run)] = outcome.truth
             for name, result in outcome.results.items():
@@ -288,15 +278,23 @@ class RunOutcome:
     rows: list[dict[str, Any]]
 
 
-def run_case(scenario: Scenario, case: str, run: int, solver: str) -> RunOutcome:
-    """Simulate run ``run`` of ``case`` and run every estimator on it (each one's exception recorded)."""
-    system, truth, prior = simulate_run(scenario, case, run)
+def run_case(
+    scenario: Scenario, case: str, run: int, solver: str, study: StudyModel | dict[tuple[Any, ...], Any]
+) -> RunOutcome:
+    """Simulate run ``run`` of ``case`` and run every estimator on it (each one's exception recorded).
+
+    ``study``: the resolved model, or (in a worker) what the parent computed for
+    ``scenario.model`` (:meth:`StudyModel.resolved`).
+    """
+    if not isinstance(study, StudyModel):
+        study = study_model(scenario.model, study)
+    _, truth, prior = simulate_run(scenario, case, run, study)
     results, frames, rows = {}, [], []
     for spec in scenario.estimators:
         start = time.perf_counter()
         error = ""
         try:
-            estimator = BUILDERS[spec.kind](scenario.model, system, spec, prior, solver)
+            estimator = BUILDERS[spec.kind](study, spec, prior, solver)
             result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
         except Exception as exc:  # recorded, whatever it is; the study goes on
             error = f"{type(exc).__name__}: {exc}"
@@ -313,25 +311,27 @@ def run_case(scenario: Scenario, case: str, run: int, solver: str) -> RunOutcome
 
 
 def _outcomes(
-    scenario: Scenario, tasks: list[tuple[str, int]], solver: str, workers: int | None
+    scenario: Scenario, study: StudyModel, given: bool, tasks: list[tuple[str, int]], solver: str, workers: int | None
 ) -> Iterator[RunOutcome]:
     """Each (case, run)'s outcome as it completes: in this process, or in a pool of ``workers`` processes.
 
-    Spawned workers know the built-in models and model files; a model registered at run time in
-    this process runs here. The pool is shut down when the generator ends or is closed; a pool
-    that breaks (a worker killed) is abandoned and the remaining runs go on in this process.
+    Spawned workers load built-in models and model files by name, with the certificates and
+    tunings computed here; a model given as an object or registered at run time runs here. The
+    pool is shut down when the generator ends or is closed; a pool that breaks (a worker killed)
+    is abandoned and the remaining runs go on in this process.
     """
     width = min(len(tasks), os.cpu_count() or 1) if workers is None else min(workers, len(tasks))
-    if width <= 1 or not models.loadable_elsewhere(scenario.model):
+    if width <= 1 or given or not models.loadable_elsewhere(scenario.model):
         for case, run in tasks:
-            yield run_case(scenario, case, run, solver)
+            yield run_case(scenario, case, run, solver, study)
         return
     done: set[tuple[str, int]] = set()
     with executors.single_threaded_children():
         pool = executors.spawn_pool(width)
     broken = finished = False
     try:
-        futures = [pool.submit(run_case, scenario, case, run, solver) for case, run in tasks]
+        known = study.resolved()
+        futures = [pool.submit(run_case, scenario, case, run, solver, known) for case, run in tasks]
         for future in as_completed(futures):
             outcome = future.result()
             done.add((outcome.case, outcome.run))
@@ -344,7 +344,7 @@ def _outcomes(
     if broken:
         for case, run in tasks:
             if (case, run) not in done:
-                yield run_case(scenario, case, run, solver)
+                yield run_case(scenario, case, run, solver, study)
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:

@@ -38,6 +38,7 @@ from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
 from uiest.experiments.scenario import Scenario
+from uiest.experiments.study_model import study_model
 from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
 from uiest.paths import writable_file, writable_folder
 from uiest.window import DEFAULT_BACKEND
@@ -62,7 +63,8 @@ def run_task(task: Task) -> pd.DataFrame:
     scenario = task.scenario
     base = {"key": task.key, **dict(task.params), "case": task.case, "run": task.run, "solver": task.solver}
     try:
-        system, truth, prior = simulate_run(scenario, task.case, task.run)
+        study = study_model(scenario.model)
+        system, truth, prior = simulate_run(scenario, task.case, task.run, study)
     except Exception as exc:  # recorded, whatever it is
         return pd.DataFrame([{**base, "estimator": "", "error": f"{type(exc).__name__}: {exc}"}])
     names = truth.names.get("x") or tuple(f"x{i}" for i in range(system.nx))
@@ -71,7 +73,7 @@ def run_task(task: Task) -> pd.DataFrame:
     for spec in scenario.estimators:
         row: dict[str, Any] = {**base, "estimator": spec.name, "error": ""}
         try:
-            estimator = BUILDERS[spec.kind](scenario.model, system, spec, prior, task.solver)
+            estimator = BUILDERS[spec.kind](study, spec, prior, task.solver)
             result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
         except Exception as exc:  # recorded, whatever it is; the sweep goes on
             row["error"] = f"{type(exc).__name__}: {exc}"

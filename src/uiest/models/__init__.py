@@ -5,7 +5,8 @@ a model of one's own; ``load(spec)`` takes a registered name or the path of a mo
 
 A model file is a Python file whose module has ``system`` (a :class:`~uiest.system.System`) or
 ``build()`` returning one, and optionally ``setup()`` returning a :class:`SimulationSetup` (its
-default simulation, needed by ``uiest simulate``), ``reduction()`` and ``jacobian_parameters()``.
+default simulation, needed by ``uiest simulate``), ``reduction()``, ``jacobian_parameters()`` and
+``study()`` returning a :class:`~uiest.experiments.Scenario` (run by ``uiest reproduce MODEL``).
 """
 
 from __future__ import annotations
@@ -50,6 +51,8 @@ class ModelEntry:
     reduction: Callable[[], ReducedModel] | None = None
     jacobian_parameters: Callable[[], Callable[..., Any]] | None = None
     """Returns ``theta(x, u)``, the functions the state Jacobian is affine in (an exact certificate cover)."""
+    study: Callable[[], Any] | None = None
+    """Returns the model's study, a :class:`~uiest.experiments.Scenario` (``uiest reproduce MODEL``)."""
 
     def simulation(self) -> SimulationSetup:
         """The default simulation; OptionError when the model has none (a model file without ``setup()``)."""
@@ -108,6 +111,7 @@ _REGISTRY: dict[str, ModelEntry] = {
             _crop_setup,
             crop_growth.reduction,
             crop_growth.jacobian_parameters,
+            crop_growth.study,
         ),
         ModelEntry(
             closed_form.NAME,
@@ -159,11 +163,13 @@ def register(
     setup: Callable[[], SimulationSetup] | None = None,
     reduction: Callable[[], ReducedModel] | None = None,
     jacobian_parameters: Callable[[], Callable[..., Any]] | None = None,
+    study: Callable[[], Any] | None = None,
     replace: bool = False,
 ) -> ModelEntry:
     """Register a model under ``name`` (usable wherever a model name is, e.g. in a Scenario).
 
-    ``build()`` returns the :class:`~uiest.system.System`; ``setup()`` its default simulation.
+    ``build()`` returns the :class:`~uiest.system.System`; ``setup()`` its default simulation;
+    ``study()`` its study (a :class:`~uiest.experiments.Scenario`).
     Raises OptionError for a name already taken (unless ``replace``) or a ``build`` that is not callable.
     """
     if not isinstance(name, str) or not name or name.endswith(".py"):
@@ -172,10 +178,11 @@ def register(
         raise OptionError(f"name: a model called {name!r} is registered already; pass replace=True to replace it")
     if not callable(build):
         raise OptionError(f"build: expected a function returning a System, got {build!r}")
-    for label, fun in (("setup", setup), ("reduction", reduction), ("jacobian_parameters", jacobian_parameters)):
+    for label, fun in (("setup", setup), ("reduction", reduction), ("jacobian_parameters", jacobian_parameters),
+                       ("study", study)):  # fmt: skip
         if fun is not None and not callable(fun):
             raise OptionError(f"{label}: expected a function or None, got {fun!r}")
-    entry = ModelEntry(name, summary, build, setup, reduction, jacobian_parameters)
+    entry = ModelEntry(name, summary, build, setup, reduction, jacobian_parameters, study)
     _REGISTRY[name] = entry
     return entry
 
@@ -212,7 +219,8 @@ def load(spec: str | Path) -> ModelEntry:
     keywords = {"summary": summary, "setup": _checked_setup(getattr(module, "setup", None), path), "replace": True,
                 "reduction": _checked_call(getattr(module, "reduction", None), "reduction()", path),
                 "jacobian_parameters": _checked_call(getattr(module, "jacobian_parameters", None),
-                                                     "jacobian_parameters()", path)}  # fmt: skip
+                                                     "jacobian_parameters()", path),
+                "study": _checked_call(getattr(module, "study", None), "study()", path)}  # fmt: skip
     return register(path.stem, build, **keywords)
 
 

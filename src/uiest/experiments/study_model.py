@@ -1,0 +1,170 @@
+"""The model a study runs on, resolved once: its system, default simulation, reduction, certificates, tunings.
+
+A :class:`StudyModel` is built from a registered name, a model file or a
+:class:`~uiest.models.ModelEntry` (:meth:`StudyModel.of`). Every estimator of a study is built
+from it (:data:`uiest.experiments.runner.BUILDERS`): nothing is looked up by name again. The
+certificates that design weights and the EKF/UKF tunings are computed on first use and kept,
+failures included, so that a study computes each once (:meth:`StudyModel.prepare`) and its
+workers receive them with the model's name (:meth:`StudyModel.resolved`).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from uiest import models
+from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
+from uiest.errors import CertificationError, OptionError, UiestError
+from uiest.models import ModelEntry, SimulationSetup
+from uiest.reduction import ReducedModel
+from uiest.simulate import simulate
+from uiest.system import System
+
+KIND_CERTIFICATE = {
+    "uise": "strong detectability (theo:Lyapunov)",
+    "fie": "strong detectability (theo:Lyapunov)",
+    "two-stage": "reduced model's e-IOSS (ass:e-ioss)",
+    "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
+}
+"""The certificate that designs each estimator kind's weights."""
+
+TUNING_SEED = 12345
+"""Seed of the separate simulation the EKF and UKF are tuned on (not a study run's seed)."""
+
+
+@dataclass(eq=False)
+class StudyModel:
+    """A model resolved for a study.
+
+    Attributes
+    ----------
+    name : str
+        The scenario's model: a registered name or the path of a model file.
+    system : System
+    entry : ModelEntry
+        Where the default simulation, the reduction and the Jacobian's parameters come from.
+    known : dict
+        Certificates ``("certificate", kind, mu)`` and tunings ``("variance", kind)`` computed
+        so far, or the :class:`~uiest.errors.UiestError` their computation raised.
+
+    """
+
+    name: str
+    system: System
+    entry: ModelEntry
+    known: dict[tuple[Any, ...], Any] = field(default_factory=dict, repr=False)
+
+    @classmethod
+    def of(cls, model: str | Path | ModelEntry) -> StudyModel:
+        """Resolve a registered name, a model file (``.py``) or an entry; the system is built once."""
+        entry = model if isinstance(model, ModelEntry) else models.load(model)
+        name = entry.name if isinstance(model, ModelEntry) else str(model)
+        return cls(name, entry.build(), entry)
+
+    @property
+    def setup(self) -> SimulationSetup:
+        """The model's default simulation (OptionError when it has none)."""
+        return self.entry.simulation()
+
+    @functools.cached_property
+    def reduction(self) -> ReducedModel:
+        """The two-stage UISE's reduced model; OptionError when the model registers none."""
+        if self.entry.reduction is None:
+            raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {self.name!r} registers none")
+        return self.entry.reduction()
+
+    def certificate(self, kind: str, mu: float) -> Certificate:
+        """The certificate that designs the weights of an estimator of ``kind`` (computed once).
+
+        Certified at ``mu`` when ``mu`` is at least the smallest rate found, else at the
+        certificate's default rate. Raises :class:`CertificationError` when it does not hold.
+        """
+        return self._known(("certificate", kind, float(mu)), lambda: self._certify(kind, float(mu)))
+
+    def tuned_variance(self, kind: str) -> float:
+        """The EKF/UKF random-walk factor (in ``w.scale^2``), tuned on a default simulation (computed once).
+
+        The simulation is the model's default setup with seed :data:`TUNING_SEED`, not a study run's.
+        """
+        return self._known(("variance", kind), lambda: self._tune(kind))
+
+    def prepare(self, specs: Any) -> None:
+        """Compute what the estimator specs need (certificates, tunings) now, errors kept for their runs."""
+        for spec in specs:
+            try:
+                if spec.weights == "certificate":
+                    self.certificate(spec.kind, spec.mu)
+                if spec.kind in ("ekf", "ukf") and spec.w_variance == 0:
+                    self.tuned_variance(spec.kind)
+            except UiestError:
+                pass  # kept in `known`: each run of the estimator records it
+
+    def resolved(self) -> dict[tuple[Any, ...], Any]:
+        """What has been computed, as plain picklable data (for workers that load the model by name)."""
+        return dict(self.known)
+
+    def _known(self, key: tuple[Any, ...], compute: Callable[[], Any]) -> Any:
+        if key not in self.known:
+            try:
+                self.known[key] = compute()
+            except UiestError as exc:
+                self.known[key] = exc
+        value = self.known[key]
+        if isinstance(value, UiestError):
+            raise value
+        return value
+
+    def _certify(self, kind: str, mu: float) -> Certificate:
+        make: Callable[[float | None], Certificate]
+        if kind in ("uise", "fie"):
+            theta = self.entry.jacobian_parameters() if self.entry.jacobian_parameters is not None else None
+            make = lambda rate: certify_strong_detectability(self.system, rate, parameters=theta)  # noqa: E731
+        elif kind == "two-stage":
+            make = lambda rate: self.reduction.certify(mu=rate)  # noqa: E731
+        elif kind == "standard-mhe":
+            make = lambda rate: certify_delta_ioss(self.system, rate)  # noqa: E731
+        else:
+            raise OptionError(f"estimators.kind: no certificate for {kind!r}")
+        default = make(None)
+        if not default.certified:
+            raise CertificationError(
+                f"{KIND_CERTIFICATE[kind]} of {self.name!r} does not hold ({default.status}: {default.reason}); "
+                "use explicit weights"
+            )
+        if default.rate_min <= mu < 1.0 and mu != default.rate:
+            at_mu = make(mu)
+            if at_mu.certified:
+                return at_mu
+        return default
+
+    def _tune(self, kind: str) -> float:
+        from uiest.kalman import EKF, UKF
+
+        setup = self.setup
+        training = simulate(self.system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=TUNING_SEED)
+        tuned = (EKF if kind == "ekf" else UKF).tuned(self.system, training, x0_prior=setup.x0)
+        assert tuned.tuning is not None
+        return float(tuned.tuning.chosen)
+
+
+_BY_NAME: dict[str, tuple[ModelEntry, StudyModel]] = {}
+
+
+def study_model(name: str, known: dict[tuple[Any, ...], Any] | None = None) -> StudyModel:
+    """The study model of a registered name or model file, kept per process (a sweep's or a study's worker).
+
+    ``known``: certificates and tunings the parent computed (:meth:`StudyModel.resolved`). A
+    name registered again gives a new study model; a model file is read once per process.
+    """
+    cached = _BY_NAME.get(name)
+    if cached is None or not (name.endswith(".py") or models.get(name) is cached[0]):
+        entry = models.load(name)
+        cached = _BY_NAME[name] = (entry, StudyModel(name, entry.build(), entry))
+    study = cached[1]
+    for key, value in (known or {}).items():
+        study.known.setdefault(key, value)
+    return study
