@@ -108,7 +108,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     records = json.loads(out.read_text())
     keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
             "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt", "median_dev_vs_ipopt",
-            "windows_compared", "windows_dev_above_1e-6"}  # fmt: skip
+            "windows_compared", "windows_dev_above_1e-6", "median_cpu_ms", "p95_cpu_ms", "max_cpu_ms",
+            "cpu_ratio_vs_ipopt", "median_solve_ms", "samples", "fallbacks", "load"}  # fmt: skip
     from uiest.experiments.solver_bench import _dompc_available
 
     # 3 estimators x 3 backends, plus the do-mpc peer of the standard MHE where do-mpc is installed
@@ -119,6 +120,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
         ("standard MHE", "ipopt"),
     }
     assert all(r["failures"] == 0 for r in records if r["solver"] != "rti")
+    # whole steps cost more CPU than their solves; 100 samples after 30 warm-up ones are timed
+    assert all(r["median_cpu_ms"] > 0 and r["samples"] == 71 for r in records if r["solver"] != "do-mpc")
     # on the same windows, the Gauss-Newton optimum is at least as good as IPOPT's
     assert all(r["max_cost_excess_vs_ipopt"] <= 1e-7 for r in records if r["solver"] == "gn")
     # 100 samples after 30 warm-up ones: the full windows k = 30 .. 100 (71) are compared
