@@ -21,6 +21,7 @@ node ``0 .. L-1`` of a window must carry one (be "measured").
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TYPE_CHECKING
 
 import casadi as ca
@@ -30,6 +31,7 @@ from numpy.typing import ArrayLike
 from uiest.box import Box, FloatArray
 from uiest.errors import ModelError
 from uiest.system import System
+from uiest.window.buffered import BufferedFunction
 
 if TYPE_CHECKING:
     from uiest.reduction import ReducedModel
@@ -167,9 +169,20 @@ class WindowModel:
 
     # ------------------------------------------------------------------ numerics
     def step(self, x: FloatArray, u: FloatArray, w: FloatArray, v: FloatArray, d: FloatArray) -> FloatArray:
-        """``f`` at one point, as a 1-D array."""
-        out: FloatArray = np.asarray(self.f(x, u, w, v, d), dtype=float).reshape(-1)
-        return out
+        """``f`` at one point, as a 1-D array (a new one)."""
+        return self._f_buffered(x, u, w, v, d)[0].copy()
+
+    @cached_property
+    def _f_buffered(self) -> BufferedFunction:
+        """``f`` through CasADi's buffer interface (a plain call builds DMs: ~0.2 ms of a 1.6 ms crop step)."""
+        return BufferedFunction(self.f)
+
+    def __getstate__(self) -> dict[str, object]:
+        """Pickled without the evaluation buffer (rebuilt on first use)."""
+        return {key: value for key, value in self.__dict__.items() if key != "_f_buffered"}
+
+    def __setstate__(self, state: dict[str, object]) -> None:
+        self.__dict__.update(state)
 
     @classmethod
     def from_system(cls, system: System) -> WindowModel:
