@@ -3,6 +3,8 @@
 import dataclasses
 import json
 import math
+import traceback
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -186,7 +188,7 @@ def test_a_study_of_a_model_file():
     assert acc[(acc.case == "noise-free") & (acc.state == "c_A")].rmse.max() < 0.01
 
 
-def test_a_study_of_a_model_given_as_an_object_computes_each_certificate_once(monkeypatch):
+def test_a_study_of_a_model_given_as_an_object_computes_each_certificate_once(monkeypatch, tmp_path):
     from uiest import models
     from uiest.experiments import study_model as study_module
 
@@ -203,3 +205,42 @@ def test_a_study_of_a_model_given_as_an_object_computes_each_certificate_once(mo
     assert len(calls) == 2  # the default rate and mu = 0.9, once for the whole study
     with pytest.raises(OptionError, match="unknown name"):
         run_study(scenario)  # by name, the runner finds no such model
+    with pytest.raises(OptionError, match="model: expected a ModelEntry"):
+        run_study(scenario, model="closed-form")
+    assert write_report(study, tmp_path, wall_time=1.0)["files"]  # the report uses the given model too
+
+
+def test_a_failing_tuning_is_recorded_per_run_and_kept(monkeypatch):
+    from uiest.experiments import study_model as study_module
+
+    def broken(self, kind):
+        raise IndexError("tuning broke")
+
+    monkeypatch.setattr(study_module.StudyModel, "_tune", broken)
+    scenario = dataclasses.replace(tiny(), estimators=(*tiny().estimators, EstimatorSpec("EKF", "ekf")))
+    study = run_study(scenario)
+    errors = study.runs.set_index("estimator")["error"]
+    assert (errors["EKF"] == "IndexError: tuning broke").all() and (errors["UISE"] == "").all()
+    model = study.model
+    for _ in range(50):  # raised again from the cache, its traceback does not grow
+        with pytest.raises(IndexError) as caught:
+            model.tuned_variance("ekf")
+    assert len(traceback.extract_tb(caught.value.__traceback__)) < 5
+    with pytest.raises(OptionError, match="kind"):
+        model.tuned_variance("kalman")
+    with pytest.raises(OptionError, match="mu"):
+        model.certificate("uise", "abc")
+
+
+def test_a_changed_model_file_is_read_again(tmp_path):
+    import os
+
+    path = tmp_path / "drift.py"
+    text = (Path(__file__).resolve().parents[1] / "examples" / "reactor.py").read_text()
+    path.write_text(text)
+    first = study_model(path)
+    assert study_model(str(path)) is first and first.system.x.names == ("c_A", "T")
+    path.write_text(text.replace('x_names=("c_A", "T")', 'x_names=("conc", "temp")'))
+    later = path.stat().st_mtime_ns + 10**9  # a distinct version even on a coarse clock
+    os.utime(path, ns=(later, later))
+    assert study_model(path).system.x.names == ("conc", "temp")

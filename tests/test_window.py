@@ -126,6 +126,14 @@ def test_weights_spanning_1e12_are_solved_to_the_least_squares_optimum(backend):
     np.testing.assert_allclose(got.w, w, atol=1e-7)
     r = np.asarray(problem.residual_function(solution.z, p)).ravel()
     assert solution.cost == pytest.approx(float(r @ r), rel=1e-6)
+    if backend == "ipopt":  # multipliers of |r|^2, whatever scale IPOPT saw: a 1e6 times smaller cost has 1e-6 of them
+        smaller = WindowWeights(prior=W.prior / 1e6, y=W.y / 1e6, v=W.v / 1e6, w=W.w / 1e6)
+        q = problem.parameters(prior, u, y, v_bar=v_bar, w_bar=w_bar, weights=smaller)
+        reference = make_solver(backend, problem).solve(np.zeros(problem.n_var), q)
+        assert problem.objective_scale(q) > 1e3 * problem.objective_scale(p)
+        np.testing.assert_allclose(
+            solution.lam_g, 1e6 * reference.lam_g, rtol=1e-4, atol=1e-6 * np.abs(solution.lam_g).max()
+        )
 
 
 def test_missing_measurement_drops_its_residual():

@@ -12,7 +12,6 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
-from uiest import models
 from uiest.experiments import provenance
 from uiest.experiments.metrics import accuracy, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
@@ -65,7 +64,7 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     from uiest.plotting import robust_limits
 
     scenario = study.scenario
-    system = models.load(scenario.model).build()
+    system = study.model.system
     names = state_names(study)
     focus, focus_unit = names[scenario.focus_state], system.x.units[scenario.focus_state]
     cases = list(scenario.cases)
@@ -251,18 +250,16 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
     standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
     """
-    from uiest import models
     from uiest.detectability import window_information
     from uiest.noise import UniformNoise
 
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
-    entry = models.load(scenario.model)
-    noise = noise_model(scenario, entry.simulation().noise)
+    noise = noise_model(scenario, study.model.setup.noise)
     if not isinstance(noise, UniformNoise):
         return pd.DataFrame()
-    system = entry.build()
+    system = study.model.system
     truth = study.truths[("noisy", run)]
     std = np.maximum(np.abs(noise.lower), np.abs(noise.upper)) / np.sqrt(3.0)
     focus = scenario.focus_state

@@ -131,6 +131,8 @@ class StudyResult:
         ``(case, run) -> Trajectory`` of the simulated truth.
     results : dict
         ``(case, run, estimator) -> EstimationResult``.
+    model : StudyModel
+        The model the study ran on (its system and default simulation, for the report).
     solver : str
         The window backend every estimator used (``"ipopt"``, ``"gn"`` or ``"rti"``).
     certificates : tuple of dict
@@ -144,6 +146,7 @@ class StudyResult:
     runs: pd.DataFrame
     truths: dict[tuple[str, int], Trajectory]
     results: dict[tuple[str, int, str], EstimationResult]
+    model: StudyModel
     solver: str = "ipopt"
     certificates: tuple[dict[str, object], ...] = ()
 
@@ -234,6 +237,8 @@ def run_study(
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")
+    if model is not None and not isinstance(model, ModelEntry | StudyModel):
+        raise OptionError(f"model: expected a ModelEntry or a StudyModel (a name: scenario.model), got {model!r}")
     given = model is not None
     study = model if isinstance(model, StudyModel) else StudyModel.of(scenario.model if model is None else model)
     system = study.system
@@ -263,7 +268,7 @@ def run_study(
     run_rows.sort(key=lambda row: (scenario.cases.index(row["case"]), row["run"]))
     step_frames.sort(key=lambda frame: (scenario.cases.index(frame["case"].iat[0]), int(frame["run"].iat[0])))
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
-    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, solver, tuple(certificates))
+    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, study, solver, tuple(certificates))
 
 
 @dataclass(frozen=True, eq=False)

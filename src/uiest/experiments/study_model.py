@@ -11,14 +11,16 @@ workers receive them with the model's name (:meth:`StudyModel.resolved`).
 from __future__ import annotations
 
 import functools
+import pickle
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from uiest import models
+from uiest.checks import check_real
 from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
-from uiest.errors import CertificationError, OptionError, UiestError
+from uiest.errors import CertificationError, OptionError
 from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
@@ -83,13 +85,18 @@ class StudyModel:
         Certified at ``mu`` when ``mu`` is at least the smallest rate found, else at the
         certificate's default rate. Raises :class:`CertificationError` when it does not hold.
         """
-        return self._known(("certificate", kind, float(mu)), lambda: self._certify(kind, float(mu)))
+        if kind not in KIND_CERTIFICATE:
+            raise OptionError(f"kind: expected one of {sorted(KIND_CERTIFICATE)}, got {kind!r}")
+        rate = check_real(mu, "mu", "a number in (0, 1)")
+        return self._known(("certificate", kind, rate), lambda: self._certify(kind, rate))
 
     def tuned_variance(self, kind: str) -> float:
         """The EKF/UKF random-walk factor (in ``w.scale^2``), tuned on a default simulation (computed once).
 
         The simulation is the model's default setup with seed :data:`TUNING_SEED`, not a study run's.
         """
+        if kind not in ("ekf", "ukf"):
+            raise OptionError(f"kind: expected 'ekf' or 'ukf', got {kind!r}")
         return self._known(("variance", kind), lambda: self._tune(kind))
 
     def prepare(self, specs: Any) -> None:
@@ -100,22 +107,34 @@ class StudyModel:
                     self.certificate(spec.kind, spec.mu)
                 if spec.kind in ("ekf", "ukf") and spec.w_variance == 0:
                     self.tuned_variance(spec.kind)
-            except UiestError:
-                pass  # kept in `known`: each run of the estimator records it
+            except Exception:  # kept in `known`: each run of the estimator records it
+                pass
 
     def resolved(self) -> dict[tuple[Any, ...], Any]:
-        """What has been computed, as plain picklable data (for workers that load the model by name)."""
-        return dict(self.known)
+        """What has been computed and can be pickled (for workers that load the model by name).
+
+        A value that cannot be pickled (an exception carrying a user's object, say) is left out:
+        a worker computes it again.
+        """
+        shipped = {}
+        for key, value in self.known.items():
+            try:
+                pickle.dumps(value)
+            except Exception:
+                continue
+            shipped[key] = value
+        return shipped
 
     def _known(self, key: tuple[Any, ...], compute: Callable[[], Any]) -> Any:
+        """``compute()`` once; its exception, whatever it is, is kept and raised again (without old tracebacks)."""
         if key not in self.known:
             try:
                 self.known[key] = compute()
-            except UiestError as exc:
+            except Exception as exc:
                 self.known[key] = exc
         value = self.known[key]
-        if isinstance(value, UiestError):
-            raise value
+        if isinstance(value, Exception):
+            raise value.with_traceback(None)
         return value
 
     def _certify(self, kind: str, mu: float) -> Certificate:
@@ -151,19 +170,29 @@ class StudyModel:
         return float(tuned.tuning.chosen)
 
 
-_BY_NAME: dict[str, tuple[ModelEntry, StudyModel]] = {}
+_BY_NAME: dict[str, tuple[object, StudyModel]] = {}
 
 
-def study_model(name: str, known: dict[tuple[Any, ...], Any] | None = None) -> StudyModel:
+def study_model(name: str | Path, known: dict[tuple[Any, ...], Any] | None = None) -> StudyModel:
     """The study model of a registered name or model file, kept per process (a sweep's or a study's worker).
 
     ``known``: certificates and tunings the parent computed (:meth:`StudyModel.resolved`). A
-    name registered again gives a new study model; a model file is read once per process.
+    name registered again, or a model file changed since (its size or modification time), gives
+    a new study model.
     """
+    name = str(name)
+    if name.endswith(".py"):
+        try:
+            stat = Path(name).stat()
+        except OSError:
+            stat = None  # models.load names the missing file
+        version: object = None if stat is None else (stat.st_mtime_ns, stat.st_size)
+    else:
+        version = models.get(name)
     cached = _BY_NAME.get(name)
-    if cached is None or not (name.endswith(".py") or models.get(name) is cached[0]):
+    if cached is None or version is None or cached[0] != version:
         entry = models.load(name)
-        cached = _BY_NAME[name] = (entry, StudyModel(name, entry.build(), entry))
+        cached = _BY_NAME[name] = (version, StudyModel(name, entry.build(), entry))
     study = cached[1]
     for key, value in (known or {}).items():
         study.known.setdefault(key, value)
