@@ -292,7 +292,8 @@ def reproduce(
     runs: Annotated[int | None, typer.Option(help="Monte Carlo runs per case.")] = None,
     steps: Annotated[int | None, typer.Option(help="Steps K per run.")] = None,
     solver: Annotated[
-        str, typer.Option(help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: ~10x faster).")
+        str,
+        typer.Option(help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: 6-9x less CPU)."),
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
