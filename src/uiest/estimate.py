@@ -62,13 +62,15 @@ def build_estimator(
 ) -> tuple[Any, str]:
     """The estimator ``kind`` (module docstring) and a note on how its weights were chosen."""
     from uiest import estimators as est
+    from uiest.experiments.study_model import TUNING_SEED, StudyModel
 
     if kind not in ESTIMATORS:
         raise OptionError(f"--estimator: expected one of {list(ESTIMATORS)}, got {kind!r}")
     N = DEFAULT_HORIZON if horizon is None else horizon
     options: dict[str, Any] = {"lag": lag} if lag else {}
+    study = StudyModel(entry.name, system, entry)
     if kind == "two-stage":
-        _reduction(entry)  # a model without a reduction is refused before any design work
+        _ = study.reduction  # a model without a reduction is refused before any design work
     if kind in ("uise", "two-stage"):
         rank_CB, rank_B = matching_ranks(system)
         if rank_CB < rank_B:  # no fallback weights help: x[k] is not determined by y[..k]
@@ -85,7 +87,7 @@ def build_estimator(
             elif kind == "delayed":
                 built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
             else:
-                built = est.TwoStageUISE.design(_reduction(entry), x0_prior=x0, **design_kw)
+                built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
             return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
         except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
             note = f"not certified ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
@@ -96,9 +98,8 @@ def build_estimator(
             delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 2),
                                       x0_prior=x0, lag=max(lag, 1))  # fmt: skip
             return delayed, note
-        reduced = _reduction(entry)
-        weights = est.TwoStageWeights.from_scales(reduced, FALLBACK_RATE)
-        return est.TwoStageUISE(reduced, weights=weights, N=N, x0_prior=x0, **options), note
+        weights = est.TwoStageWeights.from_scales(study.reduction, FALLBACK_RATE)
+        return est.TwoStageUISE(study.reduction, weights=weights, N=N, x0_prior=x0, **options), note
     if kind == "mhe":
         weights = est.MHEWeights.from_scales(system, FALLBACK_RATE)
         return est.StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options), (
@@ -115,18 +116,10 @@ def build_estimator(
         raise OptionError(
             f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
         )
-    from uiest.experiments.study_model import TUNING_SEED, StudyModel
-
-    factor = StudyModel(entry.name, system, entry).tuned_variance(kind)
+    factor = study.tuned_variance(kind)
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
         f"random-walk variance {factor:g} w.scale^2, tuned on a separate simulation (seed {TUNING_SEED})"
     )
-
-
-def _reduction(entry: ModelEntry) -> Any:
-    if entry.reduction is None:
-        raise OptionError(f"--estimator two-stage: the model {entry.name!r} has no reduction() (T, psi)")
-    return entry.reduction()
 
 
 def _delayed_weights(system: System) -> Any:

@@ -76,7 +76,7 @@ class StudyModel:
     def reduction(self) -> ReducedModel:
         """The two-stage UISE's reduced model; OptionError when the model registers none."""
         if self.entry.reduction is None:
-            raise OptionError(f"estimators: the two-stage UISE needs a reduction; model {self.name!r} registers none")
+            raise OptionError(f"the two-stage UISE: the model {self.name!r} has no reduction() (T, psi)")
         return self.entry.reduction()
 
     def certificate(self, kind: str, mu: float) -> Certificate:
