@@ -15,7 +15,9 @@ parent dies.
 from __future__ import annotations
 
 import contextlib
+import math
 import os
+import signal
 import threading
 import time
 from collections import deque
@@ -23,6 +25,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 import pandas as pd
@@ -85,16 +88,54 @@ def spawn_pool(width: int) -> ProcessPoolExecutor:
                                initargs=(os.getpid(),))  # fmt: skip
 
 
-def stop_pool(pool: ProcessPoolExecutor, *, abandon: bool) -> None:
-    """Shut ``pool`` down; ``abandon``: cancel what has not started and end the running workers now."""
-    if not abandon:
-        pool.shutdown(wait=True)
+STOP_GRACE = 10.0
+"""Seconds abandoned workers get to end after SIGTERM before they are killed."""
+
+
+def _reaped_elsewhere(process: BaseProcess) -> None:
+    """Record a worker that another waiter of this process reaped as killed.
+
+    CPython's pool (3.11) polls each worker with ``waitpid`` until it has reaped it. A worker
+    that someone else reaped (``waitpid`` then fails with ECHILD) stays "alive" for it forever:
+    its manager thread spins at 100 % CPU sending stop sentinels into a full call queue, and
+    ``shutdown(wait=True)`` and the interpreter's exit hang. Such a worker's process is gone
+    (while an unreaped one, even a zombie, still exists).
+    """
+    popen = getattr(process, "_popen", None)
+    if popen is None or popen.returncode is not None:
         return
-    processes = list(getattr(pool, "_processes", {}).values())
-    pool.shutdown(wait=False, cancel_futures=True)
-    for process in processes:
-        with contextlib.suppress(Exception):
-            process.terminate()
+    try:
+        os.kill(popen.pid, 0)
+    except ProcessLookupError:
+        popen.returncode = -signal.SIGKILL
+    except OSError:  # it exists (another user's process: cannot be ours)
+        pass
+
+
+def stop_pool(pool: ProcessPoolExecutor, *, abandon: bool) -> None:
+    """Shut ``pool`` down and wait for it; ``abandon``: cancel what has not started and end the running workers now.
+
+    Abandoned workers get :data:`STOP_GRACE` seconds after SIGTERM, then SIGKILL. While waiting,
+    workers reaped elsewhere are recorded as killed (see :func:`_reaped_elsewhere`), so that a
+    broken pool cannot hang its caller or the interpreter's exit.
+    """
+    workers = list((getattr(pool, "_processes", None) or {}).values())
+    manager = getattr(pool, "_executor_manager_thread", None)
+    pool.shutdown(wait=False, cancel_futures=abandon)
+    if abandon:
+        for process in workers:
+            with contextlib.suppress(Exception):
+                process.terminate()
+    deadline = time.monotonic() + STOP_GRACE
+    while manager is not None and manager.is_alive():
+        manager.join(0.05)
+        for process in workers:
+            _reaped_elsewhere(process)
+        if abandon and time.monotonic() > deadline:
+            for process in workers:
+                with contextlib.suppress(Exception):
+                    process.kill()
+            deadline = math.inf
 
 
 def processes(tasks: list[Task], run: Callable[[Task], pd.DataFrame], workers: int | None) -> Iterator[Outcome]:

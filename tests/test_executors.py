@@ -1,0 +1,41 @@
+"""The process pool's shutdown when a worker was reaped by someone else (it must not hang)."""
+
+import subprocess
+import sys
+import textwrap
+
+GHOST_WORKER = textwrap.dedent(
+    """
+    import os, signal, time
+    from concurrent.futures.process import BrokenProcessPool
+    from uiest.experiments import executors
+
+    if __name__ == "__main__":
+        pool = executors.spawn_pool(1)
+        futures = [pool.submit(time.sleep, 30) for _ in range(4)]
+        while not pool._call_queue.full():  # one task running, two queued: no room for a stop sentinel
+            time.sleep(0.05)
+        (pid,) = list(pool._processes)
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)  # reaped here, not by the pool: waitpid fails with ECHILD for the pool
+        try:
+            futures[0].result()
+        except BrokenProcessPool:
+            print("broken", flush=True)
+        executors.stop_pool(pool, abandon={abandon})
+        print("stopped", flush=True)
+    """
+)
+
+
+def _run(abandon: bool) -> subprocess.CompletedProcess[str]:
+    script = GHOST_WORKER.format(abandon=abandon)
+    return subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+
+
+def test_a_broken_pool_whose_worker_was_reaped_elsewhere_stops_and_the_interpreter_exits():
+    # before the fix, the pool's manager thread spun forever: stop_pool (wait) or the exit hung
+    for abandon in (False, True):
+        done = _run(abandon)
+        assert done.returncode == 0, done.stderr
+        assert done.stdout.split() == ["broken", "stopped"]
