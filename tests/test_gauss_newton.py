@@ -71,11 +71,11 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
         first["step"] = True
         return real_solve(self, *args)
 
-    def first_qp_fails(self, z, linearisation, damping, warm):  # every solve's first QP fails undamped
+    def first_qp_fails(self, point, damping, warm):  # every solve's first QP fails undamped
         if first["step"]:
             first["step"] = False
             return None
-        return real_step(self, z, linearisation, damping, warm)
+        return real_step(self, point, damping, warm)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "solve", solve)
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", first_qp_fails)
@@ -83,7 +83,7 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     assert set(result.status[1:]) == {"Converged (regularised)"} and result.failures == 0
     np.testing.assert_allclose(result.x_hat, reference.x_hat, rtol=0, atol=1e-7)
 
-    def always_fails(self, z, linearisation, damping, warm):
+    def always_fails(self, point, damping, warm):
         return None
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", always_fails)
@@ -99,9 +99,9 @@ def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, mo
     real_step = gauss_newton.GaussNewtonSolver._step
     dampings: list[float] = []
 
-    def singular_when_undamped(self, z, linearisation, damping, warm):  # as if J^T J were singular
-        dampings.append(damping / np.abs(linearisation[2]).max())
-        return None if damping == 0.0 else real_step(self, z, linearisation, damping, warm)
+    def singular_when_undamped(self, point, damping, warm):  # as if J^T J were singular
+        dampings.append(damping / np.abs(point.h).max())
+        return None if damping == 0.0 else real_step(self, point, damping, warm)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", singular_when_undamped)
     estimator = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn")

@@ -44,7 +44,7 @@ class BufferedFunction:
     def __call__(self, *args: FloatArray) -> list[FloatArray]:
         """Evaluate at ``args`` (one array per input, of the input's number of nonzeros)."""
         for slot, value in zip(self._args, args, strict=True):
-            slot[: np.size(value)] = value
+            slot[: value.size if isinstance(value, np.ndarray) else np.size(value)] = value
         self._call()
         return [arr[:size] for arr, size in zip(self._outs, self._sizes, strict=True)]
 

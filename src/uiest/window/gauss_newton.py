@@ -7,10 +7,13 @@ convex QP
     min_dz  1/2 dz^T (J^T J + lambda I) dz + (J^T r)^T dz
     s.t.    lbg - g <= G dz <= ubg - g,     lbx - z <= dz <= ubx - z,
 
-with ``J = dr/dz``, ``G = dg/dz``. One CasADi Function gives ``r``, ``J^T r``, ``J^T J``, ``g``
-and ``G`` (sparse), and the QP is solved by CasADi's active-set solver ``qrqp``; both are called
-through CasADi's buffer interface, so no ``DM`` is built per call (a plain call costs about
-60 us per Function, more than the evaluation itself). qrqp's active set starts as the bounds
+with ``J = dr/dz``, ``G = dg/dz``. One CasADi Function evaluates a point: ``|r|^2``, the
+violation of ``lbg <= g <= ubg`` (its sum and largest entry), ``J^T r``, ``J^T J``, ``g``, ``G``
+(sparse) and the stationarity measure of the KKT test below (given the QP's multipliers), so that
+the iteration's tests are scalars; the QP is solved by CasADi's active-set solver ``qrqp``. Both
+are called through CasADi's buffer interface, so no ``DM`` is built per call (a plain call costs
+about 60 us per Function, more than the evaluation itself), and two evaluation buffers take turns
+(the current point's and the trial point's), so nothing is copied. qrqp's active set starts as the bounds
 and inequalities the starting point sits on (for the shifted previous optimum, mostly the
 final active set) and then as the previous iteration's; a QP that fails from it is solved again
 from an empty active set.
@@ -45,7 +48,7 @@ from __future__ import annotations
 
 import math
 import time
-from typing import Any
+from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
@@ -56,7 +59,7 @@ from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
-from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution, largest_violation
+from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
 
 QP_OPTIONS: dict[str, Any] = {
     "print_iter": False,
@@ -89,6 +92,41 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
     """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0."""
     at_upper, at_lower = value >= upper - ACTIVE_TOL, value <= lower + ACTIVE_TOL
     return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
+
+
+class _Point(NamedTuple):
+    """An evaluated point.
+
+    ``z``, its buffer, ``|r|^2``, the sum and largest entry of the violation of ``lbg <= g <= ubg``,
+    the stationarity measure, and the nonzeros of ``J^T r``, ``J^T J``, ``g`` and ``G``.
+    """
+
+    z: FloatArray
+    slot: int
+    cost: float
+    violation: float
+    worst: float
+    stationarity: float
+    q: FloatArray
+    h: FloatArray
+    g: FloatArray
+    a: FloatArray
+
+
+def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX) -> list[ca.SX]:
+    """``|r|^2``, the sum and largest entry of the violation of ``lbg <= g <= ubg``, and the KKT measure.
+
+    The KKT measure is ``|s|_inf`` with ``s = J^T r + G^T lam_g`` (``jtr = J^T r``) where ``z`` is free, its
+    outward part where ``z`` is on a bound (see :meth:`GaussNewtonSolver._stationary`); the
+    cost's gradient is ``2 J^T r``, the QP's multipliers are those of ``|r|^2 / 2``.
+    """
+    r, g = problem.r, problem.g
+    lbg, ubg, lbx, ubx = (ca.DM(bound) for bound in (problem.lbg, problem.ubg, problem.lbx, problem.ubx))
+    below, above = ca.fmax(lbg - g, 0.0), ca.fmax(g - ubg, 0.0)
+    s = jtr + ca.mtimes(G.T, lam_g)
+    s = ca.if_else(z >= ubx, ca.fmax(s, 0.0), ca.if_else(z <= lbx, ca.fmin(s, 0.0), s))
+    worst = ca.mmax(ca.fmax(below, above)) if g.numel() else ca.SX(0.0)
+    return [ca.sumsqr(r), ca.sum1(below + above) if g.numel() else ca.SX(0.0), ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
 
 
 class GaussNewtonSolver:
@@ -150,6 +188,7 @@ class GaussNewtonSolver:
         self.fallback = bool(fallback)
         self.polish = bool(polish)
         z, p = problem.z, problem.p
+        lam_g = ca.SX.sym("lam_g", problem.n_con)
         J = ca.jacobian(problem.r, z)
         G = ca.jacobian(problem.g, z)
         # J^T J with its whole diagonal structurally present (Levenberg-Marquardt adds to it)
@@ -157,17 +196,16 @@ class GaussNewtonSolver:
         self._h_sparsity, self._a_sparsity = H.sparsity(), G.sparsity()
         self._h_rows, self._h_cols = (np.asarray(index) for index in self._h_sparsity.get_triplet())
         self._h_diagonal = np.flatnonzero(self._h_rows == self._h_cols)
-        self._a_rows, self._a_cols = (np.asarray(index, dtype=np.int64) for index in self._a_sparsity.get_triplet())
-        self._linearisation = BufferedFunction(
-            ca.Function(
-                "gn_linearisation",
-                [z, p],
-                [ca.densify(problem.r), ca.densify(ca.mtimes(J.T, problem.r)), H, ca.densify(problem.g), G],
-            )
+        jtr = ca.densify(ca.mtimes(J.T, problem.r))
+        evaluation = ca.Function(
+            "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
         )
+        self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
         self._qrqp = BufferedFunction(
             ca.conic("gn_qp", "qrqp", {"h": self._h_sparsity, "a": self._a_sparsity}, dict(QP_OPTIONS))
         )
+        self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
+        self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
         self._objective_scale = 1.0
         self._singular = False
@@ -175,13 +213,19 @@ class GaussNewtonSolver:
         self._lam_a = np.zeros(problem.n_con)
 
     # ------------------------------------------------------------------ evaluations
-    def _violation_l1(self, g: FloatArray) -> float:
-        """``|violation of lbg <= g <= ubg|_1``."""
-        prob = self.problem
-        return float(np.maximum(prob.lbg - g, 0.0).sum() + np.maximum(g - prob.ubg, 0.0).sum()) if g.size else 0.0
+    def _evaluate(self, z: FloatArray, p: FloatArray, keep: _Point | None = None) -> _Point:
+        """The point ``z``, with the stationarity measure for the current QP multipliers.
 
-    def _stationary(self, z: FloatArray, linearisation: tuple[FloatArray, ...]) -> bool:
-        """KKT stationarity at ``z`` with the last QP's constraint multipliers, to ``kkt_tol``.
+        Evaluated into the buffer that ``keep`` (a point still in use) does not occupy; the
+        arrays of the returned point are overwritten by the evaluation after next.
+        """
+        slot = 1 - keep.slot if keep is not None else 0
+        cost, violation, worst, stationarity, q, h, g, a = self._buffers[slot](z, p, self._lam_a)
+        return _Point(z, slot, float(cost[0]), float(violation[0]), float(worst[0]), float(stationarity[0]),
+                      q, h, g[: self.problem.n_con], a)  # fmt: skip
+
+    def _stationary(self, point: _Point) -> bool:
+        """KKT stationarity at ``point`` with the last QP's constraint multipliers, to ``kkt_tol``.
 
         ``s = J^T r + G^T lam_g`` must vanish at free variables and point outwards at active
         bounds (where the bound's multiplier takes it); the test is
@@ -189,51 +233,45 @@ class GaussNewtonSolver:
         of the QP are those of the window problem to second order, so this stops without
         solving one more QP to see a zero step.
         """
-        prob = self.problem
-        _, q, _, _, a = linearisation
-        s = q + np.bincount(self._a_cols, weights=a * self._lam_a[self._a_rows], minlength=prob.n_var)
-        s = np.where(z >= prob.ubx, np.maximum(s, 0.0), np.where(z <= prob.lbx, np.minimum(s, 0.0), s))
-        return float(np.abs(s).max(initial=0.0)) <= self.kkt_tol * (1.0 + float(np.abs(self._lam_a).max(initial=0.0)))
+        return point.stationarity <= self.kkt_tol * (1.0 + float(np.abs(self._lam_a).max(initial=0.0)))
 
     # ------------------------------------------------------------------ QP
     def _qp(
         self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], warm: bool
-    ) -> tuple[FloatArray, FloatArray, FloatArray] | None:
-        """``(dz, lam_x, lam_a)`` of the QP by qrqp, or None; ``warm``: start from the last QP's active set."""
-        n, m, c = self.problem.n_var, self.problem.n_con, self._objective_scale
-        lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else (np.zeros(n), np.zeros(m))
+    ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
+        """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units) by qrqp, or None.
+
+        ``warm``: start from the last QP's active set.
+        """
+        c = self._objective_scale
+        lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
-        x, _, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, np.zeros(n), lam_x0, lam_a0, np.zeros(0), np.zeros(0))
+        x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
         if not (self._qrqp.stats().get("success", False) and np.all(np.isfinite(x))):
             return None
-        return x.copy(), lam_x / c, lam_a[:m] / c
+        return x.copy(), float(cost[0]) / c, lam_x / c, lam_a[: self.problem.n_con] / c
 
-    def _linearise(self, z: FloatArray, p: FloatArray) -> tuple[FloatArray, ...]:
-        """``(r, q = J^T r, nonzeros of J^T J, g, nonzeros of G)`` at ``z`` (copies)."""
-        r, q, h, g, a = (arr.copy() for arr in self._linearisation(z, p))
-        return r, q, h, g[: self.problem.n_con], a
-
-    def _step(
-        self, z: FloatArray, linearisation: tuple[FloatArray, ...], damping: float, warm: bool
-    ) -> tuple[FloatArray, float] | None:
+    def _step(self, point: _Point, damping: float, warm: bool) -> tuple[FloatArray, float] | None:
         """The QP step ``dz`` with ``damping`` added to ``J^T J``, and the decrease of ``|r|^2`` it predicts.
 
         ``warm``: qrqp starts from the previous QP's active set, and from scratch if that fails.
         None if the QP fails.
         """
         prob = self.problem
-        _, q, h, g, a = linearisation
+        h = point.h
         if damping:
             h = h.copy()
             h[self._h_diagonal] += damping
-        bounds = (prob.lbg - g, prob.ubg - g, prob.lbx - z, prob.ubx - z)
-        solved = (warm and self._qp(h, q, a, bounds, warm=True)) or self._qp(h, q, a, bounds, warm=False)
+        bounds = (prob.lbg - point.g, prob.ubg - point.g, prob.lbx - point.z, prob.ubx - point.z)
+        solved = (warm and self._qp(h, point.q, point.a, bounds, warm=True)) or self._qp(
+            h, point.q, point.a, bounds, warm=False
+        )
         if not solved:
             return None
-        dz, self._lam_x, self._lam_a = solved
-        # decrease of |r|^2 predicted by the undamped Gauss-Newton model: -2 (q^T dz + dz^T J^T J dz / 2)
-        h_dz = np.bincount(self._h_rows, weights=linearisation[2] * dz[self._h_cols], minlength=prob.n_var)
-        return dz, -2.0 * float(q @ dz + 0.5 * dz @ h_dz)
+        dz, model, self._lam_x, self._lam_a = solved
+        # decrease of |r|^2 predicted by the undamped Gauss-Newton model, -2 (q^T dz + dz^T J^T J dz / 2),
+        # from the QP's cost q^T dz + dz^T (J^T J + damping I) dz / 2
+        return dz, -2.0 * (model - 0.5 * damping * float(dz @ dz))
 
     # ------------------------------------------------------------------ the solve
     def solve(
@@ -246,26 +284,24 @@ class GaussNewtonSolver:
         """Gauss-Newton iterations from ``z0`` (clipped into the bounds)."""
         prob = self.problem
         start = time.perf_counter()
-        z = np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx)
         p = np.asarray(p, dtype=float)
         self._objective_scale = prob.objective_scale(p)  # the QP's cost scaled as IPOPT's (same steps)
         status, converged, iterations, regularised = "Maximum_Iterations_Exceeded", False, 0, self._singular
-        linearisation = self._linearise(z, p)
-        r, g = linearisation[0], linearisation[3]
-        h_max = float(np.abs(linearisation[2]).max(initial=1.0))
+        point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
+        h_max = float(np.abs(point.h).max(initial=1.0))
         damping_floor = DAMPING_FLOOR * h_max
         damping_min = max(self.min_damping, SINGULAR_DAMPING if self._singular else 0.0) * h_max
         damping, warm = damping_min, True
         # the first QP starts with the bounds and inequalities the starting point sits on active
-        self._lam_x = _on_bounds(z, prob.lbx, prob.ubx)
-        self._lam_a = _on_bounds(g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
+        self._lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
+        self._lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
         for iterations in range(1, self.max_iter + 1):  # noqa: B007 (iterations is reported)
-            step = self._step(z, linearisation, damping, warm)
+            step = self._step(point, damping, warm)
             if step is None and damping <= damping_min:  # a singular or failed QP: Levenberg-Marquardt steps
                 for relative in (SINGULAR_DAMPING, REGULARISED_DAMPING):
                     if relative * h_max > damping:
                         damping, regularised = relative * h_max, True
-                        step = self._step(z, linearisation, damping, warm=False)
+                        step = self._step(point, damping, warm=False)
                         if step is not None:
                             break
                 if step is not None and relative == SINGULAR_DAMPING:
@@ -276,27 +312,21 @@ class GaussNewtonSolver:
                 break
             dz, predicted = step
             warm = True
-            cost = float(r @ r)
-            violation = self._violation_l1(g)
             nu = 2.0 * float(np.abs(self._lam_a).max(initial=0.0)) + 1.0
-            z_new = np.clip(z + dz, prob.lbx, prob.ubx)
-            trial = self._linearise(z_new, p)
-            r_new, g_new = trial[0], trial[3]
+            trial = self._evaluate(np.clip(point.z + dz, prob.lbx, prob.ubx), p, keep=point)
             # the QP step satisfies the linearised constraints: the model predicts the violation gone
-            predicted_merit = predicted + nu * violation
-            actual_merit = cost + nu * violation - float(r_new @ r_new) - nu * self._violation_l1(g_new)
+            predicted_merit = predicted + nu * point.violation
+            actual_merit = point.cost + nu * point.violation - trial.cost - nu * trial.violation
             ratio = actual_merit / predicted_merit if predicted_merit > 0.0 else (1.0 if actual_merit >= 0 else -1.0)
             small_step = np.abs(dz).max(initial=0.0) <= self.step_tol
             if ratio > ACCEPT_RATIO or self.max_iter == 1:
-                z, r, g = z_new, r_new, g_new
+                cost, point = point.cost, trial
                 if ratio > 0.75:
                     damping = damping_min if damping <= damping_floor else damping / 10.0
                 elif ratio < 0.25:
                     damping = max(4.0 * damping, damping_floor)
-                linearisation = trial
-                stationary = small_step or predicted <= self.cost_tol * (1.0 + cost) or self._stationary(z, trial)
-                if stationary:
-                    if largest_violation(prob, z, g) <= FEASIBILITY_TOL:
+                if small_step or predicted <= self.cost_tol * (1.0 + cost) or self._stationary(point):
+                    if point.worst <= FEASIBILITY_TOL:
                         status, converged = "Converged", True
                         break
                     if small_step:
@@ -304,16 +334,16 @@ class GaussNewtonSolver:
                         break
             else:  # rejected: damp more, same linearisation
                 if small_step:
-                    converged = largest_violation(prob, z, g) <= FEASIBILITY_TOL
+                    converged = point.worst <= FEASIBILITY_TOL
                     status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
                 damping = max(4.0 * damping, damping_floor)
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
-            status, converged = "RTI_Step", bool(np.all(np.isfinite(z)))
+            status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
         if regularised and converged:
             status += " (regularised)"
-        cost = float(r @ r)
+        z, cost = point.z, point.cost
         if converged and self.polish and self.max_iter > 1:
             z, cost, _ = refine(prob, z, p)
         elapsed = time.perf_counter() - start
