@@ -104,10 +104,12 @@ class WindowOptions:
 
 @dataclass
 class _Cached:
-    """A window problem, its weights' part of ``p`` and its solvers (the cold one built on first need)."""
+    """A window problem, its weights' part of ``p``, its v and w priors and its solvers (the cold one built on need)."""
 
     problem: WindowProblem
     weights: FloatArray
+    v_bar: FloatArray
+    w_bar: FloatArray
     warm: WindowSolver
     cold: WindowSolver | None = None
 
@@ -297,7 +299,10 @@ class WindowEstimator(StreamingEstimator):
             opts = self._options
             warm = make_solver(opts.solver, problem, warm_start=opts.warm_start, options=dict(opts.solver_options),
                                polish=opts.polish)  # fmt: skip
-            entry = _Cached(problem, problem.weight_vector(weights), warm, None if opts.warm_start else warm)
+            v_bar, w_bar = np.tile(self.v_prior, (problem.n_meas, 1)), np.tile(self.w_prior, (length, 1))
+            entry = _Cached(
+                problem, problem.weight_vector(weights), v_bar, w_bar, warm, None if opts.warm_start else warm
+            )
             self._cache[length] = entry
         return entry
 
@@ -477,8 +482,8 @@ class WindowEstimator(StreamingEstimator):
             prior,
             u_win,
             y_win,
-            v_bar=np.tile(self.v_prior, (problem.n_meas, 1)),
-            w_bar=np.tile(self.w_prior, (length, 1)),
+            v_bar=entry.v_bar,
+            w_bar=entry.w_bar,
             data=data,
             weights=entry.weights,
         )

@@ -126,32 +126,32 @@ class WindowModel:
             object.__setattr__(self, "node_scale", _scale(given, c.numel_out(0), "node_scale"))
 
     # ------------------------------------------------------------------ sizes
-    @property
+    @cached_property
     def nx(self) -> int:
         """State dimension."""
         return int(self.f.numel_in(0))
 
-    @property
+    @cached_property
     def nu(self) -> int:
         """Known-input dimension."""
         return int(self.f.numel_in(1))
 
-    @property
+    @cached_property
     def nw(self) -> int:
         """Unknown-input dimension."""
         return int(self.f.numel_in(2))
 
-    @property
+    @cached_property
     def nv(self) -> int:
         """Noise dimension."""
         return int(self.f.numel_in(3))
 
-    @property
+    @cached_property
     def nd(self) -> int:
         """Node-data dimension."""
         return int(self.f.numel_in(4))
 
-    @property
+    @cached_property
     def ny(self) -> int:
         """Output dimension."""
         return int(self.h.numel_out(0))

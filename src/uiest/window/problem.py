@@ -502,9 +502,10 @@ class WindowProblem:
         }
         p = np.empty(self.n_par)
         for key, value in parts.items():
-            if not np.all(np.isfinite(value)):
-                raise DataError(f"{key}: expected finite window data, got {np.asarray(value).tolist()}")
             p[self.parameter_slices[key]] = np.ravel(value)
+        if not np.isfinite(p).all():
+            key = next(key for key, value in parts.items() if not np.all(np.isfinite(value)))
+            raise DataError(f"{key}: expected finite window data, got {np.asarray(parts[key]).tolist()}")
         return p
 
     def _weights_part(self, weights: WindowWeights | FloatArray | None) -> FloatArray:
