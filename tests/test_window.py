@@ -1,4 +1,4 @@
-"""WindowProblem: layout, scaling, residuals, bounds, and the IPOPT backend against linear least squares."""
+"""WindowProblem: layout, scaling, residuals, bounds, and each backend against linear least squares and IPOPT."""
 
 import numpy as np
 import pytest
@@ -78,8 +78,16 @@ def lstsq_reference(L, measured, W, prior, u, y, v_bar, w_bar):
     return x, theta[2 : 2 + L].reshape(L, 1), theta[2 + L :].reshape(M, 1)
 
 
+BACKENDS = ["ipopt", "gn", "rti"]
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize(("L", "one_step_ahead", "with_w"), [(0, False, False), (4, False, False), (4, True, True)])
-def test_ipopt_solution_equals_linear_least_squares(L, one_step_ahead, with_w):
+def test_each_backend_solves_a_linear_window_to_its_least_squares_optimum(L, one_step_ahead, with_w, backend):
+    """A linear window problem is a least-squares problem: its optimum is known in closed form.
+
+    Gauss-Newton is exact on it; the real-time iteration's one step from zero reaches it too.
+    """
     rng = np.random.default_rng(L)
     system = small_system()
     measured = list(range(L)) if one_step_ahead else list(range(L + 1))
@@ -89,7 +97,7 @@ def test_ipopt_solution_equals_linear_least_squares(L, one_step_ahead, with_w):
     y, v_bar = rng.standard_normal((len(measured), 1)), 0.1 * rng.standard_normal((len(measured), 1))
     w_bar = rng.standard_normal((L, 1))
     p = problem.parameters(prior, u, y, v_bar=v_bar, w_bar=w_bar)
-    solution = make_solver("ipopt", problem).solve(np.zeros(problem.n_var), p)
+    solution = make_solver(backend, problem).solve(np.zeros(problem.n_var), p)
     assert solution.success, solution.status
     got = problem.unpack(solution.z)
     x, w, v = lstsq_reference(L, measured, W, prior, u, y, v_bar, w_bar)
@@ -206,6 +214,26 @@ def test_unbounded_unknown_input_and_output_constraints():
     traj = problem.unpack(solution.z)
     y_hat = traj.x @ C.T + traj.v
     assert solution.success and np.all(y_hat <= 1.0 + 1e-6)
+
+
+@pytest.mark.parametrize("backend", ["gn", "rti"])
+def test_each_backend_finds_ipopts_optimum_with_active_bounds_and_inequalities(backend):
+    """Linear windows whose optimum sits on output constraints or on the state box (a convex QP: one optimum)."""
+    bounded = small_system(x_bounds=(-0.5, 0.5))
+    W = WindowWeights(prior=1e-6 * np.eye(2), y=np.ones((4, 1, 1)), v=np.ones((4, 1, 1)))
+    on_box = WindowProblem(bounded, 3, [0, 1, 2, 3], W)
+    y_box = np.array([[0.0], [3.0], [3.0], [3.0]])
+    constrained = small_system(y_bounds=(-1.0, 1.0))
+    W = WindowWeights(prior=np.eye(2), y=np.ones((3, 1, 1)), v=np.ones((3, 1, 1)))
+    on_outputs = WindowProblem(constrained, 2, [0, 1, 2], W)
+    for problem, y in ((on_box, y_box), (on_outputs, np.full((3, 1), 5.0))):
+        p = problem.parameters(np.zeros(2), np.zeros((problem.length, 1)), y)
+        # IPOPT polished: its interior-point iterate ends ~1e-5 inside or outside active bounds
+        reference = make_solver("ipopt", problem, polish=True).solve(np.zeros(problem.n_var), p)
+        solution = make_solver(backend, problem).solve(np.zeros(problem.n_var), p)
+        assert reference.success and solution.success, (reference.status, solution.status)
+        assert solution.cost == pytest.approx(reference.cost, rel=1e-8)
+        np.testing.assert_allclose(solution.z, reference.z, atol=1e-6)
 
 
 def test_state_box_is_enforced_at_every_node():
