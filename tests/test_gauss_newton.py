@@ -134,3 +134,30 @@ def test_gauss_newton_equals_ipopt_on_the_noisy_linear_example(estimator):
     gn, ipopt = runs["gn"], runs["ipopt"]
     assert gn.failures == 0 and ipopt.failures == 0
     assert np.abs((gn.x_hat - ipopt.x_hat) / system.x.scale).max() < 1e-6
+
+
+@pytest.mark.parametrize(("kind", "N"), [("two-stage", 10), ("uise", 30)])
+def test_second_order_corrections_spare_the_fallbacks_on_noisy_crop_windows(kind, N, monkeypatch):
+    """Long steps along weakly seen directions leave the dynamics violated: without the correction,
+    damped and full steps alternate until the iteration limit and IPOPT takes the sample over."""
+    from uiest.estimators import TwoStageUISE, TwoStageWeights
+
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 300, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    prior = scenario.prior(traj.y[0])
+
+    def run():
+        if kind == "uise":
+            weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+            estimator = UISE(system, weights=weights, N=N, x0_prior=prior, solver="gn")
+        else:
+            reduced = crop_growth.reduction()
+            weights = TwoStageWeights.from_scales(reduced, 0.48, output=1e6)
+            estimator = TwoStageUISE(reduced, weights=weights, N=N, x0_prior=prior, solver="gn")
+        result = estimator.run(traj.u, traj.y)
+        return result.failures, sum("-> ipopt" in status for status in result.status)
+
+    assert run() == (0, 0)
+    monkeypatch.setattr(gauss_newton, "SOC_RATIO", float("inf"))  # no correction is ever good enough
+    failures, fallbacks = run()
+    assert failures == 0 and fallbacks > 0
