@@ -293,7 +293,9 @@ def reproduce(
     steps: Annotated[int | None, typer.Option(help="Steps K per run.")] = None,
     solver: Annotated[
         str,
-        typer.Option(help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: 6-9x less CPU)."),
+        typer.Option(
+            help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: 5-12x less CPU per sample)."
+        ),
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
     out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
