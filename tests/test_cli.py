@@ -1,4 +1,5 @@
 import pandas as pd
+import pytest
 from typer.testing import CliRunner
 
 from uiest import models
@@ -97,6 +98,24 @@ def test_sweep_command_runs_and_resumes(tmp_path):
     assert "2 of 2 tasks stored (0 with an error), 0 lost" in result.output
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and "2 of 2 tasks stored" in again.output
+
+
+def test_bench_runs_only_the_chosen_estimator_and_window_length(tmp_path):
+    import json
+
+    out = tmp_path / "bench.json"
+    result = runner.invoke(app, ["bench", "-N", "3", "--estimator", "standard MHE", "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    records = json.loads(out.read_text())
+    assert {(r["estimator"], r["N"]) for r in records} == {("standard MHE", 3)}
+    assert {"ipopt", "gn", "rti"} <= {r["solver"] for r in records}
+
+
+@pytest.mark.parametrize("args", [["--estimator", "EKF"], ["-N", "0"]], ids=["estimator", "horizon"])
+def test_bench_rejects_unknown_estimators_and_window_lengths_before_running(args):
+    result = runner.invoke(app, ["bench", *args])
+    assert result.exit_code == 2 and "expected" in result.output
+    assert "cpu ms" not in result.output  # no table was started
 
 
 def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):

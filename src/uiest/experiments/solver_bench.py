@@ -40,11 +40,15 @@ import numpy as np
 
 from uiest import simulate
 from uiest.box import FloatArray
+from uiest.errors import OptionError
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
 from uiest.window import IpoptSolver, WindowSolution, WindowSolver
 
 SOLVERS = ("ipopt", "gn", "rti")
+
+ESTIMATORS = ("UISE", "two-stage UISE", "standard MHE")
+"""The estimators :func:`bench_window_solvers` times, in its order."""
 
 
 class _Recorder:
@@ -242,6 +246,7 @@ def bench_window_solvers(
     *,
     quick: bool = False,
     horizons: tuple[int, ...] | None = None,
+    estimators: tuple[str, ...] | None = None,
     long_horizon: int = LONG_HORIZON,
     report: Callable[[dict[str, object]], None] | None = None,
 ) -> list[dict[str, object]]:
@@ -261,12 +266,19 @@ def bench_window_solvers(
     average when the record was taken).
     ``quick``: N = 30 only, 100 samples (else ``horizons``, default N in {10, 30, 100, 300}: 300
     samples for N <= 30, N + 50 for N >= 100). Horizons from ``long_horizon`` on use the
-    long-horizon protocol. ``report(record)`` is called as records appear.
+    long-horizon protocol. ``estimators``: names from :data:`ESTIMATORS` (default all).
+    ``report(record)`` is called as records appear.
     """
+    chosen = ESTIMATORS if estimators is None else tuple(estimators)
+    unknown = [name for name in chosen if name not in ESTIMATORS]
+    if unknown or not chosen:
+        raise OptionError(f"estimators: expected names from {', '.join(ESTIMATORS)}, got {list(chosen)}")
+    horizons = (30,) if quick else (horizons or (10, 30, 100, 300))
+    if not all(isinstance(N, int | np.integer) and N >= 1 for N in horizons):
+        raise OptionError(f"horizons: expected window lengths N >= 1, got {list(horizons)}")
     system = crop_growth.system()
     reduced = crop_growth.reduction()
     scenario = crop_growth.DEFAULT_SCENARIO
-    horizons = (30,) if quick else (horizons or (10, 30, 100, 300))
     lengths = {N: 100 if quick else (300 if N <= 30 else N + 50) for N in horizons}
     traj = simulate(system, scenario.x0, max(lengths.values()), w=crop_growth.UnknownInputLaw(),
                     v=scenario.noise(), seed=1)  # fmt: skip
@@ -299,7 +311,7 @@ def bench_window_solvers(
             "two-stage UISE": two_stage,
             "standard MHE": standard,
         }
-        for name, build in builders.items():
+        for name, build in ((name, builders[name]) for name in chosen):
             reference, reference_ms, reference_cpu = None, 0.0, 0.0
             ipopt_times = _IpoptTimes()
             for solver in ("gn", "rti") if long else SOLVERS:
