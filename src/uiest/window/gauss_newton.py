@@ -75,12 +75,13 @@ QP_OPTIONS: dict[str, Any] = {
 """qrqp options; ``max_iter`` bounds one QP (a failed QP is retried damped, then by IPOPT)."""
 
 ACCEPT_RATIO = 1e-4
+"""Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
+
 SOC_RATIO = 0.75
 """Smallest ratio of actual to predicted merit decrease for which a second-order correction is taken
 (see :meth:`GaussNewtonSolver._second_order_correction`): only a good one replaces the damped steps
 that would follow; taken on weaker ratios, corrections slowed the ill-conditioned crop UISE windows
 with N = 100 (weights down to 0.48^99) down."""
-"""Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
 
 DAMPING_FLOOR = 1e-9
 """Levenberg-Marquardt damping after a poor or rejected step, relative to ``max |J^T J|``; good
