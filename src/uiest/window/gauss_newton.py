@@ -292,7 +292,10 @@ class GaussNewtonSolver:
         dz, model, self._lam_x, self._lam_a = solved
         # decrease of |r|^2 predicted by the undamped Gauss-Newton model, -2 (q^T dz + dz^T J^T J dz / 2),
         # from the QP's cost q^T dz + dz^T (J^T J + damping I) dz / 2
-        return dz, -2.0 * (model - 0.5 * damping * float(dz @ dz))
+        with np.errstate(over="ignore", invalid="ignore"):
+            predicted = -2.0 * (model - 0.5 * damping * float(dz @ dz)) if damping else -2.0 * model
+        # a step whose square overflows has no model decrease: treated as a failed QP (damped retries follow)
+        return (dz, predicted) if math.isfinite(predicted) else None
 
     def _second_order_correction(
         self, point: _Point, trial: _Point, dz: FloatArray, damping: float, p: FloatArray
