@@ -161,3 +161,23 @@ def test_second_order_corrections_spare_the_fallbacks_on_noisy_crop_windows(kind
     monkeypatch.setattr(gauss_newton, "SOC_RATIO", float("inf"))  # no correction is ever good enough
     failures, fallbacks = run()
     assert failures == 0 and fallbacks > 0
+
+
+def test_linearly_converging_noisy_windows_finish_within_the_default_iteration_limit():
+    """Noisy standard-MHE windows, where the residuals' curvature makes Gauss-Newton contract by
+    only about 0.5 per iteration: the default limit lets them converge; 15 iterations, the
+    control, hand some samples to IPOPT."""
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 300, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    weights = MHEWeights.from_scales(system, 0.48, output=1e6)
+
+    def fallbacks(**options):
+        estimator = StandardMHE(
+            system, weights=weights, N=10, x0_prior=scenario.prior(traj.y[0]), solver="gn", solver_options=options
+        )
+        result = estimator.run(traj.u, traj.y)
+        assert result.failures == 0
+        return sum("-> ipopt" in status for status in result.status)
+
+    assert fallbacks() == 0
+    assert fallbacks(max_iter=15) > 0
