@@ -92,7 +92,10 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     assert result.failures == 0
 
 
-def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, monkeypatch):
+@pytest.mark.parametrize("singular_below", [0.0, 1e-12], ids=["undamped", "up-to-1e-14"])
+def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, monkeypatch, singular_below):
+    """QPs fail undamped (or also at the 1e-14 damping, so that only the 1e-5 one solves): each
+    solver tries the undamped QP once, never again in later iterations or samples."""
     system, traj, prior = crop_run
     weights = UISEWeights.from_scales(system, 0.48, output=1e6)
     reference = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
@@ -100,16 +103,20 @@ def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, mo
     dampings: list[float] = []
 
     def singular_when_undamped(self, point, damping, warm):  # as if J^T J were singular
-        dampings.append(damping / np.abs(point.h).max())
-        return None if damping == 0.0 else real_step(self, point, damping, warm)
+        relative = damping / np.abs(point.h).max()
+        dampings.append(relative)
+        return None if relative <= singular_below else real_step(self, point, damping, warm)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", singular_when_undamped)
     estimator = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn")
     result = estimator.run(traj.u[:10], traj.y[:11])
     assert set(result.status[1:]) == {"Converged (regularised)"} and result.failures == 0
-    # each window length's solver (0 .. 5) tried one undamped QP, then 1e-14; later solves start damped
+    # each window length's solver (0 .. 5) tried one undamped QP, then 1e-14 (and 1e-9); later solves start damped
     assert dampings.count(0.0) == 6 and min(d for d in dampings if d > 0) == pytest.approx(1e-14)
-    assert estimator._cached(5).warm._singular
+    if singular_below:  # 1e-14 failed once per solver too: later solves start at 1e-9
+        assert sum(0.0 < d < 1e-12 for d in dampings) == 6
+    kept = gauss_newton.DAMPING_FLOOR if singular_below else gauss_newton.SINGULAR_DAMPING
+    assert estimator._cached(5).warm._kept_damping == kept
     np.testing.assert_allclose(result.x_hat, reference.x_hat, rtol=0, atol=1e-6)
 
 

@@ -37,10 +37,13 @@ linear models, whose window problem is a QP).
 
 Reliability: a QP that fails undamped (singular ``J^T J`` on the null space of the active
 constraints, or NaN) is retried with ``lambda = SINGULAR_DAMPING max|J^T J|`` (1e-14), then
-with ``REGULARISED_DAMPING max|J^T J|`` (1e-5); the status then ends in ``"(regularised)"``.
-A problem whose QP was singular once keeps the 1e-14 damping for all later solves (the crop
-UISE with N = 100, whose oldest nodes carry weights ``mu^99 ~ 1e-32``: without it, every sample
-would first spend hundreds of qrqp iterations on a QP that fails). If the damped QP fails too,
+``DAMPING_FLOOR max|J^T J|`` (1e-9), then ``REGULARISED_DAMPING max|J^T J|`` (1e-5); the
+status then ends in ``"(regularised)"``. The problem keeps the smallest of the first two
+dampings above the one that failed as its least damping, for all later iterations and solves
+(the crop UISE with N = 100, whose oldest nodes carry weights ``mu^99 ~ 1e-32``: without it,
+every sample would first spend hundreds of qrqp iterations on a QP that fails; on the two-stage
+UISE with N = 300 each such failure took qrqp 4-7 s, and solves that went back to the damping
+that had failed paid it again and again). If the damped QP fails too,
 or the iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and
 the status says so. Gauss-Newton's model ``J^T J`` leaves out the residuals' and constraints'
 curvature, which in directions the data barely determine can exceed ``J^T J``'s; there it
@@ -85,14 +88,18 @@ with N = 100 (weights down to 0.48^99) down."""
 
 DAMPING_FLOOR = 1e-9
 """Levenberg-Marquardt damping after a poor or rejected step, relative to ``max |J^T J|``; good
-steps bring a damping at or below it straight back to the solve's minimum (0, or
-``SINGULAR_DAMPING`` once the problem's QP was singular)."""
+steps bring a damping at or below it straight back to the solve's minimum (0, or the damping the
+problem keeps after failed QPs)."""
 
 SINGULAR_DAMPING = 1e-14
 """Damping, relative to ``max |J^T J|``, tried first when an undamped QP fails (singular in double precision)."""
 
 REGULARISED_DAMPING = 1e-5
-"""Damping, relative to ``max |J^T J|``, tried when that fails too."""
+"""Damping, relative to ``max |J^T J|``, tried when ``SINGULAR_DAMPING`` and ``DAMPING_FLOOR`` fail too (never kept)."""
+
+RETRY_DAMPINGS = (SINGULAR_DAMPING, DAMPING_FLOOR, REGULARISED_DAMPING)
+"""The dampings a failed QP is retried with, in order; the problem keeps each one but the last as
+its least damping once it is tried."""
 
 ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
@@ -233,7 +240,7 @@ class GaussNewtonSolver:
         self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
         self._objective_scale = 1.0
-        self._singular = False
+        self._kept_damping = 0.0  # least damping (relative) after failed QPs, kept across solves
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
 
@@ -334,11 +341,12 @@ class GaussNewtonSolver:
         start = time.perf_counter()
         p = np.asarray(p, dtype=float)
         self._objective_scale = prob.objective_scale(p)  # the QP's cost scaled as IPOPT's (same steps)
-        status, converged, iterations, regularised = "Maximum_Iterations_Exceeded", False, 0, self._singular
+        status, converged, iterations = "Maximum_Iterations_Exceeded", False, 0
+        regularised = self._kept_damping > 0.0
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
         h_max = float(np.abs(point.h).max(initial=1.0))
         damping_floor = DAMPING_FLOOR * h_max
-        damping_min = max(self.min_damping, SINGULAR_DAMPING if self._singular else 0.0) * h_max
+        damping_min = max(self.min_damping, self._kept_damping) * h_max
         damping, warm = damping_min, True
         # the first QP starts with the bounds and inequalities the starting point sits on active
         self._lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
@@ -346,15 +354,15 @@ class GaussNewtonSolver:
         for iterations in range(1, self.max_iter + 1):  # noqa: B007 (iterations is reported)
             step = self._step(point, damping, warm)
             if step is None and damping <= damping_min:  # a singular or failed QP: Levenberg-Marquardt steps
-                for relative in (SINGULAR_DAMPING, REGULARISED_DAMPING):
+                for relative in RETRY_DAMPINGS:
                     if relative * h_max > damping:
+                        if relative < REGULARISED_DAMPING:  # later iterations and solves start at least this damped
+                            self._kept_damping = max(self._kept_damping, relative)
+                            damping_min = max(damping_min, relative * h_max)
                         damping, regularised = relative * h_max, True
                         step = self._step(point, damping, warm=False)
                         if step is not None:
                             break
-                if step is not None and relative == SINGULAR_DAMPING:
-                    # singular in double precision: later iterations and solves start damped
-                    self._singular, damping_min = True, damping
             if step is None:
                 status = "QP_failed"
                 break
