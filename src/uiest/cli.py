@@ -294,7 +294,7 @@ def reproduce(
     solver: Annotated[
         str,
         typer.Option(
-            help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: 5-12x less CPU per sample)."
+            help="Window solver backend (ipopt: the paper's, so Table 1 compares; gn: 4-15x less CPU per sample)."
         ),
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,

@@ -239,8 +239,8 @@ BACKENDS = ("ipopt", "gn", "rti")
 """Names accepted as ``solver=``."""
 
 DEFAULT_BACKEND = "gn"
-"""The estimators' default backend: Gauss-Newton SQP, 5-12x less CPU per sample than IPOPT on the crop
-windows with N <= 100 (44x on the UISE at N = 100; ``uiest bench``), with IPOPT as its fallback for any sample it
+"""The estimators' default backend: Gauss-Newton SQP, 4-15x less CPU per sample than IPOPT on the crop
+windows with N <= 100 (57x on the UISE at N = 100; ``uiest bench``), with IPOPT as its fallback for any sample it
 does not solve."""
 
 
