@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from uiest import simulate
+from uiest import System, UniformNoise, simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
 from uiest.models import crop_growth, get
 from uiest.window import gauss_newton
@@ -188,3 +188,28 @@ def test_linearly_converging_noisy_windows_finish_within_the_default_iteration_l
 
     assert fallbacks() == 0
     assert fallbacks(max_iter=15) > 0
+
+
+def test_rejected_steps_are_damped_to_the_curvature_along_them_on_a_chaotic_map(monkeypatch):
+    """The noisy Henon map's standard MHE: full steps the merit rejects, then damped steps as long
+    as the full one while the damping crawls up from 1e-9 (relative); damped to the curvature along
+    the rejected step, the next step is about half as long and the windows converge. Control:
+    without that rule, samples go to IPOPT."""
+    system = System.from_callables(
+        lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]],
+        lambda x, v: [x[0] + v[0]],
+        nx=2, nw=1, nv=1, x_bounds=((-1.5, -0.5), (1.5, 0.5)), v_bounds=(-1e-3, 1e-3),
+    )  # fmt: skip
+    bits = np.random.default_rng(0).integers(0, 2, 60)
+    message = 0.02 * (2.0 * np.repeat(bits, 8)[:400] - 1.0)[:, None]
+    traj = simulate(system, [0.1, 0.1], 400, w=message, v=UniformNoise.symmetric(1e-3), seed=0)
+    weights = MHEWeights.from_scales(system, 0.8, output=1.0)
+
+    def fallbacks():
+        result = StandardMHE(system, weights=weights, N=10, x0_prior=np.zeros(2), solver="gn").run(None, traj.y)
+        assert result.failures == 0
+        return sum("-> ipopt" in status for status in result.status)
+
+    assert fallbacks() == 0
+    monkeypatch.setattr(gauss_newton, "REJECTION_CURVATURE", 0.0)
+    assert fallbacks() > 0

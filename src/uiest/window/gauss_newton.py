@@ -21,7 +21,8 @@ Steps are safeguarded by Levenberg-Marquardt damping ``lambda`` with a ratio tes
 accepted when the actual decrease of the exact-penalty merit ``|r|^2 + nu |violation of g|_1``
 (``nu`` from the QP multipliers) is at least ``ACCEPT_RATIO`` times the decrease the model
 predicts; ``lambda`` stays 0 while steps are good (exact Gauss-Newton steps), grows after poor
-or rejected steps (a rejected step keeps the linearisation) and shrinks back after good ones.
+or rejected steps (a rejected step keeps the linearisation, and ``lambda`` becomes at least the
+curvature ``J^T J`` shows along it) and shrinks back after good ones.
 A full step that the merit rejects because the cost fell but the constraints' curvature left the
 trial point infeasible (the Maratos effect: on the noisy crop windows, long steps along directions
 the cost barely sees) gets a second-order correction, the QP re-solved with the violation left at
@@ -100,6 +101,13 @@ REGULARISED_DAMPING = 1e-5
 RETRY_DAMPINGS = (SINGULAR_DAMPING, DAMPING_FLOOR, REGULARISED_DAMPING)
 """The dampings a failed QP is retried with, in order; the problem keeps each one but the last as
 its least damping once it is tried."""
+
+REJECTION_CURVATURE = 1.0
+"""After a rejected step the damping is at least this times the curvature ``J^T J`` shows along the
+step, ``dz^T J^T J dz / |dz|^2``, which about halves the next step along it. A damping far below
+that changes nothing: growing it 4x per rejection from ``DAMPING_FLOOR`` repeated nearly the same
+step up to 15 times in a row (noisy Henon-map MHE: 12 of 1200 samples handed to IPOPT; with this
+rule 0; crop UISE at N = 100, 250 samples: 35 -> 18 fallbacks, 14 -> 3 failed samples)."""
 
 ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
@@ -267,6 +275,11 @@ class GaussNewtonSolver:
         """
         return point.stationarity <= self.kkt_tol * (1.0 + float(np.abs(self._lam_a).max(initial=0.0)))
 
+    def _curvature_along(self, point: _Point, dz: FloatArray) -> float:
+        """``dz^T J^T J dz / |dz|^2`` at ``point`` (0 for a zero step)."""
+        norm = float(dz @ dz)
+        return float(np.sum(point.h * dz[self._h_rows] * dz[self._h_cols])) / norm if norm > 0.0 else 0.0
+
     # ------------------------------------------------------------------ QP
     def _qp(
         self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], warm: bool
@@ -395,7 +408,7 @@ class GaussNewtonSolver:
                     converged = point.worst <= FEASIBILITY_TOL
                     status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
-                damping = max(4.0 * damping, damping_floor)
+                damping = max(4.0 * damping, damping_floor, REJECTION_CURVATURE * self._curvature_along(point, dz))
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
