@@ -1,11 +1,13 @@
 """The Gauss-Newton backend against the IPOPT reference, and its fallbacks."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
-from uiest import System, UniformNoise, simulate
+from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
-from uiest.models import crop_growth, get
+from uiest.models import crop_growth, get, load
 from uiest.window import gauss_newton
 
 
@@ -190,26 +192,31 @@ def test_linearly_converging_noisy_windows_finish_within_the_default_iteration_l
     assert fallbacks(max_iter=15) > 0
 
 
-def test_rejected_steps_are_damped_to_the_curvature_along_them_on_a_chaotic_map(monkeypatch):
-    """The noisy Henon map's standard MHE: full steps the merit rejects, then damped steps as long
-    as the full one while the damping crawls up from 1e-9 (relative); damped to the curvature along
-    the rejected step, the next step is about half as long and the windows converge. Control:
-    without that rule, samples go to IPOPT."""
-    system = System.from_callables(
-        lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]],
-        lambda x, v: [x[0] + v[0]],
-        nx=2, nw=1, nv=1, x_bounds=((-1.5, -0.5), (1.5, 0.5)), v_bounds=(-1e-3, 1e-3),
-    )  # fmt: skip
-    bits = np.random.default_rng(0).integers(0, 2, 60)
-    message = 0.02 * (2.0 * np.repeat(bits, 8)[:400] - 1.0)[:, None]
-    traj = simulate(system, [0.1, 0.1], 400, w=message, v=UniformNoise.symmetric(1e-3), seed=0)
-    weights = MHEWeights.from_scales(system, 0.8, output=1.0)
+def _reactor_mhe_fallbacks(N: int, steps: int) -> int:
+    """IPOPT fallbacks of the Gauss-Newton standard MHE on the CSTR of examples/reactor.py (noisy, N given)."""
+    entry = load(Path(__file__).resolve().parents[1] / "examples" / "reactor.py")
+    system, setup = entry.build(), entry.simulation()
+    traj = simulate(system, setup.x0, steps, u=setup.u, w=setup.w, v=setup.noise, seed=0)
+    weights = MHEWeights.from_scales(system, 0.6)
+    estimator = StandardMHE(system, weights=weights, N=N, x0_prior=np.array([0.65, 1.05]), solver="gn")
+    result = estimator.run(traj.u, traj.y)
+    assert result.failures == 0
+    return sum("-> ipopt" in status for status in result.status)
 
-    def fallbacks():
-        result = StandardMHE(system, weights=weights, N=10, x0_prior=np.zeros(2), solver="gn").run(None, traj.y)
-        assert result.failures == 0
-        return sum("-> ipopt" in status for status in result.status)
 
-    assert fallbacks() == 0
+def test_the_merit_penalty_is_relative_to_the_multipliers_on_windows_with_a_small_cost(monkeypatch):
+    """The CSTR's MHE windows have costs near 1e-5 and multipliers near 1e-3: a penalty far above the
+    multipliers (as the absolute margin nu = 2 |lam| + 1 was) rejects every step that leaves a
+    violation of a few 1e-7, and samples go to IPOPT (control)."""
+    assert _reactor_mhe_fallbacks(30, 200) == 0
+    monkeypatch.setattr(gauss_newton, "PENALTY_MARGIN", 300.0)
+    assert _reactor_mhe_fallbacks(30, 200) > 0
+
+
+def test_rejected_steps_are_damped_to_the_curvature_along_them(monkeypatch):
+    """After a rejected step the damping is at least the curvature along it; without that rule the
+    damping crawls up from 1e-9 (relative) with nearly the same step repeated, and the CSTR's MHE
+    hands samples to IPOPT (control)."""
+    assert _reactor_mhe_fallbacks(30, 400) == 0
     monkeypatch.setattr(gauss_newton, "REJECTION_CURVATURE", 0.0)
-    assert fallbacks() > 0
+    assert _reactor_mhe_fallbacks(30, 400) > 0
