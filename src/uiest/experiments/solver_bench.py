@@ -97,6 +97,10 @@ class _StepClock:
 AGREEMENT_TOL = 1e-6
 """Deviation from IPOPT's optimum (scaled units) that issue 7 asks the fast backends to stay within."""
 
+COST_AGREEMENT_TOL = 1e-8
+"""Cost excess over IPOPT's, ``(cost - cost_ipopt) / (1 + cost_ipopt)``, within which a window's optimum counts
+as IPOPT's (issue 19 asks for it in at least 99 % of windows)."""
+
 LONG_HORIZON = 300
 """Horizons from which the long-horizon protocol of the module docstring is used."""
 
@@ -128,8 +132,9 @@ def same_window_deviation(
 
     Keys: ``max_dev_vs_ipopt`` and ``median_dev_vs_ipopt`` (``|z_last - z_last_ipopt|_inf``),
     ``windows_compared``, ``windows_dev_above_1e-6`` (how many deviate by more than
-    :data:`AGREEMENT_TOL`) and ``max_cost_excess_vs_ipopt``
-    (``max (cost - cost_ipopt) / (1 + cost_ipopt)``; negative: the backend's optimum is lower).
+    :data:`AGREEMENT_TOL`), ``max_cost_excess_vs_ipopt``
+    (``max (cost - cost_ipopt) / (1 + cost_ipopt)``; negative: the backend's optimum is lower) and
+    ``windows_cost_above_1e-8`` (how many exceed IPOPT's cost by more than :data:`COST_AGREEMENT_TOL`).
     ``cap``: re-solve at most this many of the successful windows, evenly spread; ``times``:
     where to keep the IPOPT solves' CPU and wall times.
     """
@@ -154,6 +159,7 @@ def same_window_deviation(
         "windows_compared": len(deviations),
         "windows_dev_above_1e-6": int(np.sum(np.asarray(deviations) > AGREEMENT_TOL)),
         "max_cost_excess_vs_ipopt": max(excesses, default=0.0),
+        "windows_cost_above_1e-8": int(np.sum(np.asarray(excesses) > COST_AGREEMENT_TOL)),
     }
 
 
@@ -163,6 +169,7 @@ _IPOPT_ITSELF: dict[str, float | int] = {
     "windows_compared": 0,
     "windows_dev_above_1e-6": 0,
     "max_cost_excess_vs_ipopt": 0.0,
+    "windows_cost_above_1e-8": 0,
 }
 """The same-window agreement keys of the IPOPT backend's own record."""
 
@@ -261,7 +268,7 @@ def bench_window_solvers(
     loop"``, or at long horizons the windows IPOPT was timed on, see the module docstring),
     ``samples`` (timed), ``iterations`` (mean), ``failures``, ``fallbacks`` (samples the
     Gauss-Newton backend handed to IPOPT), max_dev_vs_ipopt, median_dev_vs_ipopt,
-    windows_compared, windows_dev_above_1e-6, max_cost_excess_vs_ipopt and
+    windows_compared, windows_dev_above_1e-6, max_cost_excess_vs_ipopt, windows_cost_above_1e-8 and
     closed_loop_dev_vs_ipopt (see the module docstring), and ``load`` (the 1-minute load
     average when the record was taken).
     ``quick``: N = 30 only, 100 samples (else ``horizons``, default N in {10, 30, 100, 300}: 300
@@ -366,21 +373,25 @@ def bench_window_solvers(
 
 TABLE_HEADER = (
     f"{'estimator':15s} {'solver':6s} {'N':>4s} {'cpu ms':>8s} {'p95':>7s} {'max':>7s} {'x ipopt':>8s} "
-    f"{'wall ms':>8s} {'solve':>7s} {'iter':>5s} {'window dev':>10s} {'>1e-6':>7s} {'cost exc':>9s} "
+    f"{'wall ms':>8s} {'solve':>7s} {'iter':>5s} {'window dev':>10s} {'>1e-6':>7s} {'cost exc':>9s} {'>1e-8':>7s} "
     f"{'run dev':>9s} {'fail':>4s} {'fallb':>5s} {'load':>5s}  protocol"
 )
 """Column headers of :func:`table_row`: per-sample CPU ms (median, p95, max), the CPU ratio to IPOPT, the wall
 median, the solver's share, then the same-window agreement with IPOPT (largest deviation, count above 1e-6,
-cost excess), the closed-loop deviation, failures, IPOPT fallbacks, the load average and the protocol."""
+largest cost excess, count above 1e-8), the closed-loop deviation, failures, IPOPT fallbacks, the load average and
+the protocol."""
 
 
 def table_row(r: dict[str, object]) -> str:
     """One record as a fixed-width line under :data:`TABLE_HEADER`."""
     compared = r["windows_compared"]
-    share = f"{r['windows_dev_above_1e-6']}/{compared}" if compared == compared and compared else "-"
+    known = compared == compared and compared  # NaN for do-mpc, 0 for IPOPT itself
+    share = f"{r['windows_dev_above_1e-6']}/{compared}" if known else "-"
+    cost_share = f"{r['windows_cost_above_1e-8']}/{compared}" if known else "-"
     return (
         f"{r['estimator']:15s} {r['solver']:6s} {r['N']:4d} {r['median_cpu_ms']:8.3f} {r['p95_cpu_ms']:7.2f} "
         f"{r['max_cpu_ms']:7.2f} {r['cpu_ratio_vs_ipopt']:8.1f} {r['median_ms']:8.3f} {r['median_solve_ms']:7.3f} "
         f"{r['iterations']:5.1f} {r['max_dev_vs_ipopt']:10.2e} {share:>7s} {r['max_cost_excess_vs_ipopt']:9.1e} "
+        f"{cost_share:>7s} "
         f"{r['closed_loop_dev_vs_ipopt']:9.2e} {r['failures']:4d} {r['fallbacks']:5d} {r['load']:5.2f}  {r['protocol']}"
     )
