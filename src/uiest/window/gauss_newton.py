@@ -111,7 +111,8 @@ step, ``dz^T J^T J dz / |dz|^2``, which about halves the next step along it. A d
 that changes nothing: growing it 4x per rejection from ``DAMPING_FLOOR`` repeated nearly the same
 step up to 15 times in a row (the CSTR of examples/reactor.py, standard MHE with N = 30, 400 noisy
 samples: 2 handed to IPOPT, 0 with this rule; with the absolute merit penalty used before
-:data:`PENALTY_MARGIN`, a noisy Henon map's MHE: 12 of 1200 and 0)."""
+:data:`PENALTY_MARGIN`, a noisy Henon map's MHE: 12 of 1200 and 0). Along directions ``J`` does
+not see (``J^T J dz = 0``) it adds nothing, and the damping grows from ``DAMPING_FLOOR`` as before."""
 
 PENALTY_MARGIN = 2.0
 """The merit's penalty ``nu`` on the violation is this times the largest multiplier of ``|r|^2``
@@ -119,7 +120,8 @@ PENALTY_MARGIN = 2.0
 absolute margin (``nu = 2 |lam_g|_inf + 1``, before) outweighed the cost on windows whose cost
 is small and rejected every step that left a violation of a few 1e-7 (noisy Van der Pol
 standard MHE with N = 30, cost 2e-5 and ``2 |lam_g|_inf`` 4e-3: 138 of 200 samples handed to IPOPT,
-54 with this margin; a CSTR's: 30 and 0)."""
+54 with this margin; a CSTR's: 30 and 0). Where all multipliers are 0 the merit is the cost
+alone, and a step may raise the violation; the next step's linearised constraints remove it."""
 
 ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
@@ -166,6 +168,19 @@ def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX)
     return [ca.sumsqr(r), ca.sum1(below + above) if g.numel() else ca.SX(0.0), ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
 
 
+def _penalty(lam_max: float) -> float:
+    """The merit's penalty on the violation, given the largest QP constraint multiplier (see :data:`PENALTY_MARGIN`)."""
+    return PENALTY_MARGIN * 2.0 * lam_max  # |r|^2's multipliers are twice those of the QP's |r|^2 / 2
+
+
+def _no_decrease_left(predicted: float, cost: float, cost_tol: float) -> bool:
+    """The model's predicted change of ``|r|^2`` is below ``cost_tol (1 + cost)`` in magnitude.
+
+    A negative prediction (a step that restores feasibility at a higher cost) is no sign of an optimum.
+    """
+    return abs(predicted) <= cost_tol * (1.0 + cost)
+
+
 def _ratio(point: _Point, trial: _Point, predicted: float, nu: float) -> float:
     """Actual over predicted decrease of the merit ``|r|^2 + nu |violation|_1`` from ``point`` to ``trial``.
 
@@ -191,8 +206,9 @@ class GaussNewtonSolver:
     step_tol : float
         Convergence tolerance on ``|dz|_inf`` in scaled units.
     cost_tol : float
-        Also converged when the Gauss-Newton model predicts a decrease of ``|r|^2`` below
-        ``cost_tol (1 + |r|^2)`` (flat, weakly observable directions move without changing the cost).
+        Also converged when the Gauss-Newton model predicts a change of ``|r|^2`` below
+        ``cost_tol (1 + |r|^2)`` in magnitude (flat, weakly observable directions move without
+        changing the cost).
     fallback : bool
         Solve the sample with IPOPT (from the same starting point) when Gauss-Newton does not
         converge: both the plain and the damped QP fail, ``max_iter`` is reached or the iterate
@@ -393,7 +409,7 @@ class GaussNewtonSolver:
                 break
             dz, predicted = step
             warm = True
-            nu = PENALTY_MARGIN * 2.0 * float(np.abs(self._lam_a).max(initial=0.0))  # |r|^2's multipliers: 2 lam
+            nu = _penalty(float(np.abs(self._lam_a).max(initial=0.0)))
             trial = self._evaluate(np.clip(point.z + dz, prob.lbx, prob.ubx), p, keep=point)
             ratio = _ratio(point, trial, predicted, nu)
             maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
@@ -408,7 +424,7 @@ class GaussNewtonSolver:
                     damping = damping_min if damping <= damping_floor else damping / 10.0
                 elif ratio < 0.25:
                     damping = max(4.0 * damping, damping_floor)
-                if small_step or abs(predicted) <= self.cost_tol * (1.0 + cost) or self._stationary(point):
+                if small_step or _no_decrease_left(predicted, cost, self.cost_tol) or self._stationary(point):
                     if point.worst <= FEASIBILITY_TOL:
                         status, converged = "Converged", True
                         break
