@@ -2,7 +2,6 @@
 
 from pathlib import Path
 
-import casadi as ca
 import numpy as np
 import pytest
 
@@ -232,27 +231,3 @@ def test_a_step_that_restores_feasibility_at_a_higher_cost_does_not_end_the_solv
     assert worst_cost_excess() <= 1e-7
     monkeypatch.setattr(gauss_newton, "_no_decrease_left", lambda predicted, cost, tol: predicted <= tol * (1 + cost))
     assert worst_cost_excess() > 1e-6
-
-
-def test_rejected_steps_are_damped_to_the_curvature_along_them(monkeypatch):
-    """After a rejected step the damping is at least the curvature along it; without that rule the
-    damping crawls up from 1e-9 (relative) with nearly the same step repeated, and the CSTR's MHE
-    hands 2 of 400 samples to IPOPT (control; a small effect, seed 0)."""
-    assert _reactor_mhe_fallbacks(30, 400) == 0
-    monkeypatch.setattr(gauss_newton, "REJECTION_CURVATURE", 0.0)
-    assert _reactor_mhe_fallbacks(30, 400) > 0
-
-
-def test_the_curvature_along_a_step_is_the_rayleigh_quotient_of_jtj():
-    """``dz^T J^T J dz / |dz|^2`` from the stored nonzeros equals the dense product (both triangles)."""
-    system = get("closed-form").build()
-    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.5), N=5, x0_prior=np.zeros(2))
-    solver = gauss_newton.GaussNewtonSolver(estimator._cached(5).problem)
-    problem, rng = solver.problem, np.random.default_rng(0)
-    z = np.clip(rng.uniform(-0.5, 0.5, problem.n_var), problem.lbx, problem.ubx)
-    point = solver._evaluate(z, rng.uniform(0.5, 1.5, problem.p.numel()))
-    dense = np.asarray(ca.DM(solver._h_sparsity, point.h).full())
-    dz = rng.normal(size=problem.n_var)
-    assert np.abs(dense).max() > 0.0
-    assert solver._curvature_along(point, dz) == pytest.approx(dz @ dense @ dz / (dz @ dz), rel=1e-12)
-    assert solver._curvature_along(point, np.zeros(problem.n_var)) == 0.0
