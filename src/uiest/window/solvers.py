@@ -240,8 +240,8 @@ BACKENDS = ("ipopt", "gn", "rti")
 
 DEFAULT_BACKEND = "gn"
 """The estimators' default backend: Gauss-Newton SQP, 4-15x less CPU per sample than IPOPT on the crop
-windows with N <= 100 (57x on the UISE at N = 100; ``uiest bench``), with IPOPT as its fallback for any sample it
-does not solve."""
+windows with N <= 100 (``uiest bench``; slower than IPOPT at N = 300, where the weights span 1e-95 to 1e6),
+with IPOPT as its fallback for any sample it does not solve."""
 
 
 def make_solver(
