@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import runpy
 import time
 from pathlib import Path
 from typing import Any
@@ -28,22 +29,18 @@ from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
 from uiest.models import get, load
 
 STEPS = 200
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def henon(steps: int) -> tuple[System, Trajectory, np.ndarray]:
-    system = System.from_callables(
-        lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]],
-        lambda x, v: [x[0] + v[0]],
-        nx=2, nw=1, nv=1, x_bounds=((-1.5, -0.5), (1.5, 0.5)), v_bounds=(-1e-3, 1e-3),
-    )  # fmt: skip
-    bits = np.random.default_rng(0).integers(0, 2, steps // 8 + 1)
-    message = 0.02 * (2.0 * np.repeat(bits, 8)[:steps] - 1.0)[:, None]
-    traj = simulate(system, [0.1, 0.1], steps, w=message, v=UniformNoise.symmetric(1e-3), seed=0)
+    example = runpy.run_path(str(EXAMPLES / "chaotic_message.py"))  # its build() and message()
+    system = example["build"]()
+    traj = simulate(system, [0.1, 0.1], steps, w=example["message"](steps), v=UniformNoise.symmetric(1e-3), seed=0)
     return system, traj, np.zeros(2)
 
 
 def reactor(steps: int) -> tuple[System, Trajectory, np.ndarray]:
-    entry = load(Path(__file__).resolve().parents[1] / "examples" / "reactor.py")
+    entry = load(EXAMPLES / "reactor.py")
     system, setup = entry.build(), entry.simulation()
     traj = simulate(system, setup.x0, steps, u=setup.u, w=setup.w, v=setup.noise, seed=0)
     return system, traj, np.array([0.65, 1.05])
