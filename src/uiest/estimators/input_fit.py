@@ -19,6 +19,7 @@ import numpy as np
 
 from uiest.box import FloatArray
 from uiest.system import System
+from uiest.window.buffered import BufferedFunction
 
 
 class InputFit:
@@ -43,7 +44,7 @@ class InputFit:
         r = (system.f(x, u, w) - x_next) / ca.DM(system.x.scale)
         J = ca.jacobian(r, w)
         self.affine = not bool(ca.depends_on(J, w)) if system.nw else True
-        self._fun = ca.Function("w_fit", [x, u, w, x_next], [r, J])
+        self._fun = BufferedFunction(ca.Function("w_fit", [x, u, w, x_next], [r, ca.densify(J)]))
 
     def __call__(self, x_prev: FloatArray, u: FloatArray, x_next: FloatArray, w_guess: FloatArray) -> FloatArray:
         """The fitted w (shape (nw,)); the guess when a model evaluation is not finite."""
@@ -52,9 +53,8 @@ class InputFit:
             return w
         scale = self.system.w.scale
         for _ in range(1 if self.affine else self.max_iter):
-            r_dm, J_dm = self._fun(x_prev, u, w, x_next)
-            r = np.asarray(r_dm, dtype=float).reshape(-1)
-            J = np.asarray(J_dm, dtype=float).reshape(self.system.nx, self.system.nw)
+            r, J_nonzeros = self._fun(x_prev, u, w, x_next)
+            J = J_nonzeros.reshape(self.system.nw, self.system.nx).T  # column-major nonzeros
             if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
                 break
             step = np.linalg.lstsq(J, -r, rcond=None)[0]

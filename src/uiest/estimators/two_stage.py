@@ -80,6 +80,7 @@ from uiest.estimators.projection import Projection
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, resolve_weights
 from uiest.reduction import ReducedModel
 from uiest.window import WindowModel, WindowTrajectory
+from uiest.window.buffered import BufferedFunction
 
 
 class TwoStageUISE(WindowEstimator):
@@ -160,6 +161,11 @@ class TwoStageUISE(WindowEstimator):
         self._fit = InputFit(system)
         x = ca.SX.sym("x", system.nx)
         self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
+        # eq:fullest (before the projection) as one buffered call: T^-1(psi(gamma, z_sharp, v), z_sharp)
+        gamma, v = ca.MX.sym("gamma", system.ny), ca.MX.sym("v", system.nv)
+        z_sharp = ca.MX.sym("z_sharp", reduced.n_sharp)
+        x_full = reduced.T_inv(ca.vertcat(reduced.psi(gamma, z_sharp, v), z_sharp))
+        self._unreduce = BufferedFunction(ca.Function("unreduce", [gamma, z_sharp, v], [x_full]))
         super().__init__(system, WindowModel.from_reduced(reduced, state_constraints=self.state_constraints),
                          schedule=None if self.weights is None else self.weights.schedule(), N=N,
                          x0_prior=x0_prior, v_prior=v_prior, options=options)  # fmt: skip
@@ -199,9 +205,8 @@ class TwoStageUISE(WindowEstimator):
 
     def _full_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
         """eq:fullest_new with ``v_bar``: ``proj(T^-1(psi(gamma, z_sharp, v_bar), z_sharp))``."""
-        red = self.reduced
-        z_flat = np.asarray(red.psi(data, node, self.v_prior), dtype=float).reshape(-1)
-        return self.projection(np.asarray(red.T_inv(np.concatenate([z_flat, node])), dtype=float).reshape(-1))
+        (x,) = self._unreduce(data, node, self.v_prior)
+        return self.projection(x.copy())
 
     def _to_state(
         self, node: FloatArray, y: FloatArray, u_prev: FloatArray, k: int, window: WindowTrajectory | None

@@ -33,7 +33,12 @@ step that restores feasibility at the price of a higher cost predicts a negative
 no sign of an optimum: taken as one, it stopped noisy crop UISE windows up to 1e-5 (relative)
 above IPOPT's cost), or KKT stationarity
 at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)`` (IPOPT's kind of
-test, which saves the last QP that would only confirm a zero step); or ``max_iter``.
+test, which saves the last QP that would only confirm a zero step); or ``max_iter``. The merit
+counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point feasible
+to that level a step that predicts no decrease of ``|r|^2`` (it would restore the rounding at the
+cost's expense) ends the solve there: such steps were rejected again and again while the damping
+grew until the step was below ``step_tol`` (noisy crop two-stage UISE with N = 10: 13 iterations
+where 3 do).
 RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is not the
 optimum but the first Gauss-Newton iterate from the shifted previous solution (exact for
 linear models, whose window problem is a QP).
@@ -113,6 +118,13 @@ standard MHE with N = 30, cost 2e-5 and ``2 |lam_g|_inf`` 4e-3: 138 of 200 sampl
 54 with this margin; a CSTR's: 30 and 0). Where all multipliers are 0 the merit is the cost
 alone, and a step may raise the violation; the next step's linearised constraints remove it."""
 
+VIOLATION_FLOOR = 1e-14
+"""Violation of one constraint (scaled units) that the merit counts as none: rounding in evaluating
+``g = (f(x_i, ...) - x_{i+1}) / s_x`` (about 45 ulps of an O(1) scaled value). Counted, ``nu`` times the
+rounding dominated the merit decrease that late iterations predict: on the noisy crop standard MHE with
+N = 300, ``nu = 405`` times a violation of 4.6e-13 (summed over 900 rows) against a predicted cost
+decrease of 1.2e-10 held the ratio near 0.4 and the damping at 4e-5 for 20 iterations."""
+
 ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
 
@@ -143,7 +155,9 @@ class _Point(NamedTuple):
 
 
 def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX) -> list[ca.SX]:
-    """``|r|^2``, the sum and largest entry of the violation of ``lbg <= g <= ubg``, and the KKT measure.
+    """``|r|^2``, the violation of ``lbg <= g <= ubg`` (the merit's and the largest entry), and the KKT measure.
+
+    The merit's violation is the sum of the entries' excess over :data:`VIOLATION_FLOOR`.
 
     The KKT measure is ``|s|_inf`` with ``s = J^T r + G^T lam_g`` (``jtr = J^T r``) where ``z`` is free, its
     outward part where ``z`` is on a bound (see :meth:`GaussNewtonSolver._stationary`); the
@@ -152,10 +166,12 @@ def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX)
     r, g = problem.r, problem.g
     lbg, ubg, lbx, ubx = (ca.DM(bound) for bound in (problem.lbg, problem.ubg, problem.lbx, problem.ubx))
     below, above = ca.fmax(lbg - g, 0.0), ca.fmax(g - ubg, 0.0)
+    beyond_rounding = ca.fmax(below + above - VIOLATION_FLOOR, 0.0)
     s = jtr + ca.mtimes(G.T, lam_g)
     s = ca.if_else(z >= ubx, ca.fmax(s, 0.0), ca.if_else(z <= lbx, ca.fmin(s, 0.0), s))
     worst = ca.mmax(ca.fmax(below, above)) if g.numel() else ca.SX(0.0)
-    return [ca.sumsqr(r), ca.sum1(below + above) if g.numel() else ca.SX(0.0), ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
+    violation = ca.sum1(beyond_rounding) if g.numel() else ca.SX(0.0)
+    return [ca.sumsqr(r), violation, ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
 
 
 def _penalty(lam_max: float) -> float:
@@ -169,6 +185,14 @@ def _no_decrease_left(predicted: float, cost: float, cost_tol: float) -> bool:
     A negative prediction (a step that restores feasibility at a higher cost) is no sign of an optimum.
     """
     return abs(predicted) <= cost_tol * (1.0 + cost)
+
+
+def _only_restores_rounding(predicted: float, point: _Point) -> bool:
+    """The step predicts no decrease of ``|r|^2`` from a point feasible to rounding (see :data:`VIOLATION_FLOOR`).
+
+    All it would do is remove the rounding from the constraints, at the cost's expense: nothing is left to gain.
+    """
+    return predicted <= 0.0 and point.violation == 0.0
 
 
 def _ratio(point: _Point, trial: _Point, predicted: float, nu: float) -> float:
@@ -398,6 +422,9 @@ class GaussNewtonSolver:
                 break
             dz, predicted = step
             warm = True
+            if _only_restores_rounding(predicted, point) and self.max_iter > 1:
+                status, converged = "Converged", True
+                break
             nu = _penalty(float(np.abs(self._lam_a).max(initial=0.0)))
             trial = self._evaluate(np.clip(point.z + dz, prob.lbx, prob.ubx), p, keep=point)
             ratio = _ratio(point, trial, predicted, nu)
@@ -410,7 +437,7 @@ class GaussNewtonSolver:
             if ratio > ACCEPT_RATIO or self.max_iter == 1:
                 cost, point = point.cost, trial
                 if ratio > 0.75:
-                    damping = damping_min if damping <= damping_floor else damping / 10.0
+                    damping = damping_min if damping <= damping_floor else max(damping / 10.0, damping_min)
                 elif ratio < 0.25:
                     damping = max(4.0 * damping, damping_floor)
                 if small_step or _no_decrease_left(predicted, cost, self.cost_tol) or self._stationary(point):
