@@ -59,8 +59,8 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     reference = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
     real_qp = gauss_newton.GaussNewtonSolver._qp
 
-    def warm_fails(self, h, q, a, bounds, warm):
-        return None if warm else real_qp(self, h, q, a, bounds, warm)
+    def warm_fails(self, h, q, a, bounds, warm, release_tol):
+        return None if warm else real_qp(self, h, q, a, bounds, warm, release_tol)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_qp", warm_fails)
     cold = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
@@ -240,8 +240,20 @@ def test_sides_held_at_a_zero_multiplier_are_released_for_the_next_qp(monkeypatc
     Control: kept in the warm start, windows end 1e-8 .. 4e-8 (relative) above it."""
     agreement = _crop_uise_agreement(70)
     assert agreement["windows_compared"] >= 30 and agreement["windows_cost_above_1e-8"] == 0
-    monkeypatch.setattr(gauss_newton, "_without_zero_marks", lambda lam: lam)
+    monkeypatch.setattr(gauss_newton, "_released", lambda held, *_: np.zeros_like(held))
     assert _crop_uise_agreement(70)["windows_cost_above_1e-8"] > 0
+
+
+def test_a_held_side_is_released_only_where_leaving_it_could_lower_the_cost():
+    """Sides 0-1 held at an upper bound, 2-3 at a lower one; the QP's gradient at its solution pulls
+    sides 0 and 2 inwards by a relevant amount, side 1 inwards by rounding (its node's weight is below
+    double precision), side 3 outwards (its zero multiplier is right); side 4 is not held."""
+    held = np.array([True, True, True, True, False])
+    lam = np.array([1e-308, 1e-308, -1e-308, -1e-308, 0.0])
+    gradient = np.array([1e-9, 1e-18, -1e-9, 1e-9, 1.0])
+    width = np.array([1.0, 1.0, 2.0, np.inf, 1.0])
+    released = gauss_newton._released(held, lam, gradient, width, tol=1e-12)
+    assert released.tolist() == [True, False, True, False, False]
 
 
 def _noisy_crop_mhe(steps: int):

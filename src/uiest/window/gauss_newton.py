@@ -16,8 +16,8 @@ about 60 us per Function, more than the evaluation itself), and two evaluation b
 (the current point's and the trial point's), so nothing is copied. qrqp's active set starts as the bounds
 and inequalities the starting point sits on (for the shifted previous optimum, mostly the
 final active set) and then as the previous iteration's, without the sides qrqp holds at a zero
-multiplier (see :func:`_without_zero_marks`); a QP that fails from it is solved again from an
-empty active set.
+multiplier that the cost pulls away from (see :func:`_released`); a QP that fails from it is
+solved again from an empty active set.
 Steps are safeguarded by Levenberg-Marquardt damping ``lambda`` with a ratio test: a step is
 accepted when the actual decrease of the exact-penalty merit ``|r|^2 + nu |violation of g|_1``
 (``nu`` from the QP multipliers) is at least ``ACCEPT_RATIO`` times the decrease the model
@@ -175,20 +175,24 @@ def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX)
     return [ca.sumsqr(r), violation, ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
 
 
-def _without_zero_marks(lam: FloatArray) -> FloatArray:
-    """The QP's multipliers with qrqp's marks of sides held at a zero multiplier (``+-DBL_MIN``) set to 0 (inactive).
+def _released(held: FloatArray, lam: FloatArray, gradient: FloatArray, width: FloatArray, tol: float) -> FloatArray:
+    """Which of the sides qrqp holds at a zero multiplier (``held``; ``lam`` > 0 upper, < 0 lower) to release.
 
-    Kept in the next QP's warm start, such a mark holds the variable on its side although its
-    multiplier may be of the wrong sign below qrqp's tolerance. On the noisy crop UISE with N = 30,
-    the oldest nodes' noise estimates (weights ``0.48^29``) stayed on the noise box's sides where
-    IPOPT puts them near its centre: 1e-8 .. 4e-8 (relative) above IPOPT's cost in 46 of 101
-    windows; released, none above 1e-8 (largest excess 1.2e-10), for about 0.2 more iterations per
-    sample. On a Van der Pol UISE with N = 30 (bench/gn_models.py) the velocity stayed on its box's
-    side in all 51 windows compared, 0.24 (median, state scales) from IPOPT's estimate; released,
-    gn finds IPOPT's optimum, but the velocity of the last nodes is then barely determined (the
-    force has relative degree 2: a case for DelayedUISE) and half the samples go to IPOPT.
+    Those whose exact multiplier (``-gradient``, the QP's gradient at its solution) has the wrong
+    sign beyond qrqp's tolerance, where leaving the side across the box (``width``) could lower
+    ``|r|^2`` by more than ``tol`` (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units).
+
+    Kept in the next QP's warm start, such a side holds its variable although the cost pulls it
+    inwards. On the noisy crop UISE with N = 30, the oldest nodes' noise estimates (weights
+    ``0.48^29``) stayed on the noise box's sides where IPOPT puts them near its centre: 1e-8 .. 4e-8
+    (relative) above IPOPT's cost in 46 of 101 windows; released, none above 1e-8 (largest excess
+    1.2e-10), for about 0.2 more iterations per sample. Without the size test, sides of nodes whose
+    weights are below rounding (standard MHE with N = 100, weights down to ``0.48^99``), whose
+    gradients are rounding noise, were released and re-taken by qrqp one per iteration, QP after
+    QP: 3.6 -> 286 ms per sample.
     """
-    return np.where(np.abs(lam) <= np.finfo(float).tiny, 0.0, lam)
+    wrong_sign = np.sign(lam) * gradient > 0.0
+    return held & wrong_sign & (2.0 * np.abs(gradient) * np.minimum(width, 1e300) > tol)
 
 
 def _penalty(lam_max: float) -> float:
@@ -340,11 +344,19 @@ class GaussNewtonSolver:
 
     # ------------------------------------------------------------------ QP
     def _qp(
-        self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], warm: bool
+        self,
+        h: FloatArray,
+        q: FloatArray,
+        a: FloatArray,
+        bounds: tuple[FloatArray, ...],
+        warm: bool,
+        release_tol: float,
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units) by qrqp, or None.
 
-        ``warm``: start from the last QP's active set.
+        ``warm``: start from the last QP's active set. Sides qrqp holds at a zero multiplier are
+        released where the QP's own multiplier has the wrong sign and leaving the side could lower
+        ``|r|^2`` by more than ``release_tol`` (see :func:`_released`).
         """
         c = self._objective_scale
         lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
@@ -352,8 +364,18 @@ class GaussNewtonSolver:
         x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
         if not (self._qrqp.stats().get("success", False) and np.all(np.isfinite(x))):
             return None
-        lam_x, lam_a = (_without_zero_marks(lam) / c for lam in (lam_x, lam_a[: self.problem.n_con]))
+        lam_x, lam_a = lam_x / c, lam_a[: self.problem.n_con] / c
+        held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
+        if held.any():
+            # the QP's gradient at its solution, H dz + q + A^T lam_a, is -(the bounds' exact multipliers)
+            a_lam = np.bincount(self._a_cols, weights=a * lam_a[self._a_rows], minlength=x.size)
+            gradient = self._h_times(h, x) + q + a_lam
+            lam_x = np.where(_released(held, lam_x, gradient, bounds[3] - bounds[2], release_tol), 0.0, lam_x)
         return x.copy(), float(cost[0]) / c, lam_x, lam_a
+
+    def _h_times(self, h: FloatArray, v: FloatArray) -> FloatArray:
+        """``H v`` for the nonzeros ``h`` of ``H``."""
+        return np.bincount(self._h_rows, weights=h * v[self._h_cols], minlength=v.size)
 
     def _step(self, point: _Point, damping: float, warm: bool) -> tuple[FloatArray, float] | None:
         """The QP step ``dz`` with ``damping`` added to ``J^T J``, and the decrease of ``|r|^2`` it predicts.
@@ -367,8 +389,9 @@ class GaussNewtonSolver:
             h = h.copy()
             h[self._h_diagonal] += damping
         bounds = (prob.lbg - point.g, prob.ubg - point.g, prob.lbx - point.z, prob.ubx - point.z)
-        solved = (warm and self._qp(h, point.q, point.a, bounds, warm=True)) or self._qp(
-            h, point.q, point.a, bounds, warm=False
+        release_tol = self.cost_tol * (1.0 + point.cost)
+        solved = (warm and self._qp(h, point.q, point.a, bounds, True, release_tol)) or self._qp(
+            h, point.q, point.a, bounds, False, release_tol
         )
         if not solved:
             return None
