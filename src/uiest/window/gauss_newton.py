@@ -212,6 +212,8 @@ def _only_restores_rounding(predicted: float, point: _Point) -> bool:
     """The step predicts no decrease of ``|r|^2`` from a point feasible to rounding (see :data:`VIOLATION_FLOOR`).
 
     All it would do is remove the rounding from the constraints, at the cost's expense: nothing is left to gain.
+    The solve applies it to steps at its least damping only: a heavily damped step shrinks the descent
+    part of the step but not the restoring part, and could predict no decrease short of an optimum.
     """
     return predicted <= 0.0 and point.violation == 0.0
 
@@ -463,7 +465,7 @@ class GaussNewtonSolver:
                 break
             dz, predicted = step
             warm = True
-            if _only_restores_rounding(predicted, point) and self.max_iter > 1:
+            if _only_restores_rounding(predicted, point) and damping <= damping_min and self.max_iter > 1:
                 status, converged = "Converged", True
                 break
             nu = _penalty(float(np.abs(self._lam_a).max(initial=0.0)))
