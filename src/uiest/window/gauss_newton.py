@@ -126,6 +126,16 @@ rounding dominated the merit decrease that late iterations predict: on the noisy
 N = 300, ``nu = 405`` times a violation of 4.6e-13 (summed over 900 rows) against a predicted cost
 decrease of 1.2e-10 held the ratio near 0.4 and the damping at 4e-5 for 20 iterations."""
 
+RELEASE_GAIN = 1e-10
+"""A side qrqp holds at a zero multiplier is released when leaving it could lower ``|r|^2`` by more than this
+times ``1 + |r|^2`` (see :func:`_released`). On the crop windows the sides worth releasing gained 3e-10 ..
+5e-8 (relative; UISE, N = 30), those of the flat oldest nodes 2e-11 .. 3e-10 (two-stage UISE, N = 100),
+where every release is taken back by qrqp one per iteration: with 1e-12, 3.2 -> 62 ms per sample."""
+
+ROUNDING = 64.0 * np.finfo(float).eps
+"""Rounding of the QP's gradient ``H dz + q + A^T lam_a`` relative to the sum of its terms' magnitudes
+(see :func:`_released`)."""
+
 ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
 
@@ -175,24 +185,27 @@ def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX)
     return [ca.sumsqr(r), violation, ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
 
 
-def _released(held: FloatArray, lam: FloatArray, gradient: FloatArray, width: FloatArray, tol: float) -> FloatArray:
+def _released(
+    held: FloatArray, lam: FloatArray, gradient: FloatArray, rounding: FloatArray, width: FloatArray, tol: float
+) -> FloatArray:
     """Which of the sides qrqp holds at a zero multiplier (``held``; ``lam`` > 0 upper, < 0 lower) to release.
 
     Those whose exact multiplier (``-gradient``, the QP's gradient at its solution) has the wrong
-    sign beyond qrqp's tolerance, where leaving the side across the box (``width``) could lower
-    ``|r|^2`` by more than ``tol`` (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units).
+    sign beyond qrqp's tolerance and beyond its own rounding (``rounding``, see :data:`ROUNDING`),
+    where leaving the side across the box (``width``) could lower ``|r|^2`` by more than ``tol``
+    (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units).
 
     Kept in the next QP's warm start, such a side holds its variable although the cost pulls it
     inwards. On the noisy crop UISE with N = 30, the oldest nodes' noise estimates (weights
     ``0.48^29``) stayed on the noise box's sides where IPOPT puts them near its centre: 1e-8 .. 4e-8
     (relative) above IPOPT's cost in 46 of 101 windows; released, none above 1e-8 (largest excess
-    1.2e-10), for about 0.2 more iterations per sample. Without the size test, sides of nodes whose
-    weights are below rounding (standard MHE with N = 100, weights down to ``0.48^99``), whose
-    gradients are rounding noise, were released and re-taken by qrqp one per iteration, QP after
-    QP: 3.6 -> 286 ms per sample.
+    1.2e-10). Without the rounding and size tests, sides of the flat oldest nodes (N = 100, weights
+    down to ``0.48^99``) were released and re-taken by qrqp one per iteration, QP after QP: 3.6 ->
+    286 ms per sample on the standard MHE, 3.2 -> 120 ms on the two-stage UISE.
     """
     wrong_sign = np.sign(lam) * gradient > 0.0
-    return held & wrong_sign & (2.0 * np.abs(gradient) * np.minimum(width, 1e300) > tol)
+    relevant = (np.abs(gradient) > rounding) & (2.0 * np.abs(gradient) * np.minimum(width, 1e300) > tol)
+    return held & wrong_sign & relevant
 
 
 def _penalty(lam_max: float) -> float:
@@ -370,9 +383,12 @@ class GaussNewtonSolver:
         held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
         if held.any():
             # the QP's gradient at its solution, H dz + q + A^T lam_a, is -(the bounds' exact multipliers)
-            a_lam = np.bincount(self._a_cols, weights=a * lam_a[self._a_rows], minlength=x.size)
-            gradient = self._h_times(h, x) + q + a_lam
-            lam_x = np.where(_released(held, lam_x, gradient, bounds[3] - bounds[2], release_tol), 0.0, lam_x)
+            a_lam = a * lam_a[self._a_rows]
+            gradient = self._h_times(h, x) + q + np.bincount(self._a_cols, weights=a_lam, minlength=x.size)
+            magnitude = self._h_times(np.abs(h), np.abs(x)) + np.abs(q)
+            rounding = ROUNDING * (magnitude + np.bincount(self._a_cols, weights=np.abs(a_lam), minlength=x.size))
+            released = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
+            lam_x = np.where(released, 0.0, lam_x)
         return x.copy(), float(cost[0]) / c, lam_x, lam_a
 
     def _h_times(self, h: FloatArray, v: FloatArray) -> FloatArray:
@@ -391,7 +407,7 @@ class GaussNewtonSolver:
             h = h.copy()
             h[self._h_diagonal] += damping
         bounds = (prob.lbg - point.g, prob.ubg - point.g, prob.lbx - point.z, prob.ubx - point.z)
-        release_tol = self.cost_tol * (1.0 + point.cost)
+        release_tol = RELEASE_GAIN * (1.0 + point.cost)
         solved = (warm and self._qp(h, point.q, point.a, bounds, True, release_tol)) or self._qp(
             h, point.q, point.a, bounds, False, release_tol
         )
