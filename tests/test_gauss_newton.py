@@ -246,14 +246,14 @@ def test_sides_held_at_a_zero_multiplier_are_released_for_the_next_qp(monkeypatc
 
 def test_a_held_side_is_released_only_where_leaving_it_could_lower_the_cost():
     """Sides 0-1 held at an upper bound, 2-3 at a lower one; the QP's gradient at its solution pulls
-    sides 0 and 2 inwards by a relevant amount, side 1 inwards by less than leaving it could gain,
-    side 3 outwards (its zero multiplier is right); side 4 is not held. Then side 0's gradient is
-    below its rounding."""
+    sides 0 and 2 inwards by a relevant amount, side 1 inwards above its rounding but by less than the
+    gain worth a release, side 3 outwards (its zero multiplier is right); side 4 is not held. Then
+    side 0's gradient is below its rounding."""
     held = np.array([True, True, True, True, False])
     lam = np.array([1e-308, 1e-308, -1e-308, -1e-308, 0.0])
-    gradient = np.array([1e-9, 1e-18, -1e-9, 1e-9, 1.0])
+    gradient = np.array([1e-9, 1e-14, -1e-9, 1e-9, 1.0])
     width = np.array([1.0, 1.0, 2.0, np.inf, 1.0])
-    rounding = np.full(5, 1e-15)
+    rounding = np.full(5, 1e-16)
     released = gauss_newton._released(held, lam, gradient, rounding, width, tol=1e-12)
     assert released.tolist() == [True, False, True, False, False]
     rounding[0] = 1e-8  # side 0's gradient is now below its rounding

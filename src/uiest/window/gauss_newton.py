@@ -37,9 +37,10 @@ at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)`` (
 test, which saves the last QP that would only confirm a zero step); or ``max_iter``. The merit
 counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point feasible
 to that level a step that predicts no decrease of ``|r|^2`` (it would restore the rounding at the
-cost's expense) ends the solve there: such steps were rejected again and again while the damping
-grew until the step was below ``step_tol`` (noisy crop two-stage UISE with N = 10: 13 iterations
-where 3 do).
+cost's expense) ends the solve there, unless the step is damped beyond ``DAMPING_FLOOR`` or its QP
+released held sides (:func:`_released`) that the next QP would be free to leave: such steps were
+rejected again and again while the damping grew until the step was below ``step_tol`` (noisy crop
+two-stage UISE with N = 10: 13 iterations where 3 do).
 RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is not the
 optimum but the first Gauss-Newton iterate from the shifted previous solution (exact for
 linear models, whose window problem is a QP).
@@ -126,11 +127,13 @@ rounding dominated the merit decrease that late iterations predict: on the noisy
 N = 300, ``nu = 405`` times a violation of 4.6e-13 (summed over 900 rows) against a predicted cost
 decrease of 1.2e-10 held the ratio near 0.4 and the damping at 4e-5 for 20 iterations."""
 
-RELEASE_GAIN = 1e-10
+RELEASE_GAIN = 1e-9
 """A side qrqp holds at a zero multiplier is released when leaving it could lower ``|r|^2`` by more than this
-times ``1 + |r|^2`` (see :func:`_released`). On the crop windows the sides worth releasing gained 3e-10 ..
-5e-8 (relative; UISE, N = 30), those of the flat oldest nodes 2e-11 .. 3e-10 (two-stage UISE, N = 100),
-where every release is taken back by qrqp one per iteration: with 1e-12, 3.2 -> 62 ms per sample."""
+times ``1 + |r|^2`` (see :func:`_released`), a tenth of the 1e-8 to which optima are compared with IPOPT's.
+On the noisy crop windows the releases that closed the UISE's gap to IPOPT (N = 30) could gain 3e-10 ..
+5e-8 (relative); those of the flat oldest nodes of the two-stage UISE with N = 100 up to 3e-10, and qrqp
+took each back one iteration at a time, QP after QP: per-sample CPU (mean of 50) 3.5 ms with no release,
+225 ms with 1e-10 and 4.9 ms with 1e-9."""
 
 ROUNDING = 64.0 * np.finfo(float).eps
 """Rounding of the QP's gradient ``H dz + q + A^T lam_a`` relative to the sum of its terms' magnitudes
@@ -149,8 +152,9 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
 class _Point(NamedTuple):
     """An evaluated point.
 
-    ``z``, its buffer, ``|r|^2``, the sum and largest entry of the violation of ``lbg <= g <= ubg``,
-    the stationarity measure, and the nonzeros of ``J^T r``, ``J^T J``, ``g`` and ``G``.
+    ``z``, its buffer, ``|r|^2``, the violation of ``lbg <= g <= ubg`` (the merit's: the sum of the
+    rows' excess over :data:`VIOLATION_FLOOR`; and the largest row's, raw), the stationarity
+    measure, and the nonzeros of ``J^T r``, ``J^T J``, ``g`` and ``G``.
     """
 
     z: FloatArray
@@ -191,9 +195,11 @@ def _released(
     """Which of the sides qrqp holds at a zero multiplier (``held``; ``lam`` > 0 upper, < 0 lower) to release.
 
     Those whose exact multiplier (``-gradient``, the QP's gradient at its solution) has the wrong
-    sign beyond qrqp's tolerance and beyond its own rounding (``rounding``, see :data:`ROUNDING`),
+    sign (qrqp holds such sides while the error is within its dual tolerance) by more than its own
+    rounding (``rounding``, see :data:`ROUNDING`),
     where leaving the side across the box (``width``) could lower ``|r|^2`` by more than ``tol``
-    (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units).
+    (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units). Only bounds: the marks of inequality
+    rows (the two-stage UISE's output and node constraints) stay in the warm start.
 
     Kept in the next QP's warm start, such a side holds its variable although the cost pulls it
     inwards. On the noisy crop UISE with N = 30, the oldest nodes' noise estimates (weights
@@ -333,6 +339,7 @@ class GaussNewtonSolver:
         self._kept_damping = 0.0  # least damping (relative) after failed QPs, kept across solves
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
+        self._released_any = False  # the last QP released held sides (see _released)
 
     # ------------------------------------------------------------------ evaluations
     def _evaluate(self, z: FloatArray, p: FloatArray, keep: _Point | None = None) -> _Point:
@@ -381,6 +388,7 @@ class GaussNewtonSolver:
             return None
         lam_x, lam_a = lam_x / c, lam_a[: self.problem.n_con] / c
         held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
+        self._released_any = False
         if held.any():
             # the QP's gradient at its solution, H dz + q + A^T lam_a, is -(the bounds' exact multipliers)
             a_lam = a * lam_a[self._a_rows]
@@ -389,6 +397,7 @@ class GaussNewtonSolver:
             rounding = ROUNDING * (magnitude + np.bincount(self._a_cols, weights=np.abs(a_lam), minlength=x.size))
             released = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
             lam_x = np.where(released, 0.0, lam_x)
+            self._released_any = bool(released.any())
         return x.copy(), float(cost[0]) / c, lam_x, lam_a
 
     def _h_times(self, h: FloatArray, v: FloatArray) -> FloatArray:
@@ -481,7 +490,8 @@ class GaussNewtonSolver:
                 break
             dz, predicted = step
             warm = True
-            if _only_restores_rounding(predicted, point) and damping <= damping_min and self.max_iter > 1:
+            stop_here = damping <= damping_floor and not self._released_any and self.max_iter > 1
+            if stop_here and _only_restores_rounding(predicted, point):
                 status, converged = "Converged", True
                 break
             nu = _penalty(float(np.abs(self._lam_a).max(initial=0.0)))
