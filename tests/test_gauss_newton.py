@@ -306,3 +306,24 @@ def test_a_step_that_would_only_restore_rounding_ends_the_solve(monkeypatch):
     assert stopping.failures == taking.failures == 0
     assert np.abs((stopping.x_hat - taking.x_hat) / system.x.scale).max() < 1e-6
     assert stopping.iterations.sum() < taking.iterations.sum()
+
+
+def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monkeypatch):
+    """Noisy crop UISE windows (N = 30), whose first QPs need up to tens of active-set changes, with qrqp
+    limited to 8 iterations per call: continued from the active set it reached, no QP has to be
+    damped. Control: with no continuation, solves fall back on damped QPs ("(regularised)")."""
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 60, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+    monkeypatch.setitem(gauss_newton.QP_OPTIONS, "max_iter", 8)
+
+    def damped_samples():
+        estimator = UISE(system, weights=weights, N=30, x0_prior=scenario.prior(traj.y[0]), solver="gn")
+        result = estimator.run(traj.u, traj.y)
+        assert result.failures == 0
+        return sum("regularised" in status or "-> ipopt" in status for status in result.status)
+
+    monkeypatch.setattr(gauss_newton, "QP_CONTINUATIONS", 8)
+    assert damped_samples() == 0
+    monkeypatch.setattr(gauss_newton, "QP_CONTINUATIONS", 0)
+    assert damped_samples() > 0

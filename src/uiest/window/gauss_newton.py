@@ -85,7 +85,19 @@ QP_OPTIONS: dict[str, Any] = {
     "error_on_fail": False,
     "max_iter": 200,
 }
-"""qrqp options; ``max_iter`` bounds one QP (a failed QP is retried damped, then by IPOPT)."""
+"""qrqp options; ``max_iter`` bounds one call (see :data:`QP_CONTINUATIONS`; a failed QP is retried damped, then
+by IPOPT)."""
+
+QP_ITERATION_LIMIT = "Maximum number of iterations reached"
+"""qrqp's status when ``max_iter`` stopped it."""
+
+QP_CONTINUATIONS = 1
+"""Further calls of ``max_iter`` qrqp iterations for a QP that the limit stopped, each from the active set the
+last one reached. qrqp changes one bound per iteration: the first full window of the noisy crop standard
+MHE with N = 300 needs about 270 changes, and a failed QP left the problem damped for good (1e-9 max|J^T J|),
+after which damped Gauss-Newton crawled to the iteration limit and IPOPT took every sample over. Continued,
+the windows k = 300..309 (re-solved in turn by one solver) converged in 8.6 iterations on average, all
+within 2.2e-9 below IPOPT's cost."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
@@ -384,7 +396,14 @@ class GaussNewtonSolver:
         lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
         x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
-        if not (self._qrqp.stats().get("success", False) and np.all(np.isfinite(x))):
+        stats = self._qrqp.stats()
+        for _ in range(QP_CONTINUATIONS):
+            if stats.get("return_status") != QP_ITERATION_LIMIT:
+                break
+            active_set = lam_x.copy(), lam_a.copy()  # on from the active set the limit stopped it at
+            x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], *active_set, *self._empty)
+            stats = self._qrqp.stats()
+        if not (stats.get("success", False) and np.all(np.isfinite(x))):
             return None
         lam_x, lam_a = lam_x / c, lam_a[: self.problem.n_con] / c
         held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
