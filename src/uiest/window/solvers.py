@@ -239,10 +239,9 @@ BACKENDS = ("ipopt", "gn", "rti")
 """Names accepted as ``solver=``."""
 
 DEFAULT_BACKEND = "gn"
-"""The estimators' default backend: Gauss-Newton SQP, 4-14x less CPU per sample than IPOPT on the crop
-windows with N <= 100 (``uiest bench``; at N = 300, where the weights span 1e-95 to 1e6, 5x less on the
-two-stage UISE and slower than IPOPT on the standard MHE), with IPOPT as its fallback for any sample it
-does not solve."""
+"""The estimators' default backend: Gauss-Newton SQP, 4-19x less CPU per sample than IPOPT on the crop
+windows with N <= 100 and 2.4x less at N = 300 (``uiest bench``; the weights span 1e-95 to 1e6 there),
+with IPOPT as its fallback for any sample it does not solve."""
 
 
 def make_solver(
