@@ -344,6 +344,16 @@ class GaussNewtonSolver:
         self._qrqp = BufferedFunction(
             ca.conic("gn_qp", "qrqp", {"h": self._h_sparsity, "a": self._a_sparsity}, dict(QP_OPTIONS))
         )
+        # the QP's gradient at a solution, H dz + q + A^T lam_a, and its rounding (see _released)
+        h_qp, a_qp = ca.SX.sym("h", self._h_sparsity), ca.SX.sym("a", self._a_sparsity)
+        q_qp, dz_qp = ca.SX.sym("q", problem.n_var), ca.SX.sym("dz", problem.n_var)
+        lam_qp = ca.SX.sym("lam", problem.n_con)
+        gradient = ca.mtimes(h_qp, dz_qp) + q_qp + ca.mtimes(a_qp.T, lam_qp)
+        magnitude = ca.mtimes(ca.fabs(h_qp), ca.fabs(dz_qp)) + ca.fabs(q_qp)
+        magnitude += ca.mtimes(ca.fabs(a_qp).T, ca.fabs(lam_qp))
+        self._qp_gradient = BufferedFunction(
+            ca.Function("gn_qp_gradient", [h_qp, q_qp, a_qp, dz_qp, lam_qp], [gradient, ROUNDING * magnitude])
+        )
         self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
         self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
@@ -409,19 +419,12 @@ class GaussNewtonSolver:
         held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
         self._released_any = False
         if held.any():
-            # the QP's gradient at its solution, H dz + q + A^T lam_a, is -(the bounds' exact multipliers)
-            a_lam = a * lam_a[self._a_rows]
-            gradient = self._h_times(h, x) + q + np.bincount(self._a_cols, weights=a_lam, minlength=x.size)
-            magnitude = self._h_times(np.abs(h), np.abs(x)) + np.abs(q)
-            rounding = ROUNDING * (magnitude + np.bincount(self._a_cols, weights=np.abs(a_lam), minlength=x.size))
+            # the QP's gradient at its solution is -(the bounds' exact multipliers)
+            gradient, rounding = self._qp_gradient(h, q, a, x, lam_a)
             released = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
             lam_x = np.where(released, 0.0, lam_x)
             self._released_any = bool(released.any())
         return x.copy(), float(cost[0]) / c, lam_x, lam_a
-
-    def _h_times(self, h: FloatArray, v: FloatArray) -> FloatArray:
-        """``H v`` for the nonzeros ``h`` of ``H``."""
-        return np.bincount(self._h_rows, weights=h * v[self._h_cols], minlength=v.size)
 
     def _step(self, point: _Point, damping: float, warm: bool) -> tuple[FloatArray, float] | None:
         """The QP step ``dz`` with ``damping`` added to ``J^T J``, and the decrease of ``|r|^2`` it predicts.
