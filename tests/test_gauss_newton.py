@@ -10,6 +10,7 @@ from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
 from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
 from uiest.models import crop_growth, get, load
 from uiest.window import gauss_newton
+from uiest.window.curvature import BlockCurvature
 
 
 @pytest.fixture(scope="module")
@@ -207,11 +208,75 @@ def _reactor_mhe_fallbacks(N: int, steps: int) -> int:
 
 def test_the_merit_penalty_is_relative_to_the_multipliers_on_windows_with_a_small_cost(monkeypatch):
     """The CSTR's MHE windows have costs near 1e-5 and multipliers near 1e-3: the absolute margin
-    used before, nu = 2 |lam| + 1, rejects every step that leaves a violation of a few 1e-7, and
-    samples go to IPOPT (control)."""
+    used before, nu = 2 |lam| + 1, rejects every step that leaves a violation of a few 1e-7, and with
+    one second-order correction per step samples go to IPOPT (control; repeated corrections rescue
+    those steps too)."""
+    monkeypatch.setattr(gauss_newton, "MAX_CORRECTIONS", 1)
     assert _reactor_mhe_fallbacks(30, 200) == 0
     monkeypatch.setattr(gauss_newton, "_penalty", lambda lam_max: 2.0 * lam_max + 1.0)
     assert _reactor_mhe_fallbacks(30, 200) > 0
+
+
+def _crop_mhe_fallbacks(N: int, steps: int) -> int:
+    """IPOPT fallbacks of the Gauss-Newton standard MHE on the noisy crop scenario (seed 1)."""
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, steps, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    weights = MHEWeights.from_scales(system, 0.48, output=1e6)
+    estimator = StandardMHE(system, weights=weights, N=N, x0_prior=scenario.prior(traj.y[0]), solver="gn")
+    result = estimator.run(traj.u, traj.y)
+    assert result.failures == 0
+    return sum("-> ipopt" in status for status in result.status)
+
+
+def test_the_curvature_and_repeated_corrections_follow_curved_valleys(monkeypatch):
+    """Noisy crop standard MHE, N = 30: in four windows the full step runs 0.5 (state scales) along a
+    valley the cost barely sees while the dynamics curve away from it; the merit rejects it, and damped
+    steps of 1e-3 crawl to the iteration limit. With the constraints' curvature (BlockCurvature) and
+    up to MAX_CORRECTIONS corrections, none goes to IPOPT; without either (controls), some do."""
+    assert _crop_mhe_fallbacks(30, 270) == 0
+    with monkeypatch.context() as patch:
+        patch.setattr(gauss_newton, "MAX_CORRECTIONS", 1)
+        assert _crop_mhe_fallbacks(30, 270) > 0
+
+    def gauss_newton_only(self, z, p, lam_g, gn):
+        h = np.zeros(self._nnz)
+        h[self._gn_positions] = gn
+        return h
+
+    monkeypatch.setattr(BlockCurvature, "__call__", gauss_newton_only)
+    assert _crop_mhe_fallbacks(30, 270) > 0
+
+
+def test_the_block_curvature_is_the_lagrangian_curvature_without_its_negative_part():
+    """``J^T J + S_+`` on a crop window with random multipliers: ``S_+`` and ``S_+ - S`` are positive
+    semidefinite (S the residuals' and constraints' curvature, from CasADi's Hessian of the Lagrangian),
+    and nonzero; they match where S is, block by block, already positive semidefinite."""
+    import casadi as ca
+
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 6, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.48, output=1e6), N=5,
+                            x0_prior=scenario.prior(traj.y[0]), solver="gn")  # fmt: skip
+    recorder = _record_full_windows(estimator, 5)
+    estimator.run(traj.u, traj.y)
+    z, p = recorder.calls[-1][2].z, recorder.calls[-1][1]
+    problem = recorder.problem
+    solver = gauss_newton.GaussNewtonSolver(problem)
+    curvature = BlockCurvature(problem, solver._h_sparsity)
+    lam_g = np.random.default_rng(0).normal(scale=100.0, size=problem.n_con)
+    gn = solver._evaluate(z, p).h.copy()
+    dense = lambda sparsity, nonzeros: np.array(ca.DM(ca.Sparsity(sparsity), nonzeros))  # noqa: E731
+    gauss_newton_matrix = dense(solver._h_sparsity, gn)
+    s_plus = dense(curvature.sparsity, curvature(z, p, lam_g, gn)) - gauss_newton_matrix
+    lagrangian = 0.5 * ca.sumsqr(problem.r) + ca.dot(lam_g, problem.g)
+    exact = ca.Function("hessian", [problem.z, problem.p], [ca.hessian(lagrangian, problem.z)[0]])
+    s = np.array(exact(z, p)) - gauss_newton_matrix
+    scale = np.abs(s).max()
+    assert scale > 0.0 and np.abs(s_plus).max() > 0.1 * scale
+    assert np.linalg.eigvalsh(s_plus).min() >= -1e-10 * scale
+    assert np.linalg.eigvalsh(s_plus - s).min() >= -1e-10 * scale
+    # the negative part removed is exactly the negative eigenvalues of S's blocks
+    assert np.trace(s_plus - s) == pytest.approx(-np.linalg.eigvalsh(s).clip(max=0.0).sum(), rel=1e-8)
 
 
 def _crop_uise_agreement(steps: int) -> dict[str, float]:

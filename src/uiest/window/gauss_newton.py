@@ -26,7 +26,15 @@ or rejected steps (a rejected step keeps the linearisation) and shrinks back aft
 A full step that the merit rejects because the cost fell but the constraints' curvature left the
 trial point infeasible (the Maratos effect: on the noisy crop windows, long steps along directions
 the cost barely sees) gets a second-order correction, the QP re-solved with the violation left at
-the trial point; a good correction is taken instead of the damped steps that would follow.
+the trial point, and again from the corrected point (up to :data:`MAX_CORRECTIONS` times, while each
+lowers the violation by :data:`SOC_CONTRACTION`, as IPOPT does); a good correction is taken instead of
+the damped steps that would follow. A rejected step also switches the rest of the solve to QPs whose
+Hessian holds the curvature Gauss-Newton leaves out, convexified (``J^T J + S_+``, see
+:class:`~uiest.window.curvature.BlockCurvature`), before any damping: where the dynamics curve away
+from a valley the cost barely sees, the Gauss-Newton model predicts a decrease along the straight line
+that the violation outweighs (noisy crop standard MHE, N = 30: full steps of 0.5 state scales rejected,
+then damped steps of 1e-3 to the iteration limit). Consecutive rejections grow the damping faster and
+faster (:data:`DAMPING_GROWTH`).
 
 Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol``
 (scaled units), a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude (a
@@ -57,8 +65,8 @@ that had failed paid it again and again). If the damped QP fails too,
 or the iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and
 the status says so. Gauss-Newton's model ``J^T J`` leaves out the residuals' and constraints'
 curvature, which in directions the data barely determine can exceed ``J^T J``'s; there it
-converges slowly (and, damped, stops where the model sees no decrease: on the crop UISE with
-N = 100 at costs up to about 3e-4 (relative) above IPOPT's).
+converges slowly, and ``J^T J + S_+`` drops the negative part of that curvature, so where it matters
+(the closed-form model's standard MHE) convergence stays linear.
 """
 
 from __future__ import annotations
@@ -74,6 +82,7 @@ from uiest.box import FloatArray
 from uiest.checks import check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
+from uiest.window.curvature import BlockCurvature
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
@@ -108,10 +117,22 @@ SOC_RATIO = 0.75
 that would follow; taken on weaker ratios, corrections slowed the ill-conditioned crop UISE windows
 with N = 100 (weights down to 0.48^99) down."""
 
+MAX_CORRECTIONS = 4
+"""Second-order corrections tried in a row on one step (IPOPT's ``max_soc``)."""
+
+SOC_CONTRACTION = 0.99
+"""A further correction is tried only while each lowers the trial point's violation by this factor (IPOPT's
+``kappa_soc``)."""
+
 DAMPING_FLOOR = 1e-9
 """Levenberg-Marquardt damping after a poor or rejected step, relative to ``max |J^T J|``; good
 steps bring a damping at or below it straight back to the solve's minimum (0, or the damping the
 problem keeps after failed QPs)."""
+
+DAMPING_GROWTH = 4.0
+"""Factor by which a rejected step's damping grows; it doubles with every further rejection in a row (Nielsen's
+rule, Madsen, Nielsen and Tingleff 2004), so that a damping that starts at ``DAMPING_FLOOR`` reaches the scale of
+``J^T J`` in 5 rejections instead of 15."""
 
 SINGULAR_DAMPING = 1e-14
 """Damping, relative to ``max |J^T J|``, tried first when an undamped QP fails (singular in double precision)."""
@@ -159,6 +180,29 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
     """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0."""
     at_upper, at_lower = value >= upper - ACTIVE_TOL, value <= lower + ACTIVE_TOL
     return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
+
+
+class _QPForm(NamedTuple):
+    """A QP's Hessian sparsity: qrqp for it, the QP's gradient at a solution and its rounding, the diagonal."""
+
+    qrqp: BufferedFunction
+    gradient: BufferedFunction
+    diagonal: FloatArray
+
+    @classmethod
+    def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity, diagonal: FloatArray) -> _QPForm:
+        """Qrqp for these sparsities, and ``H dz + q + A^T lam_a`` with its rounding (see :func:`_released`)."""
+        qrqp = BufferedFunction(ca.conic("gn_qp", "qrqp", {"h": h_sparsity, "a": a_sparsity}, dict(QP_OPTIONS)))
+        h, a = ca.SX.sym("h", h_sparsity), ca.SX.sym("a", a_sparsity)
+        q, dz, lam = (
+            ca.SX.sym("q", h_sparsity.size1()),
+            ca.SX.sym("dz", h_sparsity.size1()),
+            ca.SX.sym("lam", a_sparsity.size1()),
+        )
+        gradient = ca.mtimes(h, dz) + q + ca.mtimes(a.T, lam)
+        magnitude = ca.mtimes(ca.fabs(h), ca.fabs(dz)) + ca.fabs(q) + ca.mtimes(ca.fabs(a).T, ca.fabs(lam))
+        function = ca.Function("gn_qp_gradient", [h, q, a, dz, lam], [gradient, ROUNDING * magnitude])
+        return cls(qrqp, BufferedFunction(function), diagonal)
 
 
 class _Point(NamedTuple):
@@ -341,19 +385,14 @@ class GaussNewtonSolver:
             "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
-        self._qrqp = BufferedFunction(
-            ca.conic("gn_qp", "qrqp", {"h": self._h_sparsity, "a": self._a_sparsity}, dict(QP_OPTIONS))
+        self._curvature = BlockCurvature(problem, self._h_sparsity)
+        self._forms = (
+            _QPForm.build(self._h_sparsity, self._a_sparsity, self._h_diagonal),
+            _QPForm.build(self._curvature.sparsity, self._a_sparsity, self._curvature.diagonal),
         )
-        # the QP's gradient at a solution, H dz + q + A^T lam_a, and its rounding (see _released)
-        h_qp, a_qp = ca.SX.sym("h", self._h_sparsity), ca.SX.sym("a", self._a_sparsity)
-        q_qp, dz_qp = ca.SX.sym("q", problem.n_var), ca.SX.sym("dz", problem.n_var)
-        lam_qp = ca.SX.sym("lam", problem.n_con)
-        gradient = ca.mtimes(h_qp, dz_qp) + q_qp + ca.mtimes(a_qp.T, lam_qp)
-        magnitude = ca.mtimes(ca.fabs(h_qp), ca.fabs(dz_qp)) + ca.fabs(q_qp)
-        magnitude += ca.mtimes(ca.fabs(a_qp).T, ca.fabs(lam_qp))
-        self._qp_gradient = BufferedFunction(
-            ca.Function("gn_qp_gradient", [h_qp, q_qp, a_qp, dz_qp, lam_qp], [gradient, ROUNDING * magnitude])
-        )
+        self._form = self._forms[0]
+        self._p = np.zeros(0)  # the solve's parameters
+        self._curved = False  # the solve's QPs hold the curvature Gauss-Newton leaves out (see BlockCurvature)
         self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
         self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
@@ -405,14 +444,15 @@ class GaussNewtonSolver:
         c = self._objective_scale
         lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
-        x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
-        stats = self._qrqp.stats()
+        qrqp = self._form.qrqp
+        x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
+        stats = qrqp.stats()
         for _ in range(QP_CONTINUATIONS):
             if stats.get("return_status") != QP_ITERATION_LIMIT:
                 break
             active_set = lam_x.copy(), lam_a.copy()  # on from the active set the limit stopped it at
-            x, cost, lam_a, lam_x = self._qrqp(c * h, c * q, a, *bounds, self._zeros[0], *active_set, *self._empty)
-            stats = self._qrqp.stats()
+            x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, self._zeros[0], *active_set, *self._empty)
+            stats = qrqp.stats()
         if not (stats.get("success", False) and np.all(np.isfinite(x))):
             return None
         lam_x, lam_a = lam_x / c, lam_a[: self.problem.n_con] / c
@@ -420,7 +460,7 @@ class GaussNewtonSolver:
         self._released_any = False
         if held.any():
             # the QP's gradient at its solution is -(the bounds' exact multipliers)
-            gradient, rounding = self._qp_gradient(h, q, a, x, lam_a)
+            gradient, rounding = self._form.gradient(h, q, a, x, lam_a)
             released = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
             lam_x = np.where(released, 0.0, lam_x)
             self._released_any = bool(released.any())
@@ -433,10 +473,11 @@ class GaussNewtonSolver:
         None if the QP fails.
         """
         prob = self.problem
-        h = point.h
+        self._form = self._forms[self._curved]
+        h = self._curvature(point.z, self._p, self._lam_a, point.h) if self._curved else point.h
         if damping:
-            h = h.copy()
-            h[self._h_diagonal] += damping
+            h = h if self._curved else h.copy()
+            h[self._form.diagonal] += damping
         bounds = (prob.lbg - point.g, prob.ubg - point.g, prob.lbx - point.z, prob.ubx - point.z)
         release_tol = RELEASE_GAIN * (1.0 + point.cost)
         solved = (warm and self._qp(h, point.q, point.a, bounds, True, release_tol)) or self._qp(
@@ -485,13 +526,14 @@ class GaussNewtonSolver:
         start = time.perf_counter()
         p = np.asarray(p, dtype=float)
         self._objective_scale = prob.objective_scale(p)  # the QP's cost scaled as IPOPT's (same steps)
+        self._p, self._curved = p, False
         status, converged, iterations = "Maximum_Iterations_Exceeded", False, 0
         regularised = self._kept_damping > 0.0
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
         h_max = float(np.abs(point.h).max(initial=1.0))
         damping_floor = DAMPING_FLOOR * h_max
         damping_min = max(self.min_damping, self._kept_damping) * h_max
-        damping, warm = damping_min, True
+        damping, warm, growth = damping_min, True, DAMPING_GROWTH
         # the first QP starts with the bounds and inequalities the starting point sits on active
         self._lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
         self._lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
@@ -521,12 +563,18 @@ class GaussNewtonSolver:
             ratio = _ratio(point, trial, predicted, nu)
             maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
             if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
-                corrected = self._second_order_correction(point, trial, dz, damping, p)
-                if corrected is not None and (soc_ratio := _ratio(point, corrected[1], predicted, nu)) > SOC_RATIO:
-                    (dz, trial), ratio = corrected, soc_ratio
+                soc_dz, soc_trial = dz, trial
+                for _ in range(MAX_CORRECTIONS):
+                    corrected = self._second_order_correction(point, soc_trial, soc_dz, damping, p)
+                    if corrected is None or corrected[1].violation > SOC_CONTRACTION * soc_trial.violation:
+                        break
+                    soc_dz, soc_trial = corrected
+                    if (soc_ratio := _ratio(point, soc_trial, predicted, nu)) > SOC_RATIO:
+                        (dz, trial), ratio = corrected, soc_ratio
+                        break
             small_step = np.abs(dz).max(initial=0.0) <= self.step_tol
             if ratio > ACCEPT_RATIO or self.max_iter == 1:
-                cost, point = point.cost, trial
+                cost, point, growth = point.cost, trial, DAMPING_GROWTH
                 if ratio > 0.75:
                     damping = damping_min if damping <= damping_floor else max(damping / 10.0, damping_min)
                 elif ratio < 0.25:
@@ -538,12 +586,15 @@ class GaussNewtonSolver:
                     if small_step:
                         status = "Infeasible_Stationary_Point"
                         break
-            else:  # rejected: damp more, same linearisation
+            else:  # rejected: the curvature, then damp more; same linearisation
                 if small_step:
                     converged = point.worst <= FEASIBILITY_TOL
                     status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
-                damping = max(4.0 * damping, damping_floor)
+                if not self._curved and self.max_iter > 1:
+                    self._curved = True
+                else:
+                    damping, growth = max(growth * damping, damping_floor), 2.0 * growth
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
