@@ -130,9 +130,12 @@ steps bring a damping at or below it straight back to the solve's minimum (0, or
 problem keeps after failed QPs)."""
 
 DAMPING_GROWTH = 4.0
-"""Factor by which a rejected step's damping grows; it doubles with every further rejection in a row (Nielsen's
-rule, Madsen, Nielsen and Tingleff 2004), so that a damping that starts at ``DAMPING_FLOOR`` reaches the scale of
-``J^T J`` in 5 rejections instead of 15."""
+"""Factor by which the first rejected step in a row grows the damping."""
+
+DAMPING_ACCELERATION = 2.0
+"""Each further rejection in a row multiplies the damping's growth by this (Nielsen's rule, Madsen, Nielsen and
+Tingleff 2004): a damping that starts at ``DAMPING_FLOOR`` reaches the scale of ``J^T J`` in 6 rejections
+instead of 15."""
 
 SINGULAR_DAMPING = 1e-14
 """Damping, relative to ``max |J^T J|``, tried first when an undamped QP fails (singular in double precision)."""
@@ -594,7 +597,7 @@ class GaussNewtonSolver:
                 if not self._curved and self.max_iter > 1:
                     self._curved = True
                 else:
-                    damping, growth = max(growth * damping, damping_floor), 2.0 * growth
+                    damping, growth = max(growth * damping, damping_floor), DAMPING_ACCELERATION * growth
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
