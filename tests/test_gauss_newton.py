@@ -60,8 +60,8 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     reference = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
     real_qp = gauss_newton.GaussNewtonSolver._qp
 
-    def warm_fails(self, h, q, a, bounds, warm, release_tol):
-        return None if warm else real_qp(self, h, q, a, bounds, warm, release_tol)
+    def warm_fails(self, form, h, q, a, bounds, warm, release_tol):
+        return None if warm else real_qp(self, form, h, q, a, bounds, warm, release_tol)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_qp", warm_fails)
     cold = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
@@ -211,6 +211,7 @@ def test_the_merit_penalty_is_relative_to_the_multipliers_on_windows_with_a_smal
     used before, nu = 2 |lam| + 1, rejects every step that leaves a violation of a few 1e-7, and with
     one second-order correction per step samples go to IPOPT (control; repeated corrections rescue
     those steps too)."""
+    assert _reactor_mhe_fallbacks(30, 200) == 0
     monkeypatch.setattr(gauss_newton, "MAX_CORRECTIONS", 1)
     assert _reactor_mhe_fallbacks(30, 200) == 0
     monkeypatch.setattr(gauss_newton, "_penalty", lambda lam_max: 2.0 * lam_max + 1.0)
@@ -232,18 +233,13 @@ def test_the_curvature_and_repeated_corrections_follow_curved_valleys(monkeypatc
     """Noisy crop standard MHE, N = 30: in four windows the full step runs 0.5 (state scales) along a
     valley the cost barely sees while the dynamics curve away from it; the merit rejects it, and damped
     steps of 1e-3 crawl to the iteration limit. With the constraints' curvature (BlockCurvature) and
-    up to MAX_CORRECTIONS corrections, none goes to IPOPT; without either (controls), some do."""
+    up to MAX_CORRECTIONS corrections, none goes to IPOPT; without either (controls: one correction per
+    step; no switch to the curvature), some do."""
     assert _crop_mhe_fallbacks(30, 270) == 0
     with monkeypatch.context() as patch:
         patch.setattr(gauss_newton, "MAX_CORRECTIONS", 1)
         assert _crop_mhe_fallbacks(30, 270) > 0
-
-    def gauss_newton_only(self, z, p, lam_g, gn):
-        h = np.zeros(self._nnz)
-        h[self._gn_positions] = gn
-        return h
-
-    monkeypatch.setattr(BlockCurvature, "__call__", gauss_newton_only)
+    monkeypatch.setattr(BlockCurvature, "curved", property(lambda self: False))
     assert _crop_mhe_fallbacks(30, 270) > 0
 
 
@@ -277,6 +273,16 @@ def test_the_block_curvature_is_the_lagrangian_curvature_without_its_negative_pa
     assert np.linalg.eigvalsh(s_plus - s).min() >= -1e-10 * scale
     # the negative part removed is exactly the negative eigenvalues of S's blocks
     assert np.trace(s_plus - s) == pytest.approx(-np.linalg.eigvalsh(s).clip(max=0.0).sum(), rel=1e-8)
+
+
+def test_a_linear_model_has_no_curvature_to_switch_to():
+    """A linear model's residuals and dynamics have no curvature: BlockCurvature says so, and a rejected step
+    damps at once instead of re-solving the same QP."""
+    system = get("linear-example").build()
+    problem = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=5)._cached(5).problem
+    solver = gauss_newton.GaussNewtonSolver(problem)
+    assert not solver._curve() and not solver._curved
+    assert not BlockCurvature(problem, solver._h_sparsity).curved
 
 
 def _crop_uise_agreement(steps: int) -> dict[str, float]:

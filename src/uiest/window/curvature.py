@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import casadi as ca
 import numpy as np
+import numpy.typing as npt
 from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
@@ -28,8 +29,10 @@ from uiest.box import FloatArray
 from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 
+IndexArray = npt.NDArray[np.int64]
 
-def _keys(sparsity: ca.Sparsity) -> FloatArray:
+
+def _keys(sparsity: ca.Sparsity) -> IndexArray:
     """``column * n + row`` of every nonzero: increasing in CasADi's (column-major) order."""
     rows, cols = (np.asarray(index, dtype=np.int64) for index in sparsity.get_triplet())
     return cols * sparsity.size1() + rows
@@ -50,6 +53,8 @@ class BlockCurvature:
         That of ``J^T J + S_+``: ``gauss_newton`` and every block in full.
     diagonal : ndarray of int
         Positions of the diagonal among ``sparsity``'s nonzeros.
+    curved : bool
+        Whether S has any nonzero (a linear model's has none).
 
     """
 
@@ -64,14 +69,14 @@ class BlockCurvature:
         graph = csr_matrix((np.ones(s_rows.size), (s_rows, s_cols)), shape=(n, n))
         _, component = connected_components(graph, directed=False)
         curved = np.zeros(n, dtype=bool)
-        curved[s_rows] = True
+        curved[s_rows] = curved[s_cols] = True
         blocks: dict[int, list[int]] = {}
         for index in np.flatnonzero(curved):
             blocks.setdefault(int(component[index]), []).append(int(index))
         members = list(blocks.values())
         # the sparsity of J^T J + S_+: J^T J's and every block in full
-        block_rows = np.concatenate([np.repeat(m, len(m)) for m in members]) if members else np.zeros(0, int)
-        block_cols = np.concatenate([np.tile(m, len(m)) for m in members]) if members else np.zeros(0, int)
+        block_rows = np.concatenate([np.repeat(m, len(m)) for m in members]) if members else np.zeros(0, np.int64)
+        block_cols = np.concatenate([np.tile(m, len(m)) for m in members]) if members else np.zeros(0, np.int64)
         gn_rows, gn_cols = (np.asarray(index, dtype=np.int64) for index in gauss_newton.get_triplet())
         union = np.unique(np.concatenate([gn_cols * n + gn_rows, block_cols * n + block_rows]))
         self.sparsity = ca.Sparsity.triplet(n, n, (union % n).tolist(), (union // n).tolist())
@@ -81,16 +86,24 @@ class BlockCurvature:
         self._gn_positions = np.searchsorted(keys, _keys(gauss_newton))
         # blocks grouped by size, for one batched eigendecomposition per size
         s_keys = _keys(S.sparsity())  # increasing
-        self._groups: list[tuple[int, int, FloatArray, FloatArray, FloatArray]] = []
+        self._groups: list[tuple[FloatArray, IndexArray, IndexArray, IndexArray]] = []
         for size in sorted({len(m) for m in members}):
             group = np.array([m for m in members if len(m) == size], dtype=np.int64)  # (blocks, size)
             pair_rows = np.repeat(group, size, axis=1).ravel()  # row-major (block, a, b)
             pair_cols = np.tile(group, (1, size)).ravel()
             pair_keys = pair_cols * n + pair_rows
-            present = np.isin(pair_keys, s_keys)
+            present = np.flatnonzero(np.isin(pair_keys, s_keys))
             source = np.searchsorted(s_keys, pair_keys[present])  # positions among S's nonzeros
             target = np.searchsorted(keys, pair_keys)  # positions among the sparsity's nonzeros
-            self._groups.append((len(group), size, np.flatnonzero(present), source, target))
+            self._groups.append((np.zeros((len(group), size, size)), present, source, target))
+        covered = sum(present.size for _, present, _, _ in self._groups)
+        if covered != S.nnz():  # cannot happen: every nonzero of S lies in the block of its row and column
+            raise AssertionError(f"BlockCurvature: {S.nnz() - covered} nonzeros of S outside its blocks")
+
+    @property
+    def curved(self) -> bool:
+        """Whether the residuals or the constraints have any curvature (S is not structurally zero)."""
+        return bool(self._groups)
 
     def __call__(self, z: FloatArray, p: FloatArray, lam_g: FloatArray, gauss_newton: FloatArray) -> FloatArray:
         """Nonzeros of ``J^T J + S_+`` at ``z`` for multipliers ``lam_g`` (those of ``|r|^2 / 2``).
@@ -100,11 +113,10 @@ class BlockCurvature:
         (s,) = self._s(z, p, lam_g)
         h = np.zeros(self._nnz)
         h[self._gn_positions] = gauss_newton
-        for count, size, present, source, target in self._groups:
-            dense = np.zeros(count * size * size)
-            dense[present] = s[source]
-            blocks = dense.reshape(count, size, size)
-            eigenvalues, vectors = np.linalg.eigh(0.5 * (blocks + blocks.transpose(0, 2, 1)))
-            convex = np.einsum("kab,kb,kcb->kac", vectors, np.maximum(eigenvalues, 0.0), vectors)
-            h[target] += convex.ravel()
+        for blocks, present, source, target in self._groups:
+            blocks.fill(0.0)
+            blocks.reshape(-1)[present] = s[source]
+            eigenvalues, vectors = np.linalg.eigh(blocks)  # S is symmetric: its lower triangles suffice
+            convex = (vectors * np.maximum(eigenvalues, 0.0)[:, None, :]) @ vectors.transpose(0, 2, 1)
+            h[target] += convex.reshape(-1)
         return h
