@@ -32,7 +32,8 @@ the cost barely sees) gets a second-order correction, the QP re-solved with the 
 the trial point; one that is not good enough is corrected again from its own trial point (up to
 :data:`MAX_CORRECTIONS` times, while each lowers the violation by :data:`SOC_CONTRACTION`, as IPOPT
 does); a good correction is taken instead of the damped steps that would follow. The first rejected
-step of a solve switches it to ``H = J^T J + S_+`` before any damping: where the dynamics curve away
+step of a solve whose cost fell while the violation rose switches it to ``H = J^T J + S_+`` before any
+damping: where the dynamics curve away
 from a valley the cost barely sees, the Gauss-Newton model predicts a decrease along the straight line
 that the violation outweighs (noisy crop standard MHE, N = 30: full steps of 0.5 state scales rejected,
 then damped steps of 1e-3 to the iteration limit in 4 of 271 windows; with the curvature and repeated
@@ -627,7 +628,7 @@ class GaussNewtonSolver:
                     converged = point.worst <= FEASIBILITY_TOL
                     status = "Converged" if converged else "Infeasible_Stationary_Point"
                     break
-                if self._curved or not self._curve():  # first the curvature, then more damping
+                if self._curved or not (maratos and self._curve()):  # the curvature first, then more damping
                     damping = min(max(growth * damping, damping_floor), DAMPING_CAP * h_max)
                     growth *= DAMPING_ACCELERATION
         if self.max_iter == 1 and status != "QP_failed":
