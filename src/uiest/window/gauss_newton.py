@@ -7,8 +7,9 @@ convex QP
     min_dz  1/2 dz^T (H + lambda I) dz + (J^T r)^T dz
     s.t.    lbg - g <= G dz <= ubg - g,     lbx - z <= dz <= ubx - z,
 
-with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step, for the
-rest of the solve ``H = J^T J + S_+``, the residuals' and constraints' curvature that Gauss-Newton
+with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step along a
+curved valley (below), for the rest of the solve ``H = J^T J + S_+``, with ``S_+`` the residuals' and
+constraints' curvature that Gauss-Newton
 leaves out, convexified (see below and :class:`~uiest.window.curvature.BlockCurvature`, one more
 Function, built when first needed). One CasADi Function evaluates a point: ``|r|^2``, the
 violation of ``lbg <= g <= ubg`` (its sum and largest entry), ``J^T r``, ``J^T J``, ``g``, ``G``
@@ -33,11 +34,11 @@ the trial point; one that is not good enough is corrected again from its own tri
 :data:`MAX_CORRECTIONS` times, while each lowers the violation by :data:`SOC_CONTRACTION`, as IPOPT
 does); a good correction is taken instead of the damped steps that would follow. The first rejected
 step of a solve whose cost fell while the violation rose switches it to ``H = J^T J + S_+`` before any
-damping: where the dynamics curve away
-from a valley the cost barely sees, the Gauss-Newton model predicts a decrease along the straight line
-that the violation outweighs (noisy crop standard MHE, N = 30: full steps of 0.5 state scales rejected,
-then damped steps of 1e-3 to the iteration limit in 4 of 271 windows; with the curvature and repeated
-corrections, none). Solves whose steps are all accepted stay plain Gauss-Newton. Rejections in a row
+damping: where the dynamics curve away from a valley the cost barely sees, the Gauss-Newton model
+predicts a decrease along the straight line that the violation outweighs (noisy crop standard MHE,
+N = 30: full steps of 0.5 state scales rejected, then damped steps of 1e-3 to the iteration limit in 4
+of 271 windows; with the curvature and repeated corrections, none). Solves whose steps are all accepted
+stay plain Gauss-Newton. Rejections in a row
 grow the damping faster and faster (:data:`DAMPING_GROWTH`, :data:`DAMPING_ACCELERATION`).
 
 Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol``
