@@ -51,8 +51,6 @@ class BlockCurvature:
     ----------
     sparsity : casadi.Sparsity
         That of ``J^T J + S_+``: ``gauss_newton`` and every block in full.
-    diagonal : ndarray of int
-        Positions of the diagonal among ``sparsity``'s nonzeros.
     curved : bool
         Whether S has any nonzero (a linear model's has none).
 
@@ -81,7 +79,6 @@ class BlockCurvature:
         union = np.unique(np.concatenate([gn_cols * n + gn_rows, block_cols * n + block_rows]))
         self.sparsity = ca.Sparsity.triplet(n, n, (union % n).tolist(), (union // n).tolist())
         keys = _keys(self.sparsity)
-        self.diagonal = np.flatnonzero(keys // n == keys % n)
         self._nnz = keys.size
         self._gn_positions = np.searchsorted(keys, _keys(gauss_newton))
         # blocks grouped by size, for one batched eigendecomposition per size

@@ -9,9 +9,9 @@ convex QP
 
 with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step along a
 curved valley (below), for the rest of the solve ``H = J^T J + S_+``, with ``S_+`` the residuals' and
-constraints' curvature that Gauss-Newton
-leaves out, convexified (see below and :class:`~uiest.window.curvature.BlockCurvature`, one more
-Function, built when first needed). One CasADi Function evaluates a point: ``|r|^2``, the
+constraints' curvature that Gauss-Newton leaves out, convexified (see below and
+:class:`~uiest.window.curvature.BlockCurvature`, one more Function, built when first needed). One
+CasADi Function evaluates a point: ``|r|^2``, the
 violation of ``lbg <= g <= ubg`` (its sum and largest entry), ``J^T r``, ``J^T J``, ``g``, ``G``
 (sparse) and the stationarity measure of the KKT test below (given the QP's multipliers), so that
 the iteration's tests are scalars; the QP is solved by CasADi's active-set solver ``qrqp``. Both
@@ -38,8 +38,8 @@ damping: where the dynamics curve away from a valley the cost barely sees, the G
 predicts a decrease along the straight line that the violation outweighs (noisy crop standard MHE,
 N = 30: full steps of 0.5 state scales rejected, then damped steps of 1e-3 to the iteration limit in 4
 of 271 windows; with the curvature and repeated corrections, none). Solves whose steps are all accepted
-stay plain Gauss-Newton. Rejections in a row
-grow the damping faster and faster (:data:`DAMPING_GROWTH`, :data:`DAMPING_ACCELERATION`).
+stay plain Gauss-Newton. Rejections in a row grow the damping faster and faster (:data:`DAMPING_GROWTH`,
+:data:`DAMPING_ACCELERATION`).
 
 Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol``
 (scaled units), a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude (a
@@ -195,14 +195,14 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
 
 
 class _QPForm(NamedTuple):
-    """A QP's Hessian sparsity: qrqp for it, the QP's gradient at a solution and its rounding, the diagonal."""
+    """A QP's Hessian sparsity: qrqp, the QP's gradient at a solution with its rounding, the diagonal's positions."""
 
     qrqp: BufferedFunction
     gradient: BufferedFunction
     diagonal: IndexArray
 
     @classmethod
-    def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity, diagonal: IndexArray) -> _QPForm:
+    def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity) -> _QPForm:
         """Qrqp for these sparsities, and ``H dz + q + A^T lam_a`` with its rounding (see :func:`_released`)."""
         qrqp = BufferedFunction(ca.conic("gn_qp", "qrqp", {"h": h_sparsity, "a": a_sparsity}, dict(QP_OPTIONS)))
         h, a = ca.SX.sym("h", h_sparsity), ca.SX.sym("a", a_sparsity)
@@ -214,7 +214,8 @@ class _QPForm(NamedTuple):
         gradient = ca.mtimes(h, dz) + q + ca.mtimes(a.T, lam)
         magnitude = ca.mtimes(ca.fabs(h), ca.fabs(dz)) + ca.fabs(q) + ca.mtimes(ca.fabs(a).T, ca.fabs(lam))
         function = ca.Function("gn_qp_gradient", [h, q, a, dz, lam], [gradient, ROUNDING * magnitude])
-        return cls(qrqp, BufferedFunction(function), diagonal)
+        rows, cols = (np.asarray(index) for index in h_sparsity.get_triplet())
+        return cls(qrqp, BufferedFunction(function), np.flatnonzero(rows == cols))
 
 
 class _Point(NamedTuple):
@@ -389,19 +390,17 @@ class GaussNewtonSolver:
         # J^T J with its whole diagonal structurally present (Levenberg-Marquardt adds to it)
         H = ca.project(ca.mtimes(J.T, J), ca.mtimes(J.T, J).sparsity() + ca.Sparsity.diag(problem.n_var))
         self._h_sparsity, self._a_sparsity = H.sparsity(), G.sparsity()
-        self._h_rows, self._h_cols = (np.asarray(index) for index in self._h_sparsity.get_triplet())
-        self._h_diagonal = np.flatnonzero(self._h_rows == self._h_cols)
         self._a_rows, self._a_cols = (np.asarray(index, dtype=np.int64) for index in self._a_sparsity.get_triplet())
         jtr = ca.densify(ca.mtimes(J.T, problem.r))
         evaluation = ca.Function(
             "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
-        self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._h_diagonal)
+        self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
         self._curvature: tuple[BlockCurvature, _QPForm] | None = None
         self._curved = False  # this solve's QPs hold the curvature (since a rejected step)
-        self._hessian: tuple[FloatArray | None, FloatArray] = (None, np.zeros(0))  # (z, J^T J + S_+ at z)
+        self._hessian: tuple[FloatArray, FloatArray] | None = None  # (z, J^T J + S_+ at z) in this solve
         self._p = np.zeros(0)  # the solve's parameters
         self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
         self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
@@ -487,7 +486,7 @@ class GaussNewtonSolver:
             return self._gauss_newton_form, point.h
         assert self._curvature is not None
         curvature, form = self._curvature
-        if self._hessian[0] is not point.z:
+        if self._hessian is None or self._hessian[0] is not point.z:
             self._hessian = point.z, curvature(point.z, self._p, self._lam_a, point.h)
         return form, self._hessian[1]
 
@@ -495,7 +494,7 @@ class GaussNewtonSolver:
         """Switch the solve to QPs with the curvature Gauss-Newton leaves out; False if the model has none."""
         if self._curvature is None:
             curvature = BlockCurvature(self.problem, self._h_sparsity)
-            form = _QPForm.build(curvature.sparsity, self._a_sparsity, curvature.diagonal)
+            form = _QPForm.build(curvature.sparsity, self._a_sparsity)
             self._curvature = curvature, form
         self._curved = self._curvature[0].curved
         return self._curved
@@ -559,7 +558,7 @@ class GaussNewtonSolver:
         start = time.perf_counter()
         p = np.asarray(p, dtype=float)
         self._objective_scale = prob.objective_scale(p)  # the QP's cost scaled as IPOPT's (same steps)
-        self._p, self._curved, self._hessian = p, False, (None, self._hessian[1])
+        self._p, self._curved, self._hessian = p, False, None
         status, converged, iterations = "Maximum_Iterations_Exceeded", False, 0
         regularised = self._kept_damping > 0.0
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
