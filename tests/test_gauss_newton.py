@@ -1,11 +1,12 @@
 """The Gauss-Newton backend against the IPOPT reference, and its fallbacks."""
 
+import runpy
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from uiest import simulate
+from uiest import UniformNoise, simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
 from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
 from uiest.models import crop_growth, get, load
@@ -398,3 +399,66 @@ def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monke
     assert damped_samples() == 0
     monkeypatch.setattr(gauss_newton, "QP_CONTINUATIONS", 0)
     assert damped_samples() > 0
+
+
+@pytest.fixture(scope="module")
+def henon_mhe_windows():
+    """The full windows (N = 60, weights down to 0.6^59 ~ 1e-13) of a noisy Henon map's standard MHE, recorded."""
+    example = runpy.run_path(str(Path(__file__).resolve().parents[1] / "examples" / "chaotic_message.py"))
+    system = example["build"]()
+    traj = simulate(system, [0.1, 0.1], 70, w=example["message"](70), v=UniformNoise.symmetric(1e-3), seed=0)
+    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=60, x0_prior=np.zeros(2),
+                            solver="gn")  # fmt: skip
+    recorder = _record_full_windows(estimator, 60)
+    assert estimator.run(traj.u, traj.y).failures == 0
+    return recorder
+
+
+def _qrqp_iterations(monkeypatch) -> list[int]:
+    """qrqp's iterations of every QP solved from now on (the list fills as QPs are solved)."""
+    counts: list[int] = []
+    real_qp = gauss_newton.GaussNewtonSolver._qp
+
+    def counting(self, form, *args):
+        solved = real_qp(self, form, *args)
+        counts.append(form.qrqp.stats()["iter_count"])
+        return solved
+
+    monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_qp", counting)
+    return counts
+
+
+def test_the_qp_is_scaled_so_that_qrqp_tells_small_curvature_from_none(henon_mhe_windows, monkeypatch):
+    """qrqp takes a KKT matrix whose QR factor has a diagonal entry below 1e-12 (absolute) for singular. The Henon
+    windows' largest curvature is 2: unscaled, qrqp holds their weakly weighted variables on their boxes one
+    iteration at a time, QP after QP. Control: the scale of those windows' own cost (QP_SCALE = 2)."""
+    counts = _qrqp_iterations(monkeypatch)
+
+    def iterations(scale: float) -> int:
+        monkeypatch.setattr(gauss_newton, "QP_SCALE", scale)
+        counts.clear()
+        solver = gauss_newton.GaussNewtonSolver(henon_mhe_windows.problem)
+        for z0, p, recorded in henon_mhe_windows.calls:
+            solution = solver.solve(z0, p)
+            assert solution.status == "Converged"
+            assert abs(solution.cost - recorded.cost) <= 1e-10 * (1.0 + recorded.cost)
+        return sum(counts)
+
+    assert 2 * iterations(gauss_newton.QP_SCALE) < iterations(2.0)
+
+
+def test_damping_returns_to_zero_gradually_after_good_steps(monkeypatch):
+    """The crop UISE with N = 50, whose oldest states are free to rounding: returning to undamped steps at once,
+    the undamped step runs far along them and is rejected, a damped one is accepted, and so on to the iteration
+    limit. Control: DAMPING_DECAY = inf (the damping back to 0 after one good step)."""
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 100, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+
+    def fallbacks() -> int:
+        estimator = UISE(system, weights=weights, N=50, x0_prior=scenario.prior(traj.y[0]), solver="gn")
+        return sum("-> ipopt" in status for status in estimator.run(traj.u, traj.y).status)
+
+    gradual = fallbacks()
+    monkeypatch.setattr(gauss_newton, "DAMPING_DECAY", float("inf"))
+    assert gradual < fallbacks() - 5
