@@ -403,13 +403,13 @@ def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monke
 
 @pytest.fixture(scope="module")
 def henon_mhe_windows():
-    """The full windows (N = 60, weights down to 0.6^59 ~ 1e-13) of a noisy Henon map's standard MHE, recorded."""
+    """The full windows (N = 100, weights down to 0.6^99 ~ 1e-22) of a noisy Henon map's standard MHE, recorded."""
     example = runpy.run_path(str(Path(__file__).resolve().parents[1] / "examples" / "chaotic_message.py"))
     system = example["build"]()
-    traj = simulate(system, [0.1, 0.1], 70, w=example["message"](70), v=UniformNoise.symmetric(1e-3), seed=0)
-    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=60, x0_prior=np.zeros(2),
+    traj = simulate(system, [0.1, 0.1], 106, w=example["message"](106), v=UniformNoise.symmetric(1e-3), seed=0)
+    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=100, x0_prior=np.zeros(2),
                             solver="gn")  # fmt: skip
-    recorder = _record_full_windows(estimator, 60)
+    recorder = _record_full_windows(estimator, 100)
     assert estimator.run(traj.u, traj.y).failures == 0
     return recorder
 
@@ -428,23 +428,37 @@ def _qrqp_iterations(monkeypatch) -> list[int]:
     return counts
 
 
+def _henon_qrqp_iterations(windows, counts: list[int]) -> int:
+    """qrqp's iterations over the recorded windows, each solved by one fresh solver (to IPOPT's cost, as recorded)."""
+    counts.clear()
+    solver = gauss_newton.GaussNewtonSolver(windows.problem)
+    for z0, p, recorded in windows.calls:
+        solution = solver.solve(z0, p)
+        assert solution.status == "Converged"
+        assert abs(solution.cost - recorded.cost) <= 1e-10 * (1.0 + recorded.cost)
+    return sum(counts)
+
+
 def test_the_qp_is_scaled_so_that_qrqp_tells_small_curvature_from_none(henon_mhe_windows, monkeypatch):
     """qrqp takes a KKT matrix whose QR factor has a diagonal entry below 1e-12 (absolute) for singular. The Henon
     windows' largest curvature is 2: unscaled, qrqp holds their weakly weighted variables on their boxes one
-    iteration at a time, QP after QP. Control: the scale of those windows' own cost (QP_SCALE = 2)."""
+    iteration at a time, QP after QP. Both without raised curvature; control: the scale of those windows' own cost
+    (QP_SCALE = 2)."""
     counts = _qrqp_iterations(monkeypatch)
+    monkeypatch.setattr(gauss_newton, "FLAT_CURVATURE", 0.0)
+    scaled = _henon_qrqp_iterations(henon_mhe_windows, counts)
+    monkeypatch.setattr(gauss_newton, "QP_SCALE", 2.0)
+    assert 2 * scaled < _henon_qrqp_iterations(henon_mhe_windows, counts)
 
-    def iterations(scale: float) -> int:
-        monkeypatch.setattr(gauss_newton, "QP_SCALE", scale)
-        counts.clear()
-        solver = gauss_newton.GaussNewtonSolver(henon_mhe_windows.problem)
-        for z0, p, recorded in henon_mhe_windows.calls:
-            solution = solver.solve(z0, p)
-            assert solution.status == "Converged"
-            assert abs(solution.cost - recorded.cost) <= 1e-10 * (1.0 + recorded.cost)
-        return sum(counts)
 
-    assert 2 * iterations(gauss_newton.QP_SCALE) < iterations(2.0)
+def test_curvature_too_small_for_qrqp_is_raised(henon_mhe_windows, monkeypatch):
+    """The oldest nodes' curvature (weights 0.6^99) is below what qrqp tells from zero even in the scaled QP: raised,
+    qrqp moves those variables by the least it can instead of holding them on their boxes and releasing them later.
+    Control: FLAT_CURVATURE = 0 (solvers built after the patch)."""
+    counts = _qrqp_iterations(monkeypatch)
+    raised = _henon_qrqp_iterations(henon_mhe_windows, counts)
+    monkeypatch.setattr(gauss_newton, "FLAT_CURVATURE", 0.0)
+    assert 2 * raised < _henon_qrqp_iterations(henon_mhe_windows, counts)
 
 
 def test_damping_returns_to_zero_gradually_after_good_steps(monkeypatch):
