@@ -121,8 +121,8 @@ direction at a zero multiplier, one iteration each. Scaled as IPOPT's cost (the 
 never up), a noisy Henon map's standard MHE with N = 100 and mu = 0.6 (bench/gn_models.py), largest curvature 2,
 had 134 of 402 variables below that; qrqp held about 85 of them on their boxes in each sample's first QP and
 released them again later: 81 ms per sample. Its UISE: 117 ms and 35 of 150 samples to IPOPT. The Van der Pol UISE
-with N = 30: 44 of 200 samples to IPOPT. Scaled: 23 ms, 1.4 ms and none, and none (with :data:`FLAT_CURVATURE`:
-the MHE 4 ms). The crop windows' largest curvature was already about 1e6 after IPOPT's scaling."""
+with N = 30: 44 of 200 samples to IPOPT. Scaled (and with :data:`FLAT_CURVATURE`): 2.7 ms, 1.0 ms and none, and
+none. The crop windows' largest curvature was already about 1e6 after IPOPT's scaling."""
 
 QRQP_SINGULAR = 1e-12
 """The smallest diagonal entry of the QR factor of the KKT matrix that qrqp does not take for singular (fixed in
@@ -133,12 +133,12 @@ FLAT_CURVATURE = 10.0 * QRQP_SINGULAR / QP_SCALE
 it: ten times what qrqp tells from zero in the scaled QP, so that qrqp does not hold the variable on its box (a
 step along a direction the data leave flat, to the box, then released again) but moves it as little as it can.
 Long windows have many such variables: their weights fall as ``mu^k`` (crop, 0.48^299 ~ 1e-95 at N = 300).
-Raised: the Henon standard MHE with N = 100 (see :data:`QP_SCALE`) 23 -> 4 ms per sample; 11 windows of the
+Raised: the Henon standard MHE with N = 100 (see :data:`QP_SCALE`) 23 -> 2.7 ms per sample; 11 windows of the
 crop's two-stage UISE with N = 300, each solved by a fresh solver, 510 -> 73 ms median, with 5 instead of 6 of
 them above 1e-8 of IPOPT's cost. Structural zeros (the UISE's unpenalised ``w``, fixed by the dynamics) are left
 alone. Raised further, to ``1e-14`` of the largest (the damping a singular QP is retried with), the Van der Pol
 UISE with N = 100 sent 82 of 150 samples to IPOPT (its steps ran far along the old nodes, and feasibility came
-back only linearly), against 0 here."""
+back only linearly), against 2 here."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
