@@ -239,9 +239,9 @@ BACKENDS = ("ipopt", "gn", "rti")
 """Names accepted as ``solver=``."""
 
 DEFAULT_BACKEND = "gn"
-"""The estimators' default backend: Gauss-Newton SQP, 4-8x less CPU per sample than IPOPT on the crop
-windows with N <= 100 (``uiest bench``); at N = 300, where the weights span 1e-95 to 1e6, 3x less for the
-standard MHE and 2x more for the two-stage UISE (README). IPOPT is its fallback for any sample it does
+"""The estimators' default backend: Gauss-Newton SQP, 3-7x less CPU per sample than IPOPT on the crop
+windows with N <= 100 (``uiest bench``); at N = 300, where the weights span 1e-95 to 1e6, 5x less for the
+standard MHE and 2.7x less for the two-stage UISE (README). IPOPT is its fallback for any sample it does
 not solve."""
 
 
