@@ -429,7 +429,7 @@ def _qrqp_iterations(monkeypatch) -> list[int]:
 
 
 def _henon_qrqp_iterations(windows, counts: list[int]) -> int:
-    """qrqp's iterations over the recorded windows, each solved by one fresh solver (to IPOPT's cost, as recorded)."""
+    """qrqp's iterations over the recorded windows, each solved by one fresh solver (to the recorded cost)."""
     counts.clear()
     solver = gauss_newton.GaussNewtonSolver(windows.problem)
     for z0, p, recorded in windows.calls:

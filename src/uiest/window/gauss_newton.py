@@ -120,7 +120,7 @@ a KKT matrix whose QR factor has a diagonal entry below :data:`QRQP_SINGULAR` fo
 direction at a zero multiplier, one iteration each. Scaled as IPOPT's cost (the largest weight brought down to 1e6,
 never up), a noisy Henon map's standard MHE with N = 100 and mu = 0.6 (bench/gn_models.py), largest curvature 2,
 had 134 of 402 variables below that; qrqp held about 85 of them on their boxes in each sample's first QP and
-released them again later: 81 ms per sample. Its UISE: 117 ms and 35 of 150 samples to IPOPT. The Van der Pol UISE
+released them again later: 73 ms per sample. Its UISE: 114 ms and 34 of 150 samples to IPOPT. The Van der Pol UISE
 with N = 30: 44 of 200 samples to IPOPT. Scaled (and with :data:`FLAT_CURVATURE`): 2.7 ms, 1.0 ms and none, and
 none. The crop windows' largest curvature was already about 1e6 after IPOPT's scaling."""
 
@@ -129,16 +129,16 @@ QRQP_SINGULAR = 1e-12
 CasADi's ``casadi_qp``)."""
 
 FLAT_CURVATURE = 10.0 * QRQP_SINGULAR / QP_SCALE
-"""A variable's own curvature (``J^T J``'s diagonal) that is positive but below this times the largest is raised to
-it: ten times what qrqp tells from zero in the scaled QP, so that qrqp does not hold the variable on its box (a
-step along a direction the data leave flat, to the box, then released again) but moves it as little as it can.
-Long windows have many such variables: their weights fall as ``mu^k`` (crop, 0.48^299 ~ 1e-95 at N = 300).
-Raised: the Henon standard MHE with N = 100 (see :data:`QP_SCALE`) 23 -> 2.7 ms per sample; 11 windows of the
-crop's two-stage UISE with N = 300, each solved by a fresh solver, 510 -> 73 ms median, with 5 instead of 6 of
-them above 1e-8 of IPOPT's cost. Structural zeros (the UISE's unpenalised ``w``, fixed by the dynamics) are left
-alone. Raised further, to ``1e-14`` of the largest (the damping a singular QP is retried with), the Van der Pol
-UISE with N = 100 sent 82 of 150 samples to IPOPT (its steps ran far along the old nodes, and feasibility came
-back only linearly), against 2 here."""
+"""A variable's own curvature (``J^T J``'s diagonal) that is positive but below this times the largest is raised to it:
+ten times what qrqp tells from zero in the scaled QP, so that qrqp does not hold the variable on its box (a step
+along a direction the data leave flat, to the box, then released again) but moves it as little as it can. Long
+windows have many such variables: their weights fall as ``mu^k`` (crop, 0.48^299 ~ 1e-95 at N = 300). Raised: the
+Henon standard MHE with N = 100 (see :data:`QP_SCALE`) 23 -> 2.7 ms per sample; 11 windows of the crop's two-stage
+UISE with N = 300, each solved by a fresh solver, 510 -> 73 ms median (89 in a rerun beside other work), 3.6 -> 2.1
+iterations, with 5 instead of 6 of them above 1e-8 of IPOPT's cost. Structural zeros (the UISE's unpenalised ``w``,
+fixed by the dynamics) are left alone. Raised further, to ``1e-14`` of the largest (the damping a singular QP is
+retried with), the Van der Pol UISE with N = 100 sent 82 of 150 samples to IPOPT (its steps ran far along the old
+nodes, and feasibility came back only linearly), against 2 here."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
@@ -163,14 +163,14 @@ DAMPING_FLOOR = 1e-9
 DAMPING_DECAY = 10.0
 """After a rejected step, each good step (ratio above 0.75) divides the damping by this until it falls below
 ``SINGULAR_DAMPING max |J^T J|``, and then it returns to the solve's minimum (0, or the damping the problem keeps
-after failed QPs): about six good steps from ``DAMPING_FLOOR``. Returning at once, the crop UISE windows with
-N = 50 and N = 100, whose oldest states are free to rounding (weights 0.48^49 .. 0.48^99, ``w`` unpenalised),
-cycled: the undamped step ran 1e3 .. 1e9 state scales along those states and was rejected with its corrections,
-the damped step was accepted with ratio 1.0, the damping went back to 0, and so on to the iteration limit (one
-window: 330 iterations; returning gradually, 15). In closed loop with N = 50 (100 samples), 23 samples went to
-IPOPT that way and 11 this way. Damping that a poor but accepted step left (no rejection) still returns at once
-from ``DAMPING_FLOOR``: returning gradually there too, damped steps crawled along noisy crop UISE valleys (N = 30)
-that one long undamped step crosses, until the KKT test stopped them up to 6e-8 above IPOPT's cost (2 of 271)."""
+after failed QPs): about six good steps from ``DAMPING_FLOOR``. Returning at once, the crop UISE windows with N = 50
+and N = 100, whose oldest states are free to rounding (weights 0.48^49 .. 0.48^99, ``w`` unpenalised), cycled: the
+undamped step ran 1e3 .. 1e9 state scales along those states and was rejected with its corrections, the damped step
+was accepted with ratio 1.0, the damping went back to 0, and so on to the iteration limit (traced on N = 100
+windows). In closed loop with N = 50 (100 samples), 23 samples went to IPOPT that way and 11 this way. Damping that
+a poor but accepted step left (no rejection) still returns at once from ``DAMPING_FLOOR``: returning gradually there
+too, damped steps crawled along noisy crop UISE valleys (N = 30) that one long undamped step crosses, until the KKT
+test stopped them up to 6e-8 above IPOPT's cost (2 of 271)."""
 
 DAMPING_GROWTH = 4.0
 """Factor by which a rejected step grows the damping (from at least ``DAMPING_FLOOR``) when it is the first
