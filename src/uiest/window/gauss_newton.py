@@ -608,8 +608,9 @@ class GaussNewtonSolver:
         status, converged, iterations = "Maximum_Iterations_Exceeded", False, 0
         regularised = self._kept_damping > 0.0
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
-        h_max = float(np.abs(point.h).max(initial=1.0))
-        self._qp_scale = QP_SCALE / (float(np.abs(point.h).max(initial=0.0)) or 1.0)
+        largest = float(np.abs(point.h).max(initial=0.0))
+        h_max = max(largest, 1.0)
+        self._qp_scale = QP_SCALE / (largest or 1.0)
         damping_floor = DAMPING_FLOOR * h_max
         damping_min = max(self.min_damping, self._kept_damping) * h_max
         damping, warm, growth = damping_min, True, DAMPING_GROWTH
