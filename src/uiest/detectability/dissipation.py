@@ -30,7 +30,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
-import cvxpy as cp
 import numpy as np
 
 from uiest.box import Box, FloatArray
@@ -44,6 +43,7 @@ from uiest.detectability.certificate import (
     sample_pairs,
 )
 from uiest.detectability.cover import Cover, cover
+from uiest.detectability.lmi import cp
 from uiest.errors import OptionError
 
 STRUCTURES = ("full", "identity")

@@ -18,16 +18,39 @@ solver failure into "infeasible".
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
+import sys
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
+from types import ModuleType
 
 import casadi as ca
-import cvxpy as cp
 import numpy as np
 
 from uiest.box import Box, FloatArray
+
+
+def _imported_on_first_use(name: str) -> ModuleType:
+    """The module ``name``, executed when one of its attributes is first read (``importlib.util.LazyLoader``).
+
+    cvxpy takes about 1.5 s to import (scipy.stats with it); most uses of uiest (estimators, the CLI's
+    help, worker processes of a sweep) never solve an LMI.
+    """
+    if name in sys.modules:
+        return sys.modules[name]
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.loader is None:
+        raise ModuleNotFoundError(f"No module named {name!r}", name=name)
+    spec.loader = importlib.util.LazyLoader(spec.loader)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    spec.loader.exec_module(module)
+    return module
+
+
+cp = _imported_on_first_use("cvxpy")
 
 SOLVER = "CLARABEL"
 """cvxpy solver for every LMI (SCS returns 'optimal' for violated LMIs; never trusted here)."""

@@ -34,12 +34,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cvxpy as cp
 import numpy as np
 import scipy.linalg
 
 from uiest.box import FloatArray
 from uiest.detectability import lmi
+from uiest.detectability.lmi import cp
 
 KAPPA_MAX = 1e6
 """Largest condition number of P in the rate problem (a bounded normalisation)."""

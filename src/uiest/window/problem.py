@@ -57,36 +57,53 @@ from uiest.window.model import WindowModel
 
 
 def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
-    """Symmetric square root of a symmetric positive semidefinite matrix.
+    """Symmetric square root of a symmetric positive semidefinite matrix, or of each of a stack of them.
 
     Parameters
     ----------
-    matrix : array_like, shape (n, n)
-        Symmetric, eigenvalues >= -1e-10 * largest (tiny negative ones are set to zero).
+    matrix : array_like, shape (n, n) or (m, n, n)
+        Symmetric, eigenvalues >= -1e-10 * largest (tiny negative ones are set to zero); a stack is
+        taken matrix by matrix, in one vectorised pass.
     name : str
-        Argument name used in error messages.
+        Argument name used in error messages (``name[i]`` for the ``i``-th matrix of a stack).
 
     Returns
     -------
-    ndarray, shape (n, n)
-        ``M`` with ``M = M^T`` and ``M @ M = matrix``.
+    ndarray, the shape of ``matrix``
+        ``M`` with ``M = M^T`` and ``M @ M = matrix`` (for each matrix of a stack).
 
     """
     arr = np.asarray(matrix, dtype=float)
-    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
-        raise OptionError(f"{name}: expected a square matrix, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise OptionError(f"{name}: expected finite entries")
+    if arr.ndim not in (2, 3) or arr.shape[-1] != arr.shape[-2]:
+        raise OptionError(f"{name}: expected a square matrix (or a stack of them), got shape {arr.shape}")
     if arr.size == 0:
         return arr.copy()
-    scale = max(1.0, float(np.abs(arr).max()))
-    if not np.allclose(arr, arr.T, rtol=1e-8, atol=1e-12 * scale):
-        raise OptionError(f"{name}: expected a symmetric matrix")
-    eigval, eigvec = np.linalg.eigh(0.5 * (arr + arr.T))
-    if eigval.min() < -1e-10 * max(1e-300, abs(eigval).max()):
-        raise OptionError(f"{name}: expected a positive semidefinite matrix, smallest eigenvalue {eigval.min():.3g}")
-    root: FloatArray = (eigvec * np.sqrt(np.clip(eigval, 0.0, None))) @ eigvec.T
-    return root
+    stack = arr.reshape(-1, *arr.shape[-2:])
+
+    def first(bad: np.ndarray) -> str:
+        return name if arr.ndim == 2 else f"{name}[{int(np.argmax(bad))}]"
+
+    finite = np.isfinite(stack).all(axis=(1, 2))
+    if not finite.all():
+        raise OptionError(f"{first(~finite)}: expected finite entries")
+    transposed = stack.transpose(0, 2, 1)
+    scale = np.maximum(1.0, np.abs(stack).max(axis=(1, 2)))
+    # np.allclose(M, M^T, rtol=1e-8, atol=1e-12 * scale), matrix by matrix
+    symmetric = (np.abs(stack - transposed) <= 1e-12 * scale[:, None, None] + 1e-8 * np.abs(transposed)).all(
+        axis=(1, 2)
+    )
+    if not symmetric.all():
+        raise OptionError(f"{first(~symmetric)}: expected a symmetric matrix")
+    eigval, eigvec = np.linalg.eigh(0.5 * (stack + transposed))
+    smallest = eigval.min(axis=1)
+    negative = smallest < -1e-10 * np.maximum(1e-300, np.abs(eigval).max(axis=1))
+    if negative.any():
+        raise OptionError(
+            f"{first(negative)}: expected a positive semidefinite matrix, smallest eigenvalue "
+            f"{smallest[np.argmax(negative)]:.3g}"
+        )
+    root: FloatArray = (eigvec * np.sqrt(np.clip(eigval, 0.0, None))[:, None, :]) @ eigvec.transpose(0, 2, 1)
+    return root.reshape(arr.shape)
 
 
 LARGEST_WEIGHT = 1e6
@@ -302,9 +319,7 @@ class WindowProblem:
             arr = np.asarray(value, dtype=float)
             if arr.shape != shape:
                 raise OptionError(f"weights.{label}: expected shape {shape}, got {arr.shape}")
-            for i, block in enumerate(arr.reshape(-1, *shape[-2:])):
-                name = f"weights.{label}" + (f"[{i}]" if arr.ndim == 3 else "")
-                parts.append(sqrt_psd(np.outer(scale, scale) * block, name).ravel())
+            parts.append(sqrt_psd(np.outer(scale, scale) * arr, f"weights.{label}").ravel())
         return np.concatenate(parts) if parts else np.zeros(0)
 
     def _build(self) -> None:
@@ -321,12 +336,16 @@ class WindowProblem:
             start = self.parameter_slices[key].start + row * width
             return p[start : start + width] if width else ca.SX(0, 1)
 
-        xs = [ca.DM(self.x_center) + ca.DM(self.x_scale) * take(self.x_index[i]) for i in range(L + 1)]
-        ws = [ca.DM(self.w_center) + ca.DM(self.w_scale) * take(self.w_index[i]) for i in range(L)]
-        vs = [ca.DM(self.v_center) + ca.DM(self.v_scale) * take(self.v_index[m]) for m in range(M)]
+        # centres and scales as DMs once (a DM built per stage costs more than the stage's expressions)
+        x_center, x_scale = ca.DM(self.x_center), ca.DM(self.x_scale)
+        w_center, w_scale = ca.DM(self.w_center), ca.DM(self.w_scale)
+        v_center, v_scale = ca.DM(self.v_center), ca.DM(self.v_scale)
+        y_center, y_scale = ca.DM(self.y_center), ca.DM(self.y_scale)
+        xs = [x_center + x_scale * take(self.x_index[i]) for i in range(L + 1)]
+        ws = [w_center + w_scale * take(self.w_index[i]) for i in range(L)]
+        vs = [v_center + v_scale * take(self.v_index[m]) for m in range(M)]
         ds = [par("data", i, nd) for i in range(L + 1)]
         node_of = {int(node): m for m, node in enumerate(self.measured)}
-        v_nominal = ca.DM(self.v_center)
         offset = [self.parameter_slices["weights"].start]
 
         def root(n: int) -> ca.SX:
@@ -335,36 +354,36 @@ class WindowProblem:
             offset[0] += n * n
             return ca.reshape(p[start : start + n * n], n, n) if n else ca.SX(0, 0)
 
-        residuals = [ca.mtimes(root(nx), (xs[0] - par("prior", 0, nx)) / ca.DM(self.x_scale))]
+        residuals = [ca.mtimes(root(nx), (xs[0] - par("prior", 0, nx)) / x_scale)]
         outputs = []
         roots_y = [root(ny) for _ in range(M)]
         roots_v = [root(nv) for _ in range(M)]
         for m, node in enumerate(self.measured):
             y_hat = s.h(xs[int(node)], vs[m], ds[int(node)])
             outputs.append(y_hat)
-            diff = par("mask", m, ny) * (par("y", m, ny) - y_hat) / ca.DM(self.y_scale)
+            diff = par("mask", m, ny) * (par("y", m, ny) - y_hat) / y_scale
             residuals.append(ca.mtimes(roots_y[m], diff))
-            residuals.append(ca.mtimes(roots_v[m], (vs[m] - par("v_bar", m, nv)) / ca.DM(self.v_scale)))
+            residuals.append(ca.mtimes(roots_v[m], (vs[m] - par("v_bar", m, nv)) / v_scale))
         if self.weighted_w:
             for i in range(L):
-                residuals.append(ca.mtimes(root(nw), (ws[i] - par("w_bar", i, nw)) / ca.DM(self.w_scale)))
+                residuals.append(ca.mtimes(root(nw), (ws[i] - par("w_bar", i, nw)) / w_scale))
         r = ca.vertcat(*residuals)
         dynamics = [
-            (s.f(xs[i], par("u", i, nu), ws[i], vs[node_of[i]] if i in node_of else v_nominal, ds[i]) - xs[i + 1])
-            / ca.DM(self.x_scale)
+            (s.f(xs[i], par("u", i, nu), ws[i], vs[node_of[i]] if i in node_of else v_center, ds[i]) - xs[i + 1])
+            / x_scale
             for i in range(L)
         ]
         constraints = list(dynamics)
         if self.has_output_constraints:
-            constraints += [(y_hat - ca.DM(self.y_center)) / ca.DM(self.y_scale) for y_hat in outputs]
+            constraints += [(y_hat - y_center) / y_scale for y_hat in outputs]
         rows = [int(r) for r in self.node_rows]
         if rows:
             assert s.node_constraint is not None and s.node_bounds is not None and s.node_scale is not None
-            c_center = working_center(s.node_bounds, s.node_scale)[rows]
-            c_scale = s.node_scale[rows]
+            c_center = ca.DM(working_center(s.node_bounds, s.node_scale)[rows])
+            c_scale = ca.DM(s.node_scale[rows])
             for m, node in enumerate(self.measured):
                 c = s.node_constraint(xs[int(node)], vs[m], ds[int(node)])[rows]
-                constraints.append((c - ca.DM(c_center)) / ca.DM(c_scale))
+                constraints.append((c - c_center) / c_scale)
         g = ca.vertcat(*constraints) if constraints else ca.SX(0, 1)
         self.z, self.p, self.r, self.g = z, p, r, g
         self.n_res = int(r.numel())
