@@ -171,6 +171,7 @@ def test_second_order_corrections_spare_the_fallbacks_on_noisy_crop_windows(kind
 
     assert run() == (0, 0)
     monkeypatch.setattr(gauss_newton, "SOC_RATIO", float("inf"))  # no correction is ever good enough
+    monkeypatch.setattr(gauss_newton, "LAST_CORRECTION_RATIO", float("inf"))
     failures, fallbacks = run()
     assert failures == 0 and fallbacks > 0
 
@@ -230,15 +231,18 @@ def _crop_mhe_fallbacks(N: int, steps: int) -> int:
     return sum("-> ipopt" in status for status in result.status)
 
 
-def test_the_curvature_and_repeated_corrections_follow_curved_valleys(monkeypatch):
+def test_the_curvature_and_the_corrections_follow_curved_valleys(monkeypatch):
     """Noisy crop standard MHE, N = 30: in four windows the full step runs 0.5 (state scales) along a
     valley the cost barely sees while the dynamics curve away from it; the merit rejects it, and damped
-    steps of 1e-3 crawl to the iteration limit. With the constraints' curvature (BlockCurvature) and
-    up to MAX_CORRECTIONS corrections, none goes to IPOPT; without either (controls: one correction per
-    step; no switch to the curvature), some do."""
+    steps of 1e-3 crawl to the iteration limit. With the constraints' curvature (BlockCurvature) and a
+    second-order correction taken once acceptable, none goes to IPOPT, even with one correction per step
+    (its ratio below SOC_RATIO, yet above LAST_CORRECTION_RATIO); with one correction taken only when
+    good (control), or without the switch to the curvature (control), some do."""
     assert _crop_mhe_fallbacks(30, 270) == 0
     with monkeypatch.context() as patch:
         patch.setattr(gauss_newton, "MAX_CORRECTIONS", 1)
+        assert _crop_mhe_fallbacks(30, 270) == 0
+        patch.setattr(gauss_newton, "LAST_CORRECTION_RATIO", gauss_newton.SOC_RATIO)
         assert _crop_mhe_fallbacks(30, 270) > 0
     monkeypatch.setattr(BlockCurvature, "curved", property(lambda self: False))
     assert _crop_mhe_fallbacks(30, 270) > 0
