@@ -293,6 +293,9 @@ class FailingSolver:
             return type(solution)(**{**solution.__dict__, "status": "Injected_Failure", "success": False})
         return solution
 
+    def reset(self):
+        self.inner.reset()
+
 
 def test_failed_solve_propagates_and_strict_raises(closed_form_case, monkeypatch):
     system, weights, traj = closed_form_case

@@ -251,6 +251,10 @@ class WindowEstimator(StreamingEstimator):
 
     # ------------------------------------------------------------------ state
     def _clear(self) -> None:
+        for entry in self._cache.values():  # the problems and solvers stay built; what solves left is forgotten
+            for solver in (entry.warm, entry.cold):
+                if solver is not None:
+                    solver.reset()
         maxlen = self.N
         self._k = 0
         self._u: deque[FloatArray] = deque(maxlen=maxlen)

@@ -66,6 +66,9 @@ class _Recorder:
         self.calls.append((np.array(z0, dtype=float), np.array(p, dtype=float), solution))
         return solution
 
+    def reset(self) -> None:
+        self.solver.reset()
+
 
 def _record_full_windows(estimator: Any, N: int) -> _Recorder:
     """Wrap the estimator's solvers of its full-length window in one recorder."""

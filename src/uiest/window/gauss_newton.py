@@ -461,10 +461,14 @@ class GaussNewtonSolver:
         self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
         self._qp_scale = 1.0
-        self._kept_damping = 0.0  # least damping (relative) after failed QPs, kept across solves
+        self._kept_damping = 0.0  # least damping (relative) after failed QPs, kept across solves until reset()
         self._lam_x = np.zeros(problem.n_var)
         self._lam_a = np.zeros(problem.n_con)
         self._released_any = False  # the last QP released held sides (see _released)
+
+    def reset(self) -> None:
+        """Forget the least damping that failed QPs left (kept from solve to solve within a run, see :meth:`solve`)."""
+        self._kept_damping = 0.0
 
     # ------------------------------------------------------------------ evaluations
     def _evaluate(self, z: FloatArray, p: FloatArray, keep: _Point | None = None) -> _Point:

@@ -118,6 +118,10 @@ class WindowSolver(Protocol):
         """Solve the window problem from the guess ``z0`` with parameters ``p``."""
         ...
 
+    def reset(self) -> None:
+        """Forget what earlier solves left behind (called when the estimator starts over)."""
+        ...
+
 
 class IpoptSolver:
     """CasADi ``nlpsol("ipopt")`` on a window problem, built once.
@@ -161,6 +165,9 @@ class IpoptSolver:
             )
         except RuntimeError as exc:
             raise OptionError(f"solver_options: IPOPT rejected the options {ipopt}: {exc}") from exc
+
+    def reset(self) -> None:
+        """Nothing to forget: every IPOPT solve starts from its own arguments."""
 
     def solve(
         self,
