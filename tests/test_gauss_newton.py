@@ -248,6 +248,28 @@ def test_the_curvature_and_the_corrections_follow_curved_valleys(monkeypatch):
     assert _crop_mhe_fallbacks(30, 270) > 0
 
 
+def _closed_form_mhe_fallbacks(N: int, steps: int) -> int:
+    """IPOPT fallbacks of the Gauss-Newton standard MHE on the noise-free closed-form model (bench/gn_models.py's)."""
+    entry = get("closed-form")
+    system, setup = entry.build(), entry.simulation()
+    traj = simulate(system, setup.x0, steps, u=setup.u, w=setup.w, seed=0)
+    weights = MHEWeights.from_scales(system, 0.6)
+    prior = 1.1 * np.asarray(setup.x0, dtype=float)
+    result = StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver="gn").run(traj.u, traj.y)
+    assert result.failures == 0
+    return sum("-> ipopt" in status for status in result.status)
+
+
+def test_a_step_saved_by_poor_corrections_switches_to_the_curvature(monkeypatch):
+    """Closed-form standard MHE, N = 10: along its barely observable x2 the dynamics curve away from the step;
+    four corrections bring the violation back with a merit ratio near 0.36, and the step is taken. Switched to
+    J^T J + S_+ from there, the solve converges in a few iterations; staying with J^T J (control), it crawls
+    to the iteration limit and hands the sample to IPOPT."""
+    switched = _closed_form_mhe_fallbacks(10, 200)
+    monkeypatch.setattr(gauss_newton, "CURVATURE_RATIO", 0.0)
+    assert 2 * switched < _closed_form_mhe_fallbacks(10, 200)
+
+
 def test_the_block_curvature_is_the_lagrangian_curvature_without_its_negative_part():
     """``J^T J + S_+`` on a crop window with random multipliers: ``S_+`` and ``S_+ - S`` are positive
     semidefinite (S the residuals' and constraints' curvature, from CasADi's Hessian of the Lagrangian),
