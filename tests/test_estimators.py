@@ -3,6 +3,7 @@ FIE == UISE while k <= N, the crop model; weights, guarantees, streaming, warm s
 
 import numpy as np
 import pytest
+from failing_solver import FailingSolver
 
 from uiest import CertificationError, OptionError, SolverError, UniformNoise, simulate
 from uiest.detectability import certify_delta_ioss, certify_strong_detectability
@@ -278,23 +279,6 @@ def test_one_step_ahead_mhe_ignores_the_current_measurement(closed_form_case):
     np.testing.assert_array_equal(first.x_hat, second.x_hat)
     assert first.status[0] == "prior" and np.array_equal(first.x_hat[0], [0.0, 0.0])
     assert np.isnan(first.w_hat[-1]).all() and not np.isnan(first.w_hat[:-1]).any()
-
-
-class FailingSolver:
-    """Wraps a backend and fails while the estimator is at one of the given steps."""
-
-    def __init__(self, inner, estimator_ref, fail_steps):
-        self.inner, self.problem = inner, inner.problem
-        self.estimator_ref, self.fail_steps = estimator_ref, fail_steps
-
-    def solve(self, z0, p, lam_x0=None, lam_g0=None):
-        solution = self.inner.solve(z0, p, lam_x0, lam_g0)
-        if self.estimator_ref[0].k in self.fail_steps:
-            return type(solution)(**{**solution.__dict__, "status": "Injected_Failure", "success": False})
-        return solution
-
-    def reset(self):
-        self.inner.reset()
 
 
 def test_failed_solve_propagates_and_strict_raises(closed_form_case, monkeypatch):

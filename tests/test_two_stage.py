@@ -5,6 +5,7 @@ model, the projection, the Gauss-Newton polish and the unknown-input fit it reli
 import casadi as ca
 import numpy as np
 import pytest
+from failing_solver import FailingSolver
 
 from uiest import Box, CertificationError, DataError, OptionError, SolverError, System, UniformNoise, simulate
 from uiest.estimators import (
@@ -264,23 +265,6 @@ def test_streaming_equals_run_with_bounded_memory(closed_form_case):
             np.testing.assert_array_equal(step.w_hat, result.w_hat[k - 1])
         assert len(est._u) <= N and len(est._data) <= N and len(est._priors) <= N
     assert set(est._cache) == set(range(1, N + 1))  # one problem per window length 1..N
-
-
-class FailingSolver:
-    """Wraps a backend and fails while the estimator is at one of the given steps."""
-
-    def __init__(self, inner, estimator_ref, fail_steps):
-        self.inner, self.problem = inner, inner.problem
-        self.estimator_ref, self.fail_steps = estimator_ref, fail_steps
-
-    def solve(self, z0, p, lam_x0=None, lam_g0=None):
-        solution = self.inner.solve(z0, p, lam_x0, lam_g0)
-        if self.estimator_ref[0].k in self.fail_steps:
-            return type(solution)(**{**solution.__dict__, "status": "Injected_Failure", "success": False})
-        return solution
-
-    def reset(self):
-        self.inner.reset()
 
 
 def test_failed_solve_propagates_the_reduced_model_and_strict_raises(closed_form_case, monkeypatch):
