@@ -283,6 +283,23 @@ def test_sqrt_psd():
         sqrt_psd(np.ones((2, 3)), "M")
 
 
+def test_sqrt_psd_of_a_stack_is_each_matrix_s_root_and_names_the_bad_one():
+    rng = np.random.default_rng(0)
+    A = rng.standard_normal((4, 3, 3))
+    stack = A @ A.transpose(0, 2, 1)
+    roots = sqrt_psd(stack, "W")
+    assert roots.shape == (4, 3, 3)
+    for matrix, root in zip(stack, roots, strict=True):
+        np.testing.assert_allclose(root, sqrt_psd(matrix, "W"), rtol=0, atol=1e-14)
+    assert sqrt_psd(np.zeros((0, 2, 2)), "W").shape == (0, 2, 2)
+    stack[2] = np.diag([1.0, -1.0, 1.0])
+    with pytest.raises(OptionError, match=r"W\[2\]: expected a positive semidefinite"):
+        sqrt_psd(stack, "W")
+    stack[1, 0, 1] += 1.0
+    with pytest.raises(OptionError, match=r"W\[1\]: expected a symmetric"):
+        sqrt_psd(stack, "W")
+
+
 def test_shifted_guess_maps_nodes_by_time_and_predicts_new_ones():
     system = small_system()
     W3 = WindowWeights(prior=np.eye(2), y=np.ones((4, 1, 1)), v=np.ones((4, 1, 1)))

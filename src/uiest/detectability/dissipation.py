@@ -27,7 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -43,8 +43,12 @@ from uiest.detectability.certificate import (
     sample_pairs,
 )
 from uiest.detectability.cover import Cover, cover
-from uiest.detectability.lmi import cp
 from uiest.errors import OptionError
+
+if TYPE_CHECKING:
+    import cvxpy as cp
+else:
+    from uiest.detectability.lmi import cp  # cvxpy, imported when first used
 
 STRUCTURES = ("full", "identity")
 

@@ -18,13 +18,12 @@ solver failure into "infeasible".
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import itertools
-import sys
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from types import ModuleType
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -32,25 +31,26 @@ import numpy as np
 from uiest.box import Box, FloatArray
 
 
-def _imported_on_first_use(name: str) -> ModuleType:
-    """The module ``name``, executed when one of its attributes is first read (``importlib.util.LazyLoader``).
+class _ImportedOnFirstUse:
+    """Stands for the module ``name`` and imports it when one of its attributes is first read.
 
     cvxpy takes about 1.5 s to import (scipy.stats with it); most uses of uiest (estimators, the CLI's
-    help, worker processes of a sweep) never solve an LMI.
+    help, worker processes of a sweep) never solve an LMI. ``importlib.import_module`` holds the import
+    lock, so threads that reach for cvxpy at once see it whole (``importlib.util.LazyLoader`` does not
+    lock on Python 3.11), and a failed import leaves nothing half-made in ``sys.modules``.
     """
-    if name in sys.modules:
-        return sys.modules[name]
-    spec = importlib.util.find_spec(name)
-    if spec is None or spec.loader is None:
-        raise ModuleNotFoundError(f"No module named {name!r}", name=name)
-    spec.loader = importlib.util.LazyLoader(spec.loader)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[name] = module
-    spec.loader.exec_module(module)
-    return module
+
+    def __init__(self, name: str) -> None:
+        self._name = name
+
+    def __getattr__(self, attribute: str) -> Any:
+        return getattr(importlib.import_module(self._name), attribute)
 
 
-cp = _imported_on_first_use("cvxpy")
+if TYPE_CHECKING:
+    import cvxpy as cp
+else:
+    cp = _ImportedOnFirstUse("cvxpy")
 
 SOLVER = "CLARABEL"
 """cvxpy solver for every LMI (SCS returns 'optimal' for violated LMIs; never trusted here)."""

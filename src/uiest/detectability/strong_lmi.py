@@ -33,13 +33,18 @@ states), or ``sigma_min(C B)`` when the unknown input spans every output directi
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import scipy.linalg
 
 from uiest.box import FloatArray
 from uiest.detectability import lmi
-from uiest.detectability.lmi import cp
+
+if TYPE_CHECKING:
+    import cvxpy as cp
+else:
+    from uiest.detectability.lmi import cp  # cvxpy, imported when first used
 
 KAPPA_MAX = 1e6
 """Largest condition number of P in the rate problem (a bounded normalisation)."""

@@ -7,9 +7,9 @@ convex QP
     min_dz  1/2 dz^T (H + lambda I) dz + (J^T r)^T dz
     s.t.    lbg - g <= G dz <= ubg - g,     lbx - z <= dz <= ubx - z,
 
-with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step along a
-curved valley (below), for the rest of the solve ``H = J^T J + S_+``, with ``S_+`` the residuals' and
-constraints' curvature that Gauss-Newton leaves out, convexified (see below and
+with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step along a curved
+valley, or taken one only after poor corrections (below), for the rest of the solve ``H = J^T J + S_+``, with
+``S_+`` the residuals' and constraints' curvature that Gauss-Newton leaves out, convexified (see below and
 :class:`~uiest.window.curvature.BlockCurvature`, one more Function, built when first needed). One
 CasADi Function evaluates a point: ``|r|^2``, the
 violation of ``lbg <= g <= ubg`` (its sum and largest entry), ``J^T r``, ``J^T J``, ``g``, ``G``
@@ -61,12 +61,12 @@ RTI (``max_iter=1``) takes one full step from the warm start per sample: its est
 optimum but the first Gauss-Newton iterate from the shifted previous solution (exact for
 linear models, whose window problem is a QP).
 
-Reliability: a QP that fails undamped (singular ``J^T J`` on the null space of the active
-constraints, or NaN) is retried with ``lambda = SINGULAR_DAMPING max|J^T J|`` (1e-14), then
-``DAMPING_FLOOR max|J^T J|`` (1e-9), then ``REGULARISED_DAMPING max|J^T J|`` (1e-5); the
-status then ends in ``"(regularised)"``. The problem keeps the smallest of the first two
-dampings above the one that failed as its least damping, for all later iterations and solves
-(the crop UISE with N = 100, whose oldest nodes carry weights ``mu^99 ~ 1e-32``: without it,
+Reliability: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or NaN)
+is retried with ``lambda = SINGULAR_DAMPING max|J^T J|`` (1e-14), then ``DAMPING_FLOOR max|J^T J|`` (1e-9),
+then ``REGULARISED_DAMPING max|J^T J|`` (1e-5); the status then ends in ``"(regularised)"``. The problem keeps
+the smallest of the first two dampings above the one that failed as its least damping, for all later
+iterations and solves until :meth:`GaussNewtonSolver.reset` (an estimator's ``reset()`` or ``run()``) (the
+crop UISE with N = 100, whose oldest nodes carry weights ``mu^99 ~ 1e-32``: without it,
 every sample would first spend hundreds of qrqp iterations on a QP that fails; on the two-stage
 UISE with N = 300 each such failure took qrqp 4-7 s, and solves that went back to the damping
 that had failed paid it again and again). If the damped QP fails too,
@@ -164,7 +164,7 @@ CURVATURE_RATIO = SOC_RATIO
 """A step saved by a correction whose ratio is at most this switches the solve to ``J^T J + S_+`` (as a rejected
 step does): on the noise-free closed-form standard MHE with N = 10, steps taken after four poor corrections (ratio
 0.36) without the switch crawled to the iteration limit in 14 of 200 windows that the curvature solves in 4-10
-iterations (21 IPOPT fallbacks against 8)."""
+iterations, one in 29 (21 IPOPT fallbacks against 8)."""
 
 SOC_CONTRACTION = 0.99
 """A further correction is tried only while each lowers the trial point's violation by this factor (IPOPT's
@@ -460,7 +460,7 @@ class GaussNewtonSolver:
         self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
         self._curvature: tuple[BlockCurvature, _QPForm] | None = None
-        self._curved = False  # this solve's QPs hold the curvature (since a rejected step)
+        self._curved = False  # this solve's QPs hold the curvature (since a rejected or poorly corrected step)
         self._hessian: tuple[FloatArray, FloatArray] | None = None  # (z, J^T J + S_+ at z) in this solve
         self._p = np.zeros(0)  # the solve's parameters
         self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
@@ -473,7 +473,7 @@ class GaussNewtonSolver:
         self._released_any = False  # the last QP released held sides (see _released)
 
     def reset(self) -> None:
-        """Forget the least damping that failed QPs left (kept from solve to solve within a run, see :meth:`solve`)."""
+        """Forget the least damping that failed QPs left (kept from solve to solve, see the module docstring)."""
         self._kept_damping = 0.0
 
     # ------------------------------------------------------------------ evaluations
@@ -544,8 +544,9 @@ class GaussNewtonSolver:
     def _model(self, point: _Point) -> tuple[_QPForm, FloatArray]:
         """The QP's form and Hessian at ``point``: ``J^T J``, or once the solve is curved ``J^T J + S_+``.
 
-        ``S_+`` takes the multipliers of the first QP solved at the point (those of the step the merit
-        rejected), so the corrections and damped retries that follow solve QPs with the same Hessian.
+        ``S_+`` takes the multipliers at hand when the first curved QP at the point is set up (those of the
+        step the merit rejected there, or of the QP whose step led to the point), so the corrections and damped
+        retries that follow solve QPs with the same Hessian.
         """
         if not self._curved:
             return self._gauss_newton_form, point.h
@@ -664,21 +665,20 @@ class GaussNewtonSolver:
             if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
                 multipliers = self._lam_x, self._lam_a  # the step's, kept unless a correction is taken
                 soc_dz, soc_trial = dz, trial  # the latter's arrays are overwritten by the next evaluation
-                corrected, soc_ratio = None, ratio
+                last = None  # the last correction evaluated, its ratio and its QP's multipliers
                 for _ in range(MAX_CORRECTIONS):
                     corrected = self._second_order_correction(point, soc_trial, soc_dz, damping, p)
-                    if corrected is None:
+                    if corrected is None:  # a failed QP evaluates nothing: the last correction's arrays stand
                         break
-                    if (soc_ratio := _ratio(point, corrected[1], predicted, nu)) > SOC_RATIO:
-                        break
-                    if corrected[1].violation > SOC_CONTRACTION * soc_trial.violation:
+                    last = corrected, _ratio(point, corrected[1], predicted, nu), (self._lam_x, self._lam_a)
+                    if last[1] > SOC_RATIO or corrected[1].violation > SOC_CONTRACTION * soc_trial.violation:
                         break
                     soc_dz, soc_trial = corrected
-                if corrected is not None and soc_ratio > LAST_CORRECTION_RATIO:
-                    (dz, trial), ratio = corrected, soc_ratio
+                if last is not None and last[1] > LAST_CORRECTION_RATIO:
+                    (dz, trial), ratio, (self._lam_x, self._lam_a) = last
                     if ratio <= CURVATURE_RATIO:  # the model misses the constraints' curvature
                         self._curve()
-                if ratio <= ACCEPT_RATIO:
+                else:
                     self._lam_x, self._lam_a = multipliers
             small_step = np.abs(dz).max(initial=0.0) <= self.step_tol
             if ratio > ACCEPT_RATIO or self.max_iter == 1:
