@@ -158,7 +158,8 @@ LAST_CORRECTION_RATIO = ACCEPT_RATIO
 (the plain acceptance test), rather than damping the step. On the noise-free closed-form standard MHE with N = 100,
 whose steps run along flat, strongly curved valleys, four corrections in a row brought the violation back and the
 last one's ratio to 0.2-0.4, yet the step was rejected and damped, damping level after damping level, to the
-iteration limit: 25 of 150 samples to IPOPT, 14 with the last correction taken."""
+iteration limit: 25 of 150 samples to IPOPT, 14 with the last correction taken (13 with :data:`CURVATURE_RATIO`'s
+switch too)."""
 
 CURVATURE_RATIO = SOC_RATIO
 """A step saved by a correction whose ratio is at most this switches the solve to ``J^T J + S_+`` (as a rejected
