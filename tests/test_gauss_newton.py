@@ -196,16 +196,19 @@ def test_linearly_converging_noisy_windows_finish_within_the_default_iteration_l
     assert fallbacks(max_iter=15) > 0
 
 
+def _gn_mhe_fallbacks(system, traj, weights, N: int, prior) -> int:
+    """IPOPT fallbacks of the Gauss-Newton standard MHE on a record (no sample may fail)."""
+    result = StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver="gn").run(traj.u, traj.y)
+    assert result.failures == 0
+    return sum("-> ipopt" in status for status in result.status)
+
+
 def _reactor_mhe_fallbacks(N: int, steps: int) -> int:
     """IPOPT fallbacks of the Gauss-Newton standard MHE on the CSTR of examples/reactor.py (noisy, N given)."""
     entry = load(Path(__file__).resolve().parents[1] / "examples" / "reactor.py")
     system, setup = entry.build(), entry.simulation()
     traj = simulate(system, setup.x0, steps, u=setup.u, w=setup.w, v=setup.noise, seed=0)
-    weights = MHEWeights.from_scales(system, 0.6)
-    estimator = StandardMHE(system, weights=weights, N=N, x0_prior=np.array([0.65, 1.05]), solver="gn")
-    result = estimator.run(traj.u, traj.y)
-    assert result.failures == 0
-    return sum("-> ipopt" in status for status in result.status)
+    return _gn_mhe_fallbacks(system, traj, MHEWeights.from_scales(system, 0.6), N, np.array([0.65, 1.05]))
 
 
 def test_the_merit_penalty_is_relative_to_the_multipliers_on_windows_with_a_small_cost(monkeypatch):
@@ -225,10 +228,7 @@ def _crop_mhe_fallbacks(N: int, steps: int) -> int:
     system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
     traj = simulate(system, scenario.x0, steps, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
     weights = MHEWeights.from_scales(system, 0.48, output=1e6)
-    estimator = StandardMHE(system, weights=weights, N=N, x0_prior=scenario.prior(traj.y[0]), solver="gn")
-    result = estimator.run(traj.u, traj.y)
-    assert result.failures == 0
-    return sum("-> ipopt" in status for status in result.status)
+    return _gn_mhe_fallbacks(system, traj, weights, N, scenario.prior(traj.y[0]))
 
 
 def test_the_curvature_and_the_corrections_follow_curved_valleys(monkeypatch):
@@ -253,11 +253,8 @@ def _closed_form_mhe_fallbacks(N: int, steps: int) -> int:
     entry = get("closed-form")
     system, setup = entry.build(), entry.simulation()
     traj = simulate(system, setup.x0, steps, u=setup.u, w=setup.w, seed=0)
-    weights = MHEWeights.from_scales(system, 0.6)
     prior = 1.1 * np.asarray(setup.x0, dtype=float)
-    result = StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver="gn").run(traj.u, traj.y)
-    assert result.failures == 0
-    return sum("-> ipopt" in status for status in result.status)
+    return _gn_mhe_fallbacks(system, traj, MHEWeights.from_scales(system, 0.6), N, prior)
 
 
 def test_a_step_saved_by_poor_corrections_switches_to_the_curvature(monkeypatch):
