@@ -190,8 +190,19 @@ def _compressed_eigenvalues(M: FloatArray, N: FloatArray, r: int, rng: np.random
     return (alpha[finite] / beta[finite]).astype(complex)
 
 
+def _orthonormal_range(M: FloatArray, rtol: float) -> FloatArray:
+    """Orthonormal columns spanning the range of ``M`` (its rank by ``rtol``), shape (rows, rank)."""
+    if M.size == 0:
+        return np.zeros((M.shape[0], 0))
+    U, s, _ = np.linalg.svd(M, full_matrices=False)
+    return U[:, : int(np.sum(s > rtol * s[0]))] if s[0] > 0 else np.zeros((M.shape[0], 0))
+
+
 def _zeros(A: FloatArray, B: FloatArray, C: FloatArray, rtol: float) -> ComplexArray:
-    M, N = _pencil(A, B, C)
+    # The zeros do not change when B's columns or C's rows are recombined: orthonormal bases of their
+    # spans keep a small B or C (a sampled high relative degree: CB ~ dt^r) from vanishing below rtol
+    # beside A in the pencil's rank tests.
+    M, N = _pencil(A, _orthonormal_range(B, rtol), _orthonormal_range(C.T, rtol).T)
     rng = np.random.default_rng(_SEED)
     norm_M, norm_N = float(np.linalg.norm(M, 2)), float(np.linalg.norm(N, 2))
     probes = (1.0 + norm_M) * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
