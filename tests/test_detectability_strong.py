@@ -206,3 +206,24 @@ def test_linear_certificate_statuses():
     assert linear_strong_detectability(A, B, C, mu=0.1).status == "below the smallest rate"
     _, A, B, C = linear.with_invariant_zeros([1.5], seed=3, **LINEAR_SPEC)
     assert linear_strong_detectability(A, B, C).status == "infeasible"
+
+
+def _lorenz(dt):
+    """Lorenz, y = x1, the unknown input in dx1/dt, over a wide box: its RK4 Jacobian spans 6 directions (a box cover)."""
+
+    def rhs(x, u, w):
+        return [10.0 * (x[1] - x[0]) + w[0], 28.0 * x[0] - x[1] - x[0] * x[2], x[0] * x[1] - 8.0 / 3.0 * x[2]]
+
+    return System.from_ode(rhs, lambda x, v: [x[0] + v[0]], nx=3, nw=1, nv=1, dt=dt,
+                           x_bounds=((-30.0, -30.0, 0.0), (30.0, 30.0, 60.0)), v_bounds=(-0.1, 0.1))  # fmt: skip
+
+
+def test_infeasible_at_a_covers_vertices_is_a_proof_only_when_the_sampled_jacobians_agree():
+    # dt = 0.002: the 64-vertex box around the Jacobians admits no P, the Jacobians themselves do (their zero
+    # dynamics contract like exp(-dt)): undecided, not "infeasible". dt = 0.01: the integral input channel's
+    # error outweighs that contraction, and the sampled Jacobians are infeasible too: a proof.
+    wide = certify_strong_detectability(_lorenz(0.002), samples=500)
+    assert wide.status == "undecided" and not wide.certified
+    assert "64 vertices" in wide.reason and "feasible at the Jacobians of" in wide.reason
+    coarse = certify_strong_detectability(_lorenz(0.01), samples=500)
+    assert coarse.status == "infeasible" and "sampled points of X themselves" in coarse.reason

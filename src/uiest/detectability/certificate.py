@@ -17,18 +17,20 @@ from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed
 from uiest.errors import CertificationError, OptionError
 
-CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED = (
+CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED = (
     "certified",
     "infeasible",
     "solver failed",
     "below the smallest rate",
     "re-check failed",
+    "undecided",
 )
 """The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
-to optimality with a non-positive margin (within the stated bounds on P and the gains)."""
+to optimality with a non-positive margin (within the stated bounds on P and the gains), "undecided"
+when that happened at a cover's vertices but not at the sampled matrices they cover."""
 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
-             "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED}  # fmt: skip
+             "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED, "undecided": UNDECIDED}  # fmt: skip
 """Certificate status of each solver outcome (:mod:`uiest.detectability.lmi` and the LMI modules)."""
 
 

@@ -65,6 +65,10 @@ class Cover:
         Dimension of the affine set the matrices vary in (number of parameters).
     description : str
         One sentence on how the vertices were found, with the numbers.
+    samples : ndarray, shape (s, a, b)
+        The matrices at the sampled points themselves (the vertex for a constant matrix). The
+        hull of the vertices contains them and more: an LMI infeasible at the vertices but
+        feasible at these is undecided, one infeasible at these is infeasible on the domain.
 
     """
 
@@ -73,6 +77,7 @@ class Cover:
     sound: bool
     dimension: int
     description: str
+    samples: FloatArray
 
 
 def relevant_axes(fun: ca.Function) -> FloatArray:
@@ -119,7 +124,7 @@ def cover(
     rows, cols = fun.size_out(0)
     if not mask.any():
         value = np.asarray(fun(box.center), dtype=float).reshape(1, rows, cols)
-        return Cover(value, "constant", True, 0, "the matrix is constant over the domain (structurally)")
+        return Cover(value, "constant", True, 0, "the matrix is constant over the domain (structurally)", value)
     unbounded = [names[i] for i in np.flatnonzero(mask & ~(np.isfinite(box.lower) & np.isfinite(box.upper)))]
     if unbounded:
         raise ModelError(
@@ -192,6 +197,7 @@ def _parameter_cover(
         r,
         f"{2**r} corners of the box of {r} parameters the Jacobian is affine in (fit checked at {len(points)} points "
         f"to {residual / size:.1e}); {how}",
+        _unvec(values, rows, cols),
     )
 
 
@@ -235,8 +241,8 @@ def _sampled_cover(
     mean = values.mean(axis=0)
     deviation = values - mean
     if np.abs(deviation).max() <= 1e-12 * max(1.0, float(np.abs(mean).max())):
-        return Cover(_unvec(mean[None], rows, cols), "sampled cover", False, 0,
-                     f"the matrix did not vary at {len(points)} sampled points")  # fmt: skip
+        description = f"the matrix did not vary at {len(points)} sampled points"
+        return Cover(_unvec(mean[None], rows, cols), "sampled cover", False, 0, description, _unvec(values, rows, cols))
     basis = _span(deviation)  # (r, d)
     r = basis.shape[0]
     if r > MAX_BOX_DIMENSION:
@@ -272,6 +278,7 @@ def _sampled_cover(
         f"{len(vertices)} vertices of a polytope with {len(normals)} faces around the Jacobians at {len(points)} "
         f"sampled points (affine span of dimension {r}; faces at the largest sampled or locally maximised value "
         f"+ {MARGIN:g} of the extent)",
+        _unvec(values, rows, cols),
     )
 
 

@@ -17,6 +17,7 @@ eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -32,6 +33,7 @@ from uiest.detectability import lmi
 from uiest.detectability.certificate import (
     SOLVER_FAILED,
     STATUS_OF,
+    UNDECIDED,
     StrongDetectabilityBase,
     Verification,
     check_rate,
@@ -176,7 +178,32 @@ def certify_strong_detectability(
     covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
     solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol)
+    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant":
+        solution = _decided_at_samples(solution, covered, structure, tol)
     return _certificate(system, structure, covered, solution, time.perf_counter() - start)
+
+
+def _decided_at_samples(
+    solution: StrongSolution, covered: Cover, structure: InputStructure, tol: float
+) -> StrongSolution:
+    """Infeasible at the cover's vertices: infeasible on X if also at the sampled Jacobians, else undecided.
+
+    The vertices' hull holds the Jacobians and more (a box around them in four or more dimensions,
+    interval bounds of the parameters), so that no P works at the vertices proves nothing by itself;
+    that none works at the Jacobians of actual points of X does (the LMI must hold at each of them).
+    """
+    samples = covered.samples
+    at_samples = StrongLMI(samples, structure.B, structure.C).solve(None, tol=tol)
+    where = f"{len(samples)} sampled points of X"
+    if at_samples.outcome == lmi.INFEASIBLE:
+        return dataclasses.replace(solution, reason=f"{solution.reason}, at the Jacobians of {where} themselves")
+    found = (f"feasible at the Jacobians of {where} themselves (mu_min {at_samples.mu_min:.6g} there)"
+             if at_samples.outcome == lmi.FEASIBLE else
+             f"the solver did not decide at the Jacobians of {where} themselves ({at_samples.outcome})")  # fmt: skip
+    return dataclasses.replace(solution, outcome=UNDECIDED, reason=(
+        f"{solution.reason} at the {len(covered.vertices)} vertices of the cover, whose hull holds more than the "
+        f"Jacobians, but {found}: neither certified nor refuted; a tighter cover may certify (parameters=, a smaller "
+        "X)"))  # fmt: skip
 
 
 def _parameter_function(parameters: Any, system: System) -> ca.Function:
