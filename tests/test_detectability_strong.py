@@ -209,7 +209,7 @@ def test_linear_certificate_statuses():
 
 
 def _lorenz(dt):
-    """Lorenz, y = x1, the unknown input in dx1/dt, over a wide box: its RK4 Jacobian spans 6 directions (a box cover)."""
+    """Lorenz, y = x1, w in dx1/dt, over a wide box: its RK4 Jacobian spans 6 directions (a box cover)."""
 
     def rhs(x, u, w):
         return [10.0 * (x[1] - x[0]) + w[0], 28.0 * x[0] - x[1] - x[0] * x[2], x[0] * x[1] - 8.0 / 3.0 * x[2]]
@@ -227,3 +227,18 @@ def test_infeasible_at_a_covers_vertices_is_a_proof_only_when_the_sampled_jacobi
     assert "64 vertices" in wide.reason and "feasible at the Jacobians of" in wide.reason
     coarse = certify_strong_detectability(_lorenz(0.01), samples=500)
     assert coarse.status == "infeasible" and "sampled points of X themselves" in coarse.reason
+
+
+def test_a_panic_in_the_lmi_solver_is_a_solver_failure(monkeypatch):
+    import cvxpy as cp
+
+    class PanicException(BaseException):  # pyo3's, raised by Clarabel's Rust code: not an Exception
+        pass
+
+    def panic(self, *args, **kwargs):
+        raise PanicException("index out of bounds")
+
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    monkeypatch.setattr(cp.Problem, "solve", panic)
+    cert = certify_strong_detectability(system)
+    assert cert.status == "solver failed" and not cert.certified, cert.reason
