@@ -16,6 +16,12 @@ the smoothed estimate of ``d[k-1]``, the input that moved ``x[k-1]`` to ``x[k]``
 - :class:`UKF`: the unscented transform (Wan and van der Merwe's scaled sigma points, ``alpha``,
   ``beta``, ``kappa``) with additive noises; exact for linear models.
 
+Where the model is not finite at the estimate or at a sigma point (a square root of a level below
+zero, an exponential that overflows), the prediction or update is evaluated again with the state
+parts projected onto X (the filter's "inside X" retry, named in the step's status); only if that
+fails too is the step held or the update skipped. An estimate outside X by more than X's width
+is marked "diverged" (not a success).
+
 Neither has a guarantee when the unknown input is unbounded or fast: a random walk is the prior
 they assume. :meth:`KalmanFilter.tuned` picks ``w_variance`` on a separate simulated record.
 """
@@ -23,6 +29,7 @@ they assume. :meth:`KalmanFilter.tuned` picks ``w_variance`` on a separate simul
 from __future__ import annotations
 
 import time
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -36,6 +43,10 @@ from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
+
+INSIDE_MARGIN = 1e-6
+"""The inside-X retry evaluates the model this fraction of X's width inside its finite sides (a square root or a
+logarithm at a side has an infinite derivative there)."""
 
 
 def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str) -> FloatArray:
@@ -52,10 +63,11 @@ def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str)
 
 @dataclass(frozen=True)
 class Tuning:
-    """What :meth:`KalmanFilter.tuned` tried: ``w_variance = factor * w.scale^2``, and the scaled state RMS of each."""
+    """What :meth:`KalmanFilter.tuned` tried (``w_variance = factor * w.scale^2``): scaled state RMS, failed steps."""
 
     factors: FloatArray
     rms: FloatArray
+    failed: FloatArray
 
     @property
     def chosen(self) -> float:
@@ -134,13 +146,21 @@ class KalmanFilter(StreamingEstimator):
         return self._P
 
     # ------------------------------------------------------------------ the filter
-    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
+        """Mean and covariance of z[k+1]; ``inside``: the model evaluated at states projected onto X."""
         raise NotImplementedError
 
     def _update(
-        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
     ) -> tuple[FloatArray, FloatArray]:
+        """Posterior mean and covariance given the observed channels of y; ``inside`` as for :meth:`_predict`."""
         raise NotImplementedError
+
+    def _inside(self, x: FloatArray) -> FloatArray:
+        """States (..., nx) projected into X, ``INSIDE_MARGIN`` of its width from finite sides."""
+        X = self.system.x.bounds
+        margin = np.where(np.isfinite(X.width), INSIDE_MARGIN * X.width, 0.0)
+        return np.clip(x, X.lower + margin, X.upper - margin)
 
     def _noise(self, x: FloatArray, observed: FloatArray) -> FloatArray:
         """``R = D Sigma_v D^T`` of the observed channels, D at ``(x, v_bar)``."""
@@ -154,28 +174,40 @@ class KalmanFilter(StreamingEstimator):
         s, k = self.system, self._k
         u_vec = check_u_prev(s, u_prev, k)
         y_vec = check_y(s, y)
+        inside = False
         if k == 0 or self._z is None or self._P is None:
             z = np.concatenate([x0, self.w0])
             P = np.zeros((s.nx + s.nw, s.nx + s.nw))
             P[: s.nx, : s.nx], P[s.nx :, s.nx :] = self.P0, self.W0
         else:
-            z, P = self._predict(self._z, self._P, u_vec)
+            z, P = self._predict(self._z, self._P, u_vec, False)
+            if not _finite(z, P):
+                z, P = self._predict(self._z, self._P, u_vec, True)
+                inside = True
         observed = ~np.isnan(y_vec)
         status = "updated"
         if not observed.any():
             status = "predicted (no data)"
-        else:
+        elif _finite(z, P):
             try:
-                z_new, P_new = self._update(z, P, y_vec, observed)
-                if not (np.all(np.isfinite(z_new)) and np.all(np.isfinite(P_new))):
+                z_new, P_new = self._update(z, P, y_vec, observed, False)
+                if not _finite(z_new, P_new):
+                    z_new, P_new = self._update(z, P, y_vec, observed, True)
+                    inside = True
+                if not _finite(z_new, P_new):
                     raise np.linalg.LinAlgError("the update is not finite")
                 z, P = z_new, P_new
             except np.linalg.LinAlgError as exc:  # keep the prediction, as for a missing measurement
                 status = f"predicted (update failed: {exc})"
-        if not (np.all(np.isfinite(z)) and np.all(np.isfinite(P))):
+        if not _finite(z, P):
             if self._z is None:
                 raise DataError(f"step k={k}: the prior gives no finite estimate")
             z, P, status = self._z, self._P, "held (the prediction is not finite)"
+        elif inside:
+            status += " (the model evaluated inside X: not finite at the estimate or a sigma point)"
+        X = s.x.bounds
+        if np.any(np.abs(z[: s.nx] - np.clip(z[: s.nx], X.lower, X.upper)) > X.width):
+            status = f"diverged (outside X by more than its width; {status})"
         self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
         return StepEstimate(
             k=k,
@@ -183,7 +215,7 @@ class KalmanFilter(StreamingEstimator):
             w_hat=z[s.nx :].copy() if k > 0 else None,
             w_index=k - 1 if k > 0 else None,
             status=status,
-            success=status == "updated" or status == "predicted (no data)",
+            success=status.startswith(("updated", "predicted (no data)")),
             iterations=0,
             solve_time=time.perf_counter() - start,
             cost=0.0,
@@ -211,6 +243,9 @@ class KalmanFilter(StreamingEstimator):
 
         ``variances`` (scalars, times ``w.scale^2``) default to ``10^-8 .. 10^2`` (21 values); the
         error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all.
+        Warns (``UserWarning``) when the chosen filter failed steps of the training record (held,
+        an update skipped, or diverged: a ``P0`` too wide for the model's nonlinearity, say), when its
+        scaled RMS exceeds 1, or when the choice is at an end of the grid.
         """
         if not isinstance(training, Trajectory):
             raise DataError(
@@ -219,13 +254,27 @@ class KalmanFilter(StreamingEstimator):
         grid = np.logspace(-8, 2, 21) if variances is None else np.asarray(variances, dtype=float).reshape(-1)
         if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
             raise OptionError(f"variances: expected positive numbers, got {np.asarray(variances).tolist()}")
-        rms = np.full(grid.shape, np.nan)
+        rms, failed = np.full(grid.shape, np.nan), np.zeros(grid.shape)
         for i, q in enumerate(grid):
             result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
                 training.u if system.nu else None, training.y
             )
             rms[i] = np.sqrt(np.mean((result.error(training.x) / system.x.scale) ** 2))
-        tuning = Tuning(grid, rms)
+            failed[i] = np.count_nonzero(~np.asarray(result.success))
+        if not np.any(np.isfinite(rms)):
+            raise OptionError(
+                f"P0: every {cls.__name__} of the variance grid diverged to non-finite estimates on the "
+                "training record; give a smaller P0 (the default is X's uniform variance)"
+            )
+        tuning = Tuning(grid, rms, failed)
+        best = int(np.nanargmin(rms))
+        if failed[best] or rms[best] > 1.0:
+            warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {int(failed[best])} of "
+                          f"{len(training.y)} training steps (held, an update skipped, or diverged) with a scaled RMS "
+                          f"error of {rms[best]:.3g}; a smaller P0 may help", UserWarning, stacklevel=2)  # fmt: skip
+        elif variances is None and best in (0, grid.size - 1):
+            warnings.warn(f"{cls.__name__}.tuned: the chosen variance {grid[best]:g} w.scale^2 is at an end of the "
+                          "default grid; give variances= beyond it", UserWarning, stacklevel=2)  # fmt: skip
         estimator = cls(system, w_variance=tuning.chosen * system.w.scale**2, x0_prior=x0_prior, **keywords)
         estimator.tuning = tuning
         return estimator
@@ -252,19 +301,19 @@ class EKF(KalmanFilter):
 
     estimator_name = "EKF"
 
-    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        x_next, J = self._f(z[: s.nx], u, z[s.nx :])
+        x_next, J = self._f(self._inside(z[: s.nx]) if inside else z[: s.nx], u, z[s.nx :])
         F = np.eye(s.nx + s.nw)
         F[: s.nx] = np.asarray(J, dtype=float).reshape(s.nx, s.nx + s.nw)
         z_next = np.concatenate([np.asarray(x_next, dtype=float).reshape(-1), z[s.nx :]])
         return z_next, F @ P @ F.T + self.Q
 
     def _update(
-        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
     ) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        y_pred, C, _ = self._h(z[: s.nx], self.v_prior)
+        y_pred, C, _ = self._h(self._inside(z[: s.nx]) if inside else z[: s.nx], self.v_prior)
         H = np.zeros((int(observed.sum()), s.nx + s.nw))
         H[:, : s.nx] = np.asarray(C, dtype=float).reshape(s.ny, s.nx)[observed]
         innovation = y[observed] - np.asarray(y_pred, dtype=float).reshape(-1)[observed]
@@ -305,34 +354,37 @@ class UKF(KalmanFilter):
         self._f_map = system.f.map(m)
         self._h_map = system.h.map(m)
 
-    def _points(self, z: FloatArray, P: FloatArray) -> FloatArray:
-        """Sigma points (2n+1, n): z and ``z +- spread * columns of chol(P)``."""
+    def _points(self, z: FloatArray, P: FloatArray, inside: bool) -> FloatArray:
+        """Sigma points (2n+1, n): z and ``z +- spread * columns of chol(P)`` (``inside``: states projected onto X)."""
         try:
             L = np.linalg.cholesky(P)
         except np.linalg.LinAlgError:  # semidefinite: a symmetric square root
             vals, vecs = np.linalg.eigh(P)
             L = vecs * np.sqrt(np.clip(vals, 0.0, None))
         step = self._spread * L.T
-        return np.vstack([z, z + step, z - step])
+        points = np.vstack([z, z + step, z - step])
+        if inside:
+            points[:, : self.system.nx] = self._inside(points[:, : self.system.nx])
+        return points
 
     def _moments(self, points: FloatArray) -> tuple[FloatArray, FloatArray]:
         mean = self._wm @ points
         dev = points - mean
         return mean, (self._wc[:, None] * dev).T @ dev
 
-    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray) -> tuple[FloatArray, FloatArray]:
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        chi = self._points(z, P)
+        chi = self._points(z, P, inside)
         m = len(chi)
         x_next = np.asarray(self._f_map(chi[:, : s.nx].T, np.tile(u, (m, 1)).T, chi[:, s.nx :].T), dtype=float)
         mean, cov = self._moments(np.hstack([x_next.reshape(s.nx, m).T, chi[:, s.nx :]]))
         return mean, cov + self.Q
 
     def _update(
-        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray
+        self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
     ) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        chi = self._points(z, P)
+        chi = self._points(z, P, inside)
         m = len(chi)
         ys = np.asarray(self._h_map(chi[:, : s.nx].T, np.tile(self.v_prior, (m, 1)).T), dtype=float)
         ys = ys.reshape(s.ny, m).T[:, observed]
@@ -342,6 +394,10 @@ class UKF(KalmanFilter):
         Pzy = (self._wc[:, None] * dz).T @ dy
         K = np.linalg.solve(S, Pzy.T).T
         return z + K @ (y[observed] - y_mean), P - K @ S @ K.T
+
+
+def _finite(z: FloatArray, P: FloatArray) -> bool:
+    return bool(np.all(np.isfinite(z)) and np.all(np.isfinite(P)))
 
 
 __all__ = ["EKF", "UKF", "KalmanFilter", "Tuning"]
