@@ -93,3 +93,31 @@ def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
         return float(np.sqrt(np.mean(r.error(traj.x)[50:] ** 2)))
 
     assert rmse(designed.run(None, traj.y)) <= 1.2 * rmse(uio)
+
+
+def _logistic():
+    """A logistic map driving a second state whose contraction 0.55 + 0.35 cos(3 x1) spans [0.2, 0.9]; y = x1."""
+    from uiest import System
+
+    return System.from_callables(
+        lambda x, u, w: [3.7 * x[0] * (1 - x[0]) + 0.02 * x[1] + w[0],
+                         (0.55 + 0.35 * np.cos(3 * x[0])) * x[1] + 0.4 * np.sin(3 * x[0]) + 0.3],
+        lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=((-2, -3), (3, 3)), v_bounds=(-0.01, 0.01),
+    )  # fmt: skip
+
+
+def test_a_rate_whose_window_is_too_long_is_certified_again_with_a_bounded_condition():
+    # mu_min = 0.81 (0.9^2); the gain-optimal P has cond ~250, so min_horizon is 37 > 30 and the design once refused
+    # the model. cond(P) bounded to fit N = 30 certifies the same rate.
+    system = _logistic()
+    free = certify_strong_detectability(system, samples=1000)
+    assert free.certified and free.min_horizon() > 30
+    bound = 0.99 * free.mu**-30 / 8
+    fitted = certify_strong_detectability(system, mu=free.mu, samples=1000, max_condition=bound)
+    assert fitted.certified and np.linalg.cond(fitted.P_scaled) <= bound * (1 + 1e-6) and fitted.min_horizon() <= 30
+    assert fitted.verify(2000).worst_ratio <= 1.0
+    design = UISE.design(system, x0_prior=[0.5, 0.5], rates=(0.9,), trials=1, steps=40,
+                         certify_options={"samples": 1000})  # fmt: skip
+    assert design.N <= 30 and design.certificate.min_horizon() <= design.N
+    with pytest.raises(OptionError, match="max_condition"):
+        certify_strong_detectability(system, max_condition=1.0)

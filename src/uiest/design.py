@@ -21,7 +21,9 @@ mu = 0.9 gave 1.04x). :func:`design_uise` therefore
 
 1. certifies at the minimal rate and at a grid of rates (``rates``, those above its design rate), within a
    CPU budget; each certified rate gets the horizon ``N <= max_horizon`` that minimises its bound
-   (only pairs with ``N >= min_horizon()`` are candidates, so every candidate is guaranteed);
+   (only pairs with ``N >= min_horizon()`` are candidates, so every candidate is guaranteed); a rate
+   whose gain-optimal certificate needs more than ``max_horizon`` (``min_horizon`` grows with
+   log cond(P)) is certified again with cond(P) bounded so that it fits (``max_condition``);
 2. runs each candidate on ``trials`` noise records (uniform in V, the true state starting at
    ``x0``, known input at U's centre, unknown input zero: the UISE's error does not depend on it
    for systems affine in w) and keeps the one with the smallest error RMS relative to the
@@ -175,8 +177,19 @@ def design_uise(
     def bound(cert: Any, n: int) -> FloatArray:
         return settled_bound(np.asarray(cert.noise_gain, dtype=float), cert.mu, n)
 
+    def certify_with_horizon(mu: float | None) -> Any:
+        """The certificate at mu; if its min_horizon exceeds max_horizon, one with cond(P) bounded to fit."""
+        cert = certify_strong_detectability(system, mu=mu, **certify)
+        if cert.certified and cert.min_horizon() > max_horizon and "max_condition" not in certify:
+            fitting = 0.99 * cert.mu ** -float(max_horizon) / 8.0  # cond(P) below it: min_horizon <= max_horizon
+            if fitting > 1.0:
+                conditioned = certify_strong_detectability(system, mu=cert.mu, max_condition=fitting, **certify)
+                if conditioned.certified:
+                    return conditioned
+        return cert
+
     return _design(
-        system, x0, lambda mu: certify_strong_detectability(system, mu=mu, **certify), bound,
+        system, x0, certify_with_horizon, bound,
         lambda cert, n, prior: UISE(system, certificate=cert, N=n, x0_prior=prior, **options),
         bound_scale=scale, what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
         trials=trials, steps=steps, seed=seed,

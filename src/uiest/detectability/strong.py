@@ -135,6 +135,7 @@ def certify_strong_detectability(
     samples: int = 4000,
     tol: float = 1e-4,
     seed: int = 0,
+    max_condition: float | None = None,
 ) -> StrongDetectability:
     """Certify strong nonlinear detectability of ``system`` (theo:Lyapunov) by LMIs.
 
@@ -156,6 +157,10 @@ def certify_strong_detectability(
         Bisection tolerance on mu.
     seed : int
         Seed of the samples.
+    max_condition : float, optional
+        Largest cond(P) of the design (> 1; None: no bound, the output gains alone are minimised).
+        The estimator's horizon grows with it: ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``,
+        so a bound trades larger noise gains for a shorter certified window.
 
     Raises
     ------
@@ -163,7 +168,7 @@ def certify_strong_detectability(
         Unbounded X (or U where the Jacobian depends on u), a nonlinear output, a failed
         matching condition or an unknown input whose direction is not constant (with the ranks).
     OptionError
-        ``mu`` outside (0, 1), bad ``samples`` or ``tol``.
+        ``mu`` outside (0, 1), bad ``samples``, ``tol`` or ``max_condition``.
 
     """
     start = time.perf_counter()
@@ -173,11 +178,15 @@ def certify_strong_detectability(
     samples, seed = check_samples(samples, "samples", low=10), check_seed(seed)
     if not (isinstance(tol, float | int) and 0.0 < tol < 0.1):
         raise OptionError(f"tol: expected a number in (0, 0.1), got {tol!r}")
+    if max_condition is not None and not (
+        isinstance(max_condition, float | int) and not isinstance(max_condition, bool) and 1.0 < max_condition < np.inf
+    ):
+        raise OptionError(f"max_condition: expected a finite number > 1 or None, got {max_condition!r}")
     structure = input_structure(system, seed=seed)
     theta = None if parameters is None else _parameter_function(parameters, system)
     covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
-    solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol)
+    solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol, max_condition=max_condition)
     if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant":
         solution = _decided_at_samples(solution, covered, structure, tol)
     return _certificate(system, structure, covered, solution, time.perf_counter() - start)

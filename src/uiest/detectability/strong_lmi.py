@@ -248,11 +248,14 @@ class StrongLMI:
         outcome, solution = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)
         return outcome, solution, found["t"]  # type: ignore[return-value]
 
-    def solve(self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None) -> StrongSolution:
+    def solve(
+        self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None, max_condition: float | None = None
+    ) -> StrongSolution:
         """Bisect for mu_min, design at mu, then the closed-form s1 and the re-check.
 
         mu_min is not bisected when given or when every state is measured; mu defaults to
-        ``mu_min + 0.02 (1 - mu_min)``.
+        ``mu_min + 0.02 (1 - mu_min)``. ``max_condition`` bounds cond(P) in the design (None: no bound
+        beyond the rate problem's 1e6).
         """
         g = self.geometry
         if g.k == 0:  # every state is measured: any rate works
@@ -276,35 +279,42 @@ class StrongLMI:
         if outcome != lmi.FEASIBLE:  # above a feasible rate, 'infeasible' contradicts monotonicity: a failure
             return self._unsolved(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} "
                                   f"('{outcome}'; mu_min={mu_min:.6g} was feasible)", mu_min, bisection)  # fmt: skip
-        design = self._design(mu_used, DESIGN_MARGIN * t)
+        status, design = self._design(mu_used, DESIGN_MARGIN * t, max_condition)
         note = "design"
         if design is None:
-            if rate_solution is None:
-                return self._unsolved(lmi.FAILED, f"the design solve failed at mu={mu_used:.6g}", mu_min, bisection)
+            fallback_ok = rate_solution is not None and (
+                max_condition is None or np.linalg.cond(rate_solution[0]) <= max_condition
+            )
+            if not fallback_ok and max_condition is not None and status == "infeasible":
+                return self._unsolved(lmi.INFEASIBLE, f"no design with cond(P) <= {max_condition:.6g} at "
+                                      f"mu={mu_used:.6g} (mu_min={mu_min:.6g})", mu_min, bisection)  # fmt: skip
+            if not fallback_ok or rate_solution is None:
+                return self._unsolved(lmi.FAILED, f"the design solve failed at mu={mu_used:.6g} ({status})",
+                                      mu_min, bisection)  # fmt: skip
             P, Y2, s2 = rate_solution
             low = float(np.linalg.eigvalsh(P)[0])
             design, note = (P / low, Y2 / low, s2 / low), "rate problem (the design solve failed)"
         return self._finish(mu_used, mu_min, *design, note, bisection)
 
-    def _design(self, mu: float, margin: float) -> tuple[FloatArray, FloatArray, float] | None:
-        """Stage 2 on the active vertices, grown until every vertex has ``N^T Q N > 0``; None on failure."""
+    def _design(
+        self, mu: float, margin: float, max_condition: float | None
+    ) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
+        """Stage 2 on the active vertices, grown until every vertex has ``N^T Q N > 0``: (solver status, solution)."""
         g = self.geometry
         for _ in range(len(self.vertices)):
-            solution = self._design_once(self.active.vertices, mu, margin)
-            if solution is None:
-                return None
-            if not g.k:
-                return solution
+            status, solution = self._design_once(self.active.vertices, mu, margin, max_condition)
+            if solution is None or not g.k:
+                return status, solution
             margins = np.array([np.linalg.eigvalsh(b[0])[0] for b in g.kernel_blocks(self.vertices, *solution, mu)])
             if margins.min() > 0.0:
-                return solution
+                return status, solution
             if not self.active.add_worst(margins):
-                return None
-        return None
+                return "no vertex left to add", None
+        return "no vertex left to add", None
 
     def _design_once(
-        self, vertices: FloatArray, mu: float, margin: float
-    ) -> tuple[FloatArray, FloatArray, float] | None:
+        self, vertices: FloatArray, mu: float, margin: float, max_condition: float | None
+    ) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
         g = self.geometry
         n, p, k = g.n, g.p, g.k
         T = np.hstack([g.N, g.eps * g.R])
@@ -314,6 +324,8 @@ class StrongLMI:
         Y2 = g.Y2(P, Z)
         rank = g.R.shape[1]
         constraints = [P >> np.eye(n), s1_eps2 <= gain, s2 <= gain]
+        if max_condition is not None:
+            constraints.append(P << max_condition * np.eye(n))
         measured = cp.bmat([[np.zeros((k, k)), np.zeros((k, rank))], [np.zeros((rank, k)), s1_eps2 * g.measured_gram]])
         for A in vertices:
             H = (P @ A - Y2 @ (g.C @ A) / g.eps) @ T
@@ -322,10 +334,11 @@ class StrongLMI:
                              [H, Y2, P]])  # fmt: skip
             constraints.append(lmi.symmetric(block) >> margin * np.eye(2 * n + p))
         problem = cp.Problem(cp.Minimize(gain + TRACE_WEIGHT * cp.trace(P) / n), constraints)
-        if lmi.solve(problem) not in lmi.SOLVED or P.value is None:
-            return None
+        status = lmi.solve(problem)
+        if status not in lmi.SOLVED or P.value is None:
+            return status, None
         Pv = 0.5 * (P.value + P.value.T)
-        return Pv, g.Y2(Pv, None if Z is None else Z.value), float(s2.value)
+        return status, (Pv, g.Y2(Pv, None if Z is None else Z.value), float(s2.value))
 
     def _finish(
         self, mu: float, mu_min: float, P: FloatArray, Y2: FloatArray, s2: float, note: str, bisection: lmi.Bisection
