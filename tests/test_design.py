@@ -64,8 +64,10 @@ def test_design_refuses_what_it_cannot_do():
         UISE.design(system, x0_prior=np.zeros(3), rates=(0.5, 1.5))
     with pytest.raises(OptionError, match="max_horizon: expected an integer"):
         UISE.design(system, x0_prior=np.zeros(3), max_horizon=0)
+    # an invariant zero at 0.6: mu >= 0.36, and 8 mu^N cond(P) < 1 has no solution with N = 1 (cond(P) >= 1)
+    zero, *_ = linear.with_invariant_zeros([0.6], seed=3, x_bounds=(-10.0, 10.0), v_bounds=(-1e-3, 1e-3))
     with pytest.raises(CertificationError, match="max_horizon: no certified rate"):
-        UISE.design(system, x0_prior=np.zeros(3), max_horizon=1, rates=(0.5,))
+        UISE.design(zero, x0_prior=np.zeros(zero.nx), max_horizon=1, rates=(0.5,))
 
 
 def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
