@@ -100,3 +100,17 @@ def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one(
         build_estimator("uise", entry, system, np.zeros(3))
     with pytest.raises(OptionError, match="has no reduction"):
         build_estimator("two-stage", entry, system, np.zeros(3))
+
+
+def test_estimate_takes_the_mhe_weights_from_a_certificate_and_names_why_a_uise_has_none():
+    from uiest.estimate import build_estimator
+
+    entry = load(REACTOR)
+    system = entry.build()
+    x0 = np.asarray(entry.setup().x0)
+    mhe, note = build_estimator("mhe", entry, system, x0)
+    assert note.startswith("delta-IOSS certificate") and mhe.certificate is not None
+    assert mhe.certificate.min_horizon() <= mhe.N
+    # the reactor certifies, but not with a two-sample window: "no certified design", not "not certified"
+    uise, note = build_estimator("uise", entry, system, x0, horizon=2)
+    assert note.startswith("no certified design (max_horizon:") and uise.N == 2 and not uise.guaranteed

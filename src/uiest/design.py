@@ -281,7 +281,7 @@ def _design(
     if not candidates:
         raise CertificationError(
             f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} "
-            f"(min_horizon() of the minimal rate: {first.min_horizon()})"
+            f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it)"
         )
     chosen, cert = min(candidates, key=lambda pair: float(np.max(pair[0].rms / scale)))
     return Design(cert, chosen.N, chosen.bound, tuple(c for c, _ in candidates), time.thread_time() - start)

@@ -4,13 +4,16 @@
 model certifies:
 
 - ``uise``: :meth:`UISE.design <uiest.estimators.UISE.design>` (certified mu and N <= ``horizon``,
-  default 30, chosen for accuracy); when the model does not certify, explicit weights
-  ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon`` (default 20), and the run says it has no
-  guarantee.
+  default 30, chosen for accuracy); when there is no certified design (the model does not certify,
+  or its certified window is longer than ``horizon``), explicit weights
+  ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon`` (default 20), and the run says why and
+  that it has no guarantee.
 - ``delayed``: the same for :class:`~uiest.estimators.DelayedUISE` (relative degree 2, ``lag >= 1``).
 - ``two-stage``: :meth:`TwoStageUISE.design <uiest.estimators.TwoStageUISE.design>` on the
   model's reduction (a model without ``reduction()`` is refused), same fallback.
-- ``mhe``: the standard MHE with ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon`` (20).
+- ``mhe``: the standard MHE with the weights of a delta-IOSS certificate
+  (:func:`~uiest.detectability.certify_delta_ioss`) and N = ``horizon`` (20) or its ``min_horizon()`` if
+  longer (up to 30); without one, ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon``.
 - ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else tuned on
   a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
 - ``uio``: the linear UIO (linear models only).
@@ -89,8 +92,8 @@ def build_estimator(
             else:
                 built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
             return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
-        except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
-            note = f"not certified ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
+        except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x, N too short
+            note = f"no certified design ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
         if kind == "uise":
             return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
                             **options), note  # fmt: skip
@@ -101,10 +104,7 @@ def build_estimator(
         weights = est.TwoStageWeights.from_scales(study.reduction, FALLBACK_RATE)
         return est.TwoStageUISE(study.reduction, weights=weights, N=N, x0_prior=x0, **options), note
     if kind == "mhe":
-        weights = est.MHEWeights.from_scales(system, FALLBACK_RATE)
-        return est.StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options), (
-            f"explicit weights eta={FALLBACK_RATE}, N={N} (a baseline: the unknown input is penalised as a disturbance)"
-        )
+        return _standard_mhe(system, x0, N, horizon, options)
     if kind == "uio":
         return est.LinearUIO(system, x0_prior=x0), "Chen-Patton-Zhang observer (DARE gain)"
     cls = est.EKF if kind == "ekf" else est.UKF
@@ -119,6 +119,30 @@ def build_estimator(
     factor = study.tuned_variance(kind)
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
         f"random-walk variance {factor:g} w.scale^2, tuned on a separate simulation (seed {TUNING_SEED})"
+    )
+
+
+def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any]) -> Any:
+    """The standard MHE with delta-IOSS certificate weights where the model certifies, else explicit ones."""
+    from uiest.detectability import certify_delta_ioss
+    from uiest.estimators import MHEWeights, StandardMHE
+
+    baseline = "a baseline: the unknown input is penalised as a disturbance"
+    longest = 30 if horizon is None else horizon
+    try:
+        cert = certify_delta_ioss(system)
+        reason = cert.reason
+        if cert.certified and cert.min_horizon() <= longest:
+            window = max(N, cert.min_horizon())
+            mhe = StandardMHE(system, certificate=cert, N=window, x0_prior=x0, **options)
+            return mhe, f"delta-IOSS certificate: eta={mhe.weights.eta:.3g}, N={window} ({baseline})"
+        if cert.certified:
+            reason = f"certified, but min_horizon() = {cert.min_horizon()} > {longest}"
+    except (CertificationError, ModelError) as exc:
+        reason = str(exc)
+    weights = MHEWeights.from_scales(system, FALLBACK_RATE)
+    return StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options), (
+        f"no delta-IOSS design ({reason}); explicit weights eta={FALLBACK_RATE}, N={N} ({baseline})"
     )
 
 
