@@ -217,3 +217,26 @@ def test_an_estimate_held_on_the_boundary_of_x_is_flagged():
     flagged = np.array(["on the boundary of X (x1)" in s for s in result.status])
     np.testing.assert_array_equal(flagged[truth.x_outside], True)
     assert not flagged[: int(np.argmax(truth.x_outside))].any()
+
+
+@pytest.mark.parametrize("rows", [[0, 1], [0]])
+def test_a_sample_missing_the_outputs_the_newest_input_reaches_holds_that_input(rows):
+    # y = (x1, x2), w enters x1 only: C B has its one nonzero in row 0. With y[k] missing there (the whole
+    # sample, or only x1), w[k-1] is unpenalised and unseen, so the window's optimum is any x[k] along B;
+    # the estimate is then the prediction with the input held at its last estimate (errors measured before
+    # the hold: 38-48 on x1, the free input ran to where X stops it; noise 0.05).
+    A = np.array([[0.8, 0.3, 0.0], [-0.2, 0.7, 0.4], [0.1, -0.3, 0.6]])
+    system = linear.linear_system(A, [[1.0], [0.0], [0.0]], [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]], x_bounds=(-50, 50),
+                                  v_bounds=(-0.05, 0.05))  # fmt: skip
+    rng = np.random.default_rng(3)
+    K = 120
+    truth = simulate(system, [1.0, -1.0, 2.0], K, w=3 * np.sin(0.05 * np.arange(K))[:, None],
+                     v=rng.uniform(-0.05, 0.05, (K + 1, 2)))  # fmt: skip
+    y = truth.y.copy()
+    holes = [40, 70, 100]
+    y[np.ix_(holes, rows)] = np.nan
+    result = UISE(system, weights=UISEWeights.from_scales(system, 0.6), N=8, x0_prior=np.zeros(3)).run(None, y)
+    error = np.abs(result.error(truth.x))
+    assert all("held" in result.status[k] for k in holes) and result.success[holes].all()
+    assert not any("held" in status for k, status in enumerate(result.status) if k not in holes)
+    assert error[holes].max() < 0.5  # the held input's one-step change is at most 0.15

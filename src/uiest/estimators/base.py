@@ -160,6 +160,9 @@ class WindowEstimator(StreamingEstimator):
 
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
+    free_input: ClassVar[bool] = False
+    """The newest unknown input is unpenalised and the nodes are the states (UISE, FIE): a y[k] that misses the
+    outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
     """True: the window at time k measures ``y[k-N_k .. k-1]`` (its newest node is a prediction)."""
     status_note: str = ""
     """Appended to every step's status (a forced estimator's " [no guarantee: ...]")."""
@@ -358,8 +361,8 @@ class WindowEstimator(StreamingEstimator):
             entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
             solution = attempts[-1]
             if solution.success:
-                window = entry.problem.unpack(solution.z)
-                node, status = window.x[-1].copy(), solution.status
+                window, held = self._hold_unseen_input(entry.problem.unpack(solution.z), u_vec, y_vec)
+                node, status = window.x[-1].copy(), solution.status + held
                 self._last = (start, entry.problem, solution)
             elif self._options.strict:
                 raise SolverError(
@@ -370,6 +373,37 @@ class WindowEstimator(StreamingEstimator):
                 node, status = self._propagate(u_vec), f"propagated ({solution.status})"
         success = status in ("algebraic", "prior") or bool(attempts and attempts[-1].success)
         return self._finish(k, u_vec, y_vec, node, status, success, attempts, window, length)
+
+    def _hold_unseen_input(
+        self, window: WindowTrajectory, u_vec: FloatArray, y_vec: FloatArray
+    ) -> tuple[WindowTrajectory, str]:
+        """The window, its newest node predicted with the unknown input held where y[k] misses the outputs it reaches.
+
+        There the optimum is any point along the input's direction; the input is held at its last
+        estimate. "Reaches" is the rank of ``C B_w`` (output Jacobian at x[k] times the input Jacobian
+        at x[k-1]) over the observed rows against all rows, relative tolerance 1e-9. Returns (window,
+        note for the status).
+        """
+        missing = np.isnan(y_vec)
+        if not (self.free_input and missing.any() and len(window.w)):
+            return window, ""
+        s = self.system
+        G = s.linearize(window.x[-1], u_vec, window.w[-1]).C @ s.linearize(window.x[-2], u_vec, window.w[-1]).B_w
+        values = np.linalg.svd(G, compute_uv=False)
+        seen = np.linalg.svd(G[~missing], compute_uv=False) if (~missing).any() else np.zeros(0)
+        tol = 1e-9 * (values[0] if values.size else 0.0)
+        if values.size == 0 or np.sum(seen > tol) == np.sum(values > tol):
+            return window, ""
+        w_held = self._w_guess()
+        data = self._data[-1] if self.model.nd else np.zeros(0)
+        x_new = self.model.step(window.x[-2], u_vec, w_held, self.v_prior, data)
+        if not np.all(np.isfinite(x_new)):
+            return window, ""
+        x = window.x.copy()
+        w = window.w.copy()
+        x[-1], w[-1] = self.model.x_bounds.clip(x_new), w_held
+        note = " (y[k] misses the outputs the newest unknown input reaches: x[k] predicted with it held)"
+        return WindowTrajectory(x, w, window.v), note
 
     def _finish(
         self,

@@ -49,6 +49,7 @@ class DelayedUISE(UISE):
     """
 
     estimator_name = "DelayedUISE"
+    free_input = False  # its nodes are the delayed system's; its newest input is found from later outputs
 
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
         self.delayed = delayed_system(check_system(system))

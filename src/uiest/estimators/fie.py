@@ -56,6 +56,7 @@ class FIE(WindowEstimator):
     """
 
     estimator_name = "FIE"
+    free_input = True
 
     def __init__(
         self,

@@ -78,6 +78,7 @@ class UISE(WindowEstimator):
     """
 
     estimator_name = "UISE"
+    free_input = True
 
     def __init__(
         self,
