@@ -123,3 +123,17 @@ def test_a_rate_whose_window_is_too_long_is_certified_again_with_a_bounded_condi
     assert design.N <= 30 and design.certificate.min_horizon() <= design.N
     with pytest.raises(OptionError, match="max_condition"):
         certify_strong_detectability(system, max_condition=1.0)
+
+
+def test_a_design_whose_guarantee_bounds_nothing_under_the_noise_says_so():
+    import warnings
+
+    # y = 0.01 x + v with |v| <= 0.05 on X = [-1, 1]: certified (no zeros, CB != 0), but the noise can leave an
+    # error of 5 / 0.01 scales; with y = x the bound is well inside X.
+    weak = linear.linear_system(np.array([[0.5]]), [[1.0]], [[0.01]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
+    with pytest.warns(UserWarning, match=r"guaranteed noise bound of \['x\[0\]'\] .* exceeds X's width"):
+        UISE.design(weak, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)
+    strong = linear.linear_system(np.array([[0.5]]), [[1.0]], [[1.0]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)
+        UISE.design(strong, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)

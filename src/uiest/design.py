@@ -35,6 +35,7 @@ The result carries both numbers per candidate, the guaranteed bound and the simu
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -284,7 +285,25 @@ def _design(
             f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it)"
         )
     chosen, cert = min(candidates, key=lambda pair: float(np.max(pair[0].rms / scale)))
+    if bound_scale is not None:
+        _warn_if_vacuous(system, chosen)
     return Design(cert, chosen.N, chosen.bound, tuple(c for c, _ in candidates), time.thread_time() - start)
+
+
+def _warn_if_vacuous(system: System, chosen: Candidate) -> None:
+    """Warn when the guaranteed noise bound of a state exceeds X's width: certified, but silent under this noise."""
+    width = system.x.bounds.width
+    wide = np.flatnonzero(np.isfinite(width) & (chosen.bound > width))
+    if wide.size:
+        names = [system.x.names[i] for i in wide]
+        warnings.warn(
+            f"design: the guaranteed noise bound of {names} ({np.array2string(chosen.bound[wide], precision=3)}) "
+            f"exceeds X's width ({np.array2string(width[wide], precision=3)}): the certificate holds, but under "
+            f"V's noise it bounds nothing there (simulated RMS {np.array2string(chosen.rms[wide], precision=3)}); "
+            "the outputs carry little information about these states",
+            UserWarning,
+            stacklevel=5,  # the caller of UISE.design
+        )
 
 
 def _noise_records(
