@@ -71,6 +71,15 @@ def test_measured_records_round_trip_and_refuse_what_is_missing(tmp_path):
     with pytest.raises(DataError, match=r"expected a \.csv or \.parquet"):
         (tmp_path / "record.txt").write_text("t\n0\n")
         read_record(tmp_path / "record.txt", system)
+    # a plant export: timestamps as text, a time column under another name, a comment column
+    plant = traj.to_pandas()[["t", *system.u.names, *system.y.names]]
+    stamped = plant.assign(t=pd.date_range("2026-01-01", periods=len(plant), freq="s").astype(str))
+    with pytest.raises(DataError, match=r"frame\[t\]: expected numbers in the model's time unit .* convert timestamps"):
+        Trajectory.from_pandas(stamped, system)
+    with pytest.raises(DataError, match=r"a time column must be named 't'.*got 'time'"):
+        Trajectory.from_pandas(plant.rename(columns={"t": "time"}).drop(index=5), system)
+    with pytest.warns(UserWarning, match=r"columns \['comment'\] are not signals"):
+        Trajectory.from_pandas(plant.assign(comment="ok"), system)
 
 
 def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):

@@ -119,14 +119,18 @@ class Trajectory(_PicklableNames):
 
         Columns are named by the system's signals (``system.y.names`` etc., as :meth:`to_pandas`
         writes them). Required: every output (NaN = missing) and, when ``nu > 0``, every known
-        input in rows 0..K-1 (the last row's u is not used). Optional: ``t`` (default ``k dt``),
-        the states, unknown inputs and noise (NaN when absent: measured data has no truth).
+        input in rows 0..K-1 (the last row's u is not used). Optional: ``t`` (numbers in the
+        model's time unit, spaced by dt; default ``k dt``), the states, unknown inputs and noise
+        (NaN when absent: measured data has no truth). A time column under another name
+        (``time``, ``timestamp``, ...) is refused when ``t`` is absent, since without times a
+        dropped row would shift every later sample; other columns are ignored with a warning.
         """
         if not isinstance(frame, pd.DataFrame):
             raise DataError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
         rows = len(frame)
         if rows < 1:
             raise DataError("frame: expected at least one row (time index k = 0)")
+        _check_columns(frame, system)
         arrays: dict[str, FloatArray] = {}
         for sig in system.signals:
             present = [n for n in sig.names if n in frame.columns]
@@ -145,6 +149,12 @@ class Trajectory(_PicklableNames):
             bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
             raise DataError(f"frame: the known input u must be given at every k < K; row {bad} has {arrays['u'][bad]}")
         has_t = "t" in frame.columns
+        if has_t and not pd.api.types.is_numeric_dtype(frame["t"]):
+            raise DataError(
+                f"frame[t]: expected numbers in the model's time unit ({system.time_unit!r}) spaced by dt = "
+                f"{system.dt}, got {frame['t'].dtype} values such as {frame['t'].iloc[0]!r}; convert timestamps to "
+                "elapsed time"
+            )
         t = real_array(frame["t"].to_numpy(), "frame[t]", "times") if has_t else np.arange(rows) * system.dt
         if has_t and rows > 1:
             steps = np.diff(t)
@@ -172,6 +182,28 @@ class Trajectory(_PicklableNames):
         frame["v_outside"] = self.v_outside
         frame.index.name = "k"
         return frame
+
+
+TIME_NAMES = ("time", "timestamp", "datetime", "date", "time_s", "t_s", "seconds")
+"""Column names (lower case) taken for a time column that should be ``t``."""
+
+
+def _check_columns(frame: pd.DataFrame, system: Any) -> None:
+    """Refuse a time column not named ``t`` (when ``t`` is absent); warn about columns that are no signal."""
+    import warnings
+
+    known = {name for sig in system.signals for name in sig.names} | {"t", "x_outside", "v_outside"}
+    ignored = [column for column in frame.columns if column not in known]
+    if "t" not in frame.columns:
+        timelike = [column for column in ignored if str(column).strip().lower() in TIME_NAMES]
+        if timelike:
+            raise DataError(
+                f"frame: a time column must be named 't' (numbers in the model's time unit, spaced by dt), got "
+                f"{timelike[0]!r}: rename it so that gaps are caught, or drop it to take the rows as k = 0, 1, ..."
+            )
+    if ignored:
+        warnings.warn(f"frame: columns {ignored} are not signals of {system.name!r} and are ignored", UserWarning,
+                      stacklevel=3)  # fmt: skip
 
 
 def _frozen(value: Any, dtype: Any) -> NDArray[Any]:

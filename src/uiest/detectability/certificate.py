@@ -100,7 +100,8 @@ class Certificate:
         strong detectability, the input structure is structural); False when any was sampled
         (``coverage`` says which). Either way the LMIs were solved and re-checked at the vertices.
     margin : float
-        Smallest eigenvalue margin of the re-check, relative to ``||P||`` (> 0 when certified).
+        Smallest eigenvalue margin of the re-check, relative to ``||P||``: > 0 when certified, or negative
+        within the direct check's rounding tolerance (1e-13 of its largest entry, named in ``reason``).
 
     """
 
