@@ -1,6 +1,7 @@
 """Continuous-time models sampled by System.from_ode."""
 
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -98,7 +99,11 @@ def test_collocation_is_stable_on_a_stiff_model_where_rk4_is_not():
 
     exact = scipy.linalg.expm(A * 0.1)
     x_rk4 = x_col = x_exact = np.array([1.0, 1.0])
-    rk4, collocation = build("rk4"), build("collocation")
+    with pytest.warns(UserWarning, match=r"from_ode: RK4 with step 0.1 grows where the ODE decays: .* h lambda = -100"):
+        rk4 = build("rk4")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # L-stable: nothing to warn about
+        collocation = build("collocation")
     for _ in range(20):
         x_rk4, x_col, x_exact = rk4.step(x_rk4, None, [0.0]), collocation.step(x_col, None, [0.0]), exact @ x_exact
     assert abs(x_rk4[0]) > 1e100  # RK4 at dt = 0.1 is far outside its stability region for -1000

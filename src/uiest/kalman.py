@@ -245,7 +245,7 @@ class KalmanFilter(StreamingEstimator):
         error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all.
         Warns (``UserWarning``) when the chosen filter failed steps of the training record (held,
         an update skipped, or diverged: a ``P0`` too wide for the model's nonlinearity, say), when its
-        scaled RMS exceeds 1, or when the choice is at an end of the grid.
+        scaled RMS exceeds 1, or when the choice is at an end of the grid and still 1 % better than its neighbour.
         """
         if not isinstance(training, Trajectory):
             raise DataError(
@@ -272,7 +272,7 @@ class KalmanFilter(StreamingEstimator):
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {int(failed[best])} of "
                           f"{len(training.y)} training steps (held, an update skipped, or diverged) with a scaled RMS "
                           f"error of {rms[best]:.3g}; a smaller P0 may help", UserWarning, stacklevel=2)  # fmt: skip
-        elif variances is None and best in (0, grid.size - 1):
+        elif variances is None and best in (0, grid.size - 1) and rms[1 if best == 0 else -2] > 1.01 * rms[best]:
             warnings.warn(f"{cls.__name__}.tuned: the chosen variance {grid[best]:g} w.scale^2 is at an end of the "
                           "default grid; give variances= beyond it", UserWarning, stacklevel=2)  # fmt: skip
         estimator = cls(system, w_variance=tuning.chosen * system.w.scale**2, x0_prior=x0_prior, **keywords)

@@ -370,17 +370,23 @@ class System:
         h_f = as_function(h, "h", [("x", nx), ("v", nv)])
         w_range = spec.get("w_range")
         dt = _check_dt(dt)
-        f, _ = ode.discretise(
-            rhs_f,
-            dt=dt,
-            substeps=substeps,
-            input_channel=input_channel,
-            method=method,
-            x_ref=Box.coerce(spec.get("x_bounds"), nx, "x_bounds").center,
-            u_ref=Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center,
-            w_ref=np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center,
-        )
-        return cls.from_functions(f, h_f, dt=dt, **spec)
+        X = Box.coerce(spec.get("x_bounds"), nx, "x_bounds")
+        u_ref = Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center
+        w_ref = np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center
+        f, _ = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel=input_channel, method=method,
+                              x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
+        unstable = None
+        if method == "rk4":
+            unstable = ode.rk4_instability(rhs_f, X.lower, X.upper, np.where(np.isfinite(u_ref), u_ref, 0.0), w_ref,
+                                           dt / substeps)  # fmt: skip
+            if unstable:
+                warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
+        try:
+            return cls.from_functions(f, h_f, dt=dt, **spec)
+        except ModelError as exc:
+            if unstable and "not finite" in str(exc):
+                raise ModelError(f"{exc}; {unstable}") from exc
+            raise
 
     # ------------------------------------------------------------------ sizes
     @property
