@@ -40,6 +40,8 @@ def test_lagged_error_of_the_delayed_uise_is_the_closed_form():
     expected = np.column_stack([v[j + 1, 0], v[j, 0], 0.5**j * (0.0 - 3.0)])
     np.testing.assert_allclose(result.x_lag[j] - truth.x[j], expected, atol=1e-8)
     assert result.lag == 2 and np.all(np.isnan(result.x_lag[-2:]))
+    frame = result.to_pandas()  # the lagged estimates are exported with the rest
+    np.testing.assert_array_equal(frame[[f"{name}_lag" for name in system.x.names]].to_numpy(), result.x_lag)
     # the unknown input w[j] = x1[j+1] - x1[j] is fitted to consecutive lagged estimates
     i = np.arange(1, K - 2)  # w[i], delivered at k = i + lag + 1 <= K
     np.testing.assert_allclose(result.w_hat[i, 0] - truth.w[i, 0], v[i + 2, 0] - v[i + 1, 0], atol=1e-8)

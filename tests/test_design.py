@@ -6,6 +6,7 @@ import pytest
 from uiest import CertificationError, OptionError, simulate
 from uiest.design import settled_bound
 from uiest.detectability import certify_strong_detectability
+from uiest.detectability.certificate import horizon_condition
 from uiest.estimators import UISE, LinearUIO
 from uiest.models import linear
 
@@ -114,7 +115,7 @@ def test_a_rate_whose_window_is_too_long_is_certified_again_with_a_bounded_condi
     system = _logistic()
     free = certify_strong_detectability(system, samples=1000)
     assert free.certified and free.min_horizon() > 30
-    bound = 0.99 * free.mu**-30 / 8
+    bound = 0.99 * horizon_condition(free.mu, 30)
     fitted = certify_strong_detectability(system, mu=free.mu, samples=1000, max_condition=bound)
     assert fitted.certified and np.linalg.cond(fitted.P_scaled) <= bound * (1 + 1e-6) and fitted.min_horizon() <= 30
     assert fitted.verify(2000).worst_ratio <= 1.0

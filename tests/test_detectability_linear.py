@@ -232,17 +232,17 @@ def test_bad_rtol_raises_option_error():
         linear_strong_detectability(np.eye(2), np.ones((2, 1)), np.ones((1, 2)), rtol=0.0)
 
 
-@pytest.mark.parametrize("b_scale", [1.0, 1e-3, 1e3])
-def test_sampling_zeros_of_a_sampled_triple_integrator_do_not_depend_on_the_input_scale(b_scale):
+@pytest.mark.parametrize(("b_scale", "a_scale"), [(1.0, 1.0), (1e-3, 1.0), (1e3, 1.0), (1e6, 1e6)])
+def test_sampling_zeros_of_a_sampled_triple_integrator_do_not_depend_on_the_input_scale(b_scale, a_scale):
     # y = x1, x1''' = w sampled with a zero-order hold: C (zI - A)^-1 B = dt^3 (z^2 + 4 z + 1) / (6 (z - 1)^3),
     # so its zeros are -2 +- sqrt(3) and the sampled system is not strongly detectable. CB = dt^3 / 6 is
     # ~2e-7 of |A| at dt = 0.01; with B a thousandth of that, the pencil's rank test once missed them all.
     dt = 0.01
     block = scipy.linalg.expm(np.block([[np.diag([1.0, 1.0], 1), np.eye(3)[:, [2]]], [np.zeros((1, 4))]]) * dt)
-    A, B, C = block[:3, :3], b_scale * block[:3, 3:], np.eye(3)[:1]
-    zeros = invariant_zeros(A, B, C)
+    A, B, C = a_scale * block[:3, :3], b_scale * block[:3, 3:], np.eye(3)[:1]  # A and B scaled: zeros scaled
+    zeros = invariant_zeros(A, B, C) / a_scale
     np.testing.assert_allclose(np.sort(zeros.real), [-2.0 - math.sqrt(3.0), -2.0 + math.sqrt(3.0)], rtol=1e-5)
     np.testing.assert_allclose(zeros.imag, 0.0, atol=1e-8)
     cert = linear_strong_detectability(A, B, C)
     assert cert.matching and not cert.strongly_detectable and not cert.certified
-    assert cert.rate_min == pytest.approx((2.0 + math.sqrt(3.0)) ** 2, rel=1e-5)
+    assert cert.rate_min == pytest.approx((a_scale * (2.0 + math.sqrt(3.0))) ** 2, rel=1e-5)

@@ -225,6 +225,8 @@ def test_infeasible_at_a_covers_vertices_is_a_proof_only_when_the_sampled_jacobi
     wide = certify_strong_detectability(_lorenz(0.002), samples=500)
     assert wide.status == "undecided" and not wide.certified
     assert "64 vertices" in wide.reason and "feasible at the Jacobians of" in wide.reason
+    below = certify_strong_detectability(_lorenz(0.002), mu=0.5, samples=500)  # refuted at the samples (0.997)
+    assert below.status == "below the smallest rate" and "sampled points of X themselves" in below.reason
     coarse = certify_strong_detectability(_lorenz(0.01), samples=500)
     assert coarse.status == "infeasible" and "sampled points of X themselves" in coarse.reason
 
@@ -242,3 +244,23 @@ def test_a_panic_in_the_lmi_solver_is_a_solver_failure(monkeypatch):
     monkeypatch.setattr(cp.Problem, "solve", panic)
     cert = certify_strong_detectability(system)
     assert cert.status == "solver failed" and not cert.certified, cert.reason
+
+
+def test_a_solver_error_in_the_design_is_retried_before_the_rate_problems_p_is_used(monkeypatch):
+    # Clarabel's 'solver_error' on a Haldane chemostat's design (seeds 0 and 1) left the rate problem's P, with
+    # output weights 3300x and noise gains 58x the design's, behind an unchanged reason.
+    from uiest.detectability import strong_lmi
+
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    real, calls = strong_lmi.StrongLMI._design_once, []
+
+    def failing_once(self, *args):
+        calls.append(args[2])  # the margin
+        return ("solver_error", None) if len(calls) == 1 else real(self, *args)
+
+    monkeypatch.setattr(strong_lmi.StrongLMI, "_design_once", failing_once)
+    cert = certify_strong_detectability(system)
+    assert cert.certified and cert.design == "design" and calls[1] == pytest.approx(1e-2 * calls[0])
+    monkeypatch.setattr(strong_lmi.StrongLMI, "_design_once", lambda self, *args: ("solver_error", None))
+    fallback = certify_strong_detectability(system)
+    assert fallback.certified and "P from the rate problem" in fallback.reason

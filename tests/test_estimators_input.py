@@ -240,3 +240,21 @@ def test_a_sample_missing_the_outputs_the_newest_input_reaches_holds_that_input(
     assert all("held" in result.status[k] for k in holes) and result.success[holes].all()
     assert not any("held" in status for k, status in enumerate(result.status) if k not in holes)
     assert error[holes].max() < 0.5  # the held input's one-step change is at most 0.15
+
+
+def test_only_the_part_of_the_newest_input_that_missing_outputs_see_is_held():
+    # B = C = I: with y2 missing, w2[k-1] is unseen but w1[k-1] is still determined by y1[k]: a fast w1 must keep
+    # being estimated (holding all of w[k-1] erred by 0.8-3.4 on x1), the slow w2 is held.
+    system = linear.linear_system(np.array([[0.8, 0.1], [-0.1, 0.7]]), np.eye(2), np.eye(2), x_bounds=(-50, 50),
+                                  v_bounds=(-0.01, 0.01))  # fmt: skip
+    rng = np.random.default_rng(3)
+    K = 120
+    w = np.column_stack([5 * np.sin(0.7 * np.arange(K)), 0.1 * np.sin(0.05 * np.arange(K))])
+    truth = simulate(system, [1.0, -1.0], K, w=w, v=rng.uniform(-0.01, 0.01, (K + 1, 2)))
+    y = truth.y.copy()
+    holes = [40, 70, 100]
+    y[holes, 1] = np.nan
+    result = UISE(system, weights=UISEWeights.from_scales(system, 0.6), N=8, x0_prior=np.zeros(2)).run(None, y)
+    error = np.abs(result.error(truth.x))
+    assert all("held" in result.status[k] for k in holes)
+    assert error[holes, 0].max() < 0.02 and error[holes, 1].max() < 0.05  # noise 0.01; w2 moves by <= 0.005

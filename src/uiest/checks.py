@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numbers
+import sys
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -161,3 +162,11 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
         raise DataError(f"u: expected finite values, got {u_arr[bad].tolist()} at k={bad}")
     _check_in_U(system, u_arr, "u")
     return u_arr, y_arr
+
+
+def user_stacklevel() -> int:
+    """The ``stacklevel`` for ``warnings.warn`` called right here that names the first frame outside uiest."""
+    frame, level = sys._getframe(1), 1
+    while frame is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] == "uiest":
+        frame, level = frame.f_back, level + 1
+    return level

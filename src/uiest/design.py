@@ -44,9 +44,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_int
+from uiest.checks import check_int, user_stacklevel
 from uiest.errors import CertificationError, OptionError
 from uiest.system import System
+
+CONDITION_MARGIN = 0.99
+"""A design for ``max_horizon`` bounds cond(P) this fraction below :func:`horizon_condition`: the LMI solver keeps
+``P << c I`` only to its tolerance, and the horizon's logarithm is floored."""
 
 DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Rates certified by default (with the minimal rate), each kept when it is at least mu_min."""
@@ -170,6 +174,7 @@ def design_uise(
 
     """
     from uiest.detectability import certify_strong_detectability
+    from uiest.detectability.certificate import horizon_condition
     from uiest.estimators import UISE
 
     certify = dict(certify_options or {})
@@ -182,7 +187,7 @@ def design_uise(
         """The certificate at mu; if its min_horizon exceeds max_horizon, one with cond(P) bounded to fit."""
         cert = certify_strong_detectability(system, mu=mu, **certify)
         if cert.certified and cert.min_horizon() > max_horizon and "max_condition" not in certify:
-            fitting = 0.99 * cert.mu ** -float(max_horizon) / 8.0  # cond(P) below it: min_horizon <= max_horizon
+            fitting = CONDITION_MARGIN * horizon_condition(cert.mu, max_horizon)
             if fitting > 1.0:
                 conditioned = certify_strong_detectability(system, mu=cert.mu, max_condition=fitting, **certify)
                 if conditioned.certified:
@@ -282,7 +287,8 @@ def _design(
     if not candidates:
         raise CertificationError(
             f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} "
-            f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it)"
+            f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it, and "
+            "the estimator built from a certificate with a shorter N runs without a guarantee)"
         )
     chosen, cert = min(candidates, key=lambda pair: float(np.max(pair[0].rms / scale)))
     if bound_scale is not None:
@@ -302,7 +308,7 @@ def _warn_if_vacuous(system: System, chosen: Candidate) -> None:
             f"V's noise it bounds nothing there (simulated RMS {np.array2string(chosen.rms[wide], precision=3)}); "
             "the outputs carry little information about these states",
             UserWarning,
-            stacklevel=5,  # the caller of UISE.design
+            stacklevel=user_stacklevel(),
         )
 
 

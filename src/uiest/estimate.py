@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import pandas as pd
 
 from uiest.box import FloatArray
 from uiest.delay import matching_ranks
@@ -43,6 +42,8 @@ ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "ekf", "ukf", "uio")
 FALLBACK_RATE = 0.8
 """Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
 DEFAULT_HORIZON = 20
+DEFAULT_MAX_HORIZON = 30
+"""The designs' ``max_horizon`` when ``horizon`` is not given."""
 
 
 def default_prior(entry: ModelEntry, system: System) -> FloatArray:
@@ -82,7 +83,7 @@ def build_estimator(
                 "input of relative degree 2 use --estimator delayed"
             )
     if kind in ("uise", "delayed", "two-stage"):
-        longest = 30 if horizon is None else horizon  # the designs' default max_horizon
+        longest = DEFAULT_MAX_HORIZON if horizon is None else horizon
         design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
         try:
             if kind == "uise":
@@ -128,7 +129,7 @@ def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, o
     from uiest.estimators import MHEWeights, StandardMHE
 
     baseline = "a baseline: the unknown input is penalised as a disturbance"
-    longest = 30 if horizon is None else horizon
+    longest = DEFAULT_MAX_HORIZON if horizon is None else horizon
     try:
         cert = certify_delta_ioss(system)
         reason = cert.reason
@@ -168,9 +169,6 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
     for label, result in results.items():
         frame = result.to_pandas()
         frame["t"] = record.t  # the data's own times
-        if result.x_lag is not None:
-            lagged = pd.DataFrame(result.x_lag, columns=[f"{n}_lag" for n in system.x.names], index=frame.index)
-            frame = pd.concat([frame, lagged], axis=1)
         path = out / f"estimates_{label}.csv"
         frame.to_csv(path)
         written.append(path)

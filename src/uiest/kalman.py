@@ -35,7 +35,7 @@ from typing import Any
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_real, check_run_data, check_u_prev, check_y, real_array
@@ -44,9 +44,12 @@ from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
 
+EDGE_GAIN = 1.01
+"""``tuned`` warns about an end of its grid only when the neighbour's RMS is above this times the end's (below it
+the error is flat there: the reactor's EKF is as good at 1e6 w.scale^2 as at the grid's 100)."""
 INSIDE_MARGIN = 1e-6
-"""The inside-X retry evaluates the model this fraction of X's width inside its finite sides (a square root or a
-logarithm at a side has an infinite derivative there)."""
+"""The inside-X retry evaluates the model this fraction of X's width (x's scale on a half-open axis) inside its
+finite sides (a square root or a logarithm at a side has an infinite derivative there)."""
 
 
 def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str) -> FloatArray:
@@ -67,7 +70,7 @@ class Tuning:
 
     factors: FloatArray
     rms: FloatArray
-    failed: FloatArray
+    failed: NDArray[np.int_] | None = None
 
     @property
     def chosen(self) -> float:
@@ -157,9 +160,9 @@ class KalmanFilter(StreamingEstimator):
         raise NotImplementedError
 
     def _inside(self, x: FloatArray) -> FloatArray:
-        """States (..., nx) projected into X, ``INSIDE_MARGIN`` of its width from finite sides."""
+        """States (..., nx) projected into X, ``INSIDE_MARGIN`` of its width (x's scale if infinite) from its sides."""
         X = self.system.x.bounds
-        margin = np.where(np.isfinite(X.width), INSIDE_MARGIN * X.width, 0.0)
+        margin = INSIDE_MARGIN * np.where(np.isfinite(X.width), X.width, self.system.x.scale)
         return np.clip(x, X.lower + margin, X.upper - margin)
 
     def _noise(self, x: FloatArray, observed: FloatArray) -> FloatArray:
@@ -245,16 +248,18 @@ class KalmanFilter(StreamingEstimator):
         error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all.
         Warns (``UserWarning``) when the chosen filter failed steps of the training record (held,
         an update skipped, or diverged: a ``P0`` too wide for the model's nonlinearity, say), when its
-        scaled RMS exceeds 1, or when the choice is at an end of the grid and still 1 % better than its neighbour.
+        scaled RMS exceeds 1, or when the choice is at an end of the grid and better than its neighbour by more
+        than ``EDGE_GAIN`` (beyond the grid lies a better filter).
         """
-        if not isinstance(training, Trajectory):
+        if not isinstance(training, Trajectory) or not np.all(np.isfinite(training.x)):
             raise DataError(
-                f"training: expected a simulated Trajectory (with its states), got {type(training).__name__}"
+                "training: expected a simulated Trajectory with its states, got "
+                + (type(training).__name__ if not isinstance(training, Trajectory) else "a record without them")
             )
         grid = np.logspace(-8, 2, 21) if variances is None else np.asarray(variances, dtype=float).reshape(-1)
         if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
             raise OptionError(f"variances: expected positive numbers, got {np.asarray(variances).tolist()}")
-        rms, failed = np.full(grid.shape, np.nan), np.zeros(grid.shape)
+        rms, failed = np.full(grid.shape, np.nan), np.zeros(grid.shape, dtype=int)
         for i, q in enumerate(grid):
             result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
                 training.u if system.nu else None, training.y
@@ -268,11 +273,15 @@ class KalmanFilter(StreamingEstimator):
             )
         tuning = Tuning(grid, rms, failed)
         best = int(np.nanargmin(rms))
-        if failed[best] or rms[best] > 1.0:
-            warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {int(failed[best])} of "
-                          f"{len(training.y)} training steps (held, an update skipped, or diverged) with a scaled RMS "
-                          f"error of {rms[best]:.3g}; a smaller P0 may help", UserWarning, stacklevel=2)  # fmt: skip
-        elif variances is None and best in (0, grid.size - 1) and rms[1 if best == 0 else -2] > 1.01 * rms[best]:
+        if failed[best]:
+            warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {failed[best]} of {len(training.y)} "
+                          "training steps (held, an update skipped, or diverged); a smaller P0 may help", UserWarning,
+                          stacklevel=2)  # fmt: skip
+        elif rms[best] > 1.0:
+            warnings.warn(f"{cls.__name__}.tuned: the chosen filter's scaled RMS error on the training record is "
+                          f"{rms[best]:.3g} (> 1: beyond X's size); a smaller P0 may help", UserWarning,
+                          stacklevel=2)  # fmt: skip
+        elif variances is None and best in (0, grid.size - 1) and rms[1 if best == 0 else -2] > EDGE_GAIN * rms[best]:
             warnings.warn(f"{cls.__name__}.tuned: the chosen variance {grid[best]:g} w.scale^2 is at an end of the "
                           "default grid; give variances= beyond it", UserWarning, stacklevel=2)  # fmt: skip
         estimator = cls(system, w_variance=tuning.chosen * system.w.scale**2, x0_prior=x0_prior, **keywords)
@@ -313,7 +322,9 @@ class EKF(KalmanFilter):
         self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
     ) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        y_pred, C, _ = self._h(self._inside(z[: s.nx]) if inside else z[: s.nx], self.v_prior)
+        if inside:  # the estimate projected into X, as for the prediction
+            z = np.concatenate([self._inside(z[: s.nx]), z[s.nx :]])
+        y_pred, C, _ = self._h(z[: s.nx], self.v_prior)
         H = np.zeros((int(observed.sum()), s.nx + s.nw))
         H[:, : s.nx] = np.asarray(C, dtype=float).reshape(s.ny, s.nx)[observed]
         innovation = y[observed] - np.asarray(y_pred, dtype=float).reshape(-1)[observed]
@@ -390,7 +401,7 @@ class UKF(KalmanFilter):
         ys = ys.reshape(s.ny, m).T[:, observed]
         y_mean = self._wm @ ys
         dy, dz = ys - y_mean, chi - self._wm @ chi
-        S = (self._wc[:, None] * dy).T @ dy + self._noise(z[: s.nx], observed)
+        S = (self._wc[:, None] * dy).T @ dy + self._noise(self._inside(z[: s.nx]) if inside else z[: s.nx], observed)
         Pzy = (self._wc[:, None] * dz).T @ dy
         K = np.linalg.solve(S, Pzy.T).T
         return z + K @ (y[observed] - y_mean), P - K @ S @ K.T

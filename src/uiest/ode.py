@@ -34,6 +34,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
+from uiest.box import Box
 from uiest.checks import check_int
 from uiest.errors import ModelError, OptionError
 
@@ -81,38 +82,40 @@ def radau_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float
 
 RK4_REAL_LIMIT = 2.785
 """RK4's stability region meets the negative real axis at about -2.785."""
+GROWTH_ROUNDING = 1e-9
+"""Amplification above 1 by less than this is rounding (a purely imaginary or zero eigenvalue sits on the edge)."""
 
 
-def rk4_instability(
-    rhs: ca.Function, lower: np.ndarray, upper: np.ndarray, u_ref: np.ndarray, w_ref: np.ndarray, h: float
-) -> str | None:
-    """Why RK4 with step ``h`` grows where the ODE decays somewhere in the box, or None.
+def rk4_instability(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, h: float) -> str | None:
+    """Why RK4 with step ``h`` grows where the ODE decays somewhere in ``box``, or None.
 
-    At the box's corners (at most 256 of them) and 256 uniform points (fixed seed) the Jacobian's
-    eigenvalues ``lambda`` with ``Re lambda <= 0`` are checked against RK4's amplification
-    ``|1 + z + z^2/2 + z^3/6 + z^4/24| <= 1``, ``z = h lambda``. Sides that are not finite are
-    held at their centre (0 when unbounded).
+    At the box's corners (256 random ones beyond 8 states) and 256 uniform points (fixed seed),
+    sides that are not finite held at the box's centre, the Jacobian's eigenvalues ``lambda`` with
+    ``Re lambda <= 0`` are checked against RK4's amplification
+    ``|1 + z + z^2/2 + z^3/6 + z^4/24| <= 1``, ``z = h lambda`` (to ``GROWTH_ROUNDING``). Points where
+    the Jacobian is not finite (a square root at a side of X) are left out.
     """
-    finite = np.isfinite(lower) & np.isfinite(upper)
-    center = np.where(finite, 0.5 * (lower + upper), np.where(np.isfinite(lower), lower, np.where(
-        np.isfinite(upper), upper, 0.0)))  # fmt: skip
+    finite = np.isfinite(box.lower) & np.isfinite(box.upper)
+    bounded = Box(np.where(finite, box.lower, box.center), np.where(finite, box.upper, box.center))
     rng = np.random.default_rng(0)
-    n = lower.size
-    corners = rng.integers(0, 2, (256, n)) if n > 8 else np.array(np.meshgrid(*[[0, 1]] * n)).reshape(n, -1).T
-    points = np.vstack([np.where(corners, upper, lower), lower + rng.random((256, n)) * (upper - lower)])
-    points = np.where(finite, points, center)
+    n = box.size
+    if n > 8:
+        corners = np.where(rng.integers(0, 2, (256, n)).astype(bool), bounded.upper, bounded.lower)
+    else:
+        corners = bounded.corners()
+    points = np.vstack([corners, bounded.sample(rng, 256)])
     x, u, w = ca.SX.sym("x", n), ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
     jac = ca.Function("state_jacobian", [x, u, w], [ca.jacobian(rhs(x, u, w), x)]).map(len(points))
     J = np.asarray(jac(points.T, np.tile(u_ref, (len(points), 1)).T, np.tile(w_ref, (len(points), 1)).T), dtype=float)
     J = J.reshape(n, len(points), n).transpose(1, 0, 2)
-    keep = np.all(np.isfinite(J), axis=(1, 2))  # a square root at a side of X, say
+    keep = np.all(np.isfinite(J), axis=(1, 2))
     points, J = points[keep], J[keep]
     if not len(points):
         return None
     lam = np.linalg.eigvals(J)
     z = h * lam
     growth = np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
-    bad = (lam.real <= 0) & (growth > 1 + 1e-9)
+    bad = (lam.real <= 0) & (growth > 1 + GROWTH_ROUNDING)
     if not bad.any():
         return None
     i, j = np.unravel_index(np.argmax(np.where(bad, np.abs(z), -np.inf)), z.shape)

@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -178,21 +179,21 @@ class Trajectory(_PicklableNames):
             for i, name in enumerate(names):
                 columns[name] = data[:, i]
         frame = pd.DataFrame(columns)
-        frame["x_outside"] = self.x_outside
-        frame["v_outside"] = self.v_outside
+        frame[FLAG_COLUMNS[0]] = self.x_outside
+        frame[FLAG_COLUMNS[1]] = self.v_outside
         frame.index.name = "k"
         return frame
 
 
+FLAG_COLUMNS = ("x_outside", "v_outside")
+"""The flags :meth:`Trajectory.to_pandas` writes after the signals."""
 TIME_NAMES = ("time", "timestamp", "datetime", "date", "time_s", "t_s", "seconds")
 """Column names (lower case) taken for a time column that should be ``t``."""
 
 
 def _check_columns(frame: pd.DataFrame, system: Any) -> None:
     """Refuse a time column not named ``t`` (when ``t`` is absent); warn about columns that are no signal."""
-    import warnings
-
-    known = {name for sig in system.signals for name in sig.names} | {"t", "x_outside", "v_outside"}
+    known = {name for sig in system.signals for name in sig.names} | {"t", *FLAG_COLUMNS}
     ignored = [column for column in frame.columns if column not in known]
     if "t" not in frame.columns:
         timelike = [column for column in ignored if str(column).strip().lower() in TIME_NAMES]
@@ -381,7 +382,9 @@ class EstimationResult(_PicklableNames):
     def to_pandas(self) -> pd.DataFrame:
         """One row per k = 0..K: t, estimates (``<name>_hat``), status, success, iterations, solve_time, cost.
 
-        The unknown-input columns are NaN in the last row (no transition after K).
+        Then the window length, the number of missing outputs and, with a lag, the lagged estimates
+        ``<state>_lag`` of ``x[k-lag]``. The unknown-input columns are NaN in the last row (no
+        transition after K).
         """
         columns: dict[str, object] = {"t": self.t}
         x_names = self.names.get("x") or tuple(f"x[{i}]" for i in range(self.x_hat.shape[1]))
@@ -400,6 +403,8 @@ class EstimationResult(_PicklableNames):
             window=self.window,
             missing=self.missing.sum(axis=1),
         )
+        if self.x_lag is not None:
+            columns.update({f"{name}_lag": self.x_lag[:, i] for i, name in enumerate(x_names)})
         frame = pd.DataFrame(columns)
         frame.index.name = "k"
         return frame

@@ -377,8 +377,7 @@ class System:
                               x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
         unstable = None
         if method == "rk4":
-            unstable = ode.rk4_instability(rhs_f, X.lower, X.upper, np.where(np.isfinite(u_ref), u_ref, 0.0), w_ref,
-                                           dt / substeps)  # fmt: skip
+            unstable = ode.rk4_instability(rhs_f, X, u_ref, w_ref, dt / substeps)
             if unstable:
                 warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
         try:

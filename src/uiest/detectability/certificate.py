@@ -26,8 +26,8 @@ CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED = (
     "undecided",
 )
 """The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
-to optimality with a non-positive margin (within the stated bounds on P and the gains), "undecided"
-when that happened at a cover's vertices but not at the sampled matrices they cover."""
+to optimality with a non-positive margin (within the stated bounds on P and the gains); "undecided"
+(strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians."""
 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
              "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED, "undecided": UNDECIDED}  # fmt: skip
@@ -41,6 +41,11 @@ def strong_horizon(mu: float, condition: float) -> int:
     ``condition = a2 / a1``.
     """
     return int(np.floor(np.log(8.0 * condition) / np.log(1.0 / mu))) + 1
+
+
+def horizon_condition(mu: float, N: int) -> float:
+    """The bound on cond(P) below which :func:`strong_horizon` is at most N: ``8 mu^N cond < 1``."""
+    return float(mu) ** -float(N) / 8.0
 
 
 @dataclass(frozen=True)
@@ -82,7 +87,10 @@ class Certificate:
         True only when the LMIs were solved and the independent numpy re-check passed.
     status : str
         One of "certified", "infeasible" (proved by the solver), "solver failed",
-        "below the smallest rate" (a given rate below the one found), "re-check failed".
+        "below the smallest rate" (a given rate below the one found), "re-check failed", and for
+        strong detectability "undecided" (infeasible only at a cover's vertices, feasible at the
+        sampled Jacobians themselves; delta-IOSS and reduced certificates report "infeasible" at
+        their vertices without that re-check).
     reason : str
         One sentence with the numbers.
     rate, rate_min : float
@@ -100,8 +108,8 @@ class Certificate:
         strong detectability, the input structure is structural); False when any was sampled
         (``coverage`` says which). Either way the LMIs were solved and re-checked at the vertices.
     margin : float
-        Smallest eigenvalue margin of the re-check, relative to ``||P||``: > 0 when certified, or negative
-        within the direct check's rounding tolerance (1e-13 of its largest entry, named in ``reason``).
+        Smallest eigenvalue margin of the re-check, relative to ``||P||``: > 0 when certified, or (strong
+        detectability) negative within the direct check's rounding tolerance, which ``reason`` then names.
 
     """
 

@@ -200,9 +200,10 @@ def _orthonormal_range(M: FloatArray, rtol: float) -> FloatArray:
 
 def _zeros(A: FloatArray, B: FloatArray, C: FloatArray, rtol: float) -> ComplexArray:
     # The zeros do not change when B's columns or C's rows are recombined: orthonormal bases of their
-    # spans keep a small B or C (a sampled high relative degree: CB ~ dt^r) from vanishing below rtol
-    # beside A in the pencil's rank tests.
-    M, N = _pencil(A, _orthonormal_range(B, rtol), _orthonormal_range(C.T, rtol).T)
+    # spans, scaled to A's size, keep a small B or C (a sampled high relative degree: CB ~ dt^r) from
+    # vanishing below rtol beside A in the pencil's rank tests.
+    size = max(1.0, float(np.linalg.norm(A, 2)) if A.size else 1.0)
+    M, N = _pencil(A, size * _orthonormal_range(B, rtol), size * _orthonormal_range(C.T, rtol).T)
     rng = np.random.default_rng(_SEED)
     norm_M, norm_N = float(np.linalg.norm(M, 2)), float(np.linalg.norm(N, 2))
     probes = (1.0 + norm_M) * (rng.standard_normal(2) + 1j * rng.standard_normal(2))
@@ -231,7 +232,8 @@ def invariant_zeros(A: ArrayLike, B: ArrayLike, C: ArrayLike, *, rtol: float = 1
     """Invariant zeros of ``[zI - A, -B; C, 0]`` for any shapes ``A (n, n)``, ``B (n, q)``, ``C (p, n)``.
 
     The finite z where the pencil loses rank below its normal rank r (the rank at a random
-    complex point, SVD tolerance ``rtol`` times the largest singular value). The pencil is
+    complex point, SVD tolerance ``rtol`` times the largest singular value), with B and C replaced by
+    orthonormal bases of range(B) and row(C) scaled to ``max(1, ||A||)`` (same zeros). The pencil is
     compressed to r x r twice with random orthonormal ``U ((n+p), r)``, ``V ((n+q), r)`` (fixed
     seed); finite generalized eigenvalues found by both compressions are candidates, and each is
     kept when the r-th singular value of P(z) is at most ``100 rtol (||M|| + |z| ||N||)``.

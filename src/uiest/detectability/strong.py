@@ -187,13 +187,13 @@ def certify_strong_detectability(
     covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
     solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol, max_condition=max_condition)
-    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant":
-        solution = _decided_at_samples(solution, covered, structure, tol)
+    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant" and max_condition is None:
+        solution = _decided_at_samples(solution, covered, structure, mu, tol)
     return _certificate(system, structure, covered, solution, time.perf_counter() - start)
 
 
 def _decided_at_samples(
-    solution: StrongSolution, covered: Cover, structure: InputStructure, tol: float
+    solution: StrongSolution, covered: Cover, structure: InputStructure, mu: float | None, tol: float
 ) -> StrongSolution:
     """Infeasible at the cover's vertices: infeasible on X if also at the sampled Jacobians, else undecided.
 
@@ -206,6 +206,10 @@ def _decided_at_samples(
     where = f"{len(samples)} sampled points of X"
     if at_samples.outcome == lmi.INFEASIBLE:
         return dataclasses.replace(solution, reason=f"{solution.reason}, at the Jacobians of {where} themselves")
+    if at_samples.outcome == lmi.FEASIBLE and mu is not None and mu < at_samples.mu_min:
+        return dataclasses.replace(solution, outcome="below mu_min", reason=(
+            f"mu={mu:.6g} is below the smallest rate certifiable at the Jacobians of {where} themselves "
+            f"({at_samples.mu_min:.6g}; at the cover's vertices none is)"))  # fmt: skip
     found = (f"feasible at the Jacobians of {where} themselves (mu_min {at_samples.mu_min:.6g} there)"
              if at_samples.outcome == lmi.FEASIBLE else
              f"the solver did not decide at the Jacobians of {where} themselves ({at_samples.outcome})")  # fmt: skip

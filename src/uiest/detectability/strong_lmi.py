@@ -55,6 +55,9 @@ MARGIN_FLOOR = 1e-8
 DESIGN_MARGIN = 1e-2
 """The design keeps this fraction of the rate problem's margin at every vertex."""
 
+RETRY_MARGIN = 1e-2
+"""After a solver error in the design, it is solved once more with this fraction of its margin."""
+
 TRACE_WEIGHT = 1e-3
 """Weight of tr(P) / n beside the output gain in the design objective."""
 
@@ -254,8 +257,8 @@ class StrongLMI:
         """Bisect for mu_min, design at mu, then the closed-form s1 and the re-check.
 
         mu_min is not bisected when given or when every state is measured; mu defaults to
-        ``mu_min + 0.02 (1 - mu_min)``. ``max_condition`` bounds cond(P) in the design (None: no bound
-        beyond the rate problem's 1e6).
+        ``mu_min + 0.02 (1 - mu_min)``. ``max_condition`` bounds cond(P) in the design (None: no bound;
+        the design's fallback, the rate problem's P, has cond(P) <= 1e6).
         """
         g = self.geometry
         if g.k == 0:  # every state is measured: any rate works
@@ -280,14 +283,17 @@ class StrongLMI:
             return self._unsolved(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} "
                                   f"('{outcome}'; mu_min={mu_min:.6g} was feasible)", mu_min, bisection)  # fmt: skip
         status, design = self._design(mu_used, DESIGN_MARGIN * t, max_condition)
+        if design is None and status not in ("infeasible", "infeasible_inaccurate"):  # a solver error: smaller margin
+            status, design = self._design(mu_used, RETRY_MARGIN * DESIGN_MARGIN * t, max_condition)
         note = "design"
         if design is None:
             fallback_ok = rate_solution is not None and (
                 max_condition is None or np.linalg.cond(rate_solution[0]) <= max_condition
             )
-            if not fallback_ok and max_condition is not None and status == "infeasible":
-                return self._unsolved(lmi.INFEASIBLE, f"no design with cond(P) <= {max_condition:.6g} at "
-                                      f"mu={mu_used:.6g} (mu_min={mu_min:.6g})", mu_min, bisection)  # fmt: skip
+            if not fallback_ok and max_condition is not None:  # a fixed-margin design, not the margin problem
+                return self._unsolved(lmi.FAILED, f"no design with cond(P) <= {max_condition:.6g} found at "
+                                      f"mu={mu_used:.6g} (mu_min={mu_min:.6g}; the design solve: '{status}')",
+                                      mu_min, bisection)  # fmt: skip
             if not fallback_ok or rate_solution is None:
                 return self._unsolved(lmi.FAILED, f"the design solve failed at mu={mu_used:.6g} ({status})",
                                       mu_min, bisection)  # fmt: skip
@@ -359,13 +365,16 @@ class StrongLMI:
         ok = kernel > 0.0 and W_margin > 0.0 and direct >= -tolerance and matched <= 1e-9
         reason = (
             f"certified: mu={mu:.6g} (mu_min={mu_min:.6g}), cond(P)={np.linalg.cond(P):.3g}, re-check margin "
-            f"{margin:.2e}, w eliminated to {matched:.1e}"
+            f"{margin:.2e}{f' (within the rounding {tolerance:.1e})' if margin < 0 else ''}, w eliminated to "
+            f"{matched:.1e}"
             if ok
             else f"re-check failed at mu={mu:.6g}: kernel margin {kernel:.2e}, W margin {W_margin:.2e}, direct "
             f"margin {direct:.2e} (rounding {tolerance:.1e}), elimination residual {matched:.1e}"
         )
         if bisection.note:
             reason += f" ({bisection.note})"
+        if note != "design":  # the rate problem's P: larger gains than a design's
+            reason += f"; P from the {note}"
         return StrongSolution(
             lmi.FEASIBLE if ok else "re-check failed", reason, float(mu), float(mu_min), P, Y2, float(s1),
             float(s2 / g.eps**2), g.eps, float(margin), note, bisection,

@@ -25,6 +25,7 @@ with :meth:`WindowEstimator.configure` (which drops the cached solvers).
 
 from __future__ import annotations
 
+import dataclasses
 import warnings
 from collections import deque
 from collections.abc import Mapping
@@ -155,15 +156,19 @@ class StreamingEstimator:
         return self._x0_prior
 
 
+HOLD_RTOL = 1e-9
+"""Relative rank tolerance of :meth:`WindowEstimator._hold_unseen_input` (linear_strong_detectability's default)."""
+
+
 class WindowEstimator(StreamingEstimator):
     """The window-estimator template (module docstring); not used directly."""
 
     estimator_name: ClassVar[str] = "window"
     one_step_ahead: ClassVar[bool] = False
+    """True: the window at time k measures ``y[k-N_k .. k-1]`` (its newest node is a prediction)."""
     free_input: ClassVar[bool] = False
     """The newest unknown input is unpenalised and the nodes are the states (UISE, FIE): a y[k] that misses the
     outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
-    """True: the window at time k measures ``y[k-N_k .. k-1]`` (its newest node is a prediction)."""
     status_note: str = ""
     """Appended to every step's status (a forced estimator's " [no guarantee: ...]")."""
 
@@ -363,6 +368,8 @@ class WindowEstimator(StreamingEstimator):
             if solution.success:
                 window, held = self._hold_unseen_input(entry.problem.unpack(solution.z), u_vec, y_vec)
                 node, status = window.x[-1].copy(), solution.status + held
+                if held:  # later windows start from the held values: their optimum is flat there too
+                    solution = dataclasses.replace(solution, z=entry.problem.pack(window))
                 self._last = (start, entry.problem, solution)
             elif self._options.strict:
                 raise SolverError(
@@ -377,12 +384,12 @@ class WindowEstimator(StreamingEstimator):
     def _hold_unseen_input(
         self, window: WindowTrajectory, u_vec: FloatArray, y_vec: FloatArray
     ) -> tuple[WindowTrajectory, str]:
-        """The window, its newest node predicted with the unknown input held where y[k] misses the outputs it reaches.
+        """The window with the part of the newest unknown input that y[k]'s missing outputs alone would see held.
 
-        There the optimum is any point along the input's direction; the input is held at its last
-        estimate. "Reaches" is the rank of ``C B_w`` (output Jacobian at x[k] times the input Jacobian
-        at x[k-1]) over the observed rows against all rows, relative tolerance 1e-9. Returns (window,
-        note for the status).
+        With ``G = C B_w`` (output Jacobian at x[k] times the input Jacobian at x[k-1]), the input
+        directions that ``G`` sees but its observed rows do not are free in the window's optimum:
+        they are set to the last estimate's, the rest kept, and x[k] predicted from x[k-1] with the
+        result. Ranks by ``HOLD_RTOL`` of G's largest singular value. Returns (window, status note).
         """
         missing = np.isnan(y_vec)
         if not (self.free_input and missing.any() and len(window.w)):
@@ -390,19 +397,28 @@ class WindowEstimator(StreamingEstimator):
         s = self.system
         G = s.linearize(window.x[-1], u_vec, window.w[-1]).C @ s.linearize(window.x[-2], u_vec, window.w[-1]).B_w
         values = np.linalg.svd(G, compute_uv=False)
-        seen = np.linalg.svd(G[~missing], compute_uv=False) if (~missing).any() else np.zeros(0)
-        tol = 1e-9 * (values[0] if values.size else 0.0)
-        if values.size == 0 or np.sum(seen > tol) == np.sum(values > tol):
+        if not values.size or values[0] == 0.0:
             return window, ""
-        w_held = self._w_guess()
+        tol = HOLD_RTOL * values[0]
+        unseen = np.eye(G.shape[1])  # the null space of the observed rows
+        if (~missing).any():
+            _, seen_values, seen_vt = np.linalg.svd(G[~missing])
+            unseen = seen_vt[int(np.sum(seen_values > tol)) :].T
+        if not unseen.shape[1]:
+            return window, ""
+        _, reach, directions = np.linalg.svd(G @ unseen)
+        held = unseen @ directions[: int(np.sum(reach > tol))].T  # of those, what all rows would see
+        if not held.size:
+            return window, ""
+        w = window.w.copy()
+        w[-1] = w[-1] + held @ (held.T @ (self._w_guess() - w[-1]))
         data = self._data[-1] if self.model.nd else np.zeros(0)
-        x_new = self.model.step(window.x[-2], u_vec, w_held, self.v_prior, data)
+        x_new = self.model.step(window.x[-2], u_vec, w[-1], self.v_prior, data)
         if not np.all(np.isfinite(x_new)):
             return window, ""
         x = window.x.copy()
-        w = window.w.copy()
-        x[-1], w[-1] = self.model.x_bounds.clip(x_new), w_held
-        note = " (y[k] misses the outputs the newest unknown input reaches: x[k] predicted with it held)"
+        x[-1] = self.model.x_bounds.clip(x_new)
+        note = " (y[k] misses outputs the newest unknown input reaches: that part of it held at its last estimate)"
         return WindowTrajectory(x, w, window.v), note
 
     def _finish(
