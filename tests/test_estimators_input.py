@@ -258,3 +258,28 @@ def test_only_the_part_of_the_newest_input_that_missing_outputs_see_is_held():
     error = np.abs(result.error(truth.x))
     assert all("held" in result.status[k] for k in holes)
     assert error[holes, 0].max() < 0.02 and error[holes, 1].max() < 0.05  # noise 0.01; w2 moves by <= 0.005
+
+
+@pytest.mark.parametrize("solver", ["gn", "ipopt"])
+def test_a_missing_sample_leaves_later_windows_no_free_state_to_put_anywhere(solver):
+    # nx = 1 and y[20] missing: in the windows after it x[20] is free (w[19] and w[20] absorb any value). Without
+    # the gap penalty gn put it on X's side: x_lag[20] = -19.1 and w_hat[20] = 10.7 (truth -3.49 and -0.33).
+    import casadi as ca
+
+    from uiest import System
+
+    system = System.from_callables(lambda x, u, w: [0.7 * x[0] + 0.2 * ca.sin(x[0]) + u[0] + w[0]],
+                                   lambda x, v: [x[0] + v[0]], nx=1, nu=1, nw=1, nv=1, x_bounds=(-20, 20),
+                                   u_bounds=(-2, 2), v_bounds=(-0.01, 0.01))  # fmt: skip
+    K = 30
+    u = np.sin(0.3 * np.arange(K))[:, None]
+    truth = simulate(system, [1.0], K, u=u, w=lambda k, x: [0.5 * np.cos(0.2 * k)])
+    y = truth.y.copy()
+    y[20] = np.nan
+    weights = UISEWeights.from_scales(system, 0.6)
+    result = UISE(system, weights=weights, N=5, x0_prior=[0.0], solver=solver, lag=1).run(u, y)
+    assert abs(result.x_lag[20, 0] - truth.x[20, 0]) < 0.5 and abs(result.w_hat[20, 0] - truth.w[20, 0]) < 0.5
+    complete = np.setdiff1d(np.arange(5, K + 1), [20])  # the penalty is off where the window has all its data
+    reference = UISE(system, weights=weights, N=5, x0_prior=[0.0], solver=solver).run(u, truth.y)
+    np.testing.assert_allclose(result.x_hat[complete[complete > 25]], reference.x_hat[complete[complete > 25]],
+                               atol=1e-6)  # fmt: skip

@@ -45,7 +45,7 @@ from uiest.estimators.weights import Schedule
 from uiest.results import NO_DATA, EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
-from uiest.window.problem import WIDE, WindowTrajectory
+from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
 from uiest.window.solvers import BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
@@ -156,6 +156,13 @@ class StreamingEstimator:
         return self._x0_prior
 
 
+GAP_WEIGHT = 1e-6
+"""A window with missing outputs (UISE, FIE) penalises each unknown input's departure from where the last window
+left it by this fraction of the curvature the next node's outputs put on it (:meth:`_gap_weights`): directions
+the missing outputs alone saw are otherwise flat, and a solver may put them anywhere in X (a state 9.6 off in an
+X of width 20, an input estimate 8.9 off); along the determined directions it moves the optimum by about this
+fraction of the input's change."""
+
 HOLD_RTOL = 1e-9
 """Relative rank tolerance of :meth:`WindowEstimator._hold_unseen_input` (linear_strong_detectability's default)."""
 
@@ -193,7 +200,7 @@ class WindowEstimator(StreamingEstimator):
             raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {v_bar.tolist()}")
         self.v_prior = v_bar
         self._options = self._checked(WindowOptions.build(options))
-        self._cache: dict[int, _Cached] = {}
+        self._cache: dict[int | tuple[int, str], _Cached] = {}
         self._x0_prior: FloatArray | None = None
         self._clear()
         if x0_prior is not None:
@@ -301,12 +308,16 @@ class WindowEstimator(StreamingEstimator):
         return window.w[-back].copy(), k - back
 
     # ------------------------------------------------------------------ problems
-    def _cached(self, length: int) -> _Cached:
-        entry = self._cache.get(length)
+    def _cached(self, length: int, gap: bool = False) -> _Cached:
+        """The window problem of ``length`` transitions and its solvers; ``gap``: with :data:`GAP_WEIGHT` on w."""
+        key: int | tuple[int, str] = (length, "gap") if gap else length
+        entry = self._cache.get(key)
         if entry is None:
             assert self.schedule is not None  # models with state have weights
             measured = list(range(length if self.one_step_ahead else length + 1))
             weights = self.schedule.window(length, measured)
+            if gap:
+                weights = self._gap_weights(weights, length)
             problem = WindowProblem(self.model, length, measured, weights, w_box=self.w_box)
             opts = self._options
             warm = make_solver(opts.solver, problem, warm_start=opts.warm_start, options=dict(opts.solver_options),
@@ -315,8 +326,22 @@ class WindowEstimator(StreamingEstimator):
             entry = _Cached(
                 problem, problem.weight_vector(weights), v_bar, w_bar, warm, None if opts.warm_start else warm
             )
-            self._cache[length] = entry
+            self._cache[key] = entry
         return entry
+
+    def _gap_weights(self, weights: WindowWeights, length: int) -> WindowWeights:
+        """``weights`` with w[j] pulled to its prior by ``GAP_WEIGHT`` of the curvature node j+1's output puts on it.
+
+        That curvature is the node's mean scaled output weight times ``|G|^2``, G the scaled ``C B_w``
+        at X's centre (the output's sensitivity to the input, in scales).
+        """
+        s = self.system
+        y_scale, w_scale = self.model.y_scale, self.model.w_scale
+        jac = s.linearize(s.x.bounds.center)
+        gain = float(np.linalg.norm((jac.C @ jac.B_w) * w_scale / y_scale[:, None], 2)) ** 2 if s.nw else 0.0
+        scaled_y = np.einsum("mii->m", weights.y * np.outer(y_scale, y_scale)) / max(self.model.ny, 1)
+        level = GAP_WEIGHT * gain * scaled_y[1 : length + 1]
+        return dataclasses.replace(weights, w=level[:, None, None] * np.diag(1.0 / w_scale**2)[None])
 
     def _cold(self, entry: _Cached) -> WindowSolver:
         if entry.cold is None:
@@ -530,18 +555,19 @@ class WindowEstimator(StreamingEstimator):
         self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
     ) -> tuple[_Cached, list[WindowSolution]]:
         """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts."""
-        entry = self._cached(length)
+        gap = self.free_input and length > 0 and not self.one_step_ahead and bool(np.isnan(y_win).any())
+        entry = self._cached(length, gap)
         problem = entry.problem
+        z0, duals = self._guess(problem, length, prior, u_win, data)
         p = problem.parameters(
             prior,
             u_win,
             y_win,
             v_bar=entry.v_bar,
-            w_bar=entry.w_bar,
+            w_bar=problem.unpack(z0).w if gap else entry.w_bar,  # a gap's flat inputs stay where they were
             data=data,
             weights=entry.weights,
         )
-        z0, duals = self._guess(problem, length, prior, u_win, data)
         attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
         if not attempts[-1].success:
             cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)
