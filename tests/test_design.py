@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from uiest import CertificationError, OptionError, simulate
+from uiest import CertificationError, DataError, OptionError, simulate
 from uiest.design import settled_bound
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
@@ -138,3 +138,23 @@ def test_a_design_whose_guarantee_bounds_nothing_under_the_noise_says_so():
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
         UISE.design(strong, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)
+
+
+def test_a_design_scores_its_candidates_on_the_users_records_when_given():
+    from uiest.results import Trajectory
+
+    system = linear.linear_system(np.array([[0.5]]), [[1.0]], [[1.0]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
+    rng = np.random.default_rng(4)
+    record = simulate(system, [0.2], 60, w=0.3 * np.sin(0.2 * np.arange(60))[:, None],
+                      v=rng.uniform(-0.05, 0.05, (61, 1)))  # fmt: skip
+    design = UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=[record]).design_report
+    for candidate in design.candidates:
+        estimator = UISE(system, certificate=certify_strong_detectability(system, mu=candidate.mu), N=candidate.N,
+                         x0_prior=[0.0])  # fmt: skip
+        error = estimator.run(None, record.y).error(record.x)[15:]
+        np.testing.assert_allclose(candidate.rms, np.sqrt(np.mean(error**2, axis=0)), rtol=1e-6)
+    measured = Trajectory.from_pandas(record.to_pandas()[list(system.y.names)], system)
+    with pytest.raises(DataError, match=r"records\[0\]: expected a record with its states"):
+        UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=[measured])
+    with pytest.raises(DataError, match="records: expected a non-empty sequence"):
+        UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=record)

@@ -26,8 +26,8 @@ mu = 0.9 gave 1.04x). :func:`design_uise` therefore
    log cond(P)) is certified again with cond(P) bounded so that it fits (``max_condition``);
 2. runs each candidate on ``trials`` noise records (uniform in V, the true state starting at
    ``x0``, known input at U's centre, unknown input zero: the UISE's error does not depend on it
-   for systems affine in w) and keeps the one with the smallest error RMS relative to the
-   state scales.
+   for systems affine in w), or on the user's ``records`` (where that run would leave X, say),
+   and keeps the one with the smallest error RMS relative to the state scales.
 
 The result carries both numbers per candidate, the guaranteed bound and the simulated RMS.
 """
@@ -36,7 +36,7 @@ from __future__ import annotations
 
 import time
 import warnings
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, user_stacklevel
-from uiest.errors import CertificationError, OptionError
+from uiest.errors import CertificationError, DataError, OptionError
 from uiest.system import System
 
 CONDITION_MARGIN = 0.99
@@ -103,7 +103,7 @@ class Design:
         return "\n".join(rows)
 
 
-DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "certify_options")
+DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "certify_options", "records")
 """Keywords of :func:`design_uise` / :func:`design_two_stage`; the others go to the estimators."""
 
 
@@ -145,6 +145,7 @@ def design_uise(
     steps: int = 80,
     seed: int = 0,
     certify_options: Mapping[str, Any] | None = None,
+    records: Sequence[Any] | None = None,
     **options: Any,
 ) -> Design:
     """Certify at several rates and keep the guaranteed (mu, N) with the smallest simulated noise error.
@@ -164,6 +165,10 @@ def design_uise(
         Noise records per candidate, their length (the first quarter is not scored), the seed.
     certify_options : mapping, optional
         Passed to :func:`~uiest.detectability.certify_strong_detectability`.
+    records : sequence of Trajectory, optional
+        Simulated records (with their states) to score the candidates on instead of the noise
+        trials: records of the operating conditions, inside X, with the unknown inputs one expects.
+        Their first quarter is not scored.
     **options
         Window options of the candidate UISEs (``solver``, ...).
 
@@ -198,7 +203,7 @@ def design_uise(
         system, x0, certify_with_horizon, bound,
         lambda cert, n, prior: UISE(system, certificate=cert, N=n, x0_prior=prior, **options),
         bound_scale=scale, what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
-        trials=trials, steps=steps, seed=seed,
+        trials=trials, steps=steps, seed=seed, records=records,
     )  # fmt: skip
 
 
@@ -213,6 +218,7 @@ def design_two_stage(
     steps: int = 80,
     seed: int = 0,
     certify_options: Mapping[str, Any] | None = None,
+    records: Sequence[Any] | None = None,
     **options: Any,
 ) -> Design:
     """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and :func:`two_stage_bound`.
@@ -231,7 +237,7 @@ def design_two_stage(
         system, x0, lambda mu: reduced.certify(mu=mu, **certify), lambda cert, n: two_stage_bound(cert, n, diameter),
         lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
         bound_scale=None, what="reduced e-IOSS (ass:e-ioss)", max_horizon=max_horizon, rates=rates, budget=budget,
-        trials=trials, steps=steps, seed=seed,
+        trials=trials, steps=steps, seed=seed, records=records,
     )  # fmt: skip
 
 
@@ -250,6 +256,7 @@ def _design(
     trials: int,
     steps: int,
     seed: int,
+    records: Sequence[Any] | None,
 ) -> Design:
     """The design loop of the module docstring; ``bound_scale`` divides the bound when ranking N (None: as is)."""
     max_horizon = check_int(max_horizon, "max_horizon", low=1)
@@ -271,7 +278,7 @@ def _design(
             cert = certify(mu)
             if cert.certified:
                 certificates.append(cert)
-    records = _noise_records(system, prior, trials, steps, seed)
+    scored = _noise_records(system, prior, trials, steps, seed) if records is None else _given_records(system, records)
     scale = system.x.scale
     candidates: list[tuple[Candidate, Any]] = []
     for cert in certificates:
@@ -281,7 +288,7 @@ def _design(
         if N is None:
             continue
         estimator = build(cert, N, prior)
-        errors = [estimator.run(u, y).error(x)[steps // 4 :] for u, y, x in records]
+        errors = [estimator.run(u, y).error(x)[(len(y) - 1) // 4 :] for u, y, x in scored]
         rms = np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0))
         candidates.append((Candidate(cert.mu, N, bound(cert, N), rms), cert))
     if not candidates:
@@ -305,11 +312,28 @@ def _warn_if_vacuous(system: System, chosen: Candidate) -> None:
         warnings.warn(
             f"design: the guaranteed noise bound of {names} ({np.array2string(chosen.bound[wide], precision=3)}) "
             f"exceeds X's width ({np.array2string(width[wide], precision=3)}): the certificate holds, but under "
-            f"V's noise it bounds nothing there (simulated RMS {np.array2string(chosen.rms[wide], precision=3)}); "
-            "the outputs carry little information about these states",
+            "V's noise its worst-case bound says nothing there (simulated RMS "
+            f"{np.array2string(chosen.rms[wide], precision=3)})",
             UserWarning,
             stacklevel=user_stacklevel(),
         )
+
+
+def _given_records(system: System, records: Sequence[Any]) -> list[tuple[FloatArray | None, FloatArray, FloatArray]]:
+    """``(u, y, x)`` of the user's records; DataError for anything that is not a record of ``system`` with states."""
+    from uiest.results import Trajectory
+
+    if isinstance(records, Trajectory) or not len(records):
+        raise DataError("records: expected a non-empty sequence of Trajectory records")
+    scored = []
+    for i, record in enumerate(records):
+        if not isinstance(record, Trajectory) or record.y.shape[1] != system.ny or record.x.shape[1] != system.nx:
+            raise DataError(f"records[{i}]: expected a Trajectory of {system.name!r} (nx = {system.nx}, "
+                            f"ny = {system.ny})")  # fmt: skip
+        if not np.all(np.isfinite(record.x)):
+            raise DataError(f"records[{i}]: expected a record with its states (a simulation), to score the errors")
+        scored.append((record.u if system.nu else None, record.y, record.x))
+    return scored
 
 
 def _noise_records(
