@@ -37,7 +37,8 @@ def test_designed_uise_is_as_accurate_as_the_linear_uio(seed):
     designed = UISE.design(system, x0_prior=np.zeros(3))
     report = designed.design_report
     assert designed.guaranteed and designed.N == report.N and designed.weights.mu == report.certificate.mu
-    chosen = [c for c in report.candidates if c.mu == report.certificate.mu and c.N == report.N]
+    key = (report.certificate.mu, report.N, report.certificate.output_weight)
+    chosen = [c for c in report.candidates if (c.mu, c.N, c.output_weight) == key]
     assert len(chosen) == 1 and np.all(chosen[0].bound == report.bound)
     assert max(chosen[0].rms / system.x.scale) == min(max(c.rms / system.x.scale) for c in report.candidates)
 
@@ -158,3 +159,17 @@ def test_a_design_scores_its_candidates_on_the_users_records_when_given():
         UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=[measured])
     with pytest.raises(DataError, match="records: expected a non-empty sequence"):
         UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=record)
+
+
+def test_a_certificate_with_larger_output_weights_still_holds_and_the_design_tries_them():
+    system, _, _ = benchmark(1)
+    cert = certify_strong_detectability(system, mu=0.6)
+    heavier = cert.with_output_weight(10.0)
+    assert heavier.certified and heavier.mu == cert.mu and heavier.min_horizon() == cert.min_horizon()
+    np.testing.assert_allclose(heavier.R_y, 10.0 * cert.R_y)
+    np.testing.assert_allclose(heavier.noise_gain, np.sqrt(10.0) * cert.noise_gain)
+    assert heavier.verify(5000).worst_ratio <= 1.0 and heavier.output_weight == 10.0
+    with pytest.raises(OptionError, match="factor: expected a finite number >= 1"):
+        cert.with_output_weight(0.5)
+    design = UISE.design(system, x0_prior=np.zeros(3), rates=(0.6,), trials=1, steps=40).design_report
+    assert {c.output_weight for c in design.candidates if c.mu == 0.6} == {1.0, 10.0, 100.0}

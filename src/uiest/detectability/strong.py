@@ -71,6 +71,9 @@ class StrongDetectability(StrongDetectabilityBase):
         Vertices of the cover the LMI was imposed at.
     design : str
         Which solve produced P.
+    output_weight : float
+        How many times the certified output weights ``sigma_y``, ``sigma_v`` are (1 as solved; see
+        :meth:`with_output_weight`).
 
     """
 
@@ -87,8 +90,25 @@ class StrongDetectability(StrongDetectabilityBase):
     eps: float
     n_vertices: int
     design: str
+    output_weight: float = 1.0
 
     kind = "strong_detectability"
+
+    def with_output_weight(self, factor: float) -> StrongDetectability:
+        """The weaker certificate with ``sigma_y``, ``sigma_v`` (and ``R_y``, ``R_v``) times ``factor >= 1``.
+
+        eq:Lyapunov_2 still holds (only its right side grows), with the same mu and P, so the horizon
+        and the guarantee stay; the estimator weighs its outputs ``factor`` times more against its
+        prior, and the noise gain grows by ``sqrt(factor)``. ``s1``, ``s2`` stay the core solve's.
+        :func:`~uiest.design.design_uise` tries a few factors.
+        """
+        self.require("with_output_weight")
+        if not (isinstance(factor, float | int) and not isinstance(factor, bool) and 1.0 <= factor < np.inf):
+            raise OptionError(f"factor: expected a finite number >= 1, got {factor!r}")
+        f = float(factor)
+        return dataclasses.replace(self, sigma_y=f * self.sigma_y, sigma_v=f * self.sigma_v, R_y=f * self.R_y,
+                                   R_v=f * self.R_v, noise_gain=np.sqrt(f) * self.noise_gain,
+                                   output_weight=f * self.output_weight)  # fmt: skip
 
     @property
     def alpha_1(self) -> float:
@@ -124,6 +144,7 @@ class StrongDetectability(StrongDetectabilityBase):
             "cover_sound": self.cover.sound,
             "n_vertices": self.n_vertices,
             "design": self.design,
+            "output_weight": self.output_weight,
         }
 
 
