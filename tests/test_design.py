@@ -172,4 +172,5 @@ def test_a_certificate_with_larger_output_weights_still_holds_and_the_design_tri
     with pytest.raises(OptionError, match="factor: expected a finite number >= 1"):
         cert.with_output_weight(0.5)
     design = UISE.design(system, x0_prior=np.zeros(3), rates=(0.6,), trials=1, steps=40).design_report
-    assert {c.output_weight for c in design.candidates if c.mu == 0.6} == {1.0, 10.0, 100.0}
+    best = min((c for c in design.candidates if c.output_weight == 1.0), key=lambda c: max(c.rms / system.x.scale))
+    assert {c.output_weight for c in design.candidates if (c.mu, c.N) == (best.mu, best.N)} == {1.0, 10.0, 100.0}
