@@ -147,3 +147,8 @@ def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise()
     assert est.guaranteed and est.options.lag == 2 and est.N >= 3 and est.design_report.N <= est.N
     error = est.run(u, truth.y).x_lag[50:-2] - truth.x[50:-2]
     np.testing.assert_allclose(error[:, :2], np.column_stack([v[51:-1, 0], v[50:-2, 0]]), atol=1e-6)
+
+
+def test_the_delayed_design_refuses_records_it_could_not_score():
+    with pytest.raises(OptionError, match=r"records: DelayedUISE\.design scores its candidates on noise trials only"):
+        DelayedUISE.design(_chain(), x0_prior=np.zeros(3), records=[])

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from uiest import CertificationError, DataError, OptionError, simulate
-from uiest.design import settled_bound
+from uiest.design import VARIANT_GAIN, settled_bound
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
 from uiest.estimators import UISE, LinearUIO
@@ -40,7 +40,11 @@ def test_designed_uise_is_as_accurate_as_the_linear_uio(seed):
     key = (report.certificate.mu, report.N, report.certificate.output_weight)
     chosen = [c for c in report.candidates if (c.mu, c.N, c.output_weight) == key]
     assert len(chosen) == 1 and np.all(chosen[0].bound == report.bound)
-    assert max(chosen[0].rms / system.x.scale) == min(max(c.rms / system.x.scale) for c in report.candidates)
+    solved = [max(c.rms / system.x.scale) for c in report.candidates if c.output_weight == 1.0]
+    variants = [max(c.rms / system.x.scale) for c in report.candidates if c.output_weight != 1.0]
+    # the best certificate as solved, unless an output-weight variant beats it beyond the trials' scatter
+    assert max(chosen[0].rms / system.x.scale) == (min(variants) if min(variants) < VARIANT_GAIN * min(solved)
+                                                   else min(solved))  # fmt: skip
 
     def rmse(r):
         return float(np.sqrt(np.mean(r.error(traj.x)[50:] ** 2)))
@@ -150,8 +154,8 @@ def test_a_design_scores_its_candidates_on_the_users_records_when_given():
                       v=rng.uniform(-0.05, 0.05, (61, 1)))  # fmt: skip
     design = UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=[record]).design_report
     for candidate in design.candidates:
-        estimator = UISE(system, certificate=certify_strong_detectability(system, mu=candidate.mu), N=candidate.N,
-                         x0_prior=[0.0])  # fmt: skip
+        cert = certify_strong_detectability(system, mu=candidate.mu).with_output_weight(candidate.output_weight)
+        estimator = UISE(system, certificate=cert, N=candidate.N, x0_prior=[0.0])
         error = estimator.run(None, record.y).error(record.x)[15:]
         np.testing.assert_allclose(candidate.rms, np.sqrt(np.mean(error**2, axis=0)), rtol=1e-6)
     measured = Trajectory.from_pandas(record.to_pandas()[list(system.y.names)], system)

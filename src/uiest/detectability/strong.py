@@ -10,6 +10,7 @@ With ``C dx = dy - (g(v) - g(v~))`` and ``|a - b|^2 <= 2 |a|^2 + 2 |b|^2`` it gi
 eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)``,
 
     sigma_y(r) = sigma_y r^2,  sigma_y = 2 max(s1, s2),      sigma_v(r) = sigma_y ||D||^2 r^2
+    (as solved; :meth:`StrongDetectability.with_output_weight` multiplies both)
 
 (scaled norms; ``D`` the scaled ``dg/dv``). The per-step noise-to-error gain
 ``sqrt(2 sigma_v(d_max) / alpha_1)`` (d_max the largest noise increment in V) is reported per state.
@@ -18,6 +19,7 @@ eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 
 from __future__ import annotations
 
 import dataclasses
+import numbers
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -103,7 +105,7 @@ class StrongDetectability(StrongDetectabilityBase):
         :func:`~uiest.design.design_uise` tries a few factors.
         """
         self.require("with_output_weight")
-        if not (isinstance(factor, float | int) and not isinstance(factor, bool) and 1.0 <= factor < np.inf):
+        if not (isinstance(factor, numbers.Real) and not isinstance(factor, bool) and 1.0 <= factor < np.inf):
             raise OptionError(f"factor: expected a finite number >= 1, got {factor!r}")
         f = float(factor)
         return dataclasses.replace(self, sigma_y=f * self.sigma_y, sigma_v=f * self.sigma_v, R_y=f * self.R_y,

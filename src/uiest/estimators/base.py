@@ -316,8 +316,8 @@ class WindowEstimator(StreamingEstimator):
             assert self.schedule is not None  # models with state have weights
             measured = list(range(length if self.one_step_ahead else length + 1))
             weights = self.schedule.window(length, measured)
-            if gap:
-                weights = self._gap_weights(weights, length)
+            if gap:  # the structure; each solve passes weights at its own gain
+                weights = self._gap_weights(weights, length, 1.0)
             problem = WindowProblem(self.model, length, measured, weights, w_box=self.w_box)
             opts = self._options
             warm = make_solver(opts.solver, problem, warm_start=opts.warm_start, options=dict(opts.solver_options),
@@ -329,19 +329,26 @@ class WindowEstimator(StreamingEstimator):
             self._cache[key] = entry
         return entry
 
-    def _gap_weights(self, weights: WindowWeights, length: int) -> WindowWeights:
-        """``weights`` with w[j] pulled to its prior by ``GAP_WEIGHT`` of the curvature node j+1's output puts on it.
+    def _gap_weights(self, weights: WindowWeights, length: int, gain: float) -> WindowWeights:
+        """``weights`` with w[j] pulled to ``w_bar`` by ``GAP_WEIGHT`` of the curvature node j+1's output puts on it.
 
-        That curvature is the node's mean scaled output weight times ``|G|^2``, G the scaled ``C B_w``
-        at X's centre (the output's sensitivity to the input, in scales).
+        That curvature is the node's mean scaled output weight times ``gain`` (:meth:`_input_gain`).
         """
-        s = self.system
         y_scale, w_scale = self.model.y_scale, self.model.w_scale
-        jac = s.linearize(s.x.bounds.center)
-        gain = float(np.linalg.norm((jac.C @ jac.B_w) * w_scale / y_scale[:, None], 2)) ** 2 if s.nw else 0.0
         scaled_y = np.einsum("mii->m", weights.y * np.outer(y_scale, y_scale)) / max(self.model.ny, 1)
         level = GAP_WEIGHT * gain * scaled_y[1 : length + 1]
         return dataclasses.replace(weights, w=level[:, None, None] * np.diag(1.0 / w_scale**2)[None])
+
+    def _input_gain(self, window: WindowTrajectory, u_last: FloatArray) -> float:
+        """``|G|^2``, G the scaled ``C B_w`` of the window's newest transition: the output's sensitivity to the input.
+
+        In scales; 1 where it is not finite or zero (a square root at a side of X, an input that vanishes there).
+        """
+        s = self.system
+        C = s.linearize(window.x[-1], u_last, window.w[-1]).C
+        B = s.linearize(window.x[-2], u_last, window.w[-1]).B_w
+        gain = float(np.linalg.norm((C @ B) * self.model.w_scale / self.model.y_scale[:, None], 2)) ** 2
+        return gain if np.isfinite(gain) and gain > 0.0 else 1.0
 
     def _cold(self, entry: _Cached) -> WindowSolver:
         if entry.cold is None:
@@ -559,15 +566,15 @@ class WindowEstimator(StreamingEstimator):
         entry = self._cached(length, gap)
         problem = entry.problem
         z0, duals = self._guess(problem, length, prior, u_win, data)
-        p = problem.parameters(
-            prior,
-            u_win,
-            y_win,
-            v_bar=entry.v_bar,
-            w_bar=problem.unpack(z0).w if gap else entry.w_bar,  # a gap's flat inputs stay where they were
-            data=data,
-            weights=entry.weights,
-        )
+        w_bar, weights = entry.w_bar, entry.weights
+        if gap:  # the flat inputs stay where the last window left them
+            assert self.schedule is not None
+            start = problem.unpack(z0)
+            w_bar = start.w
+            gain = self._input_gain(start, u_win[-1])
+            weights = problem.weight_vector(self._gap_weights(self.schedule.window(length, range(length + 1)), length,
+                                                              gain))  # fmt: skip
+        p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
         attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
         if not attempts[-1].success:
             cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)

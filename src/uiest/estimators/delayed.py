@@ -65,6 +65,8 @@ class DelayedUISE(UISE):
         """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
         from uiest.design import design_uise, estimator_options
 
+        if "records" in design_options:  # they would score a UISE of the delayed system, not this estimator
+            raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")
         delayed = delayed_system(check_system(system))
         design = design_uise(delayed.system, delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior"), **design_options)
         est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
