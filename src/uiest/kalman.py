@@ -209,7 +209,7 @@ class KalmanFilter(StreamingEstimator):
         elif inside:
             status += " (the model evaluated inside X: not finite at the estimate or a sigma point)"
         X = s.x.bounds
-        if np.any(np.abs(z[: s.nx] - np.clip(z[: s.nx], X.lower, X.upper)) > X.width):
+        if np.any(np.abs(z[: s.nx] - X.clip(z[: s.nx])) > X.width):
             status = f"diverged (outside X by more than its width; {status})"
         self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
         return StepEstimate(

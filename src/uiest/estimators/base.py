@@ -344,11 +344,14 @@ class WindowEstimator(StreamingEstimator):
 
         In scales; 1 where it is not finite or zero (a square root at a side of X, an input that vanishes there).
         """
-        s = self.system
-        C = s.linearize(window.x[-1], u_last, window.w[-1]).C
-        B = s.linearize(window.x[-2], u_last, window.w[-1]).B_w
-        gain = float(np.linalg.norm((C @ B) * self.model.w_scale / self.model.y_scale[:, None], 2)) ** 2
+        G = self._newest_input_effect(window, u_last) * self.model.w_scale / self.model.y_scale[:, None]
+        gain = float(np.linalg.norm(G, 2)) ** 2
         return gain if np.isfinite(gain) and gain > 0.0 else 1.0
+
+    def _newest_input_effect(self, window: WindowTrajectory, u_last: FloatArray) -> FloatArray:
+        """``C B_w`` (ny, nw): the output Jacobian at the window's newest node times the input Jacobian before it."""
+        s = self.system
+        return s.linearize(window.x[-1], u_last, window.w[-1]).C @ s.linearize(window.x[-2], u_last, window.w[-1]).B_w
 
     def _cold(self, entry: _Cached) -> WindowSolver:
         if entry.cold is None:
@@ -426,8 +429,7 @@ class WindowEstimator(StreamingEstimator):
         missing = np.isnan(y_vec)
         if not (self.free_input and missing.any() and len(window.w)):
             return window, ""
-        s = self.system
-        G = s.linearize(window.x[-1], u_vec, window.w[-1]).C @ s.linearize(window.x[-2], u_vec, window.w[-1]).B_w
+        G = self._newest_input_effect(window, u_vec)
         values = np.linalg.svd(G, compute_uv=False)
         if not values.size or values[0] == 0.0:
             return window, ""
