@@ -126,20 +126,38 @@ def test_a_filter_evaluates_the_model_inside_x_where_it_is_not_finite_and_recove
     assert np.all(np.sqrt(np.mean(result.error(truth.x)[50:] ** 2, axis=0)) < 0.02)
 
 
-def test_tuned_warns_when_the_chosen_filter_diverged():
+def test_tuned_never_chooses_a_filter_that_diverged():
     from uiest import System
 
     # Henon with the unknown input in x2 and y = x2: the UKF's sigma points at X's uniform variance leave the
-    # attractor and the quadratic map throws them to infinity; every variance of the grid diverges.
+    # attractor and the quadratic map throws them far outside X (beyond its width by step 3 on every variance).
     henon = System.from_callables(lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1], 0.3 * x[0] + w[0]],
                                   lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1,
                                   x_bounds=((-1.4, -0.5), (1.4, 0.5)), v_bounds=(-0.01, 0.01))  # fmt: skip
     training = simulate(henon, [0.1, 0.1], 60, w=np.zeros((60, 1)), v=np.zeros((61, 1)))
     short = simulate(henon, [0.1, 0.1], 8, w=np.zeros((8, 1)), v=np.zeros((9, 1)))
-    with pytest.warns(UserWarning, match=r"failed [1-9]\d* of 9 training steps"):
-        ukf = UKF.tuned(henon, short, x0_prior=[0.0, 0.0], variances=[1e-4, 1e-2])
+    ukf = UKF(henon, w_variance=1e-4 * henon.w.scale**2, x0_prior=[0.0, 0.0])
     result = ukf.run(None, short.y)
     assert any(status.startswith("diverged") for status in result.status) and not all(result.success)
-    with np.errstate(all="ignore"), pytest.raises(OptionError, match="P0: every UKF"):
-        UKF.tuned(henon, training, x0_prior=[0.0, 0.0], variances=[1e-4, 1e-2])
-    assert np.all(np.isfinite(UKF.tuned(henon, training, x0_prior=[0.0, 0.0], P0=1e-4).run(None, training.y).x_hat))
+    for record in (short, training):
+        with np.errstate(all="ignore"), pytest.raises(OptionError, match="P0: every UKF of the variance grid diverged"):
+            UKF.tuned(henon, record, x0_prior=[0.0, 0.0], variances=[1e-4, 1e-2])
+    # one variance diverges, the other does not: the finite one is chosen whatever their RMS
+    tuned = UKF.tuned(henon, training, x0_prior=[0.0, 0.0], P0=1e-4, variances=[1e-4, 1e-2])
+    assert tuned.tuning is not None and tuned.tuning.diverged is not None
+    assert tuned.tuning.diverged[tuned.tuning.rms.tolist().index(min(tuned.tuning.rms))] == 0
+
+
+def test_tuned_warns_when_the_chosen_filter_failed_steps():
+    class SkippingEKF(EKF):
+        """An EKF whose every third update fails (as a singular innovation covariance would)."""
+
+        def _update(self, z, P, y, observed, inside):  # type: ignore[no-untyped-def]
+            if self._k % 3 == 2:
+                raise np.linalg.LinAlgError("singular")
+            return super()._update(z, P, y, observed, inside)
+
+    system = _system()
+    training = simulate(system, np.zeros(3), 30, u=np.zeros((30, 1)), w=np.zeros((30, 1)), seed=1)
+    with pytest.warns(UserWarning, match=r"failed 10 of 31 training steps \(held or an update skipped\)"):
+        SkippingEKF.tuned(system, training, x0_prior=np.zeros(3), variances=[1e-2, 1.0])

@@ -66,11 +66,16 @@ def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str)
 
 @dataclass(frozen=True)
 class Tuning:
-    """What :meth:`KalmanFilter.tuned` tried (``w_variance = factor * w.scale^2``): scaled state RMS, failed steps."""
+    """What :meth:`KalmanFilter.tuned` tried (``w_variance = factor * w.scale^2``).
+
+    ``rms`` is the scaled state RMS (inf for a filter that diverged: an estimate beyond X by more than
+    its width, or not finite), ``failed`` the failed steps, ``diverged`` the diverged steps of each.
+    """
 
     factors: FloatArray
     rms: FloatArray
     failed: NDArray[np.int_] | None = None
+    diverged: NDArray[np.int_] | None = None
 
     @property
     def chosen(self) -> float:
@@ -245,9 +250,11 @@ class KalmanFilter(StreamingEstimator):
         """The filter whose ``w_variance`` gives the smallest state error on ``training`` (a separate record).
 
         ``variances`` (scalars, times ``w.scale^2``) default to ``10^-8 .. 10^2`` (21 values); the
-        error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all.
-        Warns (``UserWarning``) when the chosen filter failed steps of the training record (held,
-        an update skipped, or diverged: a ``P0`` too wide for the model's nonlinearity, say), when its
+        error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all. A filter
+        that diverged on the training record (an estimate beyond X by more than its width, or not finite) is
+        never chosen; when all did, OptionError (a ``P0`` too wide for the model's nonlinearity, say).
+        Warns (``UserWarning``) when the chosen filter failed steps of the training record (held or
+        an update skipped), when its
         scaled RMS exceeds 1, or when the choice is at an end of the grid and better than its neighbour by more
         than ``EDGE_GAIN`` (beyond the grid lies a better filter).
         """
@@ -259,23 +266,27 @@ class KalmanFilter(StreamingEstimator):
         grid = np.logspace(-8, 2, 21) if variances is None else np.asarray(variances, dtype=float).reshape(-1)
         if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
             raise OptionError(f"variances: expected positive numbers, got {np.asarray(variances).tolist()}")
-        rms, failed = np.full(grid.shape, np.nan), np.zeros(grid.shape, dtype=int)
+        rms, failed = np.full(grid.shape, np.inf), np.zeros(grid.shape, dtype=int)
+        diverged = np.zeros(grid.shape, dtype=int)
         for i, q in enumerate(grid):
             result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
                 training.u if system.nu else None, training.y
             )
-            rms[i] = np.sqrt(np.mean((result.error(training.x) / system.x.scale) ** 2))
             failed[i] = np.count_nonzero(~np.asarray(result.success))
+            diverged[i] = sum(status.startswith("diverged") for status in result.status)
+            diverged[i] += np.count_nonzero(~np.all(np.isfinite(result.x_hat), axis=1))
+            if not diverged[i]:
+                rms[i] = np.sqrt(np.mean((result.error(training.x) / system.x.scale) ** 2))
         if not np.any(np.isfinite(rms)):
             raise OptionError(
-                f"P0: every {cls.__name__} of the variance grid diverged to non-finite estimates on the "
-                "training record; give a smaller P0 (the default is X's uniform variance)"
+                f"P0: every {cls.__name__} of the variance grid diverged on the training record (an estimate beyond "
+                "X by more than its width, or not finite); give a smaller P0 (the default is X's uniform variance)"
             )
-        tuning = Tuning(grid, rms, failed)
+        tuning = Tuning(grid, rms, failed, diverged)
         best = int(np.nanargmin(rms))
         if failed[best]:
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {failed[best]} of {len(training.y)} "
-                          "training steps (held, an update skipped, or diverged); a smaller P0 may help", UserWarning,
+                          "training steps (held or an update skipped); a smaller P0 may help", UserWarning,
                           stacklevel=2)  # fmt: skip
         elif rms[best] > 1.0:
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter's scaled RMS error on the training record is "
