@@ -99,7 +99,7 @@ def run(system: System, traj: Trajectory, prior: np.ndarray, estimator: str, N: 
     return {
         "result": result,
         "cpu_ms": 1e3 * float(np.median(cpu[N:])),
-        "fallbacks": sum("-> ipopt" in status for status in result.status),
+        "fallbacks": result.fallbacks,
     }
 
 

@@ -29,7 +29,17 @@ from uiest.detectability import (
     window_information,
 )
 from uiest.errors import CertificationError, UiestError
-from uiest.estimators import FIE, UISE, LinearUIO, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
+from uiest.estimators import (
+    FIE,
+    UISE,
+    LinearUIO,
+    MHEWeights,
+    Outcome,
+    StandardMHE,
+    TwoStageUISE,
+    TwoStageWeights,
+    UISEWeights,
+)
 from uiest.experiments import EstimatorSpec, Scenario, run_study, write_report
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
@@ -331,22 +341,25 @@ def api_cases(tmp: Path) -> list[Case]:
         Case(
             "a long outage",
             lambda: uise().run(traj().u, np.vstack([traj().y[:2], np.full((7, 1), np.nan)])),
-            ok=lambda r: "propagated (no data)" in set(r.status),
+            ok=lambda r: Outcome.PROPAGATED in set(r.outcome) and r.propagated_steps > 0,
         ),
         Case(
             "y[0] missing",
             lambda: uise().run(traj().u, np.vstack([[[np.nan]], traj().y[1:]])),
-            ok=lambda r: r.status[0] == "propagated (no data)" and np.isfinite(r.x_hat).all(),
+            ok=lambda r: r.outcome[0] == Outcome.PROPAGATED and np.isfinite(r.x_hat).all(),
         ),
         Case(
             "an exception inside a solve",
             flaky_uise,
-            ok=lambda r: "propagated (ZeroDivisionError: injected)" in set(r.status) and np.isfinite(r.x_hat).all(),
+            ok=lambda r: (
+                "ZeroDivisionError: injected" in set(r.reason[r.outcome == Outcome.ERROR])
+                and np.isfinite(r.x_hat).all()
+            ),
         ),
         Case(
             "an estimate held on the boundary of X",
             lambda: uise().run(np.zeros((30, 1)), simulate(s(), [0, 0.5], 30, u=[0.0], w=[1.0]).y),
-            ok=lambda r: any("boundary of X" in status for status in r.status),
+            ok=lambda r: r.on_boundary.any() and r.at_bound.any(),
         ),
         Case(
             "standard MHE: w_prior outside its range",

@@ -12,6 +12,7 @@ from uiest.estimators import (
     UISE,
     EstimationResult,
     MHEWeights,
+    Outcome,
     StandardMHE,
     UISEWeights,
 )
@@ -277,7 +278,7 @@ def test_one_step_ahead_mhe_ignores_the_current_measurement(closed_form_case):
     y[-1] += 5.0
     second = StandardMHE(system, weights=weights, N=4, x0_prior=[0.0, 0.0]).run(traj.u, y)
     np.testing.assert_array_equal(first.x_hat, second.x_hat)
-    assert first.status[0] == "prior" and np.array_equal(first.x_hat[0], [0.0, 0.0])
+    assert first.outcome[0] == Outcome.PRIOR and np.array_equal(first.x_hat[0], [0.0, 0.0])
     assert np.isnan(first.w_hat[-1]).all() and not np.isnan(first.w_hat[:-1]).any()
 
 
@@ -289,7 +290,8 @@ def test_failed_solve_propagates_and_strict_raises(closed_form_case, monkeypatch
     est = UISE(system, weights=weights, N=4, x0_prior=[0.0, 0.0])
     ref.append(est)
     result = est.run(traj.u, traj.y)
-    assert result.status[7] == "propagated (Injected_Failure)" and not result.success[7]
+    assert result.outcome[7] == Outcome.FAILED and result.solver_status[7] == "Injected_Failure"
+    assert result.status[7] == "failed (Injected_Failure)" and not result.success[7]
     assert result.failures == 2 and result.success[9] and np.isnan(result.cost[7])
     x7 = system.x.bounds.clip(system.step(result.x_hat[6], traj.u[6], result.w_hat[5]))
     np.testing.assert_allclose(result.x_hat[7], x7)
@@ -307,7 +309,8 @@ def test_real_solver_failure_is_recorded(closed_form_case):
     est = UISE(system, weights=weights, N=3, x0_prior=[0.0, 0.0], solver="ipopt", solver_options={"max_iter": 1})
     result = est.run(traj.u[:5], traj.y[:6])
     assert result.failures > 0
-    assert all(s.startswith("propagated (Maximum_Iterations_Exceeded)") for s in result.status[~result.success])
+    assert set(result.outcome[~result.success]) == {Outcome.FAILED}
+    assert set(result.solver_status[~result.success]) == {"Maximum_Iterations_Exceeded"}
     with pytest.raises(SolverError):
         UISE(
             system,

@@ -6,7 +6,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from uiest import DataError, OptionError, simulate
-from uiest.estimators import FIE, UISE, MHEWeights, StandardMHE, UISEWeights
+from uiest.estimators import FIE, UISE, MHEWeights, Outcome, StandardMHE, UISEWeights
 from uiest.models import closed_form, crop_growth, linear
 
 SYSTEM = linear.example()  # nx=3, nu=0, nw=1, ny=nv=1, X = [-10, 10]^3
@@ -53,20 +53,20 @@ def test_an_outage_longer_than_the_window_is_bridged_by_the_model():
     y = TRAJ.y.copy()
     y[4 : 4 + N_SMALL + 3] = np.nan  # the UISE's whole window k-3..k at k = 7, 8, 9
     result = UISE_EST.run(None, y)
-    assert list(result.status[7:10]) == ["propagated (no data)"] * 3
-    assert not result.success[7:10].any() and result.success[10:].all()
+    assert list(result.outcome[7:10]) == [Outcome.PROPAGATED] * 3 and result.propagated_steps == 3
+    assert result.status[7] == "propagated (no data)" and result.success.all() and result.failures == 0
     assert np.all(np.isfinite(result.x_hat))
     # the one-step-ahead MHE needs y[k-N..k-1]: a missing y[0] only matters at k = 1
     y = TRAJ.y.copy()
     y[0] = np.nan
-    assert MHE_EST.run(None, y).status[1] == "propagated (no data)"
+    assert MHE_EST.run(None, y).outcome[1] == Outcome.PROPAGATED
     # streaming: steps go on through an outage of any length and recover when data return
     est = UISE(SYSTEM, weights=WEIGHTS, N=1, x0_prior=np.zeros(3))
     est.step(None, [0.1])
-    assert est.step(None, [np.nan]).success  # its window 0..1 still holds y[0]
+    assert est.step(None, [np.nan]).outcome == Outcome.SOLVED  # its window 0..1 still holds y[0]
     for _ in range(4):
-        assert est.step(None, [np.nan]).status == "propagated (no data)"
-    assert est.step(None, [0.1]).success and est.k == 7
+        assert est.step(None, [np.nan]).outcome == Outcome.PROPAGATED
+    assert est.step(None, [0.1]).outcome == Outcome.SOLVED and est.k == 7
 
 
 def test_a_run_keeps_what_it_computed_when_a_step_raises(monkeypatch):
@@ -82,7 +82,8 @@ def test_a_run_keeps_what_it_computed_when_a_step_raises(monkeypatch):
 
     monkeypatch.setattr(est, "_solve_window", flaky)
     result = est.run(None, TRAJ.y)
-    assert result.status[4] == "propagated (ZeroDivisionError: injected)" and not result.success[4]  # 5th solve
+    assert result.outcome[4] == Outcome.ERROR and result.reason[4] == "ZeroDivisionError: injected"  # 5th solve
+    assert not result.success[4] and result.failures == 1
     assert result.success[5:].all() and np.all(np.isfinite(result.x_hat))
     strict = UISE(SYSTEM, weights=WEIGHTS, N=N_SMALL, x0_prior=np.zeros(3), strict=True)
     monkeypatch.setattr(strict, "_solve_window", lambda *a, **k: 1 / 0)
@@ -149,9 +150,21 @@ def test_result_shapes(steps, which):
     est = UISE_EST if which == "uise" else MHE_EST
     result = est.run(None, TRAJ.y[: steps + 1])
     assert result.x_hat.shape == (steps + 1, 3) and result.w_hat.shape == (steps, 1)
-    for name in ("status", "success", "iterations", "solve_time", "cost", "window", "t"):
+    for name in (
+        "status",
+        "outcome",
+        "success",
+        "solver_status",
+        "fallback",
+        "held_input",
+        "iterations",
+        "solve_time",
+        "cost",
+        "window",
+        "t",
+    ):
         assert getattr(result, name).shape == (steps + 1,)
-    assert result.missing.shape == (steps + 1, 1)
+    assert result.missing.shape == (steps + 1, 1) and result.at_bound.shape == (steps + 1, 3)
     assert result.window.tolist() == [min(N_SMALL, k) for k in range(steps + 1)]
     assert np.all(np.isfinite(result.x_hat)) and result.failures == 0
     assert len(result.to_pandas()) == steps + 1
@@ -199,22 +212,23 @@ def test_missing_data(mask, which):
         return
     result = est.run(None, y)
     np.testing.assert_array_equal(result.missing[:, 0], missing)
-    bridged = result.status == "propagated (no data)"
-    assert bridged.any() == empty_window and result.bridged == int(bridged.sum()) and result.failures == 0
+    bridged = result.outcome == Outcome.PROPAGATED
+    assert bridged.any() == empty_window and result.propagated_steps == int(bridged.sum()) and result.failures == 0
     assert np.all(np.isfinite(result.x_hat))
     assert np.all(SYSTEM.x.bounds.contains(result.x_hat, tol=1e-9))
 
 
 def test_an_estimate_held_on_the_boundary_of_x_is_flagged():
-    from uiest import DomainWarning
+    from uiest import BoundWarning, DomainWarning
     from uiest.models import closed_form
 
     system = closed_form.system()  # X = [-10, 10]^2
     with pytest.warns(DomainWarning, match="x left X"):
         truth = simulate(system, [0.0, 0.5], 30, u=np.zeros(1), w=np.ones((30, 1)))
     est = UISE(system, weights=UISEWeights.from_scales(system, 0.5, output=1e4), N=5, x0_prior=[0.0, 0.5])
-    result = est.run(truth.u, truth.y)
-    flagged = np.array(["on the boundary of X (x1)" in s for s in result.status])
+    with pytest.warns(BoundWarning, match="x1 at or beyond X's upper side 10 in"):
+        result = est.run(truth.u, truth.y)
+    flagged = result.on_boundary & result.at_bound[:, 0]
     np.testing.assert_array_equal(flagged[truth.x_outside], True)
     assert not flagged[: int(np.argmax(truth.x_outside))].any()
 
@@ -237,8 +251,8 @@ def test_a_sample_missing_the_outputs_the_newest_input_reaches_holds_that_input(
     y[np.ix_(holes, rows)] = np.nan
     result = UISE(system, weights=UISEWeights.from_scales(system, 0.6), N=8, x0_prior=np.zeros(3)).run(None, y)
     error = np.abs(result.error(truth.x))
-    assert all("held" in result.status[k] for k in holes) and result.success[holes].all()
-    assert not any("held" in status for k, status in enumerate(result.status) if k not in holes)
+    assert np.flatnonzero(result.held_input).tolist() == holes and result.held_steps == 3
+    assert result.success[holes].all()
     assert error[holes].max() < 0.5  # the held input's one-step change is at most 0.15
 
 
@@ -256,7 +270,7 @@ def test_only_the_part_of_the_newest_input_that_missing_outputs_see_is_held():
     y[holes, 1] = np.nan
     result = UISE(system, weights=UISEWeights.from_scales(system, 0.6), N=8, x0_prior=np.zeros(2)).run(None, y)
     error = np.abs(result.error(truth.x))
-    assert all("held" in result.status[k] for k in holes)
+    assert np.flatnonzero(result.held_input).tolist() == holes
     assert error[holes, 0].max() < 0.02 and error[holes, 1].max() < 0.05  # noise 0.01; w2 moves by <= 0.005
 
 

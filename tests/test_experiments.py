@@ -145,10 +145,17 @@ def test_a_state_leaving_x_is_counted_and_reported(tmp_path):
     with pytest.warns(UserWarning, match="x left X"):
         study = run_study(leaving)
     row = study.runs.iloc[0]
-    assert row["x_outside"] > 0 and row["on_boundary"] > 0
+    assert row["x_outside"] > 0 and row["on_boundary"] > 0 and row["at_bound"] >= row["on_boundary"]
+    per_state = [row[column] for column in study.runs.columns if column.startswith("at_bound_")]
+    assert len(per_state) == 2 and max(per_state) <= row["at_bound"] <= sum(per_state)
     write_report(study, tmp_path, wall_time=1.0)
     report = (tmp_path / "report.md").read_text()
     assert "The true state left X in 1 runs" in report and "held on the boundary of X" in report
+    health = pd.read_csv(tmp_path / "health.csv")
+    assert health.loc[0, "at_bound"] == row["at_bound"] and health.loc[0, "failures"] == row["failures"]
+    share = 100 * row["at_bound"] / row["steps"]
+    assert share > 5 and "Estimates at a side of X in more than 5 % of the steps: UISE (noise-free): " in report
+    assert "## Failures and step health" in report and "Estimator runs that raised: none." in report
 
 
 def test_runs_in_worker_processes_give_the_same_numbers():

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uiest import UniformNoise, simulate
-from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
+from uiest.estimators import UISE, MHEWeights, Outcome, StandardMHE, UISEWeights
 from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
 from uiest.models import crop_growth, get, load
 from uiest.window import gauss_newton
@@ -35,7 +35,8 @@ def test_gauss_newton_reaches_the_ipopt_optimum_on_the_crop_model(crop_run, kind
                               x0_prior=prior, solver=solver)  # fmt: skip
         runs[solver] = est.run(traj.u, traj.y)
     gn, ipopt = runs["gn"], runs["ipopt"]
-    assert gn.failures == 0 and set(gn.status[1:]) <= {"Converged", "Converged (regularised)"}
+    assert gn.failures == 0 and set(gn.solver_status[1:]) <= {"Converged", "Converged (regularised)"}
+    assert set(gn.outcome[1:]) == {Outcome.SOLVED} and gn.fallbacks == 0
     deviation = np.abs((gn.x_hat - ipopt.x_hat) / system.x.scale).max()
     assert deviation < 1e-5
     if kind == "uise":  # noise-free: the UISE error of x^{d,1} keeps falling (N = 20: slower than N = 30)
@@ -66,7 +67,7 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_qp", warm_fails)
     cold = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
-    assert set(cold.status[1:]) == {"Converged"}
+    assert set(cold.solver_status[1:]) == {"Converged"}
     np.testing.assert_allclose(cold.x_hat, reference.x_hat, rtol=0, atol=1e-9)
 
     real_step, real_solve = gauss_newton.GaussNewtonSolver._step, gauss_newton.GaussNewtonSolver.solve
@@ -85,7 +86,7 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "solve", solve)
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", first_qp_fails)
     result = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
-    assert set(result.status[1:]) == {"Converged (regularised)"} and result.failures == 0
+    assert set(result.solver_status[1:]) == {"Converged (regularised)"} and result.failures == 0
     np.testing.assert_allclose(result.x_hat, reference.x_hat, rtol=0, atol=1e-7)
 
     def always_fails(self, point, damping, warm):
@@ -93,7 +94,9 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", always_fails)
     result = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
-    assert all(s.startswith("gn QP failed -> ipopt") for s in result.status[1:])
+    assert result.fallback[1:].all() and result.fallbacks >= len(result.outcome) - 1
+    assert set(result.primary_status[1:]) == {"gn QP_failed"} and set(result.outcome[1:]) == {Outcome.SOLVED}
+    assert result.status[1] == f"solved (gn QP_failed -> ipopt {result.solver_status[1]})"
     assert result.failures == 0
 
 
@@ -115,7 +118,7 @@ def test_a_singular_qp_keeps_the_smallest_damping_for_later_samples(crop_run, mo
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_step", singular_when_undamped)
     estimator = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn")
     result = estimator.run(traj.u[:10], traj.y[:11])
-    assert set(result.status[1:]) == {"Converged (regularised)"} and result.failures == 0
+    assert set(result.solver_status[1:]) == {"Converged (regularised)"} and result.failures == 0
     # each window length's solver (0 .. 5) tried one undamped QP, then 1e-14 (and 1e-9); later solves start damped
     assert dampings.count(0.0) == 6 and min(d for d in dampings if d > 0) == pytest.approx(1e-14)
     if singular_below:  # 1e-14 failed once per solver too: later solves start at 1e-9
@@ -167,7 +170,7 @@ def test_second_order_corrections_spare_the_fallbacks_on_noisy_crop_windows(kind
             weights = TwoStageWeights.from_scales(reduced, 0.48, output=1e6)
             estimator = TwoStageUISE(reduced, weights=weights, N=N, x0_prior=prior, solver="gn")
         result = estimator.run(traj.u, traj.y)
-        return result.failures, sum("-> ipopt" in status for status in result.status)
+        return result.failures, result.fallbacks
 
     assert run() == (0, 0)
     monkeypatch.setattr(gauss_newton, "SOC_RATIO", float("inf"))  # no correction is ever good enough
@@ -190,7 +193,7 @@ def test_linearly_converging_noisy_windows_finish_within_the_default_iteration_l
         )
         result = estimator.run(traj.u, traj.y)
         assert result.failures == 0
-        return sum("-> ipopt" in status for status in result.status)
+        return result.fallbacks
 
     assert fallbacks() == 0
     assert fallbacks(max_iter=15) > 0
@@ -200,7 +203,7 @@ def _gn_mhe_fallbacks(system, traj, weights, N: int, prior) -> int:
     """IPOPT fallbacks of the Gauss-Newton standard MHE on a record (no sample may fail)."""
     result = StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver="gn").run(traj.u, traj.y)
     assert result.failures == 0
-    return sum("-> ipopt" in status for status in result.status)
+    return result.fallbacks
 
 
 def _reactor_mhe_fallbacks(N: int, steps: int) -> int:
@@ -416,7 +419,7 @@ def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monke
         estimator = UISE(system, weights=weights, N=30, x0_prior=scenario.prior(traj.y[0]), solver="gn")
         result = estimator.run(traj.u, traj.y)
         assert result.failures == 0
-        return sum("regularised" in status or "-> ipopt" in status for status in result.status)
+        return int(np.count_nonzero((result.solver_status == "Converged (regularised)") | result.fallback))
 
     monkeypatch.setattr(gauss_newton, "QP_CONTINUATIONS", 8)
     assert damped_samples() == 0
@@ -494,7 +497,7 @@ def test_damping_returns_to_zero_gradually_after_good_steps(monkeypatch):
 
     def fallbacks() -> int:
         estimator = UISE(system, weights=weights, N=50, x0_prior=scenario.prior(traj.y[0]), solver="gn")
-        return sum("-> ipopt" in status for status in estimator.run(traj.u, traj.y).status)
+        return estimator.run(traj.u, traj.y).fallbacks
 
     gradual = fallbacks()
     monkeypatch.setattr(gauss_newton, "DAMPING_DECAY", float("inf"))

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from uiest import DataError, ModelError, OptionError, System, UniformNoise, simulate
-from uiest.estimators import EstimationResult, LinearUIO
+from uiest.estimators import EstimationResult, LinearUIO, Outcome
 from uiest.models import closed_form, linear
 
 SYSTEM, A, B, C = linear.with_invariant_zeros([0.5, 0.2], seed=1, v_bounds=(-1e-3, 1e-3))
@@ -31,7 +31,7 @@ def test_error_follows_F_exactly_despite_huge_unknown_input(w_name):
     np.testing.assert_allclose(result.error(traj.x), np.array(e), atol=1e-14 * scale * 10)
     assert np.allclose(uio.T @ B, 0.0, atol=1e-12) and uio.spectral_radius == pytest.approx(0.5, abs=1e-9)
     np.testing.assert_allclose(result.w_hat[30:], traj.w[30:], atol=1e-14 * scale * 100)
-    assert result.estimator == "LinearUIO" and result.horizon is None and set(result.status) == {"linear"}
+    assert result.estimator == "LinearUIO" and result.horizon is None and set(result.outcome) == {Outcome.UPDATED}
     assert result.failures == 0 and np.all(result.iterations == 0)
     assert result.guarantee.startswith("lem:UIO_LTI") and uio.guaranteed
 

@@ -11,6 +11,7 @@ from uiest import Box, CertificationError, DataError, OptionError, SolverError, 
 from uiest.estimators import (
     EstimationResult,
     LinearUIO,
+    Outcome,
     TwoStageUISE,
     TwoStageWeights,
     UISEWeights,
@@ -145,7 +146,7 @@ def test_n_sharp_zero_is_algebraic_and_exact():
     est = TwoStageUISE(reduced, x0_prior=[0.0, 0.0])  # no certificate, no weights: nothing to optimise
     assert est.guaranteed and est.guarantee.startswith("remark after theo:stab (n_sharp = 0)")
     result = est.run(None, traj.y)
-    assert result.status.tolist() == ["prior"] + ["algebraic"] * 20 and result.window.max() == 0
+    assert result.outcome.tolist() == [Outcome.PRIOR] + [Outcome.ALGEBRAIC] * 20 and result.window.max() == 0
     np.testing.assert_allclose(result.x_hat, traj.x, atol=1e-15 * np.abs(traj.x).max() * 10)
     np.testing.assert_allclose(result.w_hat, traj.w, atol=1e-15 * np.abs(traj.x).max() * 10)
     with pytest.raises(OptionError, match="n_sharp = 0"):
@@ -277,7 +278,8 @@ def test_failed_solve_propagates_the_reduced_model_and_strict_raises(closed_form
     est = TwoStageUISE(reduced, certificate=certificate, N=4, x0_prior=[traj.y[0, 0], 0.0])
     ref.append(est)
     result = est.run(traj.u, traj.y)
-    assert result.status[7] == "propagated (Injected_Failure)" and not result.success[7] and result.failures == 1
+    assert result.outcome[7] == Outcome.FAILED and result.solver_status[7] == "Injected_Failure"
+    assert not result.success[7] and result.failures == 1
     # z_hat[7] = f_sharp(z_hat[6], y[6], u[6], v_bar) = a(y[6]) x2_hat[6] + u[6]; x1_hat[7] = y[7]
     x2 = closed_form.contraction_rate(traj.y[6, 0]) * result.x_hat[6, 1] + traj.u[6, 0]
     np.testing.assert_allclose(result.x_hat[7], [traj.y[7, 0], x2], rtol=1e-14)

@@ -6,6 +6,7 @@ models live in :mod:`uiest.models`.
 
 from uiest.box import Box
 from uiest.errors import (
+    BoundWarning,
     CertificationError,
     DataError,
     DomainWarning,
@@ -23,6 +24,7 @@ from uiest.system import Linearization, System
 __version__ = "0.1.0"
 
 __all__ = [
+    "BoundWarning",
     "Box",
     "CertificationError",
     "DataError",

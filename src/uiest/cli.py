@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import warnings
 from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, TypeVar
@@ -15,7 +16,7 @@ from rich.table import Table
 
 from uiest import models
 from uiest.checks import check_samples
-from uiest.errors import ModelError, OptionError, UiestError
+from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
 from uiest.paths import writable_file, writable_folder
 
 app = typer.Typer(
@@ -176,7 +177,9 @@ def estimate(
             built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
                                                        w_variance=w_variance)  # fmt: skip
         status.update(f"estimating over {record.steps} steps")
-        results = run_estimators(built, record, prior)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", BoundWarning)
+            results = run_estimators(built, record, prior)
     rmse = errors_against_truth(record, results)
     table = Table(title=f"{entry.name}: {record.steps} steps from {data}")
     for column in ("estimator", "weights", "failed steps", "state RMSE vs truth", "guarantee"):
@@ -185,8 +188,30 @@ def estimate(
         error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
         table.add_row(kind, notes[kind], str(result.failures), error, result.guarantee)
     console.print(table)
+    console.print(_health_table(results))
+    for caught_warning in caught:  # as messages, not as Python warnings with a source line
+        if issubclass(caught_warning.category, BoundWarning):
+            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True)
+        else:
+            warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
+                                   caught_warning.lineno)  # fmt: skip
     written = write_estimates(out, system, record, results)
     console.print(f"wrote {', '.join(str(p) for p in written)}")
+
+
+def _health_table(results: dict[str, Any]) -> Table:
+    """Step counts of each estimator's run (:meth:`uiest.results.EstimationResult.counts`)."""
+    table = Table(title="steps: failed, IPOPT fallbacks, estimates at a side of X, held inputs, no data")
+    for column in ("estimator", "failed", "fallback", "at X's side", "window at X's side", "held input", "no data"):
+        table.add_column(column)
+    for kind, result in results.items():
+        counts = result.counts()
+        names = result.names.get("x") or ()
+        per_state = ", ".join(f"{name} {counts[f'at_bound_{name}']}" for name in names if counts[f"at_bound_{name}"])
+        at_side = f"{counts['at_bound']} ({per_state})" if per_state else str(counts["at_bound"])
+        table.add_row(kind, str(counts["failures"]), str(counts["fallbacks"]), at_side,
+                      str(counts["window_at_bound"]), str(counts["held"]), str(counts["propagated"]))  # fmt: skip
+    return table
 
 
 @app.command()

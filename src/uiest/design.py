@@ -49,6 +49,7 @@ from numpy.typing import ArrayLike
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, user_stacklevel
 from uiest.errors import CertificationError, DataError, OptionError
+from uiest.health import without_bound_warnings
 from uiest.system import System
 
 CONDITION_MARGIN = 0.99
@@ -257,6 +258,7 @@ def design_two_stage(
     )  # fmt: skip
 
 
+@without_bound_warnings  # the trial runs' estimates at X's sides are the candidates' business, not the user's
 def _design(
     system: System,
     x0: ArrayLike,

@@ -33,3 +33,7 @@ class SolverError(UiestError, RuntimeError):
 
 class DomainWarning(UserWarning):
     """Data left its declared domain (the true state outside X, noise outside V); it is recorded."""
+
+
+class BoundWarning(UserWarning):
+    """A run's estimates lie at a side of the state domain X in many steps: X may be too narrow."""

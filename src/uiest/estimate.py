@@ -18,8 +18,9 @@ model certifies:
   a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
 - ``uio``: the linear UIO (linear models only).
 
-:func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, status, and
-``<state>_lag`` columns with a lag) and ``estimates.png`` (measured outputs beside each
+:func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
+the step health fields of :meth:`~uiest.results.EstimationResult.to_pandas`, and ``<state>_lag``
+columns with a lag) and ``estimates.png`` (measured outputs beside each
 estimator's predicted output ``h(x_hat, 0)``, the state and unknown-input estimates, and the
 truth where the record has it).
 """

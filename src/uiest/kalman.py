@@ -18,9 +18,9 @@ the smoothed estimate of ``d[k-1]``, the input that moved ``x[k-1]`` to ``x[k]``
 
 Where the model is not finite at the estimate or at a sigma point (a square root of a level below
 zero, an exponential that overflows), the prediction or update is evaluated again with the state
-parts projected onto X (the filter's "inside X" retry, named in the step's status); only if that
-fails too is the step held or the update skipped. An estimate outside X by more than X's width
-is marked "diverged" (not a success).
+parts projected onto X (the filter's "inside X" retry, ``StepEstimate.evaluated_inside``); only if
+that fails too is the update skipped (outcome ``UPDATE_SKIPPED``) or the last estimate kept (``KEPT``).
+An estimate outside X by more than X's width is ``DIVERGED`` (a failure).
 
 Neither has a guarantee when the unknown input is unbounded or fast: a random walk is the prior
 they assume. :meth:`KalmanFilter.tuned` picks ``w_variance`` on a separate simulated record.
@@ -41,6 +41,7 @@ from uiest.box import FloatArray, as_vector
 from uiest.checks import check_real, check_run_data, check_u_prev, check_y, real_array
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.health import Outcome, at_bound, quiet_bound_warnings
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
 
@@ -193,9 +194,9 @@ class KalmanFilter(StreamingEstimator):
                 z, P = self._predict(self._z, self._P, u_vec, True)
                 inside = True
         observed = ~np.isnan(y_vec)
-        status = "updated"
+        outcome, reason = Outcome.UPDATED, ""
         if not observed.any():
-            status = "predicted (no data)"
+            outcome = Outcome.PROPAGATED
         elif _finite(z, P):
             try:
                 z_new, P_new = self._update(z, P, y_vec, observed, False)
@@ -206,29 +207,29 @@ class KalmanFilter(StreamingEstimator):
                     raise np.linalg.LinAlgError("the update is not finite")
                 z, P = z_new, P_new
             except np.linalg.LinAlgError as exc:  # keep the prediction, as for a missing measurement
-                status = f"predicted (update failed: {exc})"
+                outcome, reason = Outcome.UPDATE_SKIPPED, str(exc)
         if not _finite(z, P):
             if self._z is None:
                 raise DataError(f"step k={k}: the prior gives no finite estimate")
-            z, P, status = self._z, self._P, "held (the prediction is not finite)"
-        elif inside:
-            status += " (the model evaluated inside X: not finite at the estimate or a sigma point)"
+            z, P, outcome, inside = self._z, self._P, Outcome.KEPT, False
         X = s.x.bounds
         if np.any(np.abs(z[: s.nx] - X.clip(z[: s.nx])) > X.width):
-            status = f"diverged (outside X by more than its width; {status})"
+            outcome = Outcome.DIVERGED
         self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
         return StepEstimate(
             k=k,
             x_hat=z[: s.nx].copy(),
             w_hat=z[s.nx :].copy() if k > 0 else None,
             w_index=k - 1 if k > 0 else None,
-            status=status,
-            success=status.startswith(("updated", "predicted (no data)")),
+            outcome=outcome,
             iterations=0,
             solve_time=time.perf_counter() - start,
             cost=0.0,
             window=0,
             missing=~observed,
+            at_bound=at_bound(X, z[: s.nx], s.x.scale),
+            reason=reason,
+            evaluated_inside=inside,
         )
 
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
@@ -253,10 +254,9 @@ class KalmanFilter(StreamingEstimator):
         error is the RMS of ``(x_hat - x) / x.scale``. The result's :attr:`tuning` lists them all. A filter
         that diverged on the training record (an estimate beyond X by more than its width, or not finite) is
         never chosen; when all did, OptionError (a ``P0`` too wide for the model's nonlinearity, say).
-        Warns (``UserWarning``) when the chosen filter failed steps of the training record (held or
-        an update skipped), when its
-        scaled RMS exceeds 1, or when the choice is at an end of the grid and better than its neighbour by more
-        than ``EDGE_GAIN`` (beyond the grid lies a better filter).
+        Warns (``UserWarning``) when the chosen filter failed steps of the training record (an update
+        skipped or the estimate kept), when its scaled RMS exceeds 1, or when the choice is at an end of the
+        grid and better than its neighbour by more than ``EDGE_GAIN`` (beyond the grid lies a better filter).
         """
         if not isinstance(training, Trajectory) or not np.all(np.isfinite(training.x)):
             raise DataError(
@@ -269,11 +269,12 @@ class KalmanFilter(StreamingEstimator):
         rms, failed = np.full(grid.shape, np.inf), np.zeros(grid.shape, dtype=int)
         diverged = np.zeros(grid.shape, dtype=int)
         for i, q in enumerate(grid):
-            result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
-                training.u if system.nu else None, training.y
-            )
+            with quiet_bound_warnings():  # the grid's filters are scored, not shown
+                result = cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, **keywords).run(
+                    training.u if system.nu else None, training.y
+                )
             failed[i] = np.count_nonzero(~np.asarray(result.success))
-            diverged[i] = sum(status.startswith("diverged") for status in result.status)
+            diverged[i] = np.count_nonzero(result.outcome == Outcome.DIVERGED)
             diverged[i] += np.count_nonzero(~np.all(np.isfinite(result.x_hat), axis=1))
             if not diverged[i]:
                 rms[i] = np.sqrt(np.mean((result.error(training.x) / system.x.scale) ** 2))
@@ -286,7 +287,7 @@ class KalmanFilter(StreamingEstimator):
         best = int(np.nanargmin(rms))
         if failed[best]:
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {failed[best]} of {len(training.y)} "
-                          "training steps (held or an update skipped); a smaller P0 may help", UserWarning,
+                          "training steps (an update skipped or the estimate kept); a smaller P0 may help", UserWarning,
                           stacklevel=2)  # fmt: skip
         elif rms[best] > 1.0:
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter's scaled RMS error on the training record is "

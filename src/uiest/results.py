@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from uiest.box import FloatArray
 from uiest.checks import real_array
 from uiest.errors import DataError
+from uiest.health import FAILURES, Outcome, status_text
 
 if TYPE_CHECKING:
     from uiest.window.problem import WindowTrajectory
@@ -213,13 +214,6 @@ def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
     return arr
 
 
-NO_DATA = "propagated (no data)"
-"""Status of a step whose whole window had no measurement: the model bridged it."""
-
-BOUNDARY_FLAG = "[on the boundary of X"
-"""Start of the status suffix of an estimate held on the boundary of X (see ``checks.boundary_flag``)."""
-
-
 @dataclass(frozen=True, eq=False)
 class StepEstimate:
     """The result of one ``step(u_prev, y)`` at time k.
@@ -235,11 +229,8 @@ class StepEstimate:
         window holds no transition informed by a measurement.
     w_index : int or None
         Time index of ``w_hat`` (``k-1`` for the UISE and FIE, ``k-2`` for the one-step-ahead MHE).
-    status : str
-        Solver status (``"prior"`` when no problem had to be solved; ``"propagated (...)"`` after a
-        failed solve, with the solver's status in brackets).
-    success : bool
-        Whether the window problem was solved.
+    outcome : Outcome
+        What happened (:class:`~uiest.health.Outcome`: solved, failed, propagated, updated, ...).
     iterations : int
         Solver iterations (all attempts).
     solve_time : float
@@ -250,6 +241,34 @@ class StepEstimate:
         Number of transitions ``N_k`` of the window.
     missing : ndarray (ny,) of bool
         Which channels of ``y[k]`` were missing (NaN).
+    at_bound : ndarray (nx,) of bool
+        Which states of ``x_hat`` lie on or beyond a finite side of X (:func:`uiest.health.at_bound`).
+    solver_status : str
+        The return status of the solver that produced the window solution (IPOPT's
+        ``return_status``, or the Gauss-Newton backend's ``"Converged"``, ...); after a fallback,
+        IPOPT's. ``""`` when no problem was solved.
+    fallback : bool
+        The Gauss-Newton backend did not converge and IPOPT solved the window (``solver_status``
+        is IPOPT's, ``primary_status`` why Gauss-Newton handed over).
+    primary_status : str
+        After a fallback, the Gauss-Newton backend's reason (``"gn QP_failed"``, ...); else ``""``.
+    reason : str
+        The exception the step raised (outcome ``ERROR``) or why a filter's update was skipped
+        (``UPDATE_SKIPPED``); else ``""``.
+    held_input : bool
+        ``y[k]`` missed outputs the newest unknown input reaches, and the part of that input only
+        they would see was held at its last estimate (UISE, FIE).
+    on_boundary : bool
+        Some state of ``x_hat`` is at a side of X and the predicted output misses ``y[k]`` by more
+        than 10 noise bounds: the constraint, not the data, holds the estimate there (the true state
+        may have left X).
+    window_at_bound : bool
+        Some node of the window solution lies at a side of the window model's box (X; the reduced
+        state's box for the two-stage UISE): the constraint shaped the window, even where ``x_hat``
+        itself is inside.
+    evaluated_inside : bool
+        A filter's model was not finite at the estimate or a sigma point and was evaluated at
+        states projected into X (EKF, UKF).
     trajectory : WindowTrajectory or None
         The solved window in the window model's coordinates (nodes ``k-N_k .. k``; the reduced
         state for the two-stage UISE); None when no problem was solved.
@@ -263,15 +282,53 @@ class StepEstimate:
     x_hat: FloatArray
     w_hat: FloatArray | None
     w_index: int | None
-    status: str
-    success: bool
+    outcome: Outcome
     iterations: int
     solve_time: float
     cost: float
     window: int
     missing: NDArray[np.bool_]
+    at_bound: NDArray[np.bool_]
+    solver_status: str = ""
+    fallback: bool = False
+    primary_status: str = ""
+    reason: str = ""
+    held_input: bool = False
+    on_boundary: bool = False
+    window_at_bound: bool = False
+    evaluated_inside: bool = False
     trajectory: WindowTrajectory | None = None
     x_lag: FloatArray | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "outcome", Outcome(self.outcome))
+
+    @property
+    def success(self) -> bool:
+        """The step did not fail (``not outcome.failed``)."""
+        return not self.outcome.failed
+
+    @property
+    def status(self) -> str:
+        """One line for display, derived from the fields (:func:`uiest.health.status_text`; states as ``x[i]``)."""
+        return status_text(
+            self.outcome, solver_status=self.solver_status, primary_status=self.primary_status, reason=self.reason,
+            held_input=self.held_input, at_bound_names=tuple(f"x[{i}]" for i in np.flatnonzero(self.at_bound)),
+            on_boundary=self.on_boundary, evaluated_inside=self.evaluated_inside,
+        )  # fmt: skip
+
+
+HEALTH_FIELDS: dict[str, Any] = {
+    "solver_status": str,
+    "fallback": bool,
+    "primary_status": str,
+    "reason": str,
+    "held_input": bool,
+    "on_boundary": bool,
+    "window_at_bound": bool,
+    "evaluated_inside": bool,
+}
+"""The per-step fields of :class:`EstimationResult` beside the outcome and ``at_bound``, with their dtypes."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,7 +337,8 @@ class EstimationResult(_PicklableNames):
 
     Index convention: ``x_hat[k]`` estimates ``x[k]``; ``w_hat[k]`` estimates ``w[k]``, which
     acts between ``k`` and ``k+1``. Rows of ``w_hat`` that no window informs are NaN (for the
-    one-step-ahead standard MHE the last one).
+    one-step-ahead standard MHE the last one). Per-step fields are time-first with K+1 rows, one per
+    :class:`StepEstimate` (see there for their meaning).
 
     Attributes
     ----------
@@ -288,9 +346,8 @@ class EstimationResult(_PicklableNames):
         Times ``k * dt``.
     x_hat : ndarray (K+1, nx)
     w_hat : ndarray (K, nw)
-    status : ndarray (K+1,) of str
-        Per-step solver status (see :class:`StepEstimate`).
-    success : ndarray (K+1,) of bool
+    outcome : ndarray (K+1,) of str
+        Each step's :class:`~uiest.health.Outcome` (its value; ``outcome == Outcome.FAILED`` compares).
     iterations : ndarray (K+1,) of int
     solve_time : ndarray (K+1,)
         Seconds per step.
@@ -313,14 +370,18 @@ class EstimationResult(_PicklableNames):
         Fixed-lag estimates: row j estimates ``x[j]`` from the window at step ``j + lag`` (the
         last ``lag`` rows NaN); None when lag = 0.
     lag : int
+    at_bound : ndarray (K+1, nx) of bool
+        States on or beyond a finite side of X (default: none).
+    solver_status, primary_status, reason : ndarray (K+1,) of str
+    fallback, held_input, on_boundary, window_at_bound, evaluated_inside : ndarray (K+1,) of bool
+        As in :class:`StepEstimate` (default: ``""`` and False).
 
     """
 
     t: FloatArray
     x_hat: FloatArray
     w_hat: FloatArray
-    status: NDArray[np.str_]
-    success: NDArray[np.bool_]
+    outcome: NDArray[np.str_]
     iterations: NDArray[np.int64]
     solve_time: FloatArray
     cost: FloatArray
@@ -333,14 +394,22 @@ class EstimationResult(_PicklableNames):
     time_unit: str = "s"
     x_lag: FloatArray | None = None
     lag: int = 0
+    at_bound: NDArray[np.bool_] | None = None
+    solver_status: NDArray[np.str_] | None = None
+    fallback: NDArray[np.bool_] | None = None
+    primary_status: NDArray[np.str_] | None = None
+    reason: NDArray[np.str_] | None = None
+    held_input: NDArray[np.bool_] | None = None
+    on_boundary: NDArray[np.bool_] | None = None
+    window_at_bound: NDArray[np.bool_] | None = None
+    evaluated_inside: NDArray[np.bool_] | None = None
 
     def __post_init__(self) -> None:
         for name, dtype in (
             ("t", float),
             ("x_hat", float),
             ("w_hat", float),
-            ("status", str),
-            ("success", bool),
+            ("outcome", str),
             ("iterations", np.int64),
             ("solve_time", float),
             ("cost", float),
@@ -348,6 +417,20 @@ class EstimationResult(_PicklableNames):
             ("missing", bool),
         ):
             object.__setattr__(self, name, _frozen(getattr(self, name), dtype))
+        rows = self.t.shape[0]
+        unknown = sorted(set(self.outcome.tolist()) - {o.value for o in Outcome})
+        if self.outcome.shape != (rows,) or unknown:
+            raise DataError(f"outcome: expected ({rows},) values of uiest.health.Outcome, got shape "
+                            f"{self.outcome.shape} with {unknown or 'known values'}")  # fmt: skip
+        for name, dtype in (("at_bound", bool), *HEALTH_FIELDS.items()):
+            value = getattr(self, name)
+            shape = self.x_hat.shape if name == "at_bound" else (rows,)
+            arr = np.zeros(shape, dtype=dtype) if value is None else _frozen(value, dtype)
+            if value is None:
+                arr.setflags(write=False)
+            if arr.shape != shape:
+                raise DataError(f"{name}: expected shape {shape} (time-first, one row per step), got {arr.shape}")
+            object.__setattr__(self, name, arr)
         if self.x_lag is not None:
             object.__setattr__(self, "x_lag", _frozen(self.x_lag, float))
         object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
@@ -358,19 +441,70 @@ class EstimationResult(_PicklableNames):
         return int(self.w_hat.shape[0])
 
     @property
+    def success(self) -> NDArray[np.bool_]:
+        """(K+1,) bool: the steps that did not fail (``not Outcome.failed``)."""
+        return ~np.isin(self.outcome, [o.value for o in FAILURES])
+
+    @property
+    def status(self) -> NDArray[np.str_]:
+        """(K+1,) str: each step's status line for display, derived from the fields (never parse it)."""
+        names = self._x_names()
+        return np.array([
+            status_text(
+                self.outcome[k], solver_status=self.solver_status[k], primary_status=self.primary_status[k],
+                reason=self.reason[k], held_input=bool(self.held_input[k]),
+                at_bound_names=tuple(names[i] for i in np.flatnonzero(self.at_bound[k])),
+                on_boundary=bool(self.on_boundary[k]), evaluated_inside=bool(self.evaluated_inside[k]),
+            )
+            for k in range(self.t.shape[0])
+        ], dtype=str)  # fmt: skip
+
+    @property
     def failures(self) -> int:
-        """Steps whose window problem was not solved (estimate propagated); outage steps excluded."""
-        return int(np.count_nonzero(~self.success & (self.status != "prior") & (self.status != NO_DATA)))
+        """Steps that failed (:attr:`Outcome.failed`: failed solves, errors, skipped updates, divergence)."""
+        return int(np.count_nonzero(~self.success))
 
     @property
-    def bridged(self) -> int:
-        """Steps of an outage longer than the window, bridged by the model (status ``NO_DATA``)."""
-        return int(np.count_nonzero(self.status == NO_DATA))
+    def fallbacks(self) -> int:
+        """Steps whose window the Gauss-Newton backend handed to IPOPT."""
+        return int(np.count_nonzero(self.fallback))
 
     @property
-    def on_boundary(self) -> FloatArray:
-        """(K+1,) bool: estimates held on the boundary of X with a large output residual (see the status)."""
-        return np.char.find(self.status.astype(str), BOUNDARY_FLAG) >= 0
+    def held_steps(self) -> int:
+        """Steps that held part of the newest unknown input at its last estimate (``held_input``)."""
+        return int(np.count_nonzero(self.held_input))
+
+    @property
+    def propagated_steps(self) -> int:
+        """Steps without any measurement in their window, bridged by the model (outcome ``PROPAGATED``)."""
+        return int(np.count_nonzero(self.outcome == Outcome.PROPAGATED))
+
+    @property
+    def at_bound_steps(self) -> NDArray[np.int64]:
+        """(nx,) int: for each state, the steps whose estimate lies on or beyond a side of X."""
+        return self.at_bound.sum(axis=0).astype(np.int64)
+
+    def counts(self) -> dict[str, int]:
+        """The step counts of the run, for tables (one row per run).
+
+        ``steps`` (K+1), ``failures``, ``fallbacks``, ``at_bound`` (steps with some state at a side
+        of X), ``at_bound_<state>`` for each state, ``held``, ``propagated``, ``on_boundary`` and
+        ``window_at_bound``.
+        """
+        return {
+            "steps": int(self.t.shape[0]),
+            "failures": self.failures,
+            "fallbacks": self.fallbacks,
+            "at_bound": int(np.count_nonzero(self.at_bound.any(axis=1))),
+            **{f"at_bound_{name}": int(n) for name, n in zip(self._x_names(), self.at_bound_steps, strict=True)},
+            "held": self.held_steps,
+            "propagated": self.propagated_steps,
+            "on_boundary": int(np.count_nonzero(self.on_boundary)),
+            "window_at_bound": int(np.count_nonzero(self.window_at_bound)),
+        }
+
+    def _x_names(self) -> tuple[str, ...]:
+        return self.names.get("x") or tuple(f"x[{i}]" for i in range(self.x_hat.shape[1]))
 
     def error(self, x: FloatArray) -> FloatArray:
         """``x - x_hat`` for the true states ``x (K+1, nx)``."""
@@ -380,23 +514,26 @@ class EstimationResult(_PicklableNames):
         return arr - self.x_hat
 
     def to_pandas(self) -> pd.DataFrame:
-        """One row per k = 0..K: t, estimates (``<name>_hat``), status, success, iterations, solve_time, cost.
+        """One row per k = 0..K: t, estimates (``<name>_hat``), then the status line and the per-step fields.
 
-        Then the window length, the number of missing outputs and, with a lag, the lagged estimates
-        ``<state>_lag`` of ``x[k-lag]``. The unknown-input columns are NaN in the last row (no
-        transition after K).
+        ``status`` (the display line), ``outcome``, ``success``, ``solver_status``, ``fallback``,
+        ``primary_status``, ``reason``, ``held_input``, ``on_boundary``, ``window_at_bound``,
+        ``evaluated_inside``, ``<state>_at_bound``, ``iterations``, ``solve_time``, ``cost``, the window
+        length, the number of missing outputs and, with a lag, the lagged estimates ``<state>_lag`` of
+        ``x[k-lag]``. The unknown-input columns are NaN in the last row (no transition after K).
         """
         columns: dict[str, object] = {"t": self.t}
-        x_names = self.names.get("x") or tuple(f"x[{i}]" for i in range(self.x_hat.shape[1]))
+        x_names = self._x_names()
         w_names = self.names.get("w") or tuple(f"w[{i}]" for i in range(self.w_hat.shape[1]))
         for i, name in enumerate(x_names):
             columns[f"{name}_hat"] = self.x_hat[:, i]
         w_full = np.vstack([self.w_hat, np.full((1, self.w_hat.shape[1]), np.nan)])
         for i, name in enumerate(w_names):
             columns[f"{name}_hat"] = w_full[:, i]
+        columns.update(status=self.status, outcome=self.outcome, success=self.success)
+        columns.update({name: getattr(self, name) for name in HEALTH_FIELDS})
+        columns.update({f"{name}_at_bound": self.at_bound[:, i] for i, name in enumerate(x_names)})
         columns.update(
-            status=self.status,
-            success=self.success,
             iterations=self.iterations,
             solve_time=self.solve_time,
             cost=self.cost,

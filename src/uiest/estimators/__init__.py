@@ -21,7 +21,7 @@ from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
-from uiest.results import EstimationResult, StepEstimate
+from uiest.results import EstimationResult, Outcome, StepEstimate
 
 
 def __getattr__(name: str) -> object:
@@ -42,6 +42,7 @@ __all__ = [
     "EstimationResult",
     "LinearUIO",
     "MHEWeights",
+    "Outcome",
     "StandardMHE",
     "StepEstimate",
     "TwoStageUISE",

@@ -4,16 +4,20 @@ A step at time k: the window's data (``u``, ``y`` and, for the two-stage UISE, n
 the prior of its first node (the estimate delivered when that node was the newest, the
 prior rule), then one of
 
-- no measured node yet (a one-step-ahead estimator at k = 0): the prior, status ``"prior"``;
-- a window model without state (two-stage, ``n_sharp = 0``): nothing to solve, ``"algebraic"``;
+- no measured node yet (a one-step-ahead estimator at k = 0): the prior, outcome ``PRIOR``;
+- a window model without state (two-stage, ``n_sharp = 0``): nothing to solve, ``ALGEBRAIC``;
 - no measurement in the whole window (an outage longer than N): the model propagates the last
-  estimate, ``"propagated (no data)"``;
+  estimate, ``PROPAGATED``;
 - else the window problem, warm-started from the shifted last solution, retried once from a
-  cold start; if both fail the model propagates the last estimate and the status records the
-  solver's (``strict=True`` raises :class:`~uiest.errors.SolverError` instead);
+  cold start: ``SOLVED``, or, if both fail, ``FAILED`` with the solver's status recorded and the
+  model propagating the last estimate (``strict=True`` raises :class:`~uiest.errors.SolverError`
+  instead);
 
 then the *post-map* from the window's newest node to ``x_hat[k]`` (identity for the full-order
-estimators; the two-stage UISE's eq:fullest_new), the unknown-input estimate, and the commit.
+estimators; the two-stage UISE's eq:fullest_new), the unknown-input estimate, the step's health
+fields (:class:`~uiest.results.StepEstimate`: states at X's sides, the held input, ...) and the commit.
+A run (:func:`collect_run`) warns (:class:`~uiest.errors.BoundWarning`) when a state's estimate lies at
+a side of X in more than 5 % of the steps.
 The window problem has one weight schedule (:class:`~uiest.estimators.weights.Schedule`),
 passed as parameters, so a problem is built once per window length ``N_k = min(N, k)``.
 Subclasses say which window model, which schedule, which nodes are measured and the post-map.
@@ -38,11 +42,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_run_data, check_u_prev, check_y
-from uiest.errors import CertificationError, DataError, OptionError, SolverError
-from uiest.estimators.checks import boundary_flag, window_bounds
+from uiest.checks import check_run_data, check_u_prev, check_y, user_stacklevel
+from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
+from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
-from uiest.results import NO_DATA, EstimationResult, StepEstimate
+from uiest.health import Outcome, at_bound, bound_message
+from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
@@ -163,6 +168,9 @@ the missing outputs alone saw are otherwise flat, and a solver may put them anyw
 X of width 20, an input estimate 8.9 off); along the determined directions it moves the optimum by about this
 fraction of the input's change."""
 
+NO_PROBLEM = frozenset({Outcome.PRIOR, Outcome.ALGEBRAIC})
+"""Outcomes of steps that had no window problem to solve (their cost is 0)."""
+
 HOLD_RTOL = 1e-9
 """Relative rank tolerance of :meth:`WindowEstimator._hold_unseen_input` (linear_strong_detectability's default)."""
 
@@ -177,7 +185,7 @@ class WindowEstimator(StreamingEstimator):
     """The newest unknown input is unpenalised and the nodes are the states (UISE, FIE): a y[k] that misses the
     outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
     status_note: str = ""
-    """Appended to every step's status (a forced estimator's " [no guarantee: ...]")."""
+    """Why a forced estimator carries no guarantee (" [no guarantee: ...]"; its :attr:`guarantee` says so)."""
 
     def __init__(
         self,
@@ -389,20 +397,20 @@ class WindowEstimator(StreamingEstimator):
         y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
         prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
         attempts: list[WindowSolution] = []
-        window = None
+        window, held = None, False
         if len(y_win) == 0:
-            node, status = prior.copy(), "prior"
+            node, outcome = prior.copy(), Outcome.PRIOR
         elif self.model.nx == 0:  # nothing to estimate by optimisation (two-stage, n_sharp = 0)
-            node, status, length = np.zeros(0), "algebraic", 0
+            node, outcome, length = np.zeros(0), Outcome.ALGEBRAIC, 0
         elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
-            node, status = self._propagate(u_vec), NO_DATA
+            node, outcome = self._propagate(u_vec), Outcome.PROPAGATED
         else:
             data = self._window_data(length)
             entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
             solution = attempts[-1]
             if solution.success:
                 window, held = self._hold_unseen_input(entry.problem.unpack(solution.z), u_vec, y_vec)
-                node, status = window.x[-1].copy(), solution.status + held
+                node, outcome = window.x[-1].copy(), Outcome.SOLVED
                 if held:  # later windows start from the held values: their optimum is flat there too
                     solution = dataclasses.replace(solution, z=entry.problem.pack(window))
                 self._last = (start, entry.problem, solution)
@@ -412,48 +420,46 @@ class WindowEstimator(StreamingEstimator):
                     f"{' / '.join(a.status for a in attempts)}"
                 )
             else:
-                node, status = self._propagate(u_vec), f"propagated ({solution.status})"
-        success = status in ("algebraic", "prior") or bool(attempts and attempts[-1].success)
-        return self._finish(k, u_vec, y_vec, node, status, success, attempts, window, length)
+                node, outcome = self._propagate(u_vec), Outcome.FAILED
+        return self._finish(k, u_vec, y_vec, node, outcome, attempts, window, length, held=held)
 
     def _hold_unseen_input(
         self, window: WindowTrajectory, u_vec: FloatArray, y_vec: FloatArray
-    ) -> tuple[WindowTrajectory, str]:
+    ) -> tuple[WindowTrajectory, bool]:
         """The window with the part of the newest unknown input that y[k]'s missing outputs alone would see held.
 
         With ``G = C B_w`` (output Jacobian at x[k] times the input Jacobian at x[k-1]), the input
         directions that ``G`` sees but its observed rows do not are free in the window's optimum:
         they are set to the last estimate's, the rest kept, and x[k] predicted from x[k-1] with the
-        result. Ranks by ``HOLD_RTOL`` of G's largest singular value. Returns (window, status note).
+        result. Ranks by ``HOLD_RTOL`` of G's largest singular value. Returns (window, whether it held).
         """
         missing = np.isnan(y_vec)
         if not (self.free_input and missing.any() and len(window.w)):
-            return window, ""
+            return window, False
         G = self._newest_input_effect(window, u_vec)
         values = np.linalg.svd(G, compute_uv=False)
         if not values.size or values[0] == 0.0:
-            return window, ""
+            return window, False
         tol = HOLD_RTOL * values[0]
         unseen = np.eye(G.shape[1])  # the null space of the observed rows
         if (~missing).any():
             _, seen_values, seen_vt = np.linalg.svd(G[~missing])
             unseen = seen_vt[int(np.sum(seen_values > tol)) :].T
         if not unseen.shape[1]:
-            return window, ""
+            return window, False
         _, reach, directions = np.linalg.svd(G @ unseen)
         held = unseen @ directions[: int(np.sum(reach > tol))].T  # of those, what all rows would see
         if not held.size:
-            return window, ""
+            return window, False
         w = window.w.copy()
         w[-1] = w[-1] + held @ (held.T @ (self._w_guess() - w[-1]))
         data = self._data[-1] if self.model.nd else np.zeros(0)
         x_new = self.model.step(window.x[-2], u_vec, w[-1], self.v_prior, data)
         if not np.all(np.isfinite(x_new)):
-            return window, ""
+            return window, False
         x = window.x.copy()
         x[-1] = self.model.x_bounds.clip(x_new)
-        note = " (y[k] misses outputs the newest unknown input reaches: that part of it held at its last estimate)"
-        return WindowTrajectory(x, w, window.v), note
+        return WindowTrajectory(x, w, window.v), True
 
     def _finish(
         self,
@@ -461,29 +467,42 @@ class WindowEstimator(StreamingEstimator):
         u_vec: FloatArray,
         y_vec: FloatArray,
         node: FloatArray,
-        status: str,
-        success: bool,
+        outcome: Outcome,
         attempts: list[WindowSolution],
         window: WindowTrajectory | None,
         length: int,
+        *,
+        held: bool = False,
+        reason: str = "",
     ) -> StepEstimate:
-        """Post-map, unknown-input estimate, lagged estimate; store step k and move to k + 1."""
+        """Post-map, unknown-input estimate, lagged estimate, health fields; store step k and move to k + 1."""
         x_hat, data_k = self._to_state(node, y_vec, u_vec, k, window)
         w_hat, w_index = self._w_estimate(window, x_hat, u_vec, k)
         x_lag = self._lagged(window, x_hat, data_k, k)
         self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)
+        last = attempts[-1] if attempts else None
+        states_at_bound = at_bound(self.system.x.bounds, x_hat, self.system.x.scale)
+        solved = outcome is Outcome.SOLVED
+        window_held = window is not None and bool(at_bound(self.model.x_bounds, window.x, self.model.x_scale).any())
         return StepEstimate(
             k=k,
             x_hat=x_hat,
             w_hat=w_hat,
             w_index=w_index,
-            status=status + boundary_flag(self.system, x_hat, y_vec, self.v_prior) + self.status_note,
-            success=success,
+            outcome=outcome,
             iterations=sum(a.iterations for a in attempts),
             solve_time=sum(a.solve_time for a in attempts),
-            cost=attempts[-1].cost if success and attempts else (0.0 if success else float("nan")),
+            cost=last.cost if solved and last is not None else (0.0 if outcome in NO_PROBLEM else float("nan")),
             window=length,
             missing=np.isnan(y_vec),
+            at_bound=states_at_bound,
+            solver_status=last.status if last is not None else "",
+            fallback=bool(last is not None and last.fallback),
+            primary_status=last.primary_status if last is not None else "",
+            reason=reason,
+            held_input=held,
+            on_boundary=bool(states_at_bound.any()) and held_on_boundary(self.system, x_hat, y_vec, self.v_prior),
+            window_at_bound=window_held,
             trajectory=window,
             x_lag=x_lag,
         )
@@ -523,7 +542,7 @@ class WindowEstimator(StreamingEstimator):
         self._k = k + 1
 
     def skip(self, u_prev: ArrayLike | None, y: ArrayLike, reason: str) -> StepEstimate:
-        """Step k without solving: the model propagates the last estimate; ``reason`` goes into the status.
+        """Step k without solving: the model propagates the last estimate; outcome ``ERROR`` with ``reason``.
 
         :func:`collect_run` calls it when :meth:`step` raised unexpectedly, so that a run keeps
         what it computed and goes on.
@@ -532,16 +551,16 @@ class WindowEstimator(StreamingEstimator):
         k = self._k
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
-        status = f"propagated ({reason})"
         node = self._propagate(u_vec)
         try:
-            return self._finish(k, u_vec, y_vec, node, status, False, [], None, 0)
+            return self._finish(k, u_vec, y_vec, node, Outcome.ERROR, [], None, 0, reason=reason)
         except Exception:
             x_hat = self._x0_prior if self._x_last is None else self._x_last
             assert x_hat is not None
             data_k = np.where(np.isnan(y_vec), self.system.output(x_hat, self.v_prior), y_vec)[: self.model.nd]
             self._commit(k, u_vec, y_vec, node, data_k, x_hat, None)
-            return StepEstimate(k, x_hat.copy(), None, None, status, False, 0, 0.0, float("nan"), 0, np.isnan(y_vec))
+            return StepEstimate(k, x_hat.copy(), None, None, Outcome.ERROR, 0, 0.0, float("nan"), 0, np.isnan(y_vec),
+                                at_bound(self.system.x.bounds, x_hat, self.system.x.scale), reason=reason)  # fmt: skip
 
     def _propagate(self, u_prev: FloatArray) -> FloatArray:
         """The model's step from the last node (the prior at k = 0), clipped to its bounds; held if not finite."""
@@ -632,7 +651,9 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
 
     ``estimator`` needs ``system``, ``step(u_prev, y) -> StepEstimate``, ``estimator_name``, ``N``
     and ``guarantee``; the caller has reset it. ``x_lag[j]`` is the estimate of ``x[j]`` delivered at
-    step ``j + lag`` (NaN for the last ``lag`` rows).
+    step ``j + lag`` (NaN for the last ``lag`` rows). Warns (:class:`~uiest.errors.BoundWarning`,
+    :func:`uiest.health.bound_message`) when a state's estimate lies at a side of X in more than 5 %
+    of the steps.
     """
     K = y_arr.shape[0] - 1
     s = estimator.system
@@ -642,11 +663,12 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     x_hat = np.empty((K + 1, s.nx))
     x_lag = np.full((K + 1, s.nx), np.nan)
     w_hat = np.full((K, s.nw), np.nan)
-    status: list[str] = []
-    success = np.zeros(K + 1, dtype=bool)
+    outcome: list[str] = []
     iterations = np.zeros(K + 1, dtype=np.int64)
     solve_time, cost = np.zeros(K + 1), np.zeros(K + 1)
     window = np.zeros(K + 1, dtype=np.int64)
+    states_at_bound = np.zeros((K + 1, s.nx), dtype=bool)
+    health: dict[str, list[Any]] = {name: [] for name in HEALTH_FIELDS}
     for k in range(K + 1):
         u_prev = None if k == 0 else u_arr[k - 1]
         try:
@@ -662,15 +684,20 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
             x_lag[k - lag] = est.x_lag
         if est.w_hat is not None and est.w_index is not None:
             w_hat[est.w_index] = est.w_hat
-        status.append(est.status)
-        success[k], iterations[k], solve_time[k] = est.success, est.iterations, est.solve_time
+        outcome.append(est.outcome.value)
+        iterations[k], solve_time[k] = est.iterations, est.solve_time
         cost[k], window[k] = est.cost, est.window
+        states_at_bound[k] = est.at_bound
+        for name, values in health.items():
+            values.append(getattr(est, name))
+    message = bound_message(estimator.estimator_name, states_at_bound, x_hat, s.x.bounds, s.x.names)
+    if message is not None:
+        warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
     return EstimationResult(
         t=np.arange(K + 1) * s.dt,
         x_hat=x_hat,
         w_hat=w_hat,
-        status=np.array(status),
-        success=success,
+        outcome=np.array(outcome),
         iterations=iterations,
         solve_time=solve_time,
         cost=cost,
@@ -683,6 +710,8 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         time_unit=s.time_unit,
         x_lag=x_lag if lag else None,
         lag=lag,
+        at_bound=states_at_bound,
+        **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
     )
 
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 
 from uiest.box import FloatArray
-from uiest.results import BOUNDARY_FLAG
 from uiest.system import System
 
 
@@ -16,31 +15,21 @@ def window_bounds(k: int, N: int | None) -> tuple[int, int]:
 
 
 BOUNDARY_RESIDUAL = 10.0
-"""An estimate on the boundary of X is flagged when its output residual exceeds this many noise bounds."""
+"""An estimate at a side of X is held there against the data when its output residual exceeds this many noise
+bounds."""
 
 
-def boundary_flag(system: System, x_hat: FloatArray, y: FloatArray, v_bar: FloatArray) -> str:
-    """A status suffix when ``x_hat`` sits on a finite side of X and misses ``y`` by far more than the noise.
+def held_on_boundary(system: System, x_hat: FloatArray, y: FloatArray, v_bar: FloatArray) -> bool:
+    """Whether ``x_hat`` (some state at a side of X) misses ``y`` by more than :data:`BOUNDARY_RESIDUAL` noise bounds.
 
     The noise bound of each output is half ``|h(x_hat, v_hi) - h(x_hat, v_lo)|`` over V's corners
     (V's centre +- its scale where unbounded); the residual is ``y - h(x_hat, v_bar)`` (missing channels
     ignored). Such an estimate is held by the constraint, not by the data: the true state may
-    have left X.
+    have left X. The caller checks that some state is at a side (:func:`uiest.health.at_bound`).
     """
-    X = system.x.bounds
-    width = np.where(np.isfinite(X.width) & (X.width > 0), X.width, 1.0)
-    on = (np.isfinite(X.lower) & (x_hat <= X.lower + 1e-9 * width)) | (
-        np.isfinite(X.upper) & (x_hat >= X.upper - 1e-9 * width)
-    )
-    if not on.any():
-        return ""
     V = system.v.bounds
     lo = np.where(np.isfinite(V.lower), V.lower, V.center - system.v.scale)
     hi = np.where(np.isfinite(V.upper), V.upper, V.center + system.v.scale)
     noise = 0.5 * np.abs(system.output(x_hat, hi) - system.output(x_hat, lo)) + 1e-9 * system.y.scale
     residual = np.abs(y - system.output(x_hat, v_bar))
-    ratio = np.nanmax(residual / noise, initial=0.0)
-    if not ratio > BOUNDARY_RESIDUAL:
-        return ""
-    names = [n for n, flag in zip(system.x.names, on, strict=True) if flag]
-    return f" {BOUNDARY_FLAG} ({', '.join(names)}), output residual {ratio:.3g}x the noise]"
+    return bool(np.nanmax(residual / noise, initial=0.0) > BOUNDARY_RESIDUAL)

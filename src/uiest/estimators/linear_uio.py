@@ -41,6 +41,7 @@ from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.health import Outcome, at_bound
 from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
 
@@ -215,7 +216,7 @@ class LinearUIO(StreamingEstimator):
         return y - self.h0 - self.D @ self.v_prior
 
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
-        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]`` (status ``"linear"``)."""
+        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]`` (outcome ``UPDATED``)."""
         if self._x0_prior is None:
             raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
         start = time.perf_counter()
@@ -242,13 +243,13 @@ class LinearUIO(StreamingEstimator):
             x_hat=x_hat,
             w_hat=w_hat,
             w_index=w_index,
-            status="linear",
-            success=True,
+            outcome=Outcome.UPDATED,
             iterations=0,
             solve_time=time.perf_counter() - start,
             cost=0.0,
             window=0,
             missing=np.isnan(y_vec),
+            at_bound=at_bound(self.system.x.bounds, x_hat, self.system.x.scale),
         )
 
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:

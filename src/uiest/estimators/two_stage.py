@@ -54,12 +54,12 @@ outputs psi uses, ``x_hat_j`` and later windows carry the error of the unknown-i
 (the UISE guarantee does not cover such steps). :attr:`StepEstimate.missing` records them.
 
 **Special cases** (remark after theo:stab): ``n_sharp = 0`` needs no optimisation,
-``x_hat_k = proj(T^-1(psi(y_k, v_bar)))`` (status ``"algebraic"``); ``n_flat = 0`` gives
+``x_hat_k = proj(T^-1(psi(y_k, v_bar)))`` (outcome ``ALGEBRAIC``); ``n_flat = 0`` gives
 ``x_hat_k = proj(T^-1(z_hat_k))`` without using ``y_k``.
 
 **Failures.** A failed window solve (after a cold retry) propagates the reduced model,
 ``z_hat_k = f_sharp(z_hat_{k-1}, gamma_{k-1}, u_{k-1}, v_bar)`` clipped to ``z_bounds`` (no
-unknown input needed), status ``"propagated (<solver status>)"``; ``strict=True`` raises
+unknown input needed), outcome ``FAILED`` with the solver's status; ``strict=True`` raises
 :class:`~uiest.errors.SolverError` instead.
 """
 

@@ -68,8 +68,8 @@ class UISE(WindowEstimator):
         Noise prior ``v_bar`` in V (default 0).
     force : bool
         Build the estimator although matching fails (``rank(C B) < rank(B)`` at a sampled point,
-        :func:`~uiest.delay.matching_ranks`): x[k] is then not determined by y[..k] and every
-        step's status says "[no guarantee: ...]". Without it such a system raises ModelError
+        :func:`~uiest.delay.matching_ranks`): x[k] is then not determined by y[..k] and
+        :attr:`guarantee` says "none: matching fails". Without it such a system raises ModelError
         (for relative degree 2, :class:`~uiest.estimators.DelayedUISE` estimates x[k-1]).
     **options
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,

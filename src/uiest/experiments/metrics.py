@@ -9,6 +9,9 @@ from uiest.experiments.runner import StudyResult
 
 ACCURACY_COLUMNS = ("case", "estimator", "state", "rmse", "max_abs_error", "final_abs_error", "growth")
 TIMING_COLUMNS = ("case", "estimator", "mean_ms", "median_ms", "p95_ms", "max_ms", "t_max_ms", "failed_steps")
+HEALTH_COLUMNS = ("case", "estimator", "runs", "steps", "failures", "fallbacks", "at_bound", "held", "propagated",
+                  "on_boundary", "window_at_bound")  # fmt: skip
+"""Columns of :func:`health`; then ``at_bound_<state>`` per state."""
 
 
 def accuracy(study: StudyResult) -> pd.DataFrame:
@@ -77,6 +80,27 @@ def timing(study: StudyResult) -> pd.DataFrame:
             }
         )
     return pd.DataFrame(rows)
+
+
+def health(study: StudyResult) -> pd.DataFrame:
+    """Step counts per (case, estimator), summed over the runs that did not raise (:meth:`EstimationResult.counts`).
+
+    ``runs`` counted, ``steps``, ``failures``, ``fallbacks`` (Gauss-Newton to IPOPT), ``at_bound`` (steps with
+    some state's estimate at a side of X), ``held`` (part of the newest unknown input held), ``propagated``
+    (no data in the window), ``on_boundary`` (at a side against the data), ``window_at_bound`` (a window node
+    at a side of its box), then ``at_bound_<state>``.
+    """
+    runs = study.runs
+    states = [f"at_bound_{name}" for name in state_names(study)] if study.truths else []
+    columns = [*HEALTH_COLUMNS, *states]
+    if runs.empty or "steps" not in runs:
+        return pd.DataFrame(columns=columns)
+    counted = runs[runs["error"] == ""]
+    rows = []
+    for (case, name), group in counted.groupby(["case", "estimator"], sort=False):
+        rows.append({"case": case, "estimator": name, "runs": len(group),
+                     **{column: int(group[column].sum()) for column in columns[3:]}})  # fmt: skip
+    return pd.DataFrame(rows, columns=columns)
 
 
 def state_names(study: StudyResult) -> list[str]:

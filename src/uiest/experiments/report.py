@@ -13,8 +13,9 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from uiest.experiments import provenance
-from uiest.experiments.metrics import accuracy, state_names, timing
+from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
+from uiest.health import BOUND_SHARE
 from uiest.paths import writable_folder
 
 PAPER_T_MAX_MS = {
@@ -325,7 +326,7 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
 
 
 def outcome_lines(study: StudyResult) -> list[str]:
-    """What went wrong, first: estimator runs that raised, true states that left X, estimates held on its boundary."""
+    """What went wrong, first: runs that raised, true states that left X, estimates and windows at X's sides."""
     runs = study.runs
     lines = []
     raised = runs[runs["error"] != ""]
@@ -338,10 +339,33 @@ def outcome_lines(study: StudyResult) -> list[str]:
     if outside.sum():
         lines.append(f"**The true state left X in {int((outside > 0).sum())} runs ({int(outside.sum())} samples): "
                      "the estimators constrain their estimates to X there.**")  # fmt: skip
-    held = runs[runs["on_boundary"] > 0]
+    counts = health(study)
+    held = counts[counts["on_boundary"] > 0]
     if len(held):
         per = ", ".join(f"{name}: {int(n)}" for name, n in held.groupby("estimator")["on_boundary"].sum().items())
         lines.append(f"**Estimates held on the boundary of X with a large output residual (steps): {per}.**")
+    states = state_names(study) if study.truths else []
+    at_side = [
+        f"{row['estimator']} ({row['case']}): "
+        + ", ".join(
+            f"{name} {100.0 * row[f'at_bound_{name}'] / row['steps']:.0f} %"
+            for name in states
+            if row[f"at_bound_{name}"] > BOUND_SHARE * row["steps"]
+        )
+        for _, row in counts.iterrows()
+        if any(row[f"at_bound_{name}"] > BOUND_SHARE * row["steps"] for name in states)
+    ]
+    if at_side:
+        lines.append(f"**Estimates at a side of X in more than {100 * BOUND_SHARE:.0f} % of the steps: "
+                     f"{'; '.join(at_side)}. X may be too narrow: give a wider X unless that side is a physical "
+                     "limit the state reaches (see Failures and step health).**")  # fmt: skip
+    touched = counts[counts["window_at_bound"] > BOUND_SHARE * counts["steps"]]
+    if len(touched):
+        per = "; ".join(f"{row['estimator']} ({row['case']}) {100.0 * row['window_at_bound'] / row['steps']:.0f} %"
+                        for _, row in touched.iterrows())  # fmt: skip
+        lines.append(f"**The window solution touched a side of X (or of the reduced state's box) in more than "
+                     f"{100 * BOUND_SHARE:.0f} % of the steps: {per}. There the constraint, not the data alone, "
+                     "shaped the window, even where the delivered estimate lies inside X.**")  # fmt: skip
     return [*lines, ""] if lines else []
 
 
@@ -357,6 +381,9 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     acc, times = accuracy(study), timing(study)
     acc.to_csv(out / "accuracy.csv", index=False)
     times.to_csv(out / "timing.csv", index=False)
+    step_health = health(study)
+    step_health.to_csv(out / "health.csv", index=False)
+    written.append(out / "health.csv")
     table = timing_table(study)
     table.to_csv(out / "table1.csv", index=False)
     load = f"load average {os.getloadavg()[0]:.2f} at the end" if hasattr(os, "getloadavg") else "load unknown"
@@ -449,9 +476,22 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "",
         *([f"- {choice}" for choice in OPEN_CHOICES] if scenario.model == "crop-growth" else ["- see scenario.toml"]),
         "",
-        "## Failures",
+        "## Failures and step health",
         "",
-        "None." if failures.empty else _markdown(failures[["case", "run", "estimator", "error"]]),
+        "Estimator runs that raised: "
+        + ("none." if failures.empty else "\n\n" + _markdown(failures[["case", "run", "estimator", "error"]])),
+        "",
+        "Steps of each estimator, summed over the runs that did not raise (`health.csv`):",
+        "",
+        _markdown(step_health),
+        "",
+        "`failures`: steps that failed (a window problem not solved, also from a cold start, or a step that raised: "
+        "the model propagated the last estimate; for the filters, a skipped update, a kept or a diverged estimate). "
+        "`fallbacks`: windows the Gauss-Newton backend handed to IPOPT. `at_bound`: steps with some state's estimate "
+        "on or beyond a side of X (per state in `at_bound_<state>`). `held`: steps that held part of the newest "
+        "unknown input at its last estimate (outputs it reaches were missing). `propagated`: steps without any "
+        "measurement in their window. `on_boundary`: at a side of X with the output missed by more than 10x the "
+        "noise. `window_at_bound`: steps whose window solution touched a side of its box.",
         "",
     ]
     (out / "report.md").write_text("\n".join(report))

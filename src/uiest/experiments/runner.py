@@ -36,6 +36,7 @@ from uiest.experiments import executors
 from uiest.experiments.certificates import summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
+from uiest.health import quiet_bound_warnings
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory
@@ -122,11 +123,15 @@ class StudyResult:
     scenario : Scenario
     steps : pandas.DataFrame
         One row per (case, run, estimator, k): ``t``, true and estimated states
-        (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time``, ``status``.
+        (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time``, ``status`` (the
+        display line), ``outcome``, ``success``, ``fallback``, ``held_input``, ``window_at_bound`` and
+        ``<name>_at_bound``.
     runs : pandas.DataFrame
-        One row per (case, run, estimator): ``x0``, wall time, failures, ``x_outside`` (samples
-        where the true state left X), ``on_boundary`` (estimates flagged as held on X's boundary),
-        ``error`` (type and message if the estimator raised, else empty).
+        One row per (case, run, estimator): ``x0``, wall time, ``x_outside`` (samples where the true
+        state left X), ``error`` (type and message if the estimator raised, else empty) and the step
+        counts of :meth:`EstimationResult.counts` (``failures``, ``fallbacks``, ``at_bound``,
+        ``at_bound_<state>``, ``held``, ``propagated``, ``on_boundary``, ``window_at_bound``; -1 when
+        the estimator raised).
     truths : dict
         ``(case, run) -> Trajectory`` of the simulated truth.
     results : dict
@@ -300,7 +305,8 @@ def run_case(
         error = ""
         try:
             estimator = BUILDERS[spec.kind](study, spec, prior, solver)
-            result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+            with quiet_bound_warnings():  # counted in the run's row and reported
+                result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
         except Exception as exc:  # recorded, whatever it is; the study goes on
             error = f"{type(exc).__name__}: {exc}"
             result = None
@@ -308,10 +314,10 @@ def run_case(
         if result is not None:
             results[spec.name] = result
             frames.append(_step_frame(case, run, spec.name, truth, result))
+        counts = result.counts() if result is not None else {name: -1 for name in _count_names(truth)}
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
-                     "wall_time_s": wall, "failures": result.failures if result is not None else -1,
-                     "x_outside": int(truth.x_outside.sum()), "error": error,
-                     "on_boundary": -1 if result is None else int(result.on_boundary.sum())})  # fmt: skip
+                     "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
+                     **counts})  # fmt: skip
     return RunOutcome(case, run, truth, results, frames, rows)
 
 
@@ -365,5 +371,18 @@ def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: Estim
         data[f"{label}_hat"] = np.append(result.w_hat[:, i], np.nan)
     data["solve_time"] = result.solve_time
     data["status"] = result.status
+    data["outcome"] = result.outcome
     data["success"] = result.success
+    data["fallback"] = result.fallback
+    data["held_input"] = result.held_input
+    data["window_at_bound"] = result.window_at_bound
+    for i, label in enumerate(x_names):
+        data[f"{label}_at_bound"] = result.at_bound[:, i]
     return pd.DataFrame(data)
+
+
+def _count_names(truth: Trajectory) -> list[str]:
+    """The keys of :meth:`EstimationResult.counts` for the states of ``truth`` (an estimator that raised: -1 each)."""
+    x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
+    return ["steps", "failures", "fallbacks", "at_bound", *(f"at_bound_{name}" for name in x_names), "held",
+            "propagated", "on_boundary", "window_at_bound"]  # fmt: skip

@@ -366,7 +366,7 @@ def bench_window_solvers(
                     **agreement,
                     "closed_loop_dev_vs_ipopt": closed_loop,
                     "failures": int(result.failures),
-                    "fallbacks": sum("-> ipopt" in status for status in result.status),
+                    "fallbacks": result.fallbacks,
                     "load": os.getloadavg()[0],
                 })  # fmt: skip
             if long:

@@ -403,7 +403,8 @@ class GaussNewtonSolver:
     fallback : bool
         Solve the sample with IPOPT (from the same starting point) when Gauss-Newton does not
         converge: both the plain and the damped QP fail, ``max_iter`` is reached or the iterate
-        is an infeasible stationary point. The status then reads ``"gn <why> -> ipopt <status>"``.
+        is an infeasible stationary point. The solution then has ``fallback=True``, IPOPT's status and
+        ``primary_status = "gn <why>"``.
     min_damping : float
         Levenberg-Marquardt damping kept at every step, relative to ``max |J^T J|`` (default 0:
         exact Gauss-Newton steps; > 0 keeps the QP strictly convex when inputs are unpenalised,
@@ -727,10 +728,12 @@ class GaussNewtonSolver:
                 fallback.lam_x,
                 fallback.lam_g,
                 fallback.cost,
-                f"gn {'QP failed' if status == 'QP_failed' else status} -> ipopt {fallback.status}",
+                fallback.status,
                 fallback.success,
                 iterations + fallback.iterations,
                 elapsed + fallback.solve_time,
+                fallback=True,
+                primary_status=f"gn {status}",
             )
         return WindowSolution(
             z=z,

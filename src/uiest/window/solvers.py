@@ -84,12 +84,17 @@ class WindowSolution:
     cost : float
         ``|r|^2`` at ``z``.
     status : str
-        The solver's return status.
+        The return status of the solver that produced ``z`` (after a fallback, IPOPT's).
     success : bool
         Whether the status counts as solved.
     iterations : int
     solve_time : float
         Wall-clock seconds of the call.
+    fallback : bool
+        The Gauss-Newton backend did not converge and handed the window to IPOPT.
+    primary_status : str
+        After a fallback, why Gauss-Newton handed over (``"gn QP_failed"``, ``"gn Maximum_Iterations_Exceeded"``,
+        ...); else ``""``.
 
     """
 
@@ -101,6 +106,8 @@ class WindowSolution:
     success: bool
     iterations: int
     solve_time: float
+    fallback: bool = False
+    primary_status: str = ""
 
 
 class WindowSolver(Protocol):
