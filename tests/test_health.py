@@ -196,3 +196,18 @@ def test_the_cli_counts_the_steps_and_shows_the_bound_warning_as_a_message(tmp_p
     assert "warning: EKF: the estimate of x[1]" in text and "BoundWarning" not in text and "warnings.warn" not in text
     frame = pd.read_csv(out / "estimates_uise.csv")
     assert frame["x[1]_at_bound"].sum() > 0.05 * len(frame) and {"outcome", "fallback", "held_input"} <= set(frame)
+
+
+@pytest.mark.parametrize("kind", ["EKF", "LinearUIO"])
+def test_filters_and_observers_update_and_propagate_without_data(kind):
+    from uiest.estimators import LinearUIO
+
+    system = _linear(WIDE)
+    y = _record("linear").y.copy()
+    y[50:53] = np.nan
+    estimator = _estimator("EKF", system) if kind == "EKF" else LinearUIO(system, x0_prior=[0.0, 0.0])
+    result = estimator.run(None, y)
+    assert np.flatnonzero(result.outcome == Outcome.PROPAGATED).tolist() == [50, 51, 52]
+    assert set(np.delete(result.outcome, [50, 51, 52])) == {Outcome.UPDATED}
+    assert result.propagated_steps == result.counts()["propagated"] == 3 and result.failures == 0
+    assert result.solver_status.tolist() == [""] * (K + 1) and not result.fallback.any()

@@ -318,6 +318,12 @@ class StepEstimate:
         )  # fmt: skip
 
 
+def count_names(x_names: tuple[str, ...] | list[str]) -> list[str]:
+    """The keys of :meth:`EstimationResult.counts` for states named ``x_names``, in order."""
+    return ["steps", "failures", "fallbacks", "at_bound", *(f"at_bound_{name}" for name in x_names), "held",
+            "propagated", "on_boundary", "window_at_bound"]  # fmt: skip
+
+
 HEALTH_FIELDS: dict[str, Any] = {
     "solver_status": str,
     "fallback": bool,
@@ -491,17 +497,10 @@ class EstimationResult(_PicklableNames):
         of X), ``at_bound_<state>`` for each state, ``held``, ``propagated``, ``on_boundary`` and
         ``window_at_bound``.
         """
-        return {
-            "steps": int(self.t.shape[0]),
-            "failures": self.failures,
-            "fallbacks": self.fallbacks,
-            "at_bound": int(np.count_nonzero(self.at_bound.any(axis=1))),
-            **{f"at_bound_{name}": int(n) for name, n in zip(self._x_names(), self.at_bound_steps, strict=True)},
-            "held": self.held_steps,
-            "propagated": self.propagated_steps,
-            "on_boundary": int(np.count_nonzero(self.on_boundary)),
-            "window_at_bound": int(np.count_nonzero(self.window_at_bound)),
-        }
+        values = [int(self.t.shape[0]), self.failures, self.fallbacks, int(np.count_nonzero(self.at_bound.any(axis=1))),
+                  *(int(n) for n in self.at_bound_steps), self.held_steps, self.propagated_steps,
+                  int(np.count_nonzero(self.on_boundary)), int(np.count_nonzero(self.window_at_bound))]  # fmt: skip
+        return dict(zip(count_names(self._x_names()), values, strict=True))
 
     def _x_names(self) -> tuple[str, ...]:
         return self.names.get("x") or tuple(f"x[{i}]" for i in range(self.x_hat.shape[1]))

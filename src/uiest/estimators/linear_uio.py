@@ -216,7 +216,7 @@ class LinearUIO(StreamingEstimator):
         return y - self.h0 - self.D @ self.v_prior
 
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
-        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]`` (outcome ``UPDATED``)."""
+        """Process ``u[k-1]`` and ``y[k]``; return the estimate of ``x[k]`` (``UPDATED``; ``PROPAGATED`` if no y)."""
         if self._x0_prior is None:
             raise OptionError("x0_prior: required; pass it to the constructor or call reset(x0_prior) first")
         start = time.perf_counter()
@@ -243,7 +243,7 @@ class LinearUIO(StreamingEstimator):
             x_hat=x_hat,
             w_hat=w_hat,
             w_index=w_index,
-            outcome=Outcome.UPDATED,
+            outcome=Outcome.PROPAGATED if np.isnan(y_vec).all() else Outcome.UPDATED,
             iterations=0,
             solve_time=time.perf_counter() - start,
             cost=0.0,

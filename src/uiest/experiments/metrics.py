@@ -6,12 +6,10 @@ import numpy as np
 import pandas as pd
 
 from uiest.experiments.runner import StudyResult
+from uiest.results import count_names
 
 ACCURACY_COLUMNS = ("case", "estimator", "state", "rmse", "max_abs_error", "final_abs_error", "growth")
 TIMING_COLUMNS = ("case", "estimator", "mean_ms", "median_ms", "p95_ms", "max_ms", "t_max_ms", "failed_steps")
-HEALTH_COLUMNS = ("case", "estimator", "runs", "steps", "failures", "fallbacks", "at_bound", "held", "propagated",
-                  "on_boundary", "window_at_bound")  # fmt: skip
-"""Columns of :func:`health`; then ``at_bound_<state>`` per state."""
 
 
 def accuracy(study: StudyResult) -> pd.DataFrame:
@@ -86,13 +84,12 @@ def health(study: StudyResult) -> pd.DataFrame:
     """Step counts per (case, estimator), summed over the runs that did not raise (:meth:`EstimationResult.counts`).
 
     ``runs`` counted, ``steps``, ``failures``, ``fallbacks`` (Gauss-Newton to IPOPT), ``at_bound`` (steps with
-    some state's estimate at a side of X), ``held`` (part of the newest unknown input held), ``propagated``
-    (no data in the window), ``on_boundary`` (at a side against the data), ``window_at_bound`` (a window node
-    at a side of its box), then ``at_bound_<state>``.
+    some state's estimate at a side of X), ``at_bound_<state>``, ``held`` (part of the newest unknown input
+    held), ``propagated`` (no data in the window), ``on_boundary`` (at a side against the data),
+    ``window_at_bound`` (a window node at a side of its box).
     """
     runs = study.runs
-    states = [f"at_bound_{name}" for name in state_names(study)] if study.truths else []
-    columns = [*HEALTH_COLUMNS, *states]
+    columns = ["case", "estimator", "runs", *count_names(state_names(study) if study.truths else [])]
     if runs.empty or "steps" not in runs:
         return pd.DataFrame(columns=columns)
     counted = runs[runs["error"] == ""]

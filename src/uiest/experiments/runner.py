@@ -39,7 +39,7 @@ from uiest.experiments.study_model import StudyModel, study_model
 from uiest.health import quiet_bound_warnings
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
-from uiest.results import Trajectory
+from uiest.results import Trajectory, count_names
 from uiest.simulate import simulate
 from uiest.system import System
 from uiest.window.solvers import BACKENDS
@@ -314,7 +314,8 @@ def run_case(
         if result is not None:
             results[spec.name] = result
             frames.append(_step_frame(case, run, spec.name, truth, result))
-        counts = result.counts() if result is not None else {name: -1 for name in _count_names(truth)}
+        x_names = truth.names.get("x") or tuple(f"x{i}" for i in range(truth.x.shape[1]))
+        counts = result.counts() if result is not None else dict.fromkeys(count_names(x_names), -1)
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
                      "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
                      **counts})  # fmt: skip
@@ -379,10 +380,3 @@ def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: Estim
     for i, label in enumerate(x_names):
         data[f"{label}_at_bound"] = result.at_bound[:, i]
     return pd.DataFrame(data)
-
-
-def _count_names(truth: Trajectory) -> list[str]:
-    """The keys of :meth:`EstimationResult.counts` for the states of ``truth`` (an estimator that raised: -1 each)."""
-    x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
-    return ["steps", "failures", "fallbacks", "at_bound", *(f"at_bound_{name}" for name in x_names), "held",
-            "propagated", "on_boundary", "window_at_bound"]  # fmt: skip
