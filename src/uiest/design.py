@@ -29,8 +29,11 @@ mu = 0.9 gave 1.04x). :func:`design_uise` therefore
    for systems affine in w), or on the user's ``records`` (where that run would leave X, say);
 3. for the UISE, runs the best one's certificate again with its output weights times
    :data:`OUTPUT_WEIGHTS` (a weaker certificate: the same guarantee, a bound ``sqrt(factor)``
-   wider) and keeps the best of those if its error RMS relative to the state scales is below
-   :data:`VARIANT_GAIN` times the best's.
+   wider);
+4. scores every candidate on every state and unknown input (:func:`regret`): the geometric mean
+   over them of its error RMS over the smallest any candidate reached (1: best on every one); the
+   candidates within :data:`ERROR_TOLERANCE` of the best score are equally accurate, and of those
+   the one with the smallest guaranteed bound (relative to the state scales) is chosen.
 
 The result carries both numbers per candidate, the guaranteed bound and the simulated RMS.
 """
@@ -40,7 +43,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -61,9 +64,13 @@ OUTPUT_WEIGHTS = (1.0, 10.0, 100.0)
 weights can leave the prior dominant over directly measured states (a Rossler map, N = 15: measured y RMSE 0.22 at x1,
 0.0015 at x100)."""
 
-VARIANT_GAIN = 0.98
-"""An output-weight variant replaces the certificate as solved only with an error RMS below this fraction of its
-(a larger bound for a difference within the noise records' scatter is no trade)."""
+ERROR_TOLERANCE = 1.02
+"""Candidates whose :func:`regret` is within this factor of the best one's are equally accurate: the smallest
+guaranteed bound decides among them (a larger bound for a difference within the records' scatter is no trade)."""
+
+ERROR_FLOOR = 1e-6
+"""A component's smallest error counts as at least this fraction of the largest component's (both relative to
+their scales) in :func:`regret`: differences at the level of rounding are not scored."""
 
 DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Rates certified by default (with the minimal rate), each kept when it is at least mu_min."""
@@ -71,13 +78,50 @@ DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 
 @dataclass(frozen=True)
 class Candidate:
-    """One (mu, N, output weight) weighed by the design: settled error bound and simulated error RMS per state."""
+    """One (mu, N, output weight) weighed by the design.
+
+    Attributes
+    ----------
+    mu : float
+    N : int
+    bound : ndarray
+        The settled error bound (per state, or per ``z_sharp`` component for the two-stage UISE).
+    rms : ndarray (nx,)
+        Simulated state error RMS per state.
+    output_weight : float
+        The factor on the certificate's output weights.
+    w_rms : ndarray (nw,)
+        Simulated unknown-input error RMS per input (NaN where no estimate was delivered).
+
+    """
 
     mu: float
     N: int
     bound: FloatArray
     rms: FloatArray
     output_weight: float = 1.0
+    w_rms: FloatArray = field(default_factory=lambda: np.zeros(0))
+
+
+def regret(errors: FloatArray) -> FloatArray:
+    """Each candidate's geometric mean, over components, of its error over the smallest any candidate reached.
+
+    ``errors`` (candidates, components) are error RMS values relative to each component's scale. A
+    component no candidate has a value for (NaN throughout: an input no window informed) is not
+    scored; a candidate's NaN or inf elsewhere scores inf. The smallest error of a component is
+    floored at :data:`ERROR_FLOOR` times the largest component's smallest error. Returns shape
+    (candidates,); 1 means best on every component.
+    """
+    errors = np.asarray(errors, dtype=float)
+    errors = errors[:, ~np.all(np.isnan(errors), axis=0)]
+    if not errors.shape[1]:
+        return np.ones(len(errors))
+    errors = np.where(np.isfinite(errors), errors, np.inf)
+    best = errors.min(axis=0)
+    best = np.maximum(best, ERROR_FLOOR * float(np.max(best[np.isfinite(best)], initial=0.0)))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.where(errors > best, np.log(errors / np.where(best > 0, best, 1.0)), 0.0)
+    return np.exp(logs.mean(axis=1))
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,9 +156,10 @@ class Design:
         for c in self.candidates:
             mark = "*" if (c.mu, c.N, c.output_weight) == chosen else " "
             weight = f" output weight x{c.output_weight:g}" if c.output_weight != 1.0 else ""
+            w_rms = f" w rms={np.array2string(c.w_rms, precision=3)}" if c.w_rms.size else ""
             rows.append(
                 f"{mark} mu={c.mu:.4g} N={c.N:<3d}{weight} bound={np.array2string(c.bound, precision=3)} "
-                f"rms={np.array2string(c.rms, precision=3)}"
+                f"rms={np.array2string(c.rms, precision=3)}{w_rms}"
             )
         return "\n".join(rows)
 
@@ -298,21 +343,34 @@ def _design(
             if cert.certified:
                 certificates.append(cert)
     scored = _noise_records(system, prior, trials, steps, seed) if records is None else _given_records(system, records)
-    scale = system.x.scale
+    divide = 1.0 if bound_scale is None else bound_scale
     candidates: list[tuple[Candidate, Any]] = []
 
     def weigh(cert: Any, N: int) -> tuple[Candidate, Any]:
         estimator = build(cert, N, prior)
-        errors = [estimator.run(u, y).error(x)[(len(y) - 1) // 4 :] for u, y, x in scored]
+        errors, w_errors = [], []
+        for u, y, x, w in scored:
+            result = estimator.run(u, y)
+            first = (len(y) - 1) // 4
+            errors.append(result.error(x)[first:])
+            w_errors.append((result.w_hat - w)[first:])
         rms = np.sqrt(np.mean(np.concatenate(errors) ** 2, axis=0))
-        return Candidate(cert.mu, N, bound(cert, N), rms, float(getattr(cert, "output_weight", 1.0))), cert
+        w_err = np.concatenate(w_errors)
+        informed = np.isfinite(w_err)
+        w_rms = np.sqrt(np.sum(np.where(informed, w_err, 0.0) ** 2, axis=0) / np.maximum(informed.sum(axis=0), 1))
+        w_rms = np.where(informed.any(axis=0), w_rms, np.nan)
+        output_weight = float(getattr(cert, "output_weight", 1.0))
+        return Candidate(cert.mu, N, bound(cert, N), rms, output_weight, w_rms), cert
 
-    def worst(pair: tuple[Candidate, Any]) -> float:
-        return float(np.max(pair[0].rms / scale))
+    def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
+        """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best."""
+        errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c, _ in pool])
+        score = regret(errors)
+        tied = [pair for pair, value in zip(pool, score, strict=True) if value <= ERROR_TOLERANCE * score.min()]
+        return min(tied, key=lambda pair: float(np.max(pair[0].bound / divide)))
 
     for cert in certificates:
         horizons = range(cert.min_horizon(), max_horizon + 1)
-        divide = 1.0 if bound_scale is None else bound_scale
         N = min(horizons, key=lambda n: float(np.max(bound(cert, n) / divide)), default=None)
         if N is not None:
             candidates.append(weigh(cert, N))
@@ -322,11 +380,9 @@ def _design(
             f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it, and "
             "the estimator built from a certificate with a shorter N runs without a guarantee)"
         )
-    chosen, cert = min(candidates, key=worst)
-    tried = [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
-    candidates += tried
-    if tried and worst(min(tried, key=worst)) < VARIANT_GAIN * worst((chosen, cert)):  # beyond the trials' noise
-        chosen, cert = min(tried, key=worst)
+    chosen, cert = choose(candidates)
+    candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
+    chosen, cert = choose(candidates)
     if bound_scale is not None:
         _warn_if_vacuous(system, chosen)
     return Design(cert, chosen.N, chosen.bound, tuple(c for c, _ in candidates), time.thread_time() - start)
@@ -348,8 +404,10 @@ def _warn_if_vacuous(system: System, chosen: Candidate) -> None:
         )
 
 
-def _given_records(system: System, records: Sequence[Any]) -> list[tuple[FloatArray | None, FloatArray, FloatArray]]:
-    """``(u, y, x)`` of the user's records; DataError for anything that is not a record of ``system`` with states."""
+def _given_records(
+    system: System, records: Sequence[Any]
+) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
+    """``(u, y, x, w)`` of the user's records; DataError for anything that is not a record of ``system`` with states."""
     from uiest.results import Trajectory
 
     records = [] if isinstance(records, Trajectory) else list(records)
@@ -362,14 +420,14 @@ def _given_records(system: System, records: Sequence[Any]) -> list[tuple[FloatAr
                             f"ny = {system.ny})")  # fmt: skip
         if not np.all(np.isfinite(record.x)):
             raise DataError(f"records[{i}]: expected a record with its states (a simulation), to score the errors")
-        scored.append((record.u if system.nu else None, record.y, record.x))
+        scored.append((record.u if system.nu else None, record.y, record.x, record.w))
     return scored
 
 
 def _noise_records(
     system: System, x0: FloatArray, trials: int, steps: int, seed: int
-) -> list[tuple[FloatArray | None, FloatArray, FloatArray]]:
-    """``(u, y, x)`` of noise-only runs: u at U's centre, w = nominal, v uniform in V (its scale where unbounded)."""
+) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
+    """``(u, y, x, w)`` of noise-only runs: u at U's centre, w = nominal, v uniform in V (its scale where unbounded)."""
     from uiest.detectability.lmi import finite_box
     from uiest.simulate import simulate
 
@@ -379,5 +437,5 @@ def _noise_records(
     records = []
     for _ in range(trials):
         traj = simulate(system, x0, steps, u=u, w=system.nominal_w, v=V.sample(rng, steps + 1))
-        records.append((u, traj.y, traj.x))
+        records.append((u, traj.y, traj.x, traj.w))
     return records

@@ -13,6 +13,7 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from uiest.experiments import provenance
+from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.health import BOUND_SHARE
@@ -161,55 +162,6 @@ def _markdown(frame: pd.DataFrame, digits: int = 3) -> str:
     return "\n".join([header, rule, *body])
 
 
-def claims(study: StudyResult, acc: pd.DataFrame, times: pd.DataFrame) -> list[str]:
-    """The paper's claims, checked against the measured numbers (one sentence each)."""
-    scenario = study.scenario
-    focus = state_names(study)[scenario.focus_state]
-    names = [spec.name for spec in scenario.estimators
-             if spec.weights == "explicit" and spec.kind not in FILTER_KINDS]  # the paper's setting  # fmt: skip
-    lines = []
-    for case in scenario.cases:
-        sub = acc[(acc["case"] == case) & (acc["state"] == focus)].set_index("estimator")
-        if "standard MHE" in sub.index:
-            mhe = sub.loc["standard MHE"]
-            for name in names:
-                if name == "standard MHE" or name not in sub.index:
-                    continue
-                ours = sub.loc[name]
-                ratio = ours["rmse"] / max(mhe["rmse"], 1e-300)
-                verdict = (
-                    "holds"
-                    if ratio < 0.5
-                    else "holds only marginally (less than a factor 2)"
-                    if ratio < 1.0
-                    else "does NOT hold"
-                )
-                lines.append(
-                    f"{case}: {name} has a smaller {focus} error than the standard MHE: {verdict} "
-                    f"(RMSE after k={scenario.settle}: {ours['rmse']:.3g} vs {mhe['rmse']:.3g})."
-                )
-            grows = "holds" if mhe["growth"] > 1.1 else "does NOT hold (changes by less than 10 %)"
-            lines.append(
-                f"{case}: the standard MHE's {focus} error grows over the run: {grows} "
-                f"(late/early mean |error| = {mhe['growth']:.3g})."
-            )
-        tsub = times[(times["case"] == case) & times["estimator"].isin(names)].set_index("estimator")
-        if "two-stage UISE" in tsub.index and len(tsub) > 1:
-            fastest = tsub["t_max_ms"].idxmin()
-            verdict = "holds" if fastest == "two-stage UISE" else "does NOT hold"
-            ratios = ", ".join(
-                f"{other}: {tsub.loc['two-stage UISE', 't_max_ms'] / tsub.loc[other, 't_max_ms']:.2f}x"
-                for other in tsub.index
-                if other != "two-stage UISE"
-            )
-            lines.append(f"{case}: the two-stage UISE is the fastest: {verdict} (its t_max relative to {ratios}).")
-    return lines
-
-
-FILTER_KINDS = ("ekf", "ukf")
-"""Baselines outside the paper: not part of its claims, compared in their own section."""
-
-
 def filter_comparison(study: StudyResult, acc: pd.DataFrame) -> list[str]:
     """Each estimator's focus-state RMSE beside the best of the EKF and UKF, per case (empty without filters)."""
     scenario = study.scenario
@@ -230,17 +182,6 @@ def filter_comparison(study: StudyResult, acc: pd.DataFrame) -> list[str]:
               "filters carry no guarantee: their error grows with how far the unknown input departs from a random "
               "walk (a jump or a ramp), which this scenario may not contain.", ""]  # fmt: skip
     return lines
-
-
-def headline(checked: list[str]) -> str:
-    """One line: how many of the paper's claims hold, hold marginally and do not hold."""
-    if not checked:
-        return "**No claim of the paper applies to this scenario.**"
-    failed = sum("does NOT hold" in line for line in checked)
-    marginal = sum("holds only marginally" in line for line in checked)
-    held = len(checked) - failed - marginal
-    return (f"**Of {len(checked)} claims of the paper checked here, {held} hold, {marginal} hold only marginally "
-            f"and {failed} do not hold** (details below).")  # fmt: skip
 
 
 def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.DataFrame:
@@ -422,11 +363,11 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     guarantees = guarantee_table(study, acc)
     guarantees.to_csv(out / "guarantees.csv", index=False)
     written.append(out / "guarantees.csv")
-    checked = claims(study, acc, times)
+    checked = paper_claims(study)
     report = [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
-        headline(checked),
+        *headline(checked),
         "",
         *outcome_lines(study),
         f"Model `{scenario.model}`, {scenario.runs} runs x {len(scenario.cases)} cases, K = {scenario.steps} steps, "
@@ -436,7 +377,12 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "",
         "## Claims of the paper, checked",
         "",
-        *[f"- {line}" for line in checked],
+        *[f"- {claim.text()}" for claim in checked],
+        "",
+        "Each claim is decided on per-run ratios (the same truth and noise for both estimators, or one "
+        "estimator's late over early error): it holds or does not hold when the runs agree on the sign (their "
+        "mean log ratio +- 2 standard errors, or their range with fewer than 3 runs, excludes 1); otherwise, or "
+        "when the effect is below 1 % (10 % for times per sample), the runs show no measurable difference.",
         "",
         "## Certificates and guarantees",
         "",
