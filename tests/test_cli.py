@@ -67,7 +67,7 @@ def test_reproduce_runs_a_scenario_file(tmp_path):
     path = tiny().with_overrides(runs=1, cases=("noise-free",)).to_toml(tmp_path / "tiny.toml")
     result = runner.invoke(app, ["reproduce", "--scenario", str(path), "--out", str(tmp_path / "out")])
     assert result.exit_code == 0, result.output
-    assert (tmp_path / "out" / "report.md").exists() and "UISE (measured)" in result.output
+    assert (tmp_path / "out" / "report.md").exists() and "UISE (measured, CPU)" in result.output
     bad = runner.invoke(app, ["reproduce", "no-such-model", "--out", str(tmp_path)])
     assert bad.exit_code == 2 and "unknown name" in bad.output
     none = runner.invoke(app, ["reproduce", "closed-form", "--out", str(tmp_path)])

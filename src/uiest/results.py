@@ -356,7 +356,7 @@ class EstimationResult(_PicklableNames):
         Each step's :class:`~uiest.health.Outcome` (its value; ``outcome == Outcome.FAILED`` compares).
     iterations : ndarray (K+1,) of int
     solve_time : ndarray (K+1,)
-        Seconds per step.
+        Wall-clock seconds in the solver per step.
     cost : ndarray (K+1,)
         Optimal window cost per step.
     window : ndarray (K+1,) of int
@@ -381,6 +381,10 @@ class EstimationResult(_PicklableNames):
     solver_status, primary_status, reason : ndarray (K+1,) of str
     fallback, held_input, on_boundary, window_at_bound, evaluated_inside : ndarray (K+1,) of bool
         As in :class:`StepEstimate` (default: ``""`` and False).
+    cpu_time : ndarray (K+1,)
+        CPU seconds of the calling thread (``time.thread_time``) spent in each whole step: the solver
+        and the estimator's own work around it (NaN where not measured). Unlike wall-clock time it does
+        not count what other processes take from a shared machine.
 
     """
 
@@ -409,6 +413,7 @@ class EstimationResult(_PicklableNames):
     on_boundary: NDArray[np.bool_] | None = None
     window_at_bound: NDArray[np.bool_] | None = None
     evaluated_inside: NDArray[np.bool_] | None = None
+    cpu_time: FloatArray | None = None
 
     def __post_init__(self) -> None:
         for name, dtype in (
@@ -437,6 +442,11 @@ class EstimationResult(_PicklableNames):
             if arr.shape != shape:
                 raise DataError(f"{name}: expected shape {shape} (time-first, one row per step), got {arr.shape}")
             object.__setattr__(self, name, arr)
+        cpu = np.full(rows, np.nan) if self.cpu_time is None else _frozen(self.cpu_time, float)
+        if cpu.shape != (rows,):
+            raise DataError(f"cpu_time: expected shape ({rows},) (one value per step), got {cpu.shape}")
+        cpu.setflags(write=False)
+        object.__setattr__(self, "cpu_time", cpu)
         if self.x_lag is not None:
             object.__setattr__(self, "x_lag", _frozen(self.x_lag, float))
         object.__setattr__(self, "names", MappingProxyType({k: tuple(v) for k, v in self.names.items()}))
@@ -517,7 +527,7 @@ class EstimationResult(_PicklableNames):
 
         ``status`` (the display line), ``outcome``, ``success``, ``solver_status``, ``fallback``,
         ``primary_status``, ``reason``, ``held_input``, ``on_boundary``, ``window_at_bound``,
-        ``evaluated_inside``, ``<state>_at_bound``, ``iterations``, ``solve_time``, ``cost``, the window
+        ``evaluated_inside``, ``<state>_at_bound``, ``iterations``, ``solve_time``, ``cpu_time``, ``cost``, the window
         length, the number of missing outputs and, with a lag, the lagged estimates ``<state>_lag`` of
         ``x[k-lag]``. The unknown-input columns are NaN in the last row (no transition after K).
         """
@@ -535,6 +545,7 @@ class EstimationResult(_PicklableNames):
         columns.update(
             iterations=self.iterations,
             solve_time=self.solve_time,
+            cpu_time=self.cpu_time,
             cost=self.cost,
             window=self.window,
             missing=self.missing.sum(axis=1),

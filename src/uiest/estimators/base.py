@@ -30,6 +30,7 @@ with :meth:`WindowEstimator.configure` (which drops the cached solvers).
 from __future__ import annotations
 
 import dataclasses
+import time
 import warnings
 from collections import deque
 from collections.abc import Mapping
@@ -665,12 +666,13 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     w_hat = np.full((K, s.nw), np.nan)
     outcome: list[str] = []
     iterations = np.zeros(K + 1, dtype=np.int64)
-    solve_time, cost = np.zeros(K + 1), np.zeros(K + 1)
+    solve_time, cost, cpu_time = np.zeros(K + 1), np.zeros(K + 1), np.zeros(K + 1)
     window = np.zeros(K + 1, dtype=np.int64)
     states_at_bound = np.zeros((K + 1, s.nx), dtype=bool)
     health: dict[str, list[Any]] = {name: [] for name in HEALTH_FIELDS}
     for k in range(K + 1):
         u_prev = None if k == 0 else u_arr[k - 1]
+        start = time.thread_time()
         try:
             est = estimator.step(u_prev, y_arr[k])
         except (OptionError, CertificationError):  # the configuration is wrong: no step will do better
@@ -679,6 +681,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
             if strict or not hasattr(estimator, "skip"):
                 raise
             est = estimator.skip(u_prev, y_arr[k], f"{type(exc).__name__}: {exc}")
+        cpu_time[k] = time.thread_time() - start
         x_hat[k] = est.x_hat
         if est.x_lag is not None:
             x_lag[k - lag] = est.x_lag
@@ -712,6 +715,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         lag=lag,
         at_bound=states_at_bound,
         **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
+        cpu_time=cpu_time,
     )
 
 

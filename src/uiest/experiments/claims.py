@@ -26,8 +26,8 @@ MIN_EFFECT = 0.01
 """A relative effect on accuracy below this (1 %) is no measurable difference, however consistent the runs."""
 
 MIN_TIME_EFFECT = 0.1
-"""The same for time per sample (10 %): each estimator's runs are separate tasks, timed at different moments on
-a machine whose load others change; smaller ratios are within what that load moves."""
+"""The same for time per sample (10 %): each estimator's runs are separate tasks, timed (CPU of the thread) at
+different moments on a machine whose load others change, which moves even CPU times (caches, frequency)."""
 
 SPREAD_FACTOR = 2.0
 """With three or more runs the effect is decided by its mean log ratio +- this many standard errors."""
@@ -153,7 +153,7 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
     """Per-run tables, index (case, run), one column per estimator: focus RMSE, error growth, time per sample.
 
     RMSE after ``settle``; growth: mean |error| over the last quarter of the run over that of the
-    quarter after ``settle``; time: the mean solve time per sample (s).
+    quarter after ``settle``; time: the mean CPU time per sample (s, whole steps).
     """
     scenario, frame = study.scenario, study.steps
     quarter = max(1, (scenario.steps - scenario.settle) // 4)
@@ -169,7 +169,7 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
     return {
         "rmse": np.sqrt(table(err**2, settled)),
         "growth": table(err, late) / table(err, early),
-        "seconds": table(frame["solve_time"], frame["k"] >= 0),
+        "seconds": table(frame["cpu_time"], frame["k"] >= 0),
     }
 
 
@@ -202,8 +202,8 @@ def paper_claims(study: StudyResult) -> list[Claim]:
     - each explicit-weight paper estimator (UISE, two-stage UISE, FIE) has a smaller focus-state
       RMSE than the standard MHE (per-run ratio);
     - the standard MHE's focus-state error grows over the run (per-run late/early ratio);
-    - the two-stage UISE takes less time per sample than each other paper estimator (per-run ratio:
-      both measured on the same run's record, by the same worker).
+    - the two-stage UISE takes less time per sample than each other paper estimator (per-run ratio
+      of the mean CPU time of whole steps on the same record).
     """
     scenario = study.scenario
     if study.steps.empty:

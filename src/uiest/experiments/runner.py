@@ -123,7 +123,8 @@ class StudyResult:
     scenario : Scenario
     steps : pandas.DataFrame
         One row per (case, run, estimator, k): ``t``, true and estimated states
-        (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time``, ``status`` (the
+        (``<name>``, ``<name>_hat``), ``w`` and ``w_hat`` columns, ``solve_time`` (wall-clock seconds in
+        the solver), ``cpu_time`` (CPU seconds of the whole step), ``status`` (the
         display line), ``outcome``, ``success``, ``fallback``, ``held_input``, ``window_at_bound`` and
         ``<name>_at_bound``.
     runs : pandas.DataFrame
@@ -371,6 +372,7 @@ def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: Estim
         data[label] = np.append(truth.w[:, i], np.nan)
         data[f"{label}_hat"] = np.append(result.w_hat[:, i], np.nan)
     data["solve_time"] = result.solve_time
+    data["cpu_time"] = result.cpu_time
     data["status"] = result.status
     data["outcome"] = result.outcome
     data["success"] = result.success
