@@ -108,8 +108,8 @@ class FIE(WindowEstimator):
         bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, None, self.system.v.bounds,
                                        self.v_prior, self.system.x.bounds.width)  # fmt: skip
         assumes = (
-            f"mu={self.weights.mu:.4g}; noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, every output "
-            "measured and every problem solved to optimality; any unknown input"
+            f"mu={self.weights.mu:.4g}; noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, the true "
+            "state in X, every output measured and every problem solved to optimality; any unknown input"
         )
         return self._holds(self.theorem, bound, settling, assumes)
 

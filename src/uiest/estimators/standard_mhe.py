@@ -145,7 +145,7 @@ class StandardMHE(WindowEstimator):
         assumes = (
             f"eta={eta:.4g}{raised}, N={self.N}; the unknown input in {w_range} around w_prior "
             f"{np.round(self.w_prior, 12).tolist()}, noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, "
-            "every output measured and every window problem solved to optimality"
+            "the true state in X, every output measured and every window problem solved to optimality"
         )
         note = (
             "the unknown input has no known range (system.w_range or the certificate's w_box)"

@@ -277,8 +277,9 @@ class TwoStageUISE(WindowEstimator):
             note = "the exact projection is non-expansive only in its own metric, not per state"
         mu_text = "" if self.weights is None else f"mu={self.weights.mu:.4g}, N={self.N}; "
         assumes = (
-            f"{mu_text}noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, every output measured and "
-            f"every window problem solved to optimality, projection {self.projection.mode!r}; any unknown input"
+            f"{mu_text}noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, the true state in X, every "
+            f"output measured and every window problem solved to optimality, projection {self.projection.mode!r}; "
+            "any unknown input"
         )
         return self._holds(theorem, bound, settling, assumes, note if not np.all(np.isfinite(bound)) else "")
 

@@ -159,7 +159,8 @@ class UISE(WindowEstimator):
     def _assumes(self) -> str:
         return (
             f"mu={self.weights.mu:.4g}, N={self.N}; noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, "
-            "every output measured and every window problem solved to optimality; any unknown input"
+            "the true state in X, every output measured and every window problem solved to optimality; any unknown "
+            "input"
         )
 
     def __repr__(self) -> str:
