@@ -207,7 +207,7 @@ class Guarantee:
 
 
 def _amount(value: float, unit: str) -> str:
-    """``value`` with 3 significant digits (whole numbers up to 1e6 in full) and its unit."""
+    """``value`` with 3 significant digits (whole numbers up to 1e6 in full) and its unit ("" and "-": none)."""
     magnitude = abs(value)
     number = f"{value:.0f}" if 1e3 <= magnitude < 1e6 else f"{value:.3g}"
-    return f"{number} {unit}" if unit else number
+    return f"{number} {unit}" if unit not in ("", "-") else number
