@@ -21,6 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.errors import OptionError
 
 
 class Verdict(enum.Enum):
@@ -91,7 +92,7 @@ class Guarantee:
         if self.error_bound is not None:
             bound = np.array(self.error_bound, dtype=float, ndmin=1)
             if bound.shape != width.shape:
-                raise ValueError(f"error_bound: expected shape {width.shape}, got {bound.shape}")
+                raise OptionError(f"error_bound: expected shape {width.shape} (one bound per state), got {bound.shape}")
             bound.setflags(write=False)
             object.__setattr__(self, "error_bound", bound)
 
