@@ -137,8 +137,10 @@ def test_the_linear_uio_bound_is_the_simulated_worst_case():
             warnings.simplefilter("ignore")  # a ramp leaves X, as above
             truth = simulate(system, rng.choice([-9.9, 9.9], 3), 200, w=lambda k, x: [1e3 * k],
                              v=_extreme_noise(rng, system, 200))  # fmt: skip
-        error = np.abs(uio.run(None, truth.y).x_hat - truth.x)[g.settling_steps :]
-        assert np.all(error <= g.error_bound)
+        result = uio.run(None, truth.y)
+        assert np.all(np.abs(result.x_hat - truth.x)[g.settling_steps :] <= g.error_bound)
+    back = pickle.loads(pickle.dumps(result))  # the result holds the object, and pickles with it
+    assert back.guarantee.text == result.guarantee.text == g.text and back.to_pandas().equals(result.to_pandas())
 
 
 def test_the_fie_the_standard_mhe_and_the_filters():
