@@ -57,6 +57,11 @@ def test_certify_prints_the_table_and_writes_json(tmp_path):
     assert kinds == ["strong_detectability", "reduced_eioss", "delta_ioss"]
     assert all(c["certified"] for c in data["certificates"])
     assert all(c["verify_worst_ratio"] <= 1.0 for c in data["certificates"])
+    # the closed-form model's certified UISE: a bound below X's width in every state, in the table and the JSON
+    strong = data["certificates"][0]["guarantee"]
+    assert strong["estimator"] == "UISE" and strong["applies"] and strong["informative"]
+    assert "UISE: informative" in result.output and "UISE theorem (theo:MHE_full): holds, bound x1 " in result.output
+    assert strong["text"].endswith("(informative)") and strong["text"] in result.output.replace("\n", "")
     bad = runner.invoke(app, ["certify", "closed-form", "--structure", "diagonal", "--out", str(out)])
     assert bad.exit_code == 2 and "structure" in bad.output
 
@@ -147,3 +152,44 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     gn = [r for r in records if r["solver"] == "gn"]
     assert all(r["windows_compared"] == 71 and r["median_dev_vs_ipopt"] <= r["max_dev_vs_ipopt"] for r in gn)
     assert all((r["windows_cost_above_1e-8"] > 0) == (r["max_cost_excess_vs_ipopt"] > 1e-8) for r in gn)
+
+
+def test_certify_says_the_crop_uise_bound_is_vacuous_in_kg_per_m2(tmp_path):
+    import json
+
+    out = tmp_path / "crop.json"
+    result = runner.invoke(app, ["certify", "crop-growth", "--out", str(out), "--verify", "200"], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    strong = json.loads(out.read_text())["certificates"][0]["guarantee"]
+    assert strong["applies"] and not strong["informative"] and strong["verdict"] == "vacuous"
+    line = next(line for line in result.output.splitlines() if line.startswith("  UISE with N = min horizon"))
+    assert "holds but vacuous: bound " in line and "kg/m^2 > X's width 0.02 kg/m^2 for x_d1" in line
+    assert "UISE: vacuous" in result.output and "applies" not in line
+
+
+def test_estimate_prints_warnings_as_messages_and_the_guarantee_with_its_verdict(tmp_path):
+    import numpy as np
+
+    from uiest import simulate
+    from uiest.models import linear
+
+    # y = 0.01 x + v, |v| <= 0.05, X = [-1, 1]: certified, but the noise can leave an error far beyond X
+    model = tmp_path / "weak_output.py"
+    model.write_text(
+        "import numpy as np\nfrom uiest.models import linear\nsystem = linear.linear_system(np.array([[0.5]]), "
+        "[[1.0]], [[0.01]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))\n"
+    )
+    system = linear.linear_system(np.array([[0.5]]), [[1.0]], [[0.01]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
+    rng = np.random.default_rng(0)
+    truth = simulate(system, [0.1], 40, w=0.2 * np.sin(np.arange(40))[:, None], v=rng.uniform(-0.05, 0.05, (41, 1)))
+    data = tmp_path / "data.csv"
+    truth.to_pandas().to_csv(data)
+    result = runner.invoke(app, ["estimate", str(model), "--data", str(data), "--out", str(tmp_path / "out")],
+                           terminal_width=400)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    warned = [line for line in lines if line.startswith("warning: design: the chosen guarantee is not informative")]
+    assert len(warned) == 1 and "holds but vacuous: bound" in warned[0]
+    assert "UserWarning" not in result.output and "warnings.warn" not in result.output and ".py:" not in result.output
+    column = " ".join(line.split("│")[5].strip() for line in lines if line.startswith("│"))  # the guarantee column
+    assert column.startswith("holds but vacuous: bound ") and "> X's width 2 for x[0]" in column

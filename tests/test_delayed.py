@@ -45,7 +45,7 @@ def test_lagged_error_of_the_delayed_uise_is_the_closed_form():
     # the unknown input w[j] = x1[j+1] - x1[j] is fitted to consecutive lagged estimates
     i = np.arange(1, K - 2)  # w[i], delivered at k = i + lag + 1 <= K
     np.testing.assert_allclose(result.w_hat[i, 0] - truth.w[i, 0], v[i + 2, 0] - v[i + 1, 0], atol=1e-8)
-    assert est.guarantee.startswith("none: explicit weights")
+    assert str(est.guarantee).startswith("none: explicit weights")
 
 
 def test_a_system_without_matching_is_refused_unless_forced():
@@ -61,7 +61,7 @@ def test_a_system_without_matching_is_refused_unless_forced():
     with pytest.warns(BoundWarning, match=r"UISE: the estimate of x\[0\] at or beyond X's upper side 100"):
         result = forced.run(np.zeros((20, 1)), truth.y)  # x[k] is not determined by y[..k]: it runs to X's side
     assert set(result.outcome) == {Outcome.SOLVED} and result.failures == 0
-    assert not forced.guaranteed and forced.guarantee.startswith("none: matching fails")
+    assert not forced.guaranteed and str(forced.guarantee).startswith("none: matching fails")
     with pytest.raises(ModelError, match="matching holds"):
         delayed_system(linear.linear_system(0.5 * np.eye(2), [[1.0], [0.0]], [[1.0, 0.0]], x_bounds=(-1, 1)))
 

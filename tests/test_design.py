@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from uiest import CertificationError, DataError, OptionError, simulate
-from uiest.design import ERROR_TOLERANCE, regret, settled_bound
+from uiest.design import ERROR_TOLERANCE, regret
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
 from uiest.estimators import UISE, LinearUIO
@@ -40,6 +40,7 @@ def test_designed_uise_is_as_accurate_as_the_linear_uio(seed):
     key = (report.certificate.mu, report.N, report.certificate.output_weight)
     chosen = [c for c in report.candidates if (c.mu, c.N, c.output_weight) == key]
     assert len(chosen) == 1 and np.all(chosen[0].bound == report.bound)
+    np.testing.assert_array_equal(report.bound, designed.guarantee.error_bound)  # one formula: the guarantee's
     # among the candidates as accurate as the best on every state and input, the smallest bound
     errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c in report.candidates])
     score = regret(errors)
@@ -81,13 +82,6 @@ def test_design_is_within_the_tolerance_of_the_best_candidate_on_every_state():
     assert np.all(chosen.rms <= 1.2 * best), (chosen, best)
 
 
-def test_settled_bound_is_the_proofs_formula():
-    gain = np.array([1.0, 2.0])
-    lam = 8 ** (1 / 10) * 0.5
-    np.testing.assert_allclose(settled_bound(gain, 0.5, 10), gain * 4 / np.sqrt(lam * (1 - lam)))
-    assert np.all(np.isinf(settled_bound(gain, 0.9, 1)))  # 8 mu >= 1: no contraction within one step
-
-
 def test_design_refuses_what_it_cannot_do():
     system, _, _ = benchmark(0)
     with pytest.raises(OptionError, match="rates: expected numbers in"):
@@ -101,8 +95,8 @@ def test_design_refuses_what_it_cannot_do():
 
 
 def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
-    from uiest.design import two_stage_bound
     from uiest.estimators import TwoStageUISE
+    from uiest.estimators.bounds import noise_quadratic, two_stage_z_bound
     from uiest.reduction import reduce_quasi_state_affine
 
     system, traj, _ = benchmark(0)
@@ -111,11 +105,15 @@ def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
     report = designed.design_report
     assert designed.guaranteed and designed.N == report.N and designed.projection.mode == "none"
     assert [c.mu for c in report.candidates] == [report.candidates[0].mu, 0.5, 0.8]
-    diameter = float(np.linalg.norm(system.v.bounds.width / system.v.scale))
-    np.testing.assert_allclose(report.bound, two_stage_bound(report.certificate, report.N, diameter))
+    np.testing.assert_array_equal(report.bound, designed.guarantee.error_bound)  # per state, in x's units
     lam = max(np.sqrt(report.certificate.mu) * (2 * np.sqrt(report.certificate.c_x)) ** (1 / report.N),
               np.sqrt(report.certificate.mu))  # fmt: skip
-    assert lam < 1 and report.bound.shape == (reduced.n_sharp,)
+    assert lam < 1 and report.bound.shape == (system.nx,) and np.all(np.isfinite(report.bound))
+    # N minimises theo:stab's settled bound on z_sharp (decreasing in N: the longest window admitted)
+    cert = report.certificate
+    noise = noise_quadratic(cert.R_v, system.v.bounds, np.zeros(system.nv))
+    best = min(range(cert.min_horizon(), 31), key=lambda n: two_stage_z_bound(cert.mu, cert.c_x, n, noise))
+    assert best == report.N
     assert max(c.rms.max() for c in report.candidates if c.mu == report.certificate.mu) == min(
         c.rms.max() for c in report.candidates
     )  # all states share the scale 100 (X = +-50)
@@ -161,12 +159,13 @@ def test_a_design_whose_guarantee_bounds_nothing_under_the_noise_says_so():
     # y = 0.01 x + v with |v| <= 0.05 on X = [-1, 1]: certified (no zeros, CB != 0), but the noise can leave an
     # error of 5 / 0.01 scales; with y = x the bound is well inside X.
     weak = linear.linear_system(np.array([[0.5]]), [[1.0]], [[0.01]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
-    with pytest.warns(UserWarning, match=r"guaranteed noise bound of \['x\[0\]'\] .* exceeds X's width"):
-        UISE.design(weak, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)
+    with pytest.warns(UserWarning, match=r"guarantee is not informative for \['x\[0\]'\] .* holds but vacuous: bound"):
+        designed = UISE.design(weak, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)
+    assert designed.guarantee.applies and not designed.guarantee.informative
     strong = linear.linear_system(np.array([[0.5]]), [[1.0]], [[1.0]], x_bounds=(-1, 1), v_bounds=(-0.05, 0.05))
     with warnings.catch_warnings():
         warnings.simplefilter("error", UserWarning)
-        UISE.design(strong, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40)
+        assert UISE.design(strong, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40).guarantee.informative
 
 
 def test_a_design_scores_its_candidates_on_the_users_records_when_given():

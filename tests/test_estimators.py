@@ -90,7 +90,7 @@ def test_closed_form_error_follows_the_closed_form():
     traj = simulate(system, setup.x0, 50, u=setup.u, w=setup.w)
     prior = np.array([traj.y[0, 0], 0.0])  # x1 from the first measurement, x2 off by 1
     est = UISE(system, certificate=cert, N=12, x0_prior=prior)
-    assert not est.guaranteed and "does not apply" in est.guarantee  # N below min_horizon(): no claim
+    assert not est.guaranteed and str(est.guarantee).startswith("none: N=12 < min_horizon()")  # no claim
     result = est.run(traj.u, traj.y)
     e1, e2 = (traj.x - result.x_hat).T
     expected = closed_form.noise_free_error(traj.x[:, 0], traj.x[0, 1] - prior[1])
@@ -187,17 +187,22 @@ def test_window_weights_are_the_papers_formulas():
 def test_certificate_gives_weights_horizon_and_guarantee(linear_case):
     system, cert, delta = linear_case
     est = UISE(system, certificate=cert)
-    assert cert.min_horizon() == est.N and est.guaranteed and est.guarantee.startswith("theo:MHE_full")
+    assert cert.min_horizon() == est.N and est.guaranteed and "theo:MHE_full" in est.guarantee.theorem
+    assert str(est.guarantee).startswith("holds, bound") and est.guarantee.error_bound.shape == (system.nx,)
     assert est.weights.mu == cert.mu
     np.testing.assert_allclose(est.weights.P, cert.P)
     explicit = UISE(system, weights=est.weights, N=5)
-    assert not explicit.guaranteed and "does not apply" in explicit.guarantee
+    assert not explicit.guaranteed and str(explicit.guarantee) == (
+        "none: explicit weights without a strong-detectability certificate"
+    )
     assert FIE(system, certificate=cert).guaranteed
     mhe = StandardMHE(system, certificate=delta)
-    assert delta.min_horizon() == mhe.N and mhe.guaranteed and "does not converge" in mhe.guarantee
-    assert not StandardMHE(system, certificate=delta, N=1).guaranteed
+    assert delta.min_horizon() == mhe.N and mhe.guaranteed and "Schiller" in mhe.guarantee.theorem
+    assert "the unknown input in" in mhe.guarantee.assumes  # it holds only while w stays in a known range
+    short = StandardMHE(system, certificate=delta, N=1, normalise=False)
+    assert not short.guaranteed and "eq. (16)" in short.guarantee.reason
     result = UISE(system, weights=est.weights, N=3).run(None, np.zeros((3, 1)), x0_prior=np.zeros(3))
-    assert "does not apply" in result.guarantee
+    assert not result.guarantee.applies and str(result.guarantee).startswith("none: explicit weights")
 
 
 def test_certificate_and_weight_errors(linear_case):

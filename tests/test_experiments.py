@@ -109,21 +109,38 @@ def test_certificate_weights_reach_the_study_and_its_report(tmp_path):
     scenario = base.with_overrides(runs=1, estimators=(*base.estimators, certified))
     study = run_study(scenario)
     (row,) = study.certificates
-    assert row["status"] == "certified" and row["rate"] == pytest.approx(0.9) and row["guarantee"] is True
+    assert row["status"] == "certified" and row["rate"] == pytest.approx(0.9)
     assert row["N"] == row["min_horizon"] >= 1 and len(row["noise_gain"]) == 2
     result = study.results[("noisy", 0, "UISE (certified)")]
-    assert result.guarantee.startswith("theo:MHE_full")
+    assert result.guarantee.applies and "theo:MHE_full" in result.guarantee.theorem
     write_report(study, tmp_path, wall_time=1.0)
     report = (tmp_path / "report.md").read_text()
-    assert "## Certificates and guarantees" in report and "the theorem applies" in report
+    assert "## Certificates and guarantees" in report and f"guarantee: {result.guarantee.text}." in report
     guarantees = pd.read_csv(tmp_path / "guarantees.csv").set_index("estimator")
-    assert guarantees.loc["UISE (certified)", "theorem applies"] == "yes"
-    assert guarantees.loc["UISE", "theorem applies"] == "no"
+    # the closed-form model's certified UISE: a bound below X's width (20) in every state
+    assert guarantees.loc["UISE (certified)", "guarantee"] == result.guarantee.text
+    assert result.guarantee.text.startswith("holds, bound x1 ") and result.guarantee.text.endswith("(informative)")
+    assert float(guarantees.loc["UISE (certified)", "bound x2"]) == pytest.approx(result.guarantee.error_bound[1])
+    assert guarantees.loc["UISE", "guarantee"] == "none: explicit weights without a strong-detectability certificate"
     assert json.loads((tmp_path / "manifest.json").read_text())["certificates"][0]["status"] == "certified"
     with pytest.raises(OptionError, match="N"):
         EstimatorSpec("x", "uise", N=0)  # N = 0 (the certificate's horizon) needs certificate weights
     with pytest.raises(OptionError, match="weights"):
         EstimatorSpec("x", "uise", weights="guess")
+
+
+def test_the_crop_report_says_its_certified_uise_bound_is_vacuous_in_kg_per_m2():
+    from uiest.experiments.metrics import accuracy
+    from uiest.experiments.report import guarantee_table
+
+    study_spec = crop_growth.study()
+    (certified,) = [spec for spec in study_spec.estimators if spec.name == "UISE (certified)"]
+    study = run_study(study_spec.with_overrides(runs=1, steps=40, cases=("noisy",), estimators=(certified,)),
+                      solver="gn")  # fmt: skip
+    table = guarantee_table(study, accuracy(study)).set_index("estimator")
+    text = table.loc["UISE (certified)", "guarantee"]
+    assert text.startswith("holds but vacuous: bound ") and "kg/m^2 > X's width 0.02 kg/m^2 for x_d1" in text
+    assert table.loc["UISE (certified)", "bound x_d1 (kg/m^2)"] > 100 * 0.02
 
 
 def test_a_certificate_that_cannot_be_had_is_recorded_and_the_study_goes_on():

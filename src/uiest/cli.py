@@ -47,17 +47,25 @@ def _positive(value: int | None, option: str, *, allow_zero: bool = False) -> in
 
 
 def _user_errors(command: F) -> F:
-    """Turn uiest's typed errors into a one-line message and exit code 2."""
+    """Turn uiest's typed errors into a one-line message and exit code 2, and warnings into plain message lines."""
 
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return command(*args, **kwargs)
-        except UiestError as exc:
-            error_console.print(f"error: {exc}", style="bold red", highlight=False, soft_wrap=True, markup=False)
-            raise typer.Exit(code=2) from None
+        with warnings.catch_warnings():  # restores the filters and showwarning afterwards
+            warnings.showwarning = _show_warning
+            try:
+                return command(*args, **kwargs)
+            except UiestError as exc:
+                error_console.print(f"error: {exc}", style="bold red", highlight=False, soft_wrap=True, markup=False)
+                raise typer.Exit(code=2) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+                  line: str | None = None) -> None:  # fmt: skip
+    """A warning emitted during a command, as one message line on stderr (no source file or line)."""
+    error_console.print(f"warning: {message}", style="yellow", highlight=False, soft_wrap=True, markup=False)
 
 
 @app.command("models")
@@ -186,7 +194,7 @@ def estimate(
         table.add_column(column)
     for kind, result in results.items():
         error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
-        table.add_row(kind, notes[kind], str(result.failures), error, result.guarantee)
+        table.add_row(kind, notes[kind], str(result.failures), error, str(result.guarantee))
     console.print(table)
     console.print(_health_table(results))
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
@@ -228,6 +236,7 @@ def certify(
     import time
 
     from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+    from uiest.estimators import UISE, StandardMHE, TwoStageUISE
 
     check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
@@ -237,66 +246,95 @@ def certify(
     entry = models.load(model)
     system = entry.build()
     parameters = entry.jacobian_parameters() if entry.jacobian_parameters is not None else None
-    jobs: list[tuple[str, Callable[[], Any]]] = [
-        ("strong detectability", lambda: certify_strong_detectability(system, parameters=parameters, seed=seed)),
-    ]
+
+    def strong() -> tuple[Any, Callable[[Any], Any]]:
+        cert = certify_strong_detectability(system, parameters=parameters, seed=seed)
+        return cert, lambda c: UISE(system, certificate=c)
+
+    def reduced() -> tuple[Any, Callable[[Any], Any]]:
+        assert entry.reduction is not None
+        red = entry.reduction()
+        return red.certify(seed=seed), lambda c: TwoStageUISE(red, certificate=c)
+
+    def delta() -> tuple[Any, Callable[[Any], Any]]:
+        return certify_delta_ioss(system, structure=structure, seed=seed), lambda c: StandardMHE(system, certificate=c)
+
+    jobs: list[tuple[str, Callable[[], tuple[Any, Callable[[Any], Any]]]]] = [("strong detectability", strong)]
     if entry.reduction is not None:
-        reduction = entry.reduction
-        jobs.append(("reduced-order e-IOSS", lambda: reduction().certify(seed=seed)))
-    jobs.append((f"delta-IOSS (P {structure})", lambda: certify_delta_ioss(system, structure=structure, seed=seed)))
+        jobs.append(("reduced-order e-IOSS", reduced))
+    jobs.append((f"delta-IOSS (P {structure})", delta))
     records: list[dict[str, Any]] = []
     with console.status("certifying") as status:
         for label, job in jobs:
             status.update(f"certifying: {label}")
             start = time.perf_counter()
             try:
-                cert = job()
+                cert, estimator = job()
             except UiestError as exc:  # e.g. matching fails: this certificate does not apply, the others may
                 records.append({"certificate": label, "certified": False, "status": "not applicable",
                                 "reason": str(exc), "time_s": time.perf_counter() - start})  # fmt: skip
                 continue
             check = cert.verify(verify, seed=seed)
             records.append({"certificate": label, **cert.to_dict(), "verify_worst_ratio": check.worst_ratio,
-                            "verify_pairs": check.pairs_used, "time_s": time.perf_counter() - start})  # fmt: skip
+                            "verify_pairs": check.pairs_used, "time_s": time.perf_counter() - start,
+                            "guarantee": _estimator_guarantee(cert, estimator)})  # fmt: skip
     table = Table(title=f"certificates of {model}")
     table.add_column("")
     for record in records:
         table.add_column(record["certificate"])
-    cells = [_certificate_cells(record, system.x.names) for record in records]
+    cells = [_certificate_cells(record, system.x.names, system.x.units) for record in records]
     for i, name in enumerate(ROWS):
         table.add_row(name, *[column[i] for column in cells])
     console.print(table)
     for record in records:
         console.print(f"{record['certificate']}: {record['reason']}", highlight=False, soft_wrap=True, markup=False)
+        if "guarantee" in record:
+            guarantee = record["guarantee"]
+            line = f"  {guarantee['estimator']} with N = min horizon, {guarantee['theorem']}: {guarantee['text']}"
+            console.print(line, highlight=False, soft_wrap=True, markup=False)
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"model": model, "certificates": records}, indent=2, default=float))
     console.print(f"wrote {out}")
 
 
 ROWS = ("status", "rate (mu, eta)", "smallest rate", "cond(P) (c_x)", "gains (scaled)", "noise gain per step",
-        "min horizon", "cover", "verify: max ratio", "time")  # fmt: skip
+        "min horizon", "guarantee at min horizon", "cover", "verify: max ratio", "time")  # fmt: skip
 
 
-def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...]) -> list[str]:
+def _estimator_guarantee(cert: Any, estimator: Callable[[Any], Any]) -> dict[str, Any] | None:
+    """The guarantee of the estimator ``cert`` designs, with N = its min horizon (None when not certified)."""
+    if not cert.certified:
+        return None
+    try:
+        built = estimator(cert)
+    except UiestError as exc:
+        return {"estimator": "-", "theorem": "-", "applies": False, "verdict": "none", "text": f"none: {exc}"}
+    return {"estimator": built.estimator_name, **built.guarantee.to_dict()}
+
+
+def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], units: tuple[str, ...]) -> list[str]:
     """Table cells of one certificate record, in the order of ``ROWS``."""
     time_s = f"{record['time_s']:.2f} s"
     if not record["certified"]:
-        return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", record.get("cover", "-"),
-                "-", time_s]  # fmt: skip
+        return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", "-",
+                record.get("cover", "-"), "-", time_s]  # fmt: skip
     kind = record["kind"]
     cond = record["c_x"] if kind == "reduced_eioss" else record["condition_scaled"]
     noise = "-"
     if kind == "strong_detectability":
         gains = f"sigma_y {record['sigma_y']:.3g}\nsigma_v {record['sigma_v']:.3g}"
-        noise = "\n".join(f"{n}: {g:.3g}" for n, g in zip(state_names, record["noise_gain"], strict=True))
+        noise = "\n".join(f"{n}: {g:.3g} {u}".rstrip() for n, g, u in zip(state_names, record["noise_gain"], units,
+                                                                            strict=True))  # fmt: skip
     elif kind == "reduced_eioss":
         gains = f"c_y {record['c_y']:.3g}\nc_v {record['c_v']:.3g}\nc_gamma {record['c_gamma']:.3g}"
     else:
         gains = "Q_w, Q_v, R: see JSON"
     cover = record["coverage"].split(":")[0]
     ratio = f"{record['verify_worst_ratio']:.4g} ({record['verify_pairs']} pairs)"
+    guarantee = record.get("guarantee")
+    verdict = "-" if guarantee is None else f"{guarantee['estimator']}: {guarantee.get('verdict', 'none')}"
     return [record["status"], _number(record["rate"]), _number(record["rate_min"]), f"{cond:.3g}", gains, noise,
-            str(record["min_horizon"]), cover, ratio, time_s]  # fmt: skip
+            str(record["min_horizon"]), verdict, cover, ratio, time_s]  # fmt: skip
 
 
 def _number(value: Any) -> str:

@@ -2,22 +2,13 @@ r"""Choosing the UISE's rate mu and horizon N for accuracy under noise, from cer
 
 The minimal certified rate is a poor design under noise: with ``mu ~ 1e-2`` the window forgets
 its past at once and the estimate follows every noise sample. theo:MHE_full's proof bounds the
-error the noise leaves: for a quadratic certificate (``V = |e|_P^2``, ``sigma_v(r) = sigma_v r^2``)
-and ``N`` with ``rho = 8 mu^N < 1`` (the P-norm form of eq:MHE_full_horizon, see
-:mod:`uiest.estimators.uise`), the proof's last lines give
-``V(e_k) <= rho lambda^k / mu^N V(e_0) + sum_{i>=0} 8 lambda^{i-1} sigma_v(2 |dv_{k-i}|)`` with
-``lambda = max(mu, rho^{1/N}) = 8^{1/N} mu``, where the term ``i = 0`` is the current sample's
-(weight ``mu^{-1}`` in eq:cost_MHE_full; the paper's last line drops it, we keep it); with
-``|dv| <= d`` (V's diameter) the sum is at most ``8 sigma_v(2 d) / (lambda (1 - lambda))`` and the
-error settles within::
-
-    |e_i| <= noise_gain_i * 4 / sqrt(lambda (1 - lambda))      (settled_bound)
-
-(``noise_gain`` is the certificate's ``sqrt(2 sigma_v d^2 / alpha_1)`` in state units). That bound
-is worst-case (every noise sample aligned): it is smallest near ``lambda = 1/2``, while under
-independent noise a slower forgetting averages more samples and errs less (measured on random
-3-state linear systems: the bound's choice, mu ~ 0.3-0.6, gave 1.0-1.4x the linear UIO's RMSE,
-mu = 0.9 gave 1.04x). :func:`design_uise` therefore
+error the noise leaves (:func:`uiest.estimators.bounds.strong_bound`, the bound of
+:attr:`UISE.guarantee <uiest.estimators.UISE.guarantee>`): with ``lambda = 8^{1/N} mu`` it is
+proportional to ``1 / sqrt(lambda (1 - lambda))``. That bound is worst-case (every noise sample
+aligned): it is smallest near ``lambda = 1/2``, while under independent noise a slower forgetting
+averages more samples and errs less (measured on random 3-state linear systems: the bound's
+choice, mu ~ 0.3-0.6, gave 1.0-1.4x the linear UIO's RMSE, mu = 0.9 gave 1.04x). :func:`design_uise`
+therefore
 
 1. certifies at the minimal rate and at a grid of rates (``rates``, those above its design rate), within a
    CPU budget; each certified rate gets the horizon ``N <= max_horizon`` that minimises its bound
@@ -35,7 +26,9 @@ mu = 0.9 gave 1.04x). :func:`design_uise` therefore
    candidates within :data:`ERROR_TOLERANCE` of the best score are equally accurate, and of those
    the one with the smallest guaranteed bound (relative to the state scales) is chosen.
 
-The result carries both numbers per candidate, the guaranteed bound and the simulated RMS.
+Each candidate carries its estimator's :class:`~uiest.guarantee.Guarantee` (its ``bound`` is the
+guarantee's per-state bound) and the simulated RMS; the design warns when the chosen one's
+guarantee is not informative (its bound not below X's width in every state).
 """
 
 from __future__ import annotations
@@ -52,6 +45,8 @@ from numpy.typing import ArrayLike
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, user_stacklevel
 from uiest.errors import CertificationError, DataError, OptionError
+from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
+from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
 from uiest.system import System
 
@@ -76,7 +71,7 @@ DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Rates certified by default (with the minimal rate), each kept when it is at least mu_min."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class Candidate:
     """One (mu, N, output weight) weighed by the design.
 
@@ -84,12 +79,14 @@ class Candidate:
     ----------
     mu : float
     N : int
-    bound : ndarray
-        The settled error bound (per state, or per ``z_sharp`` component for the two-stage UISE).
+    bound : ndarray (nx,)
+        The guarantee's per-state bound (``guarantee.error_bound``, state units; NaN where it bounds nothing).
     rms : ndarray (nx,)
         Simulated state error RMS per state.
     output_weight : float
         The factor on the certificate's output weights.
+    guarantee : Guarantee or None
+        The candidate estimator's guarantee.
     w_rms : ndarray (nw,)
         Simulated unknown-input error RMS per input (NaN where no estimate was delivered).
 
@@ -100,6 +97,7 @@ class Candidate:
     bound: FloatArray
     rms: FloatArray
     output_weight: float = 1.0
+    guarantee: Guarantee | None = None
     w_rms: FloatArray = field(default_factory=lambda: np.zeros(0))
 
 
@@ -133,10 +131,9 @@ class Design:
     certificate : StrongDetectability or ReducedIOSS
         Certified at the chosen rate.
     N : int
-    bound : ndarray
-        The error the noise can leave, guaranteed by the theorem: per state for the UISE
-        (:func:`settled_bound`, theo:MHE_full), per ``z_sharp`` component for the two-stage
-        UISE (:func:`two_stage_bound`, theo:stab).
+    bound : ndarray (nx,)
+        The chosen estimator's guarantee's error bound per state (theo:MHE_full or theo:stab,
+        :mod:`uiest.estimators.bounds`), in the states' units.
     candidates : tuple of Candidate
     seconds : float
         CPU time of the certifications.
@@ -171,28 +168,6 @@ DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "cer
 def estimator_options(options: Mapping[str, Any]) -> dict[str, Any]:
     """The keywords of ``options`` that are not :data:`DESIGN_KEYS` (the designed estimator's own)."""
     return {k: v for k, v in options.items() if k not in DESIGN_KEYS}
-
-
-def settled_bound(noise_gain: FloatArray, mu: float, N: int) -> FloatArray:
-    """``noise_gain * 4 / sqrt(lambda (1 - lambda))`` with ``lambda = 8^{1/N} mu``; inf when lambda >= 1."""
-    lam = 8.0 ** (1.0 / N) * mu
-    if not 0.0 < lam < 1.0:
-        return np.full(np.shape(noise_gain), np.inf)
-    return np.asarray(noise_gain, dtype=float) * 4.0 / np.sqrt(lam * (1.0 - lam))
-
-
-def two_stage_bound(certificate: Any, N: int, diameter: float) -> FloatArray:
-    """theo:stab's settled error of ``z_sharp`` per component (its units), noise of scaled diameter ``diameter``.
-
-    From eq:rges_proof_4 with ``|v - v_bar| <= diameter``: ``2 sqrt(c_v) diameter lambda / (1 - lambda)``
-    scaled units, ``lambda = max(sqrt(mu) (2 sqrt(c_x))^{1/N}, sqrt(mu))``; inf when ``lambda >= 1``.
-    """
-    eta = np.sqrt(certificate.mu)
-    lam = max(eta * (2.0 * np.sqrt(certificate.c_x)) ** (1.0 / N), eta)
-    scale = np.asarray(certificate.scale, dtype=float)
-    if not lam < 1.0:
-        return np.full(scale.shape, np.inf)
-    return 2.0 * np.sqrt(certificate.c_v) * diameter * lam / (1.0 - lam) * scale
 
 
 def design_uise(
@@ -244,10 +219,11 @@ def design_uise(
     from uiest.estimators import UISE
 
     certify = dict(certify_options or {})
-    scale = system.x.scale
+    scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
+    v_bar = _v_prior(system, options)
 
-    def bound(cert: Any, n: int) -> FloatArray:
-        return settled_bound(np.asarray(cert.noise_gain, dtype=float), cert.mu, n)
+    def rank(cert: Any, n: int) -> float:
+        return float(np.max(strong_bound(cert.P, cert.R_v, cert.mu, n, V, v_bar, width)[0] / scale))
 
     def certify_with_horizon(mu: float | None) -> Any:
         """The certificate at mu; if its min_horizon exceeds max_horizon, one with cond(P) bounded to fit."""
@@ -261,9 +237,9 @@ def design_uise(
         return cert
 
     return _design(
-        system, x0, certify_with_horizon, bound,
+        system, x0, certify_with_horizon, rank,
         lambda cert, n, prior: UISE(system, certificate=cert, N=n, x0_prior=prior, **options),
-        bound_scale=scale, what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
+        what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
         trials=trials, steps=steps, seed=seed, records=records,
         variants=lambda cert: [cert.with_output_weight(factor) for factor in OUTPUT_WEIGHTS if factor != 1.0],
     )  # fmt: skip
@@ -283,22 +259,26 @@ def design_two_stage(
     records: Sequence[Any] | None = None,
     **options: Any,
 ) -> Design:
-    """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and :func:`two_stage_bound`.
+    """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and theo:stab's bound.
 
     ``reduced`` is a :class:`~uiest.reduction.ReducedModel`; ``options`` are the
-    :class:`~uiest.estimators.TwoStageUISE` keywords (``projection``, window options). The
-    candidates' ``bound`` is the settled error of ``z_sharp`` (theo:stab, per component).
+    :class:`~uiest.estimators.TwoStageUISE` keywords (``projection``, window options). N is
+    ranked by theo:stab's settled bound on ``z_sharp`` (:func:`~uiest.estimators.bounds.two_stage_z_bound`,
+    the one the guarantee carries to the states).
     """
     from uiest.estimators import TwoStageUISE
 
     system = reduced.system
     certify = dict(certify_options or {})
-    V = system.v.bounds
-    diameter = float(np.linalg.norm(np.where(np.isfinite(V.width), V.width, 0.0) / system.v.scale))
+    v_bar = _v_prior(system, options)
+
+    def rank(cert: Any, n: int) -> float:
+        return two_stage_z_bound(cert.mu, cert.c_x, n, noise_quadratic(cert.R_v, system.v.bounds, v_bar))
+
     return _design(
-        system, x0, lambda mu: reduced.certify(mu=mu, **certify), lambda cert, n: two_stage_bound(cert, n, diameter),
+        system, x0, lambda mu: reduced.certify(mu=mu, **certify), rank,
         lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
-        bound_scale=None, what="reduced e-IOSS (ass:e-ioss)", max_horizon=max_horizon, rates=rates, budget=budget,
+        what="reduced e-IOSS (ass:e-ioss)", max_horizon=max_horizon, rates=rates, budget=budget,
         trials=trials, steps=steps, seed=seed, records=records,
     )  # fmt: skip
 
@@ -308,10 +288,9 @@ def _design(
     system: System,
     x0: ArrayLike,
     certify: Callable[[float | None], Any],
-    bound: Callable[[Any, int], FloatArray],
+    rank: Callable[[Any, int], float],
     build: Callable[[Any, int, FloatArray], Any],
     *,
-    bound_scale: FloatArray | None,
     what: str,
     max_horizon: int,
     rates: tuple[float, ...],
@@ -322,7 +301,7 @@ def _design(
     records: Sequence[Any] | None,
     variants: Callable[[Any], list[Any]] = lambda cert: [],
 ) -> Design:
-    """The design loop of the module docstring; ``bound_scale`` divides the bound when ranking N (None: as is)."""
+    """The design loop of the module docstring; ``rank(certificate, N)`` orders the horizons of a rate."""
     max_horizon = check_int(max_horizon, "max_horizon", low=1)
     trials, steps = check_int(trials, "trials", low=1), check_int(steps, "steps", low=1)
     prior = as_vector(x0, system.nx, "x0")
@@ -343,7 +322,6 @@ def _design(
             if cert.certified:
                 certificates.append(cert)
     scored = _noise_records(system, prior, trials, steps, seed) if records is None else _given_records(system, records)
-    divide = 1.0 if bound_scale is None else bound_scale
     candidates: list[tuple[Candidate, Any]] = []
 
     def weigh(cert: Any, N: int) -> tuple[Candidate, Any]:
@@ -359,19 +337,21 @@ def _design(
         informed = np.isfinite(w_err)
         w_rms = np.sqrt(np.sum(np.where(informed, w_err, 0.0) ** 2, axis=0) / np.maximum(informed.sum(axis=0), 1))
         w_rms = np.where(informed.any(axis=0), w_rms, np.nan)
+        guarantee = estimator.guarantee
+        bound = np.full(system.nx, np.nan) if guarantee.error_bound is None else guarantee.error_bound
         output_weight = float(getattr(cert, "output_weight", 1.0))
-        return Candidate(cert.mu, N, bound(cert, N), rms, output_weight, w_rms), cert
+        return Candidate(cert.mu, N, bound, rms, output_weight, guarantee, w_rms), cert
 
     def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
         """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best."""
         errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c, _ in pool])
         score = regret(errors)
         tied = [pair for pair, value in zip(pool, score, strict=True) if value <= ERROR_TOLERANCE * score.min()]
-        return min(tied, key=lambda pair: float(np.max(pair[0].bound / divide)))
+        return min(tied, key=lambda pair: _largest_bound(pair[0].bound, system.x.scale))
 
     for cert in certificates:
         horizons = range(cert.min_horizon(), max_horizon + 1)
-        N = min(horizons, key=lambda n: float(np.max(bound(cert, n) / divide)), default=None)
+        N = min(horizons, key=lambda n: rank(cert, n), default=None)
         if N is not None:
             candidates.append(weigh(cert, N))
     if not candidates:
@@ -383,25 +363,34 @@ def _design(
     chosen, cert = choose(candidates)
     candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
     chosen, cert = choose(candidates)
-    if bound_scale is not None:
-        _warn_if_vacuous(system, chosen)
+    _warn_if_vacuous(chosen)
     return Design(cert, chosen.N, chosen.bound, tuple(c for c, _ in candidates), time.thread_time() - start)
 
 
-def _warn_if_vacuous(system: System, chosen: Candidate) -> None:
-    """Warn when the guaranteed noise bound of a state exceeds X's width: certified, but silent under this noise."""
-    width = system.x.bounds.width
-    wide = np.flatnonzero(np.isfinite(width) & (chosen.bound > width))
-    if wide.size:
-        names = [system.x.names[i] for i in wide]
+def _warn_if_vacuous(chosen: Candidate) -> None:
+    """Warn when the chosen guarantee is not informative: certified, but its bound says nothing X does not."""
+    guarantee = chosen.guarantee
+    if guarantee is not None and not guarantee.informative:
+        wide = np.flatnonzero(~guarantee.informative_states)
+        names = [guarantee.names[i] for i in wide]
         warnings.warn(
-            f"design: the guaranteed noise bound of {names} ({np.array2string(chosen.bound[wide], precision=3)}) "
-            f"exceeds X's width ({np.array2string(width[wide], precision=3)}): the certificate holds, but under "
-            "V's noise its worst-case bound says nothing there (RMS on the design's records "
-            f"{np.array2string(chosen.rms[wide], precision=3)})",
+            f"design: the chosen guarantee is not informative for {names} under V's noise: {guarantee.text} "
+            f"(RMS on the design's records {np.array2string(chosen.rms[wide], precision=3)})",
             UserWarning,
             stacklevel=user_stacklevel(),
         )
+
+
+def _largest_bound(bound: FloatArray, scale: FloatArray) -> float:
+    """The largest per-state bound relative to the state scales; a state without a bound (NaN) counts as inf."""
+    relative = np.asarray(bound, dtype=float) / scale
+    return float(np.max(np.where(np.isnan(relative), np.inf, relative), initial=0.0))
+
+
+def _v_prior(system: System, options: Mapping[str, Any]) -> FloatArray:
+    """The candidates' noise prior (``v_prior`` among the estimator options, else 0) for ranking N."""
+    given = options.get("v_prior")
+    return np.zeros(system.nv) if given is None else as_vector(given, system.nv, "v_prior")
 
 
 def _given_records(

@@ -41,6 +41,7 @@ from uiest.box import FloatArray, as_vector
 from uiest.checks import check_real, check_run_data, check_u_prev, check_y, real_array
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, quiet_bound_warnings
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
@@ -106,6 +107,7 @@ class KalmanFilter(StreamingEstimator):
     """
 
     N = None
+    theorem = "no theorem (Kalman filter, random-walk unknown input)"
     v_prior: FloatArray
     tuning: Tuning | None = None
     """The tuning record when built by :meth:`tuned`, else None."""
@@ -301,20 +303,19 @@ class KalmanFilter(StreamingEstimator):
         return estimator
 
     @property
-    def guaranteed(self) -> bool:
-        """Always False: no theorem covers an unbounded unknown input."""
-        return False
-
-    @property
-    def guarantee(self) -> str:
-        """Why there is none."""
-        return (
-            f"none: the {self.estimator_name} assumes the unknown input is a random walk (its error grows with how "
-            "far w departs from one); no bound holds for an unbounded unknown input"
+    def guarantee(self) -> Guarantee:
+        """None: no theorem bounds the error for an unbounded unknown input."""
+        return self._no_guarantee(
+            self.theorem,
+            f"the {self.estimator_name} assumes the unknown input is a random walk (its error grows with how far w "
+            "departs from one); no bound holds for an unbounded unknown input",
         )
 
     def __repr__(self) -> str:
-        return f"{self.estimator_name}(system={self.system.name!r}, w_variance={np.diag(self.Q)[self.system.nx :]})"
+        return (
+            f"{self.estimator_name}(system={self.system.name!r}, w_variance={np.diag(self.Q)[self.system.nx :]}, "
+            f"guarantee={str(self.guarantee)!r})"
+        )
 
 
 class EKF(KalmanFilter):

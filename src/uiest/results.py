@@ -19,6 +19,7 @@ from numpy.typing import NDArray
 from uiest.box import FloatArray
 from uiest.checks import real_array
 from uiest.errors import DataError
+from uiest.guarantee import Guarantee
 from uiest.health import FAILURES, Outcome, status_text
 
 if TYPE_CHECKING:
@@ -367,8 +368,9 @@ class EstimationResult(_PicklableNames):
         Name of the estimator (``"UISE"``, ``"FIE"``, ``"StandardMHE"``).
     horizon : int or None
         N (None for the FIE).
-    guarantee : str
-        Which theorem's guarantee holds for this configuration, or why none does.
+    guarantee : Guarantee
+        The estimator's guarantee (:class:`~uiest.guarantee.Guarantee`): whether its theorem
+        applies, the error bound per state and its text.
     names : mapping
         Component names of "x" and "w".
     time_unit : str
@@ -399,7 +401,7 @@ class EstimationResult(_PicklableNames):
     missing: NDArray[np.bool_]
     estimator: str
     horizon: int | None
-    guarantee: str
+    guarantee: Guarantee
     names: Mapping[str, tuple[str, ...]] = field(default_factory=dict)
     time_unit: str = "s"
     x_lag: FloatArray | None = None

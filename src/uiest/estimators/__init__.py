@@ -8,6 +8,9 @@
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
 - :class:`EKF`, :class:`UKF`: Kalman filters with the unknown input as a random walk (:mod:`uiest.kalman`).
 
+Each has a ``guarantee`` (:class:`~uiest.guarantee.Guarantee`): whether its theorem applies and its
+worst-case error bound per state (:mod:`uiest.estimators.bounds`).
+
 Index convention: ``u[k]``, ``w[k]`` act between k and k+1; ``x_hat[k]`` estimates ``x[k]``;
 the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
@@ -21,6 +24,7 @@ from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
+from uiest.guarantee import Guarantee, Verdict
 from uiest.results import EstimationResult, Outcome, StepEstimate
 
 
@@ -40,6 +44,7 @@ __all__ = [
     "UKF",
     "DelayedUISE",
     "EstimationResult",
+    "Guarantee",
     "LinearUIO",
     "MHEWeights",
     "Outcome",
@@ -48,5 +53,6 @@ __all__ = [
     "TwoStageUISE",
     "TwoStageWeights",
     "UISEWeights",
+    "Verdict",
     "WindowOptions",
 ]

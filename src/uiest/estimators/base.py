@@ -47,6 +47,7 @@ from uiest.checks import check_run_data, check_u_prev, check_y, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
+from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.system import System
@@ -130,6 +131,8 @@ class StreamingEstimator:
     system: System
     _x0_prior: FloatArray | None
     _k: int
+    theorem: ClassVar[str] = "none"
+    """The user-facing name of the theorem behind :attr:`guarantee`."""
 
     def _clear(self) -> None:
         raise NotImplementedError
@@ -155,6 +158,32 @@ class StreamingEstimator:
                 raise DataError(f"x0_prior: expected a point in X = {self.system.x.bounds}, got {prior.tolist()}")
             self._x0_prior = prior
         self._clear()
+
+    @property
+    def guarantee(self) -> Guarantee:
+        """What this configuration's theorem guarantees, per state in its units, or why none does."""
+        return self._no_guarantee(self.theorem, "no theorem covers this estimator")
+
+    @property
+    def guaranteed(self) -> bool:
+        """The theorem's assumptions are met (:attr:`guarantee` ``.applies``)."""
+        return self.guarantee.applies
+
+    def _no_guarantee(self, theorem: str, reason: str) -> Guarantee:
+        x = self.system.x
+        return Guarantee.none(theorem, reason, x.bounds.width, x.names, x.units)
+
+    def _holds(self, theorem: str, bound: FloatArray, settling: int | None, assumes: str, note: str = "") -> Guarantee:
+        """The theorem's guarantee with a bound per state (NaN: none for that state, ``note`` says why)."""
+        x = self.system.x
+        if not note and not np.all(np.isfinite(bound)):
+            note = "the noise range V is unbounded"
+        if getattr(getattr(self, "certificate", None), "sound", True) is False:
+            assumes += "; the certificate's inequality holds at its cover's vertices, a sampled cover (not a proof)"
+        return Guarantee(theorem=theorem, applies=True, x_width=x.bounds.width, names=x.names, units=x.units,
+                         error_bound=bound, settling_steps=settling, bound_note=note,
+                         assumes=f"{assumes}; settling counted from an initial error up to X's width in every "
+                         "state")  # fmt: skip
 
     def _require_prior(self) -> FloatArray:
         if self._x0_prior is None:
@@ -253,25 +282,15 @@ class WindowEstimator(StreamingEstimator):
         return options
 
     # ------------------------------------------------------------------ guarantee
-    @property
-    def guarantee(self) -> str:
-        """Which theorem's guarantee holds for this configuration, or why none does."""
-        return "none"
-
-    def _horizon_guarantee(self, theorem: str, certificate_kind: str, horizon_eq: str, holds: str) -> str:
-        """``holds`` (formatted with ``n_min``) when certified with ``N >= min_horizon()``, else why not."""
-        if self.certificate is None:  # type: ignore[attr-defined]
-            return f"none: explicit weights without a {certificate_kind} certificate, {theorem} does not apply"
-        n_min = self.certificate.min_horizon()  # type: ignore[attr-defined]
-        if self.N is not None and n_min > self.N:
-            return f"none: N={self.N} < min_horizon()={n_min} ({horizon_eq}), {theorem} does not apply"
-        return f"{theorem}: " + holds.format(n_min=n_min)
-
-    @property
-    def guaranteed(self) -> bool:
-        """A certified certificate gave the weights and ``N >= certificate.min_horizon()``."""
+    def _horizon_missing(self, certificate_kind: str, horizon_eq: str) -> str:
+        """Why the weights and N do not meet the theorem (no certificate, N below ``min_horizon()``); "" if they do."""
         certificate = getattr(self, "certificate", None)
-        return certificate is not None and self.N is not None and certificate.min_horizon() <= self.N
+        if certificate is None:
+            return f"explicit weights without a {certificate_kind} certificate"
+        n_min = certificate.min_horizon()
+        if self.N is not None and n_min > self.N:
+            return f"N={self.N} < min_horizon()={n_min} ({horizon_eq})"
+        return ""
 
     # ------------------------------------------------------------------ state
     def _clear(self) -> None:

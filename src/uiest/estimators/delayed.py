@@ -24,8 +24,10 @@ from uiest.box import Box, FloatArray, as_vector
 from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowOptions
+from uiest.estimators.bounds import strong_bound
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.uise import UISE, check_system
+from uiest.guarantee import Guarantee
 from uiest.system import System
 from uiest.window import WindowTrajectory
 
@@ -49,6 +51,7 @@ class DelayedUISE(UISE):
     """
 
     estimator_name = "DelayedUISE"
+    theorem = "UISE theorem for the delayed system (theo:MHE_full)"
     free_input = False  # its nodes are the delayed system's; its newest input is found from later outputs
 
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
@@ -144,17 +147,25 @@ class DelayedUISE(UISE):
 
     # ------------------------------------------------------------------ guarantee
     @property
-    def guarantee(self) -> str:
-        """Which guarantee holds (theo:MHE_full for the delayed system) or why none does."""
-        return self._horizon_guarantee(
-            "theo:MHE_full", "delayed system's strong-detectability", "eq:MHE_full_horizon",
-            f"for the delayed system (state b = T_b x, unknown input (w, a = T_a x)) with mu={self.weights.mu:.4g}, "
-            f"N={self.N} >= min_horizon()={{n_min}}: its estimate of b[k] converges under convergent noise whatever "
-            f"the unknown input; x[k-{self.options.lag}] is read from the same window",
-        )  # fmt: skip
+    def guarantee(self) -> Guarantee:
+        """theo:MHE_full for the delayed system, read back to ``x_hat[k] = M_a a + M_b b`` (or why it does not apply).
+
+        The theorem bounds the estimate of ``b[k]``; ``a`` is an unknown input of the delayed system,
+        which it does not bound, so only the states with ``M_a``'s row zero (to 1e-12 of the row)
+        have a bound; the others are NaN. The lagged estimates are not covered.
+        """
+        missing = self._horizon_missing("delayed system's strong-detectability", "eq:MHE_full_horizon")
+        if missing:
+            return self._no_guarantee(self.theorem, missing)
+        d = self.delayed
+        free = np.abs(d.M_a).max(axis=1, initial=0.0) <= 1e-12 * np.abs(np.hstack([d.M_a, d.M_b])).max(axis=1)
+        bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, self.N, self.system.v.bounds,
+                                       self.v_prior, self.system.x.bounds.width, T=d.T_b, M=d.M_b)  # fmt: skip
+        note = "" if free.all() else "these states depend on a = T_a x, an unknown input of the delayed system"
+        return self._holds(self.theorem, np.where(free, bound, np.nan), settling, self._assumes(), note)
 
     def __repr__(self) -> str:
         return (
             f"DelayedUISE(system={self.system.name!r}, N={self.N}, lag={self.options.lag}, mu={self.weights.mu:.4g}, "
-            f"guaranteed={self.guaranteed})"
+            f"guarantee={str(self.guarantee)!r})"
         )

@@ -30,13 +30,16 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.checks import check_int, check_run_data
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
+from uiest.estimators.bounds import strong_bound
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
+from uiest.guarantee import Guarantee
 from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import WindowModel
@@ -56,6 +59,7 @@ class FIE(WindowEstimator):
     """
 
     estimator_name = "FIE"
+    theorem = "FIE lemma (lem:FIE)"
     free_input = True
 
     def __init__(
@@ -97,16 +101,17 @@ class FIE(WindowEstimator):
             )
 
     @property
-    def guaranteed(self) -> bool:
-        """True when a certified strong-detectability certificate gave the weights."""
-        return self.certificate is not None
-
-    @property
-    def guarantee(self) -> str:
-        """lem:FIE when certified, else why not."""
+    def guarantee(self) -> Guarantee:
+        """lem:FIE's bound per state (:func:`~uiest.estimators.bounds.strong_bound` with N None), or why none."""
         if self.certificate is None:
-            return "none: explicit weights without a strong-detectability certificate, lem:FIE does not apply"
-        return f"lem:FIE: strongly detectable with mu={self.weights.mu:.4g}; the FIE is a UISE"
+            return self._no_guarantee(self.theorem, "explicit weights without a strong-detectability certificate")
+        bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, None, self.system.v.bounds,
+                                       self.v_prior, self.system.x.bounds.width)  # fmt: skip
+        assumes = (
+            f"mu={self.weights.mu:.4g}; noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, the true "
+            "state in X, every output measured and every problem solved to optimality; any unknown input"
+        )
+        return self._holds(self.theorem, bound, settling, assumes)
 
     def __repr__(self) -> str:
-        return f"FIE(system={self.system.name!r}, mu={self.weights.mu:.4g}, guaranteed={self.guaranteed})"
+        return f"FIE(system={self.system.name!r}, mu={self.weights.mu:.4g}, guarantee={str(self.guarantee)!r})"

@@ -7,11 +7,12 @@ For ``x+ = A x + B_u u + B w (+ f_0)``, ``y = C x + D v (+ h_0)`` (offsets allow
     z[k+1] = F z[k] + T (B_u u[k] + f_0) + K y'[k],     x_hat[k] = z[k] + H y'[k]
     y'[k]  = y[k] - h_0 - D v_bar,                        z[0] = T x_bar_0
 
-so that ``e[k+1] = F e[k]`` for ``e = T x - z`` whatever w: ``T B = 0`` needs the matching
+so that ``e[k+1] = F e[k]`` for ``e = T x - z`` whatever w (noise-free): ``T B = 0`` needs the matching
 condition ``rank(C B) = rank(B)`` (checked; :class:`~uiest.errors.ModelError` otherwise), and a
 Schur stable F needs every invariant zero strictly inside the unit disk (they are eigenvalues of
-F for every gain). ``x_hat[k] - x[k] = -e[k] - H D (v[k] - v_bar)`` (with ``e[0]`` from the prior),
-so noise-free the error decays like ``F^k``.
+F for every gain). With noise, ``e[k+1] = F e[k] - K D (v[k] - v_bar)`` and
+``x_hat[k] - x[k] = -e[k] + H D (v[k] - v_bar)`` (``e[0] = T (x[0] - x_bar_0)``), so noise-free the error
+decays like ``F^k``; :attr:`LinearUIO.guarantee` bounds it for noise in V.
 
 Index convention::
 
@@ -41,6 +42,8 @@ from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.estimators.bounds import impulse_bound
+from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
 from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
@@ -87,6 +90,7 @@ class LinearUIO(StreamingEstimator):
     """
 
     estimator_name = "LinearUIO"
+    theorem = "linear UIO error dynamics (lem:UIO_LTI, Chen-Patton-Zhang)"
     N = None
 
     def __init__(
@@ -260,18 +264,30 @@ class LinearUIO(StreamingEstimator):
 
     # ------------------------------------------------------------------ guarantee
     @property
-    def guaranteed(self) -> bool:
-        """Always True: construction fails unless F is Schur stable and the matching condition holds."""
-        return True
+    def guarantee(self) -> Guarantee:
+        """The exact worst case of ``x_hat - x`` over noise sequences in V (e+ = F e; module docstring).
 
-    @property
-    def guarantee(self) -> str:
-        """lem:UIO_LTI with the numbers of this observer."""
-        zeros = self.detectability.invariant_zeros
-        return (
-            f"lem:UIO_LTI (Chen-Patton-Zhang observer): e+ = F e with spectral radius {self.spectral_radius:.4g} < 1 "
-            f"whatever the unknown input; invariant zeros {np.round(zeros, 6).tolist()} are eigenvalues of F"
+        ``x_hat[k] - x[k] = -F^k T (x[0] - x_bar_0) + sum_{j<k} F^{k-1-j} K D dv[j] + H D dv[k]``
+        with ``dv = v - v_bar`` in ``V - v_bar``, whatever w: the impulse response summed with each
+        noise sample at the side of V that makes it largest
+        (:func:`~uiest.estimators.bounds.impulse_bound`).
+        """
+        V = self.system.v.bounds
+        width = self.system.x.bounds.width
+        with np.errstate(invalid="ignore"):
+            transient = np.where(self.T == 0.0, 0.0, self.T * width[None, :])  # e[0] = T (x[0] - x_bar_0)
+        bound, settling = impulse_bound(self.F, self.H @ self.D, self.K @ self.D, transient, V.lower - self.v_prior,
+                                        V.upper - self.v_prior)  # fmt: skip
+        zeros = np.round(self.detectability.invariant_zeros, 6).tolist()
+        assumes = (
+            f"e+ = F e with spectral radius {self.spectral_radius:.4g} < 1 (invariant zeros {zeros} are eigenvalues of "
+            f"F); noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, every output measured; any "
+            "unknown input"
         )
+        return self._holds(self.theorem, bound, settling, assumes)
 
     def __repr__(self) -> str:
-        return f"LinearUIO(system={self.system.name!r}, spectral_radius={self.spectral_radius:.4g})"
+        return (
+            f"LinearUIO(system={self.system.name!r}, spectral_radius={self.spectral_radius:.4g}, "
+            f"guarantee={str(self.guarantee)!r})"
+        )

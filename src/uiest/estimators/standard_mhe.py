@@ -34,8 +34,10 @@ from numpy.typing import ArrayLike
 from uiest.box import as_vector
 from uiest.errors import DataError
 from uiest.estimators.base import WindowEstimator
+from uiest.estimators.bounds import mhe_bound
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import DeltaCertificate, MHEWeights, resolve_weights
+from uiest.guarantee import Guarantee
 from uiest.system import System
 from uiest.window import WindowModel
 
@@ -86,6 +88,7 @@ class StandardMHE(WindowEstimator):
     """
 
     estimator_name = "StandardMHE"
+    theorem = "robust MHE theorem (Schiller et al. 2023)"
     one_step_ahead = True
 
     def __init__(
@@ -118,23 +121,41 @@ class StandardMHE(WindowEstimator):
                          w_prior=w_bar)  # fmt: skip
 
     @property
-    def guarantee(self) -> str:
-        """What Schiller et al.'s theorem gives here, or why it does not apply."""
+    def guarantee(self) -> Guarantee:
+        """Schiller et al.'s bound per state (:func:`~uiest.estimators.bounds.mhe_bound`), or why it does not apply.
+
+        It holds while the unknown input stays in the range the certificate covers (its ``w_box``,
+        else ``system.w_range``; without either, no finite bound) and, unlike the UISEs', does not
+        vanish when the noise does.
+        """
         if self.certificate is None:
-            return "none: explicit weights without a delta-IOSS certificate"
+            return self._no_guarantee(self.theorem, "explicit weights without a delta-IOSS certificate")
         eta = self.weights.eta
         n_min = int(np.floor(np.log(4.0) / np.log(1.0 / eta))) + 1  # their eq. (16) with P1 = P2, at the eta used
         if self.N is not None and n_min > self.N:
-            return f"none: N={self.N} < min_horizon()={n_min} (Schiller et al. 2023, eq. (16))"
+            return self._no_guarantee(self.theorem, f"N={self.N} < min_horizon()={n_min} (Schiller et al. 2023, "
+                                      "eq. (16))")  # fmt: skip
+        assert self.N is not None
+        w_range = getattr(self.certificate, "w_box", None)
+        w_range = self.system.w_range if w_range is None else w_range
+        w = self.weights
+        bound, settling = mhe_bound(w.P, w.Q_w, w.Q_v, eta, self.N, w_range, self.w_prior, self.system.v.bounds,
+                                    self.v_prior, self.system.x.bounds.width)  # fmt: skip
         raised = "" if eta == self.eta_given else f" (the certificate's {self.eta_given:.3g} raised, see normalise)"
-        return (
-            f"Schiller et al. 2023 robust stability with eta={eta:.4g}{raised}, N={self.N} >= {n_min}: the "
-            "error is bounded by a decaying function of the initial error plus a function of |w - w_bar| and "
-            "|v - v_bar|; it does not converge when the unknown input does not"
+        assumes = (
+            f"eta={eta:.4g}{raised}, N={self.N}; the unknown input in {w_range} around w_prior "
+            f"{np.round(self.w_prior, 12).tolist()}, noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, "
+            "the true state in X, every output measured and every window problem solved to optimality"
         )
+        note = (
+            "the unknown input has no known range (system.w_range or the certificate's w_box)"
+            if w_range is None
+            else ""
+        )
+        return self._holds(self.theorem, bound, settling, assumes, note)
 
     def __repr__(self) -> str:
         return (
             f"StandardMHE(system={self.system.name!r}, N={self.N}, eta={self.weights.eta:.4g}, "
-            f"w_range={self.w_range}, guaranteed={self.guaranteed})"
+            f"w_range={self.w_range}, guarantee={str(self.guarantee)!r})"
         )

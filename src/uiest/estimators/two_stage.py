@@ -65,6 +65,7 @@ unknown input needed), outcome ``FAILED`` with the solver's status; ``strict=Tru
 
 from __future__ import annotations
 
+import functools
 from typing import Any
 
 import casadi as ca
@@ -75,9 +76,11 @@ from uiest.box import FloatArray
 from uiest.checks import check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
+from uiest.estimators.bounds import noise_quadratic, reduction_bound, two_stage_rate, two_stage_z_bound
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
-from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, resolve_weights
+from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certificate_z_scale, resolve_weights
+from uiest.guarantee import Guarantee
 from uiest.reduction import ReducedModel
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
@@ -122,6 +125,7 @@ class TwoStageUISE(WindowEstimator):
     """
 
     estimator_name = "TwoStageUISE"
+    theorem = "two-stage UISE theorem (theo:stab)"
     one_step_ahead = True
 
     def __init__(
@@ -240,33 +244,66 @@ class TwoStageUISE(WindowEstimator):
 
     # ------------------------------------------------------------------ guarantee
     @property
-    def guaranteed(self) -> bool:
-        """True for n_sharp = 0, or when a certified certificate gave the weights and ``N >= min_horizon()``."""
-        return self.reduced.n_sharp == 0 or super().guaranteed
+    def guarantee(self) -> Guarantee:
+        """theo:stab's bound on ``z_sharp`` carried to each state through eq:fullest, or why it does not apply.
 
-    @property
-    def guarantee(self) -> str:
-        """Which guarantee holds (theo:stab, or the remark after it for n_sharp = 0) or why none does."""
-        proj = {
-            "clip": "; the projection onto X adds an error that vanishes with the noise (eq:fullest_new)",
-            "exact": "; the projection onto T(X) adds an error that vanishes with the noise (eq:fullest_new)",
-            "none": "",
-        }[self.projection.mode]
-        if self.reduced.n_sharp == 0:
-            return (
-                "remark after theo:stab (n_sharp = 0): x_hat = T^-1(psi(y, v_bar)) is a UISE, its error bounded by "
-                f"a Lipschitz constant times |v - v_bar|{proj}"
-            )
-        assert self.weights is not None
-        return self._horizon_guarantee(
-            "theo:stab", "reduced i-IOSS (ass:e-ioss)", "eq:N_cond",
-            f"the reduced model is exponentially i-IOSS with mu={self.weights.mu:.4g}, N={self.N} >= "
-            f"min_horizon()={{n_min}}; the error converges under convergent noise whatever the unknown input{proj}",
-        )  # fmt: skip
+        :func:`~uiest.estimators.bounds.reduction_bound` with the Jacobians of
+        ``x = T^-1(psi(gamma, z_sharp, v), z_sharp)``: states where they vary have no bound (NaN;
+        the map's Lipschitz constant is not computed), and so has every state with the "exact"
+        projection (non-expansive only in its own metric). Clipping to X never increases a
+        state's error (the true state lies in X).
+        """
+        red, system = self.reduced, self.system
+        if red.n_sharp == 0:
+            theorem, c_x, rate, z_settled = "two-stage UISE, remark after theo:stab (n_sharp = 0)", 1.0, 0.0, 0.0
+            z_scale = np.zeros(0)
+        else:
+            theorem = self.theorem
+            missing = self._horizon_missing("reduced i-IOSS (ass:e-ioss)", "eq:N_cond")
+            if missing:
+                return self._no_guarantee(theorem, missing)
+            assert self.weights is not None and self.N is not None
+            c_x, mu = float(self.certificate.c_x), self.weights.mu  # type: ignore[union-attr]
+            noise = noise_quadratic(self.weights.R_v, system.v.bounds, self.v_prior)
+            rate, z_settled = two_stage_rate(mu, c_x, self.N), two_stage_z_bound(mu, c_x, self.N, noise)
+            z_scale = certificate_z_scale(self.certificate)
+            assert z_scale is not None
+        J_z, J_v = self._map_gains
+        bound, settling = reduction_bound(J_z, J_v, z_scale, red.z_bounds.width, system.v.bounds, self.v_prior, c_x,
+                                          rate, z_settled)  # fmt: skip
+        note = "x depends nonlinearly on (z_sharp, v) there; the map's Lipschitz constant is not computed"
+        if self.projection.mode == "exact":
+            bound = np.full(system.nx, np.nan)
+            note = "the exact projection is non-expansive only in its own metric, not per state"
+        mu_text = "" if self.weights is None else f"mu={self.weights.mu:.4g}, N={self.N}; "
+        assumes = (
+            f"{mu_text}noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, the true state in X, every "
+            f"output measured and every window problem solved to optimality, projection {self.projection.mode!r}; "
+            "any unknown input"
+        )
+        return self._holds(theorem, bound, settling, assumes, note if not np.all(np.isfinite(bound)) else "")
+
+    @functools.cached_property
+    def _map_gains(self) -> tuple[FloatArray, FloatArray]:
+        """Jacobians (nx, n_sharp), (nx, nv) of eq:fullest's ``x(gamma, z_sharp, v)``; NaN rows where they vary."""
+        red, system = self.reduced, self.system
+        symbols = [ca.SX.sym(name, n) for name, n in (("gamma", system.ny), ("z", red.n_sharp), ("v", system.nv))]
+        try:
+            x = red.T_inv(ca.vertcat(red.psi(*symbols), symbols[1]))
+        except (NotImplementedError, RuntimeError, TypeError):  # MX maps: the same with MX symbols
+            symbols = [ca.MX.sym(name, n) for name, n in (("gamma", system.ny), ("z", red.n_sharp), ("v", system.nv))]
+            x = red.T_inv(ca.vertcat(red.psi(*symbols), symbols[1]))
+        arguments = ca.vertcat(*symbols)
+        J = ca.jacobian(x, ca.vertcat(symbols[1], symbols[2]))
+        varying = np.array([ca.depends_on(J[i, :], arguments) for i in range(system.nx)], dtype=bool)
+        value = np.asarray(ca.Function("dx", symbols, [J])(*(np.zeros(s.numel()) for s in symbols)), dtype=float)
+        value = value.reshape(system.nx, red.n_sharp + system.nv)
+        value[varying] = np.nan
+        return value[:, : red.n_sharp], value[:, red.n_sharp :]
 
     def __repr__(self) -> str:
         mu = "none" if self.weights is None else f"{self.weights.mu:.4g}"
         return (
             f"TwoStageUISE(system={self.system.name!r}, n_flat={self.reduced.n_flat}, n_sharp={self.reduced.n_sharp}, "
-            f"N={self.N}, mu={mu}, projection={self.projection.mode!r}, guaranteed={self.guaranteed})"
+            f"N={self.N}, mu={mu}, projection={self.projection.mode!r}, guarantee={str(self.guarantee)!r})"
         )

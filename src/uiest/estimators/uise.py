@@ -30,12 +30,15 @@ from __future__ import annotations
 
 from typing import Any
 
+import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
+from uiest.estimators.bounds import strong_bound
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
+from uiest.guarantee import Guarantee
 from uiest.system import System
 from uiest.window import WindowModel
 
@@ -60,6 +63,7 @@ class UISE(WindowEstimator):
     weights : UISEWeights, optional
         Explicit weights instead of a certificate (e.g. :meth:`UISEWeights.from_scales`); then
         N is required and :attr:`guarantee` says that theo:MHE_full does not apply.
+        :attr:`guarantee` bounds ``x_hat[k]`` (not the lagged estimates).
     N : int, optional
         Horizon >= 1; default ``certificate.min_horizon()``.
     x0_prior : array_like (nx,), optional
@@ -78,6 +82,7 @@ class UISE(WindowEstimator):
     """
 
     estimator_name = "UISE"
+    theorem = "UISE theorem (theo:MHE_full)"
     free_input = True
 
     def __init__(
@@ -139,20 +144,27 @@ class UISE(WindowEstimator):
         return est
 
     @property
-    def guaranteed(self) -> bool:
-        """Matching holds, a certified certificate gave the weights and ``N >= certificate.min_horizon()``."""
-        return self.matching and super().guaranteed
-
-    @property
-    def guarantee(self) -> str:
-        """Which guarantee holds (theo:MHE_full) or why none does."""
+    def guarantee(self) -> Guarantee:
+        """theo:MHE_full's bound per state (:func:`~uiest.estimators.bounds.strong_bound`), or why it does not apply."""
         if not self.matching:
-            return f"none: matching fails ({self.status_note.strip(' []')}), x[k] is not determined by y[..k]"
-        return self._horizon_guarantee(
-            "theo:MHE_full", "strong-detectability", "eq:MHE_full_horizon",
-            f"strongly detectable with mu={self.weights.mu:.4g}, N={self.N} >= min_horizon()={{n_min}}; the error "
-            "converges under convergent noise whatever the unknown input",
-        )  # fmt: skip
+            return self._no_guarantee(self.theorem, f"matching fails ({self.status_note.strip(' []')}), x[k] is not "
+                                      "determined by y[..k]")  # fmt: skip
+        missing = self._horizon_missing("strong-detectability", "eq:MHE_full_horizon")
+        if missing:
+            return self._no_guarantee(self.theorem, missing)
+        bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, self.N, self.system.v.bounds,
+                                       self.v_prior, self.system.x.bounds.width)  # fmt: skip
+        return self._holds(self.theorem, bound, settling, self._assumes())
+
+    def _assumes(self) -> str:
+        return (
+            f"mu={self.weights.mu:.4g}, N={self.N}; noise in V around v_prior {np.round(self.v_prior, 12).tolist()}, "
+            "the true state in X, every output measured and every window problem solved to optimality; any unknown "
+            "input"
+        )
 
     def __repr__(self) -> str:
-        return f"UISE(system={self.system.name!r}, N={self.N}, mu={self.weights.mu:.4g}, guaranteed={self.guaranteed})"
+        return (
+            f"UISE(system={self.system.name!r}, N={self.N}, mu={self.weights.mu:.4g}, "
+            f"guarantee={str(self.guarantee)!r})"
+        )

@@ -16,6 +16,7 @@ from uiest.experiments import provenance
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
+from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.paths import writable_folder
 
@@ -230,26 +231,37 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     return pd.DataFrame(rows)
 
 
-def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
-    """Per estimator: where its weights come from, rate, N, whether its theorem applies, noise gain, RMSE.
+def study_guarantees(study: StudyResult) -> dict[str, Guarantee]:
+    """Each estimator's guarantee, from its first result (an estimator every run of which raised has none)."""
+    found: dict[str, Guarantee] = {}
+    for (_, _, name), result in study.results.items():
+        found.setdefault(name, result.guarantee)
+    return found
 
-    The noise gain is the strong-detectability certificate's per-step bound ``sqrt(sigma_v(v_max) /
-    alpha_1)`` for the focus state (UISE and FIE with certificate weights only).
+
+def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
+    """Per estimator: where its weights come from, rate, N, its guarantee (text and focus-state bound), RMSE.
+
+    The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee`: its theorem's worst-case
+    error bound per state for noise in V, or why the theorem does not apply.
     """
     scenario = study.scenario
     focus = scenario.focus_state
     name = state_names(study)[focus]
+    unit = study.model.system.x.units[focus]
     certified = {str(row["estimator"]): row for row in study.certificates}
+    guarantees = study_guarantees(study)
     rows = []
     for spec in scenario.estimators:
         row = certified.get(spec.name)
         sub = acc[(acc["estimator"] == spec.name) & (acc["state"] == name)].set_index("case")["rmse"]
-        gain = None if row is None or not row.get("noise_gain") else row["noise_gain"][focus]  # type: ignore[index]
         runs = study.runs[study.runs["estimator"] == spec.name]
         failed = {case: int(runs[runs["case"] == case]["failures"].clip(lower=0).sum()) for case in scenario.cases}
         ok = row is not None and row.get("status") == "certified"
         kalman = spec.kind in FILTER_KINDS  # no window, no discount: a random walk's variance
         weights = "certificate" if spec.weights == "certificate" else "explicit"
+        guarantee = guarantees.get(spec.name)
+        bound = None if guarantee is None or guarantee.error_bound is None else float(guarantee.error_bound[focus])
         rows.append(
             {
                 "estimator": spec.name,
@@ -257,8 +269,8 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
                 "mu": "-" if kalman else f"{float(row['rate']):.6g}" if ok else f"{spec.mu:.6g}",  # type: ignore[arg-type, index]
                 "N": "-" if spec.kind == "fie" or kalman else (row["N"] if ok else spec.N),  # type: ignore[index]
                 "min horizon": row["min_horizon"] if ok else "-",  # type: ignore[index]
-                "theorem applies": ("yes" if row["guarantee"] else "no") if ok else "no",  # type: ignore[index]
-                f"noise gain {name}": gain if gain is not None else "-",
+                "guarantee": "none: every run raised" if guarantee is None else guarantee.text,
+                f"bound {name} ({unit})" if unit else f"bound {name}": "-" if bound is None else bound,
                 **{f"RMSE {name} ({case})": float(sub.get(case, float("nan"))) for case in scenario.cases},
                 "failed solves": " / ".join(str(failed[case]) for case in scenario.cases),
             }
@@ -388,11 +400,12 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "",
         _markdown(guarantees),
         "",
-        *[f"- {describe(row)}" for row in study.certificates],
+        *[f"- {describe(row, study_guarantees(study).get(str(row['estimator'])))}" for row in study.certificates],
         "",
-        "The noise gain is how far one step's largest noise increments in V can move the certificate's bound "
-        f"on {focus} (same units): a guarantee of the theorem is only as tight as this number. Failed solves are "
-        f"counted over all runs ({' / '.join(scenario.cases)}); a failed sample propagates the previous estimate.",
+        "A guarantee's bound is its theorem's worst case for noise in V, per state in the state's units, from the "
+        'step it names on; "vacuous" where it is not below X\'s width (it then says nothing X does not). Failed '
+        f"solves are counted over all runs ({' / '.join(scenario.cases)}); a failed sample propagates the previous "
+        "estimate.",
         "",
         "## Table 1: maximal average computation time per sample (ms)",
         "",

@@ -142,8 +142,9 @@ class StudyResult:
     solver : str
         The window backend every estimator used (``"ipopt"``, ``"gn"`` or ``"rti"``).
     certificates : tuple of dict
-        For each estimator with certificate weights: the certificate's rate, horizon, whether
-        the theorem applies, the noise gain (:func:`uiest.experiments.certificates.summary`).
+        For each estimator with certificate weights: the certificate's rate, horizon, noise gain and
+        coverage (:func:`uiest.experiments.certificates.summary`); the estimators' guarantees are in
+        their results.
 
     """
 
