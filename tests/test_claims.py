@@ -6,23 +6,23 @@ import pytest
 from test_experiments import tiny
 
 from uiest.experiments import run_study
-from uiest.experiments.claims import MIN_EFFECT, Claim, Verdict, decide, headline, paper_claims, per_run, relative
+from uiest.experiments.claims import MIN_EFFECT, Claim, ClaimVerdict, decide, headline, paper_claims, per_run, relative
 
 
 def test_a_verdict_needs_the_runs_to_agree_on_the_sign():
-    assert decide([0.3, 0.35, 0.28, 0.4]).verdict == Verdict.HOLDS
-    assert decide([1.3, 1.35, 1.28, 1.4]).verdict == Verdict.DOES_NOT_HOLD
+    assert decide([0.3, 0.35, 0.28, 0.4]).verdict == ClaimVerdict.HOLDS
+    assert decide([1.3, 1.35, 1.28, 1.4]).verdict == ClaimVerdict.DOES_NOT_HOLD
     # 0.2 % apart on average but the runs straddle 1: no measurable difference, not "holds marginally"
-    assert decide([0.95, 1.04, 0.99, 1.03, 0.98]).verdict == Verdict.NO_DIFFERENCE
+    assert decide([0.95, 1.04, 0.99, 1.03, 0.98]).verdict == ClaimVerdict.NO_DIFFERENCE
     # consistent, but smaller than the least effect worth a word
     tiny_effect = 1.0 - MIN_EFFECT / 2
-    assert decide([tiny_effect] * 5).verdict == Verdict.NO_DIFFERENCE
+    assert decide([tiny_effect] * 5).verdict == ClaimVerdict.NO_DIFFERENCE
     # the claim may be that the ratio exceeds 1 (an error that grows)
-    assert decide([1.3, 1.2, 1.25], claimed_below=False).verdict == Verdict.HOLDS
-    assert decide([0.8, 0.82, 0.85], claimed_below=False).verdict == Verdict.DOES_NOT_HOLD
+    assert decide([1.3, 1.2, 1.25], claimed_below=False).verdict == ClaimVerdict.HOLDS
+    assert decide([0.8, 0.82, 0.85], claimed_below=False).verdict == ClaimVerdict.DOES_NOT_HOLD
     # fewer than 3 runs: their range decides
-    assert decide([0.9, 1.1]).verdict == Verdict.NO_DIFFERENCE and decide([0.5]).verdict == Verdict.HOLDS
-    assert decide([0.95, 0.94, 0.96], min_effect=0.1).verdict == Verdict.NO_DIFFERENCE  # a time per sample
+    assert decide([0.9, 1.1]).verdict == ClaimVerdict.NO_DIFFERENCE and decide([0.5]).verdict == ClaimVerdict.HOLDS
+    assert decide([0.95, 0.94, 0.96], min_effect=0.1).verdict == ClaimVerdict.NO_DIFFERENCE  # a time per sample
     with pytest.raises(ValueError, match="no finite positive ratio"):
         decide([np.nan, 0.0])
 
@@ -34,7 +34,7 @@ def test_words_follow_the_size_and_sign_of_the_ratio():
     assert relative(3.0, "decrease", "growth") == "3x growth"
     claim = Claim("noisy", "the error grows over the run", "late/early mean |error|", "decrease", "growth",
                   decide([0.84, 0.8, 0.82], claimed_below=False))  # fmt: skip
-    assert claim.verdict == Verdict.DOES_NOT_HOLD
+    assert claim.verdict == ClaimVerdict.DOES_NOT_HOLD
     assert "does not hold (late/early mean |error| 0.82: 18 % decrease; 3 runs" in claim.text()
     assert headline([claim]) == ["**The paper's claims, checked here:**", "",
                                  "- **does not hold**: noisy: the error grows over the run"]  # fmt: skip

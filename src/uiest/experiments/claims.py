@@ -36,7 +36,7 @@ FILTER_KINDS = ("ekf", "ukf")
 """Baselines outside the paper: not part of its claims."""
 
 
-class Verdict(StrEnum):
+class ClaimVerdict(StrEnum):
     """What the measurements say of a claim."""
 
     HOLDS = "holds"
@@ -57,7 +57,7 @@ class Effect:
     low, high : float
         The interval the verdict was decided on: geometric mean +- SPREAD_FACTOR standard errors
         of the log ratios with three or more runs, else the smallest and largest ratio.
-    verdict : Verdict
+    verdict : ClaimVerdict
 
     """
 
@@ -65,7 +65,7 @@ class Effect:
     center: float
     low: float
     high: float
-    verdict: Verdict
+    verdict: ClaimVerdict
 
 
 def decide(
@@ -88,9 +88,9 @@ def decide(
     else:
         low, high = float(values.min()), float(values.max())
     if abs(center - 1.0) < min_effect or low <= 1.0 <= high:
-        verdict = Verdict.NO_DIFFERENCE
+        verdict = ClaimVerdict.NO_DIFFERENCE
     else:
-        verdict = Verdict.HOLDS if (high < 1.0) == claimed_below else Verdict.DOES_NOT_HOLD
+        verdict = ClaimVerdict.HOLDS if (high < 1.0) == claimed_below else ClaimVerdict.DOES_NOT_HOLD
     return Effect(values, center, low, high, verdict)
 
 
@@ -133,7 +133,7 @@ class Claim:
     detail: str = ""
 
     @property
-    def verdict(self) -> Verdict | None:
+    def verdict(self) -> ClaimVerdict | None:
         """The effect's verdict (None: not measured)."""
         return None if self.effect is None else self.effect.verdict
 
