@@ -190,11 +190,11 @@ def estimate(
             results = run_estimators(built, record, prior)
     rmse = errors_against_truth(record, results)
     table = Table(title=f"{entry.name}: {record.steps} steps from {data}")
-    for column in ("estimator", "weights", "failed steps", "state RMSE vs truth", "guarantee"):
+    for column in ("estimator", "weights", "state RMSE vs truth", "guarantee"):
         table.add_column(column)
     for kind, result in results.items():
         error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
-        table.add_row(kind, notes[kind], str(result.failures), error, str(result.guarantee))
+        table.add_row(kind, notes[kind], error, str(result.guarantee))
     console.print(table)
     console.print(_health_table(results))
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
