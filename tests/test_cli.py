@@ -191,5 +191,5 @@ def test_estimate_prints_warnings_as_messages_and_the_guarantee_with_its_verdict
     warned = [line for line in lines if line.startswith("warning: design: the chosen guarantee is not informative")]
     assert len(warned) == 1 and "holds but vacuous: bound" in warned[0]
     assert "UserWarning" not in result.output and "warnings.warn" not in result.output and ".py:" not in result.output
-    column = " ".join(line.split("│")[5].strip() for line in lines if line.startswith("│"))  # the guarantee column
+    column = " ".join(line.split("│")[4].strip() for line in lines if line.startswith("│"))  # the guarantee column
     assert column.startswith("holds but vacuous: bound ") and "> X's width 2 for x[0]" in column
