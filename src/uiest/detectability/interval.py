@@ -248,16 +248,21 @@ def enclosure(
         nothing is known).
 
     """
-    fun = _dense(fun)
-    lo, hi = _natural(fun, lower, upper)
     if derivative is None:
-        return lo, hi
+        return _natural(_dense(fun), lower, upper)
+    lo, hi, _, _ = _enclose(_dense(fun), lower, upper, _jacobian_part(derivative))
+    return lo, hi
+
+
+def _enclose(
+    fun: ca.Function, lower: FloatArray, upper: FloatArray, jacobian: ca.Function
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`enclosure` with the mean-value form, also returning the derivative's enclosure (m, k, n) twice."""
+    lo, hi = _natural(fun, lower, upper)
     center = 0.5 * (lower + upper)
     k, n = fun.numel_out(0), fun.numel_in(0)
     g_lo, g_hi = _natural(fun, center, center)
-    jac_lo, jac_hi = (
-        a.reshape(-1, n, k).transpose(0, 2, 1) for a in _natural(_jacobian_part(derivative), lower, upper)
-    )
+    jac_lo, jac_hi = (a.reshape(-1, n, k).transpose(0, 2, 1) for a in _natural(jacobian, lower, upper))
     d_lo, d_hi = (lower - center)[:, None, :], (upper - center)[:, None, :]
     terms = np.stack([jac_lo * d_lo, jac_lo * d_hi, jac_hi * d_lo, jac_hi * d_hi])
     terms = np.where(np.isnan(terms), 0.0, terms)  # 0 * inf on a degenerate side: the term is 0
@@ -265,7 +270,7 @@ def enclosure(
     with np.errstate(invalid="ignore"):
         slack = (n + 2) * UNIT_ROUNDOFF * (np.abs(g_lo) + np.abs(g_hi) + np.abs(terms).max(axis=0).sum(axis=2))
     mv_lo, mv_hi = _widen(low - slack, high + slack)
-    return np.maximum(lo, mv_lo), np.minimum(hi, mv_hi)
+    return np.maximum(lo, mv_lo), np.minimum(hi, mv_hi), jac_lo, jac_hi
 
 
 def _dense(fun: ca.Function) -> ca.Function:
@@ -318,6 +323,8 @@ class Bounds:
         ``lower - attained_lower`` etc.).
     boxes : int
         Sub-boxes evaluated.
+    lower_at, upper_at : ndarray, shape (k, n)
+        The points where ``attained_lower`` and ``attained_upper`` were found.
 
     """
 
@@ -326,6 +333,8 @@ class Bounds:
     attained_lower: FloatArray
     attained_upper: FloatArray
     boxes: int
+    lower_at: FloatArray
+    upper_at: FloatArray
 
     @property
     def gap(self) -> FloatArray:
@@ -337,9 +346,11 @@ def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 4
     """Sound lower and upper bounds of each output of ``fun`` over ``box``, tight to ``rtol``.
 
     Branch and bound per output and side: sub-boxes whose enclosure could exceed the best value
-    found at a point (by more than ``rtol`` times the attained range) are split along their
-    widest side (relative to the box), until none is left or ``max_boxes`` sub-boxes were
-    evaluated; the bound is the worst enclosure among the boxes kept, so it is sound either way.
+    found at a point (by more than ``rtol`` times the attained range) are split along the side
+    where the function changes most (the largest ``max|dg/dz_i| * width_i`` from the derivative's
+    enclosure; the widest side relative to the box where that is unbounded), until none is left
+    or ``max_boxes`` sub-boxes were evaluated; the bound is the worst enclosure among the boxes
+    kept, so it is sound either way.
     Degenerate sides of ``box`` are never split. Raises :class:`IntervalUnsupportedError`.
     """
     check_supported(fun)
@@ -351,33 +362,47 @@ def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 4
     points = np.vstack([box.corners() if box.size <= 10 else box.lower[None], box.center[None], box.sample(rng, 256)])
     values = np.asarray(fun.map(len(points))(points.T), dtype=float).reshape(k, -1)
     attained_lo, attained_hi = values.min(axis=1), values.max(axis=1)
+    lower_at, upper_at = points[np.argmin(values, axis=1)], points[np.argmax(values, axis=1)]
     lower, upper = np.empty(k), np.empty(k)
     used = 0
     for j in range(k):
         for sign in (1.0, -1.0):
             best = attained_hi[j] if sign > 0 else -attained_lo[j]
-            tol = rtol * max(attained_hi[j] - attained_lo[j], 1e-300)
-            bound, best, n = _branch_and_bound(fun, j, sign, box, best, tol, max_boxes)
+            at = upper_at[j] if sign > 0 else lower_at[j]
+            low = attained_lo[j] if sign > 0 else -attained_hi[j]
+            bound, best, at, n = _branch_and_bound(fun, j, sign, box, best, at, low, rtol, max_boxes)
             used += n
             if sign > 0:
-                upper[j], attained_hi[j] = bound, best
+                upper[j], attained_hi[j], upper_at[j] = bound, best, at
             else:
-                lower[j], attained_lo[j] = -bound, -best
-    return Bounds(lower, upper, attained_lo, attained_hi, used)
+                lower[j], attained_lo[j], lower_at[j] = -bound, -best, at
+    return Bounds(lower, upper, attained_lo, attained_hi, used, lower_at, upper_at)
 
 
 def _branch_and_bound(
-    fun: ca.Function, j: int, sign: float, box: Box, best: float, tol: float, max_boxes: int
-) -> tuple[float, float, int]:
-    """Upper bound of ``sign * fun_j`` over ``box``; returns (bound, best point value, boxes used)."""
+    fun: ca.Function,
+    j: int,
+    sign: float,
+    box: Box,
+    best: float,
+    at: FloatArray,
+    low: float,
+    rtol: float,
+    max_boxes: int,
+) -> tuple[float, float, FloatArray, int]:
+    """Upper bound of ``sign * fun_j`` over ``box``; returns (bound, best point value, its point, boxes used).
+
+    Boxes are closed once their enclosure is within ``rtol`` of the attained range ``best - low``
+    (``low``: the smallest value of ``sign * fun_j`` found), as ``best`` grows.
+    """
     scale = np.where(box.width > 0, box.width, 1.0)
     splittable = box.width > 0
-    derivative = centered(fun)
+    jacobian = _jacobian_part(centered(fun))
     lower, upper = box.lower[None].copy(), box.upper[None].copy()
     used = 0
     kept_bound = -np.inf
     while len(lower):
-        lo, hi = enclosure(fun, lower, upper, derivative)
+        lo, hi, jac_lo, jac_hi = _enclose(fun, lower, upper, jacobian)
         used += len(lower)
         ub = sign * (hi[:, j] if sign > 0 else lo[:, j])
         ub = np.where(np.isnan(ub), np.inf, ub)
@@ -385,18 +410,43 @@ def _branch_and_bound(
         point = sign * np.asarray(fun.map(len(mid))(mid.T), dtype=float).reshape(fun.numel_out(0), -1)[j]
         if np.any(point > ub + 1e-9 * np.maximum(1.0, np.abs(point))):  # a value above its own enclosure
             raise IntervalUnsupportedError(f"an enclosure of {fun.name()} misses a value it contains (a bug)")
-        best = max(best, float(np.nanmax(point, initial=-np.inf)))
+        if len(point) and np.nanmax(point, initial=-np.inf) > best:
+            i = int(np.nanargmax(point))
+            best, at = float(point[i]), mid[i].copy()
+        tol = rtol * max(best - low, 1e-9 * max(abs(best), abs(low)), 1e-300)
         open_ = ub > best + tol
         if used + 2 * int(open_.sum()) > max_boxes or not splittable.any():
-            return max(kept_bound, float(ub.max(initial=-np.inf))), best, used
+            return max(kept_bound, float(ub.max(initial=-np.inf))), best, at, used
         kept_bound = max(kept_bound, float(ub[~open_].max(initial=-np.inf)))
         lower, upper = lower[open_], upper[open_]
-        axis = np.argmax(np.where(splittable, (upper - lower) / scale, -1.0), axis=1)
+        axis = _split_axis(lower, upper, jac_lo[open_, j], jac_hi[open_, j], splittable, scale)
         cut = 0.5 * (lower[np.arange(len(lower)), axis] + upper[np.arange(len(lower)), axis])
         left_upper, right_lower = upper.copy(), lower.copy()
         left_upper[np.arange(len(lower)), axis] = cut
         right_lower[np.arange(len(lower)), axis] = cut
         lower, upper = np.vstack([lower, right_lower]), np.vstack([left_upper, upper])
-    if kept_bound < best - 1e-9 * max(1.0, abs(best)):
+    if np.isfinite(best) and kept_bound < best - 1e-9 * max(1.0, abs(best)):
         raise IntervalUnsupportedError(f"the enclosures of {fun.name()} lie below a value attained (a bug)")
-    return max(kept_bound, best), best, used
+    return max(kept_bound, best), best, at, used
+
+
+def _split_axis(
+    lower: FloatArray, upper: FloatArray, jac_lo: FloatArray, jac_hi: FloatArray, splittable: FloatArray,
+    scale: FloatArray,
+) -> FloatArray:
+    """The side to halve per box: the largest smear ``max|dg/dz_i| * width_i`` (where the function changes most).
+
+    Where a smear is infinite (no derivative bound), the widest side relative to the box among those.
+    """
+    width = upper - lower
+    with np.errstate(invalid="ignore"):
+        smear = np.maximum(np.abs(jac_lo), np.abs(jac_hi)) * width
+    smear = np.where(np.isnan(smear), np.inf, smear)
+    smear = np.where(splittable, smear, -1.0)
+    relative = np.where(splittable, width / scale, -1.0)
+    unknown = np.isinf(smear)
+    by_width = np.argmax(np.where(unknown, relative, -1.0), axis=1)
+    by_smear = np.argmax(smear, axis=1)
+    use_width = unknown.any(axis=1) | (smear.max(axis=1) <= 0.0)
+    fallback = np.argmax(relative, axis=1)
+    return np.where(unknown.any(axis=1), by_width, np.where(use_width, fallback, by_smear))
