@@ -57,6 +57,8 @@ def test_certify_prints_the_table_and_writes_json(tmp_path):
     assert kinds == ["strong_detectability", "reduced_eioss", "delta_ioss"]
     assert all(c["certified"] for c in data["certificates"])
     assert all(c["verify_worst_ratio"] <= 1.0 for c in data["certificates"])
+    assert all(c["falsification"]["worst_ratio"] <= 1.0 + 1e-6 for c in data["certificates"])
+    assert "search: max ratio" in result.output
     bad = runner.invoke(app, ["certify", "closed-form", "--structure", "diagonal", "--out", str(out)])
     assert bad.exit_code == 2 and "structure" in bad.output
 

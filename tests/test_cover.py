@@ -105,7 +105,7 @@ def test_maps_the_forms_do_not_prove_and_covers_too_large_are_refused():
     powers = ca.Function("M", [z], [ca.vertcat(*[z[0] ** k for k in range(1, MAX_PARAMETERS + 2)])])
     with pytest.raises(ModelError, match=f"span {MAX_PARAMETERS + 1} independent functions.*cover='sampled'"):
         cover(powers, box)
-    with pytest.raises(ModelError, match="interval arithmetic cannot bound.*parameters="):
+    with pytest.raises(ModelError, match=r"interval arithmetic cannot bound.*parameters="):
         cover(ca.Function("M", [z], [ca.floor(z[0]) * z[0]]), box)
     with pytest.raises(ModelError, match="unbounded over the domain"):
         cover(ca.Function("M", [z], [1.0 / z[0]]), box)

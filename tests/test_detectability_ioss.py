@@ -152,8 +152,11 @@ def test_certificates_share_one_interface():
     assert isinstance(delta.weights(), MHEWeights) and isinstance(reduced.weights(), TwoStageWeights)
     for cert in (delta, reduced):
         assert cert.certified and cert.status == "certified" and cert.rate_min <= cert.rate < 1
-        assert cert.min_horizon() >= 1 and cert.margin >= 0 and "sampled" in cert.coverage
+        assert cert.min_horizon() >= 1 and cert.margin >= 0 and cert.sound and "exact by entries" in cert.coverage
         assert json.loads(json.dumps(cert.to_dict()))["certified"] is True
+        assert not cert.falsification.refuted and cert.falsification.pairs >= 20_000
+    sampled = certify_delta_ioss(system, w_bounds=(-1, 1), cover="sampled", **FAST)
+    assert not sampled.certified and sampled.status == "holds at the samples, not proved", sampled.reason
 
 
 def test_bisect_rate_with_a_failed_top_probe_decides_nothing():

@@ -104,7 +104,7 @@ def test_a_narrow_feature_is_localised_and_its_extremes_are_returned():
     box = Box([-5.0, -3.0], [5.0, 3.0])
     found = interval.bounds(fun, box, rtol=1e-3)
     peak = 3.0 * 3e-4 / np.sqrt(2.0) * np.exp(-0.5) / 9e-8
-    assert found.attained_upper[0] == pytest.approx(peak, rel=1e-3) and found.upper[0] >= peak
+    assert peak - 2e-3 * 2.0 * peak <= found.attained_upper[0] <= peak <= found.upper[0]
     assert found.gap[0] <= 2e-3 * 2.0 * peak and found.boxes < 20_000
     for at, value in ((found.upper_at[0], found.attained_upper[0]), (found.lower_at[0], found.attained_lower[0])):
         assert box.contains(at) and float(fun(at)) == pytest.approx(value)

@@ -168,7 +168,8 @@ def cover(
 def _fixed(fun: ca.Function, domain: Box) -> ca.Function:
     """``fun`` with the degenerate sides of ``domain`` substituted (CasADi folds what becomes constant)."""
     z = ca.SX.sym("z", domain.size)
-    given = [ca.SX(float(lo)) if lo == hi else z[i] for i, (lo, hi) in enumerate(zip(domain.lower, domain.upper))]
+    sides = enumerate(zip(domain.lower, domain.upper, strict=True))
+    given = [ca.SX(float(lo)) if lo == hi else z[i] for i, (lo, hi) in sides]
     return ca.Function(fun.name(), [z], [ca.densify(fun(ca.vertcat(*given) if given else z))])
 
 
@@ -216,7 +217,8 @@ def _exact(
     rounding = (r + 2) * 2.0**-53 * float((np.abs(offset) + np.abs(corners) @ np.abs(slopes)).max()) / size
     gap = float(np.max(found.gap / np.maximum(found.upper - found.lower, 1e-300)))
     what = (f"{r} of its {len(varying)} varying entries (the others are exact combinations of them)"
-            if kind == ENTRIES else f"{r} parameters that carry its {len(varying)} varying entries exactly")  # fmt: skip
+            if kind == ENTRIES else
+            f"{r} parameters that carry its {len(varying)} varying entries exactly")  # fmt: skip
     description = (
         f"{len(flat)} corners of the box of {what}, bounded by interval arithmetic ({found.boxes} sub-boxes, within "
         f"{gap:.1e} of the attained range)"
@@ -301,7 +303,8 @@ def _not_carried(
     relative = residual.max(axis=0) / np.maximum(spread, 1e-300)
     worst = int(np.argmax(relative))
     point = at[int(np.argmax(residual[:, worst]))]
-    where = ", ".join(f"{n}={v:.6g}" for n, v, lo, hi in zip(names, point, domain.lower, domain.upper) if lo < hi)
+    sides = zip(names, point, domain.lower, domain.upper, strict=True)
+    where = ", ".join(f"{n}={v:.6g}" for n, v, lo, hi in sides if lo < hi)
     entry = _entry(outside[worst], rows)
     if relative[worst] > AFFINE_RTOL:
         return ModelError(

@@ -432,8 +432,8 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
                 np.concatenate([model.z_box.upper, model.d_box.upper]))  # fmt: skip
     extremes = solution.cover.extremes
     anchors = None if extremes is None else np.hstack([extremes[:, :n], extremes[:, n + nu :]])
-    labels = tuple(f"z[{i}]" for i in range(n)) + tuple(f"{name}[{i}]" for name, size in model.channels
-                                                        for i in range(size)) + tuple(f"u[{i}]" for i in range(nu))  # fmt: skip
+    channels = tuple(f"{name}[{i}]" for name, size in model.channels for i in range(size))
+    labels = tuple(f"z[{i}]" for i in range(n)) + channels + tuple(f"u[{i}]" for i in range(nu))
     found = falsify.search(ca.Function("dissipation_terms", [a, b, u], [lhs, rhs]), joint, model.u_box,
                            np.concatenate([model.z_scale, model.d_scale]), anchors=anchors, labels=labels,
                            seed=seed)  # fmt: skip

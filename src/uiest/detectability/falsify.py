@@ -21,6 +21,7 @@ Not finding a violation proves nothing; finding one disproves the certificate.
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 import casadi as ca
@@ -66,6 +67,8 @@ class Falsification:
         The worst pair's shared inputs.
     labels : tuple of str
         Names of the entries of ``first`` (and ``second``) then ``shared``, for the text.
+    seconds : float
+        CPU time of the search (this thread).
 
     """
 
@@ -77,6 +80,7 @@ class Falsification:
     second: FloatArray
     shared: FloatArray
     labels: tuple[str, ...]
+    seconds: float
 
     @property
     def refuted(self) -> bool:
@@ -111,8 +115,10 @@ class Falsification:
             "evaluations": self.evaluations,
             "worst_ratio": self.worst_ratio,
             "refuted": self.refuted,
-            "worst_pair": {"first": self.first.tolist(), "second": self.second.tolist(), "shared": self.shared.tolist()},
-        }
+            "worst_pair": {"first": self.first.tolist(), "second": self.second.tolist(),
+                           "shared": self.shared.tolist()},
+            "cpu_s": self.seconds,
+        }  # fmt: skip
 
 
 def search(
@@ -148,6 +154,7 @@ def search(
         Names of a's entries then s's, for the text.
 
     """
+    start = time.thread_time()
     n, ns = domain.size, shared.size
     labels = labels or tuple(f"z[{i}]" for i in range(n)) + tuple(f"s[{i}]" for i in range(ns))
     rng = np.random.default_rng(seed)
@@ -178,7 +185,7 @@ def search(
             if value > worst[0]:
                 worst = (value, point[:n], point[n : 2 * n], point[2 * n :])
     return Falsification(len(a), started, evaluations, worst[0], worst[1].copy(), worst[2].copy(), worst[3].copy(),
-                         labels)  # fmt: skip
+                         labels, time.thread_time() - start)  # fmt: skip
 
 
 def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list[int]:

@@ -270,7 +270,7 @@ def _parameter_function(parameters: Any, system: System) -> ca.Function:
 def _falsify(
     system: System, structure: InputStructure, covered: Cover, solution: StrongSolution, seed: int
 ) -> falsify.Falsification:
-    r"""The adversarial search on the LMI's inequality, scaled, with the worst unknown-input increment:
+    r"""The adversarial search on the LMI's inequality, scaled, with the worst unknown-input increment.
 
     ``max_dd |a + B dd|_P^2 - s2 |C (a + B dd)|^2 <= mu |dx|_P^2 + s1 |C dx|^2`` with
     ``a = S_x^-1 (f(x, u, w0) - f(x~, u, w0))``; the maximum over dd is ``a' Q a - g' H^-1 g`` with

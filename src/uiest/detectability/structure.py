@@ -24,11 +24,10 @@ elimination anyway, and removing it makes A independent of w).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from fractions import Fraction
 
 import casadi as ca
 import numpy as np
-
-from fractions import Fraction
 
 from uiest.box import Box, FloatArray
 from uiest.detectability.affine import Forms
