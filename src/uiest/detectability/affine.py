@@ -15,7 +15,7 @@ combination of *monomials*, products of powers of *atoms*:
   rounding enters: two forms agree exactly or not at all.
 
 Constants CasADi computed while building the expression (``exp(0)`` folded to 1) are the model's
-and are taken as given. The forms decide linear relations exactly (:func:`reduce`): entries whose
+and are taken as given. The forms decide linear relations exactly (:func:`express`): entries whose
 non-constant parts are dependent share parameters, and a parameter map ``theta(z)`` is proved to
 carry the matrix when every entry's form is in the span of theta's. Functions equal only through
 an identity the forms do not apply (``1 - tanh(x)^2`` and ``1 / cosh(x)^2``) are not recognised
@@ -24,6 +24,7 @@ as equal: a proof may then fail, never a wrong one succeed.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from fractions import Fraction
 
@@ -40,8 +41,6 @@ MAX_TERMS = 256
 
 MAX_POWER = 4
 """Integer powers up to this are expanded as products."""
-
-_LINEAR = {ca.OP_ASSIGN, ca.OP_ADD, ca.OP_SUB, ca.OP_NEG, ca.OP_TWICE}
 
 
 def constant_of(form: Form) -> Fraction:
@@ -80,6 +79,14 @@ def _merge(a: Monomial, b: Monomial) -> Monomial:
     return tuple(sorted(powers.items()))
 
 
+def _normalised(a: Form) -> tuple[Fraction, Form]:
+    """``(c, a / c)`` with c the coefficient of a's first monomial (1 for the zero form)."""
+    if not a:
+        return Fraction(1), a
+    factor = a[min(a)]
+    return factor, _scale(a, 1 / factor)
+
+
 def _is_constant(a: Form) -> bool:
     return all(not m for m in a)
 
@@ -100,9 +107,10 @@ class Forms:
         return {((index, 1),): Fraction(1)}
 
     def _product(self, a: Form, b: Form) -> Form:
-        if len(a) * len(b) > MAX_TERMS:
+        if len(a) * len(b) > MAX_TERMS:  # one atom, its factors scaled to a leading coefficient of one
+            (fa, a), (fb, b) = _normalised(a), _normalised(b)
             first, second = sorted([_key(a), _key(b)])
-            return self._atom(("mul", first, second))
+            return _scale(self._atom(("mul", first, second)), fa * fb)
         out: Form = {}
         for ma, ca_ in a.items():
             for mb, cb in b.items():
@@ -113,6 +121,10 @@ class Forms:
                 else:
                     out.pop(m, None)
         return out
+
+    def _inverse(self, a: Form) -> Form:
+        factor, a = _normalised(a)
+        return _scale(self._atom(("inv", _key(a))), 1 / factor)
 
     def _power(self, a: Form, p: float) -> Form:
         if p == int(p) and 0 <= p <= MAX_POWER:
@@ -128,7 +140,14 @@ class Forms:
         result = ca.SX.unary(op, values[0]) if len(values) == 1 else ca.SX.binary(op, values[0], values[1])
         if not result.is_constant():
             return self._atom((op, *(_key(a) for a in args)))
-        return _number(float(result), self)
+        return self._number(float(result))
+
+    def _number(self, value: float) -> Form:
+        """A constant form, or an atom for a constant that is not finite (it has no rational value)."""
+        if not math.isfinite(value):
+            return self._atom(("nonfinite", repr(value)))
+        fraction = Fraction(value)
+        return {(): fraction} if fraction else {}
 
     def _apply(self, op: int, args: list[Form]) -> Form:
         a = args[0]
@@ -152,9 +171,9 @@ class Forms:
         if op == ca.OP_DIV and constant[1] and constant_of(args[1]):
             return _scale(a, 1 / constant_of(args[1]))
         if op == ca.OP_DIV:
-            return self._product(a, self._atom(("inv", _key(args[1]))))
+            return self._product(a, self._inverse(args[1]))
         if op == ca.OP_INV:
-            return self._atom(("inv", _key(a)))
+            return self._inverse(a)
         if op in (ca.OP_CONSTPOW, ca.OP_POW) and constant[1]:
             return self._power(a, float(constant_of(args[1])))
         return self._atom((op, *(_key(x) for x in args)))
@@ -177,41 +196,24 @@ class Forms:
         for k in range(dense.n_instructions()):
             op, args, res = dense.instruction_id(k), dense.instruction_input(k), dense.instruction_output(k)
             if op == ca.OP_CONST:
-                work[res[0]] = _number(dense.instruction_constant(k), self)
+                work[res[0]] = self._number(dense.instruction_constant(k))
             elif op == ca.OP_INPUT:
                 work[res[0]] = self._atom(("z", args[1]))
             elif op == ca.OP_OUTPUT:
                 out[res[1]] = work[args[0]]
-            else:
-                arity = 1 if op in _UNARY_CODES else 2
-                work[res[0]] = self._apply(op, [work[i] for i in args[:arity]])
+            else:  # an operation's arguments: one or two work entries
+                work[res[0]] = self._apply(op, [work[i] for i in args])
         return out
 
 
-_UNARY_CODES = frozenset({
-    ca.OP_ASSIGN, ca.OP_NEG, ca.OP_TWICE, ca.OP_SQ, ca.OP_EXP, ca.OP_LOG, ca.OP_SQRT, ca.OP_SIN, ca.OP_COS,
-    ca.OP_TAN, ca.OP_ASIN, ca.OP_ACOS, ca.OP_ATAN, ca.OP_NOT, ca.OP_FLOOR, ca.OP_CEIL, ca.OP_FABS, ca.OP_SIGN,
-    ca.OP_ERF, ca.OP_INV, ca.OP_SINH, ca.OP_COSH, ca.OP_TANH, ca.OP_ASINH, ca.OP_ACOSH, ca.OP_ATANH, ca.OP_ERFINV,
-    ca.OP_LOG1P, ca.OP_EXPM1,
-})  # fmt: skip
-
-
-def _number(value: float, forms: Forms) -> Form:
-    """A constant form, or an atom for a constant that is not finite (no rational)."""
-    if value != value or value in (float("inf"), float("-inf")):
-        return forms._atom(("nonfinite", repr(value)))
-    fraction = Fraction(value)
-    return {(): fraction} if fraction else {}
-
-
 @dataclass(frozen=True)
-class Reduction:
-    """Entries written in a basis of functions chosen among them (see :func:`reduce`).
+class Expressed:
+    """Entries written in a basis of functions (see :func:`express`).
 
     Attributes
     ----------
     basis : tuple of int
-        Indices of the basis functions (into ``basis_forms`` of :func:`reduce`).
+        Indices of the basis functions (into ``basis_forms`` of :func:`express`).
     coefficients : dict
         ``coefficients[e][j]``: entry e's non-constant part is ``sum_j coefficients[e][j] *
         (basis_j - constant of basis_j)``, exactly; None for an entry outside the span.
@@ -225,7 +227,7 @@ class Reduction:
     remainders: dict[int, Form]
 
 
-def reduce(basis_forms: list[Form], entry_forms: list[Form]) -> Reduction:
+def express(basis_forms: list[Form], entry_forms: list[Form]) -> Expressed:
     """Write each entry's non-constant part in an independent subset of ``basis_forms`` (exact elimination).
 
     ``basis_forms`` are tried in order; those dependent on earlier ones are left out of the basis.
@@ -259,4 +261,4 @@ def reduce(basis_forms: list[Form], entry_forms: list[Form]) -> Reduction:
             remainders[e] = row
         else:  # 0 = entry + combination
             coefficients[e] = {j: -c for j, c in combination.items() if c}
-    return Reduction(tuple(basis), coefficients, remainders)
+    return Expressed(tuple(basis), coefficients, remainders)

@@ -35,7 +35,7 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import interval
-from uiest.detectability.affine import Forms, Reduction, constant_of, reduce, variable_part
+from uiest.detectability.affine import Expressed, Forms, constant_of, express, variable_part
 from uiest.detectability.lmi import batched, grid_points
 from uiest.detectability.sampled_cover import sampled_vertices
 from uiest.errors import ModelError, OptionError
@@ -190,13 +190,13 @@ def _exact(
                      vertex)  # fmt: skip
     if parameters is None:
         basis_forms = [entries[e] for e in varying]
-        reduction = reduce(basis_forms, basis_forms)
+        reduction = express(basis_forms, basis_forms)
         theta = ca.Function("theta", [z], [ca.vertcat(*[matrix[varying[j]] for j in reduction.basis])])
         kind = ENTRIES
     else:
         given = _fixed(parameters, domain)
         basis_forms = forms.of(given)
-        reduction = reduce(basis_forms, [entries[e] for e in varying])
+        reduction = express(basis_forms, [entries[e] for e in varying])
         outside = [varying[i] for i, c in reduction.coefficients.items() if c is None]
         if outside:
             raise _not_carried(fixed, given, outside, domain, points, names, rows)
@@ -229,7 +229,7 @@ def _exact(
 
 
 def _coefficients(
-    entries: list[dict], varying: list[int], basis_forms: list[dict], reduction: Reduction
+    entries: list[dict], varying: list[int], basis_forms: list[dict], reduction: Expressed
 ) -> tuple[FloatArray, FloatArray]:
     """``vec M = offset + theta @ slopes`` (exact rationals rounded once): offset (d,), slopes (r, d)."""
     position = {j: k for k, j in enumerate(reduction.basis)}
@@ -249,7 +249,7 @@ def _entry(e: int, rows: int) -> str:
 
 
 def _bounds(
-    theta: ca.Function, domain: Box, rows: int, kind: str, reduction: Reduction, varying: list[int], seed: int
+    theta: ca.Function, domain: Box, rows: int, kind: str, reduction: Expressed, varying: list[int], seed: int
 ) -> interval.Bounds:
     """Interval bounds of the parameters; ModelError when interval arithmetic cannot give finite ones."""
     what = "the parameters" if kind == PARAMETER_BOX else "the Jacobian's entries"

@@ -333,6 +333,8 @@ def check_options(options: dict[str, Any], caller: str) -> None:
         check_samples(options["samples"], "samples", low=10)
     if "seed" in options:
         check_seed(options["seed"])
+    if "cover" in options and options["cover"] not in covers.METHODS:
+        raise OptionError(f"cover: expected one of {covers.METHODS}, got {options['cover']!r}")
 
 
 def solve(

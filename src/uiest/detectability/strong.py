@@ -219,6 +219,8 @@ def certify_strong_detectability(
         isinstance(max_condition, float | int) and not isinstance(max_condition, bool) and 1.0 < max_condition < np.inf
     ):
         raise OptionError(f"max_condition: expected a finite number > 1 or None, got {max_condition!r}")
+    if cover not in covers.METHODS:
+        raise OptionError(f"cover: expected one of {covers.METHODS}, got {cover!r}")
     structure = input_structure(system, seed=seed)
     theta = None if parameters is None else _parameter_function(parameters, system)
     covered = covers.cover(structure.state_jacobian, structure.box, parameters=theta, method=cover, samples=samples,
