@@ -483,7 +483,9 @@ def api_cases(tmp: Path) -> list[Case]:
         ),
         Case(
             "certify: parameters the expressions do not carry",
-            lambda: certify_strong_detectability(s(), parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, x[0]]),
+            lambda: certify_strong_detectability(
+                s(), parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])]
+            ),
             ModelError,
             "not exact combinations",
         ),
