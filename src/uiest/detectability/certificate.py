@@ -126,7 +126,8 @@ class Certificate:
     rate, rate_min : float
         The discount of the certificate's inequality (mu or eta) and the smallest one found.
     P_scaled : ndarray (n, n)
-        Storage matrix in scaled coordinates (NaN when not certified).
+        Storage matrix in scaled coordinates (NaN when the LMIs were not solved; the solution found
+        when they were, also for a certificate "refuted" or "holds at the samples, not proved").
     scale : ndarray (n,)
         The scales of the certificate's state: ``P = P_scaled / outer(scale, scale)``.
     solve_time : float
@@ -168,17 +169,17 @@ class Certificate:
 
     @property
     def alpha_1_scaled(self) -> float:
-        """``lambda_min(P_scaled)`` (NaN when not certified)."""
+        """``lambda_min(P_scaled)`` (NaN when the LMIs were not solved)."""
         return _eig(self.P_scaled, 0)
 
     @property
     def alpha_2_scaled(self) -> float:
-        """``lambda_max(P_scaled)`` (NaN when not certified)."""
+        """``lambda_max(P_scaled)`` (NaN when the LMIs were not solved)."""
         return _eig(self.P_scaled, -1)
 
     @property
     def condition(self) -> float:
-        """Condition number of ``P_scaled`` (NaN when not certified)."""
+        """Condition number of ``P_scaled`` (NaN when the LMIs were not solved)."""
         return self.alpha_2_scaled / self.alpha_1_scaled
 
     def require(self, what: str) -> None:
