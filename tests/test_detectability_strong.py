@@ -294,7 +294,7 @@ def test_a_band_where_the_zero_dynamics_expand_is_never_certified():
     # x = (1.3, 2), x~ = (1.3, 1): same y and y+, yet x2's distance grows by 1.1 per step. A fit of the
     # Jacobian's affine form on random samples never excited g and certified it (mu = 0.373).
     system, theta = _band()
-    with pytest.raises(ModelError, match=r"not affine in the given parameters: entry \[1, 0\].* at x\[0\]=1\.300"):
+    with pytest.raises(ModelError, match=r"not affine in the given parameters: entry \[1, 0\].* at x\[0\]=1\.(29|30)"):
         certify_strong_detectability(system, parameters=theta)
     exact = certify_strong_detectability(system)
     assert not exact.certified and exact.status == "infeasible", exact.reason

@@ -135,9 +135,9 @@ class Certificate:
     coverage : str
         How the domain was covered (exact vertices, parameter box, sampled cover).
     sound : bool
-        True when every ingredient is proved over the whole domain (the vertices cover it and, for
-        strong detectability, the input structure is structural); False when any was sampled
-        (``coverage`` says which). Either way the LMIs were solved and re-checked at the vertices.
+        True when every ingredient is proved over the whole domain (the vertices cover it; for the
+        dissipation certificates, the output Jacobian is constant); False when one was sampled
+        (``coverage`` says which; the certificate is then not ``certified``).
     margin : float
         Smallest eigenvalue margin of the re-check, relative to ``||P||``: > 0 when certified, or (strong
         detectability) negative within the direct check's rounding tolerance, which ``reason`` then names.

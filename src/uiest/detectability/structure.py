@@ -65,9 +65,7 @@ class InputStructure:
         Largest rank of ``df/dw`` at a single point (< rank_B: the direction varies).
     evidence : str
         How B was found ("structural": df/dw is constant; "exact forms": the span of its form's
-        constant matrices).
-    structural : bool
-        Whether the span of B provably holds every input direction (always, for the two ways above).
+        constant matrices); either way the span of B provably holds every input direction.
     state_jacobian : casadi.Function
         ``z = (x, u) -> A (nx, nx)``, the scaled, projected Jacobian of f in x at ``w0``.
     box : Box
@@ -87,7 +85,6 @@ class InputStructure:
     rank_CB: int  # noqa: N815
     pointwise_rank: int
     evidence: str
-    structural: bool
     state_jacobian: ca.Function
     box: Box
     names: tuple[str, ...]
@@ -206,7 +203,6 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
         rank_CB=rank_CB,
         pointwise_rank=pointwise,
         evidence=evidence,
-        structural=True,
         state_jacobian=state_jacobian,
         box=box,
         names=tuple(system.x.names) + tuple(system.u.names),
