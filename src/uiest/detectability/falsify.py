@@ -189,9 +189,9 @@ def search(
 
 def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list[int]:
     """Indices of the ``count`` worst pairs with finite ratios, one per distinct first point."""
-    order = [int(i) for i in np.argsort(-ratio) if np.isfinite(ratio[i])]
+    order = np.argsort(-ratio)
     chosen: list[int] = []
-    for i in order:
+    for i in (int(i) for i in order[np.isfinite(ratio[order])]):
         if len(chosen) == count:
             break
         if all(not np.allclose(a[i], a[j]) or not np.allclose(b[i], b[j]) for j in chosen):
