@@ -488,6 +488,21 @@ def api_cases(tmp: Path) -> list[Case]:
             ModelError,
             "parameters",
         ),
+        Case(
+            "certify: an unknown cover",
+            lambda: certify_strong_detectability(s(), cover="fitted"),
+            OptionError,
+            "cover: expected one of",
+        ),
+        Case(
+            "certify: parameters the expressions do not carry",
+            lambda: certify_strong_detectability(
+                s(), parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])]
+            ),
+            ModelError,
+            "not exact combinations",
+        ),
+        Case("delta-IOSS: a cover by fitting", lambda: certify_delta_ioss(s(), cover="fit"), OptionError, "cover"),
         Case("delta-IOSS: gird = 2", lambda: certify_delta_ioss(s(), gird=2), OptionError, "gird"),
         Case(
             "delta-IOSS: structure diagonal",

@@ -62,6 +62,8 @@ def test_certify_prints_the_table_and_writes_json(tmp_path):
     assert strong["estimator"] == "UISE" and strong["applies"] and strong["informative"]
     assert "UISE: informative" in result.output and "UISE theorem (theo:MHE_full): holds, bound x1 " in result.output
     assert strong["text"].endswith("(informative)") and strong["text"] in result.output.replace("\n", "")
+    assert all(c["falsification"]["worst_ratio"] <= 1.0 + 1e-6 for c in data["certificates"])
+    assert "search: max ratio" in result.output
     bad = runner.invoke(app, ["certify", "closed-form", "--structure", "diagonal", "--out", str(out)])
     assert bad.exit_code == 2 and "structure" in bad.output
 

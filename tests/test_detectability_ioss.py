@@ -152,11 +152,33 @@ def test_certificates_share_one_interface():
     assert isinstance(delta.weights(), MHEWeights) and isinstance(reduced.weights(), TwoStageWeights)
     for cert in (delta, reduced):
         assert cert.certified and cert.status == "certified" and cert.rate_min <= cert.rate < 1
-        assert cert.min_horizon() >= 1 and cert.margin >= 0 and "sampled" in cert.coverage
+        assert cert.min_horizon() >= 1 and cert.margin >= 0 and cert.sound and "exact by entries" in cert.coverage
         assert json.loads(json.dumps(cert.to_dict()))["certified"] is True
+        assert not cert.falsification.refuted and cert.falsification.pairs >= 20_000
+    sampled = certify_delta_ioss(system, w_bounds=(-1, 1), cover="sampled", **FAST)
+    assert not sampled.certified and sampled.status == "holds at the samples, not proved", sampled.reason
 
 
 def test_bisect_rate_with_a_failed_top_probe_decides_nothing():
     outcomes = {1.0 - lmi.RATE_GAP: lmi.FAILED}
     found = lmi.bisect_rate(lambda mu: outcomes.get(mu, lmi.INFEASIBLE))
     assert found.rate is None and found.outcome == lmi.FAILED
+
+
+def test_a_dissipation_certificate_the_search_refutes_is_not_certified(monkeypatch):
+    # the cover replaced by the Jacobian at one corner of X (x2's rate 0.2 where it reaches 0.8 elsewhere)
+    import dataclasses
+
+    from uiest.detectability import dissipation
+
+    real = dissipation.covers.cover
+
+    def one_corner(fun, box, **kwargs):
+        found = real(fun, box, **kwargs)
+        corner = np.asarray(fun(box.lower), dtype=float)[None]
+        return dataclasses.replace(found, vertices=corner, samples=corner)
+
+    monkeypatch.setattr(dissipation.covers, "cover", one_corner)
+    cert = certify_delta_ioss(closed_form.system(), w_bounds=(-1, 1), **FAST)
+    assert cert.status == "refuted" and not cert.certified, cert.reason
+    assert cert.falsification.worst_ratio > 1.0 and "refuted: the pair" in cert.reason

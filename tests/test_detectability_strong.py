@@ -60,22 +60,31 @@ def test_closed_form_rate_over_a_domain_twenty_times_wider_in_one_state():
     known = (0.5 + 0.3 * np.tanh(3.0)) ** 2
     cert = certify_strong_detectability(system)
     assert cert.certified, cert.reason
-    assert cert.cover.kind == "sampled cover" and not cert.cover.sound
-    assert known - 1e-6 <= cert.mu_min <= known + 0.01
+    assert cert.cover.kind == "exact by entries" and cert.cover.sound and len(cert.cover.vertices) == 4
+    assert known - 1e-6 <= cert.mu_min <= known + 1e-3
     report = cert.verify(100_000, seed=2)
     assert report.pairs_used > 90_000 and report.holds, report
+    # a sampled cover, asked for, finds the same numbers but proves nothing
+    sampled = certify_strong_detectability(system, cover="sampled")
+    assert not sampled.certified and sampled.status == "holds at the samples, not proved", sampled.reason
+    assert sampled.mu_min == pytest.approx(known, abs=1e-3) and "the cover is sampled" in sampled.reason
+    with pytest.raises(CertificationError):
+        sampled.weights()
 
 
 def test_parameter_map_gives_a_sound_cover_and_the_exact_rate():
-    # after the unknown input's direction e1 is projected out, df/dx = [[0, 0], [a1 sech^2(x1) x2, a(x1)]]
+    # after the unknown input's direction e1 is projected out, df/dx = [[0, 0], [a1 (1 - tanh^2(x1)) x2, a(x1)]]
     system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
-    cert = certify_strong_detectability(system, parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])])
+    cert = certify_strong_detectability(system, parameters=closed_form.jacobian_parameters())
     assert cert.certified, cert.reason
     assert cert.cover.kind == "parameter box" and cert.cover.sound and len(cert.cover.vertices) == 4
     assert cert.mu_min == pytest.approx((0.5 + 0.3 * np.tanh(3.0)) ** 2, abs=1e-3)
     assert cert.verify(20_000, seed=3).holds
-    with pytest.raises(ModelError, match="not affine in the given parameters"):
+    with pytest.raises(ModelError, match=r"not affine in the given parameters: entry \[1, 0\]"):
         certify_strong_detectability(system, parameters=lambda x, u: [np.tanh(x[0])])
+    # the same functions through an identity the exact forms do not apply (sech^2 = 1 - tanh^2): refused, not fitted
+    with pytest.raises(ModelError, match="not exact combinations of the parameters' expressions"):
+        certify_strong_detectability(system, parameters=lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])])
 
 
 def test_verify_exposes_a_certificate_that_claims_too_much():
@@ -186,8 +195,8 @@ def test_every_state_measured_and_the_sound_flag():
     cert = certify_strong_detectability(system)
     assert cert.certified and cert.mu_min <= 1e-4 and cert.sound, cert.reason
     assert cert.verify(20_000).holds
-    sampled = certify_strong_detectability(closed_form.system())
-    assert not sampled.sound and "sampled" in sampled.coverage
+    sampled = certify_strong_detectability(closed_form.system(), cover="sampled")
+    assert not sampled.sound and "sampled" in sampled.coverage and not sampled.certified
 
 
 def test_solver_failures_are_never_reported_as_infeasible(monkeypatch):
@@ -209,7 +218,7 @@ def test_linear_certificate_statuses():
 
 
 def _lorenz(dt):
-    """Lorenz, y = x1, w in dx1/dt, over a wide box: its RK4 Jacobian spans 6 directions (a box cover)."""
+    """Lorenz, y = x1, w in dx1/dt, over a wide box: 9 independent entries of its projected RK4 Jacobian."""
 
     def rhs(x, u, w):
         return [10.0 * (x[1] - x[0]) + w[0], 28.0 * x[0] - x[1] - x[0] * x[2], x[0] * x[1] - 8.0 / 3.0 * x[2]]
@@ -219,12 +228,13 @@ def _lorenz(dt):
 
 
 def test_infeasible_at_a_covers_vertices_is_a_proof_only_when_the_sampled_jacobians_agree():
-    # dt = 0.002: the 64-vertex box around the Jacobians admits no P, the Jacobians themselves do (their zero
-    # dynamics contract like exp(-dt)): undecided, not "infeasible". dt = 0.01: the integral input channel's
-    # error outweighs that contraction, and the sampled Jacobians are infeasible too: a proof.
+    # dt = 0.002: the exact box of the 9 independent Jacobian entries (512 vertices) admits no P, the Jacobians
+    # themselves do (their zero dynamics contract like exp(-dt)): undecided, not "infeasible". dt = 0.01: the
+    # integral input channel's error outweighs that contraction, and the sampled Jacobians are infeasible too: a proof.
     wide = certify_strong_detectability(_lorenz(0.002), samples=500)
     assert wide.status == "undecided" and not wide.certified
-    assert "64 vertices" in wide.reason and "feasible at the Jacobians of" in wide.reason
+    assert wide.cover.kind == "exact by entries" and len(wide.cover.vertices) == 512
+    assert "512 vertices" in wide.reason and "feasible at the Jacobians of" in wide.reason
     below = certify_strong_detectability(_lorenz(0.002), mu=0.5, samples=500)  # refuted at the samples (0.997)
     assert below.status == "below the smallest rate" and "sampled points of X themselves" in below.reason
     coarse = certify_strong_detectability(_lorenz(0.01), samples=500)
@@ -264,3 +274,105 @@ def test_a_solver_error_in_the_design_is_retried_before_the_rate_problems_p_is_u
     monkeypatch.setattr(strong_lmi.StrongLMI, "_design_once", lambda self, *args: ("solver_error", None))
     fallback = certify_strong_detectability(system)
     assert fallback.certified and "P from the rate problem" in fallback.reason
+
+
+def _band(width=3e-4):
+    """Issue 33's system: x2's rate 0.6 + 0.5 g(x1) reaches 1.1 on a band of x1 of width ~1e-3; y = x1."""
+
+    def g(x1):
+        return np.exp(-(((x1 - 1.3) / width) ** 2))
+
+    def f(x, u, w):
+        return [0.5 * x[0] + 0.3 * np.sin(x[1]) + w[0], (0.6 + 0.5 * g(x[0])) * x[1] + 0.2 * x[0]]
+
+    system = System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1,
+                                   x_bounds=((-5.0, -3.0), (5.0, 3.0)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    return system, lambda x, u: [np.sin(x[1]), g(x[0])]
+
+
+def test_a_band_where_the_zero_dynamics_expand_is_never_certified():
+    # x = (1.3, 2), x~ = (1.3, 1): same y and y+, yet x2's distance grows by 1.1 per step. A fit of the
+    # Jacobian's affine form on random samples never excited g and certified it (mu = 0.373).
+    system, theta = _band()
+    with pytest.raises(ModelError, match=r"not affine in the given parameters: entry \[1, 0\].* at x\[0\]=1\.(29|30)"):
+        certify_strong_detectability(system, parameters=theta)
+    exact = certify_strong_detectability(system)
+    assert not exact.certified and exact.status == "infeasible", exact.reason
+    assert exact.cover.kind == "exact by entries" and exact.cover.sound
+    upper = exact.cover.vertices[:, 1, 1].max()  # x2's rate, scaled: 0.6 + 0.5 g up to 1.1, proved
+    assert 1.1 - 1e-9 <= upper <= 1.1 + 1e-3
+    sampled = certify_strong_detectability(system, cover="sampled")
+    assert not sampled.certified and sampled.status in ("holds at the samples, not proved", "refuted")
+
+
+def _ridge(width=1e-6):
+    """y = x1 (w masks it); the unmeasured pair's coupling c jumps from 0.1 to 2.1 on a diagonal ridge."""
+
+    def f(x, u, w):
+        c = 0.1 + 2.0 * np.exp(-(((x[1] + x[2] - 0.3137) / width) ** 2))
+        return [0.5 * x[0] + 0.1 * x[1] + w[0], 0.5 * x[1] + c * x[2] + 0.1 * x[0], 0.5 * x[1] + 0.5 * x[2]]
+
+    return System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=3, nw=1, nv=1,
+                                 x_bounds=((-2.0, -1.0, -1.0), (2.0, 1.0, 1.0)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+
+
+def test_a_narrow_diagonal_ridge_in_the_coupling_is_not_certified():
+    # on the ridge the unmeasured pair's dynamics [[0.5, 2.1], [0.5, 0.5]] have an eigenvalue 1.52; off it 0.72.
+    # Samples miss a ridge 1e-6 wide: the sampled cover's LMI holds (mu_min 0.524) but proves nothing.
+    exact = certify_strong_detectability(_ridge())
+    assert not exact.certified and exact.status in ("undecided", "infeasible"), exact.reason
+    assert exact.cover.vertices[:, 1, 2].max() >= 2.1 - 1e-9  # the coupling's bound covers the ridge
+    sampled = certify_strong_detectability(_ridge(), cover="sampled")
+    assert not sampled.certified and sampled.status in ("holds at the samples, not proved", "refuted")
+
+
+def test_an_input_that_leaks_into_an_unmeasured_state_on_a_narrow_band_fails_matching():
+    # w reaches x2 (unmeasured) only where x2 is within ~1e-4 of 0.3: samples of df/dw never see it, its exact
+    # form does, so the input's span is 2-dimensional and the output (x1) cannot see both directions.
+    def f(x, u, w):
+        leak = 0.5 * np.exp(-(((x[1] - 0.3) / 1e-4) ** 2))
+        return [0.5 * x[0] + 0.2 * x[1] + w[0], 0.6 * x[1] + 0.1 * x[0] + leak * w[0]]
+
+    system = System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1,
+                                   x_bounds=((-2.0, -1.0), (2.0, 1.0)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    with pytest.raises(ModelError, match=r"rank\(C B\) = 1 < rank\(B\) = 2"):
+        certify_strong_detectability(system)
+
+
+def test_a_certificate_the_search_refutes_is_not_returned_as_certified(monkeypatch):
+    # a cover that holds only the Jacobian at x1 = -3 (rate a = 0.2) while a reaches 0.8 at x1 = 3: the LMI holds
+    # at that vertex, the adversarial search finds the pairs that violate it
+    from uiest.detectability import cover as covers
+    from uiest.detectability import strong
+
+    system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
+    real = covers.cover
+
+    def too_small(fun, box, **kwargs):
+        found = real(fun, box, **kwargs)
+        corner = np.asarray(fun(np.array([-3.0, 0.0, 0.0])), dtype=float)[None]
+        return dataclasses.replace(found, vertices=corner, samples=corner)
+
+    monkeypatch.setattr(strong.covers, "cover", too_small)
+    cert = certify_strong_detectability(system)
+    assert cert.status == "refuted" and not cert.certified, cert.reason
+    found = cert.falsification
+    assert found.refuted and found.worst_ratio > 2.0 and found.pairs >= 20_000 and found.searches > 0
+    assert f"{found.worst_ratio:.4g}" in cert.reason and "(x1, x2) = (" in cert.reason
+    assert found.first[0] > 0.0  # the violation lives where a(x1) is large
+    data = json.loads(json.dumps(cert.to_dict()))
+    assert data["falsification"]["refuted"] and data["falsification"]["local_searches"] == found.searches
+    with pytest.raises(CertificationError):
+        cert.weights()
+
+
+def test_every_certificate_reports_its_adversarial_search():
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    cert = certify_strong_detectability(system)
+    found = cert.falsification
+    assert cert.certified and not found.refuted and found.worst_ratio <= 1.0 + 1e-6
+    assert found.pairs >= 20_000 and found.searches > 0 and found.evaluations > 0
+    assert "no violation found" in found.text()
+    assert json.loads(json.dumps(cert.to_dict()))["falsification"]["pairs"] == found.pairs
+    infeasible = certify_strong_detectability(linear.with_invariant_zeros([1.5], seed=3, **LINEAR_SPEC)[0])
+    assert infeasible.falsification is None and infeasible.to_dict()["falsification"] is None

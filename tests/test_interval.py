@@ -95,3 +95,17 @@ def test_large_arguments_and_cancellation_are_enclosed():
         lo, hi = interval.enclosure(fun, p, p, interval.centered(fun))
         exact = np.cos(point[0]) + 2.0 * point[0]
         assert lo[0, 0] <= exact <= hi[0, 0]
+
+
+def test_a_narrow_feature_is_localised_and_its_extremes_are_returned():
+    # the derivative of a bump 3e-4 wide, times the other coordinate: splitting the side where the function
+    # changes most closes the bound in a few hundred boxes (halving the widest side alternated and ran out)
+    fun = _function(lambda z: ca.exp(-(((z[0] - 1.3) / 3e-4) ** 2)) * (z[0] - 1.3) / 9e-8 * z[1])
+    box = Box([-5.0, -3.0], [5.0, 3.0])
+    found = interval.bounds(fun, box, rtol=1e-3)
+    peak = 3.0 * 3e-4 / np.sqrt(2.0) * np.exp(-0.5) / 9e-8
+    assert peak - 2e-3 * 2.0 * peak <= found.attained_upper[0] <= peak <= found.upper[0]
+    assert found.gap[0] <= 2e-3 * 2.0 * peak and found.boxes < 20_000
+    for at, value in ((found.upper_at[0], found.attained_upper[0]), (found.lower_at[0], found.attained_lower[0])):
+        assert box.contains(at) and float(fun(at)) == pytest.approx(value)
+        assert abs(at[0] - 1.3) < 1e-3 and abs(abs(at[1]) - 3.0) < 1e-2

@@ -298,7 +298,8 @@ def certify(
 
 
 ROWS = ("status", "rate (mu, eta)", "smallest rate", "cond(P) (c_x)", "gains (scaled)", "noise gain per step",
-        "min horizon", "guarantee at min horizon", "cover", "verify: max ratio", "time")  # fmt: skip
+        "min horizon", "guarantee at min horizon", "cover", "search: max ratio", "verify: max ratio",
+        "time")  # fmt: skip
 
 
 def _estimator_guarantee(cert: Any, estimator: Callable[[Any], Any]) -> dict[str, Any] | None:
@@ -315,9 +316,12 @@ def _estimator_guarantee(cert: Any, estimator: Callable[[Any], Any]) -> dict[str
 def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], units: tuple[str, ...]) -> list[str]:
     """Table cells of one certificate record, in the order of ``ROWS``."""
     time_s = f"{record['time_s']:.2f} s"
+    found = record.get("falsification")
+    search = "-" if not found else (f"{found['worst_ratio']:.4g} ({found['pairs']} pairs, "
+                                    f"{found['local_searches']} local)")  # fmt: skip
     if not record["certified"]:
         return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", "-",
-                record.get("cover", "-"), "-", time_s]  # fmt: skip
+                record.get("cover", "-"), search, "-", time_s]  # fmt: skip
     kind = record["kind"]
     cond = record["c_x"] if kind == "reduced_eioss" else record["condition_scaled"]
     noise = "-"
@@ -334,7 +338,7 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
     guarantee = record.get("guarantee")
     verdict = "-" if guarantee is None else f"{guarantee['estimator']}: {guarantee.get('verdict', 'none')}"
     return [record["status"], _number(record["rate"]), _number(record["rate_min"]), f"{cond:.3g}", gains, noise,
-            str(record["min_horizon"]), verdict, cover, ratio, time_s]  # fmt: skip
+            str(record["min_horizon"]), verdict, cover, search, ratio, time_s]  # fmt: skip
 
 
 def _number(value: Any) -> str:

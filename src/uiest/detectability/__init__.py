@@ -4,7 +4,10 @@ Every certificate is a :class:`Certificate` (verdict and status, rate, quadratic
 ``weights()`` for its estimator, ``min_horizon()``, ``verify()``, ``to_dict()``):
 
 - :func:`certify_strong_detectability` (theo:Lyapunov): the unknown input and the current-output
-  gain eliminated exactly, vertices covering X x U.
+  gain eliminated exactly, vertices that provably cover the Jacobian over X x U.
+
+Each ``certify_*`` searches for a pair that violates what its LMIs claim before it returns
+(``falsification``); ``certified`` is True only for a proof that search did not refute.
 - :func:`linear_strong_detectability` (lem:UIO_LTI): matching, invariant zeros, mu_min.
 - :func:`certify_reduced_ioss` (ass:e-ioss): exponential i-IOSS of a reduced-order model.
 - :func:`certify_delta_ioss` (Schiller et al. 2023, Assumption 1): for the standard MHE.

@@ -8,8 +8,8 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Any, ClassVar
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
@@ -17,21 +17,48 @@ from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed
 from uiest.errors import CertificationError, OptionError
 
-CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED = (
+if TYPE_CHECKING:
+    from uiest.detectability.falsify import Falsification
+
+CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED, NOT_PROVED, REFUTED = (
     "certified",
     "infeasible",
     "solver failed",
     "below the smallest rate",
     "re-check failed",
     "undecided",
+    "holds at the samples, not proved",
+    "refuted",
 )
 """The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
 to optimality with a non-positive margin (within the stated bounds on P and the gains); "undecided"
-(strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians."""
+(strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians;
+"holds at the samples, not proved" when the LMIs hold but an ingredient was sampled (a sampled cover,
+asked for, or an input structure read off samples); "refuted" when the adversarial search found a
+pair that violates the inequality the LMIs claimed."""
 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
              "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED, "undecided": UNDECIDED}  # fmt: skip
 """Certificate status of each solver outcome (:mod:`uiest.detectability.lmi` and the LMI modules)."""
+
+
+def verdict(
+    outcome: str, reason: str, *, unproved: str = "", falsification: Falsification | None = None
+) -> tuple[bool, str, str]:
+    """``(certified, status, reason)`` of an LMI outcome once the adversarial search and the ingredients are known.
+
+    A solved LMI is "refuted" when the search found a violating pair, "holds at the samples, not
+    proved" when ``unproved`` names a sampled ingredient, else "certified".
+    """
+    status = STATUS_OF.get(outcome, SOLVER_FAILED)
+    if status != CERTIFIED:
+        return False, status, reason
+    solved = reason.removeprefix("certified: ")
+    if falsification is not None and falsification.refuted:
+        return False, REFUTED, f"{falsification.text()}, although the LMIs hold at the cover's vertices ({solved})"
+    if unproved:
+        return False, NOT_PROVED, f"{NOT_PROVED}: {unproved}; the LMIs hold at the vertices: {solved}"
+    return True, CERTIFIED, reason
 
 
 def strong_horizon(mu: float, condition: float) -> int:
@@ -84,19 +111,23 @@ class Certificate:
     Attributes
     ----------
     certified : bool
-        True only when the LMIs were solved and the independent numpy re-check passed.
+        True only when the inequality is proved on the whole domain: the LMIs were solved at the
+        vertices of an exact cover, the independent numpy re-check passed, and the adversarial
+        search (``falsification``) found no violating pair.
     status : str
         One of "certified", "infeasible" (proved by the solver), "solver failed",
-        "below the smallest rate" (a given rate below the one found), "re-check failed", and for
-        strong detectability "undecided" (infeasible only at a cover's vertices, feasible at the
-        sampled Jacobians themselves; delta-IOSS and reduced certificates report "infeasible" at
-        their vertices without that re-check).
+        "below the smallest rate" (a given rate below the one found), "re-check failed",
+        "holds at the samples, not proved" (a sampled ingredient), "refuted" (a violating pair was
+        found), and for strong detectability "undecided" (infeasible only at a cover's vertices,
+        feasible at the sampled Jacobians themselves; delta-IOSS and reduced certificates report
+        "infeasible" at their vertices without that re-check).
     reason : str
         One sentence with the numbers.
     rate, rate_min : float
         The discount of the certificate's inequality (mu or eta) and the smallest one found.
     P_scaled : ndarray (n, n)
-        Storage matrix in scaled coordinates (NaN when not certified).
+        Storage matrix in scaled coordinates (NaN when the LMIs were not solved; the solution found
+        when they were, also for a certificate "refuted" or "holds at the samples, not proved").
     scale : ndarray (n,)
         The scales of the certificate's state: ``P = P_scaled / outer(scale, scale)``.
     solve_time : float
@@ -104,12 +135,15 @@ class Certificate:
     coverage : str
         How the domain was covered (exact vertices, parameter box, sampled cover).
     sound : bool
-        True when every ingredient is proved over the whole domain (the vertices cover it and, for
-        strong detectability, the input structure is structural); False when any was sampled
-        (``coverage`` says which). Either way the LMIs were solved and re-checked at the vertices.
+        True when every ingredient is proved over the whole domain (the vertices cover it; for the
+        dissipation certificates, the output Jacobian is constant); False when one was sampled
+        (``coverage`` says which; the certificate is then not ``certified``).
     margin : float
         Smallest eigenvalue margin of the re-check, relative to ``||P||``: > 0 when certified, or (strong
         detectability) negative within the direct check's rounding tolerance, which ``reason`` then names.
+    falsification : Falsification or None
+        The adversarial search run before the certificate was returned: its size (pairs, local
+        searches) and the worst ratio found (None when the LMIs were not solved, so nothing was claimed).
 
     """
 
@@ -124,6 +158,7 @@ class Certificate:
     coverage: str
     sound: bool
     margin: float
+    falsification: Falsification | None = field(default=None, kw_only=True)
 
     kind: ClassVar[str] = "certificate"
 
@@ -134,17 +169,17 @@ class Certificate:
 
     @property
     def alpha_1_scaled(self) -> float:
-        """``lambda_min(P_scaled)`` (NaN when not certified)."""
+        """``lambda_min(P_scaled)`` (NaN when the LMIs were not solved)."""
         return _eig(self.P_scaled, 0)
 
     @property
     def alpha_2_scaled(self) -> float:
-        """``lambda_max(P_scaled)`` (NaN when not certified)."""
+        """``lambda_max(P_scaled)`` (NaN when the LMIs were not solved)."""
         return _eig(self.P_scaled, -1)
 
     @property
     def condition(self) -> float:
-        """Condition number of ``P_scaled`` (NaN when not certified)."""
+        """Condition number of ``P_scaled`` (NaN when the LMIs were not solved)."""
         return self.alpha_2_scaled / self.alpha_1_scaled
 
     def require(self, what: str) -> None:
@@ -192,6 +227,7 @@ class Certificate:
             "coverage": self.coverage,
             "sound": self.sound,
             "margin": self.margin,
+            "falsification": None if self.falsification is None else self.falsification.to_dict(),
             **self._details(),
         }
 

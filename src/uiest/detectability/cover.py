@@ -5,47 +5,55 @@ they hold on their convex hull; if that hull contains ``M(z)`` for every z in th
 contains the mean-value Jacobians of every pair too (the domain is a box, hence convex), and
 the certificate holds on the whole domain. :func:`cover` finds such vertices:
 
-- **constant**: M does not depend on z (structurally): one vertex, exact.
-- **parameter box**: the user names a few scalar functions ``theta(z)`` with
-  ``M(z) = M_0 + sum_j theta_j(z) M_j``. The affine decomposition is fitted on sampled points
-  and checked there to 1e-9; the box of theta comes from interval arithmetic with branch and
-  bound (:mod:`uiest.detectability.interval`, sound), and its 2^r corners are the vertices.
-- **sampled cover**: M is sampled densely (corners, a grid, uniform points); its varying
-  entries span an affine space of small dimension r (SVD); in r <= 3 the samples' convex
-  hull is outer-approximated by a polytope with many face directions (evenly spread ones plus
-  the directions of each varying entry), each face pushed out to the largest value found by
-  sampling and local maximisation (L-BFGS-B) plus a margin of 1e-4 of the extent; in r >= 4 a
-  box. Its vertices cover every sampled and locally maximised point, not provably all of X:
-  it is labelled so.
+- **constant**: every entry of M is constant over the domain: one vertex.
+- **exact by entries** (the default): M's entries are read as exact forms
+  (:mod:`uiest.detectability.affine`); a basis of their non-constant parts is chosen among the
+  entries themselves (an entry that is another one up to a constant factor and offset, or a
+  combination of others, is not a parameter of its own), so ``M(z) = M_0 + sum_j theta_j(z) M_j``
+  holds exactly with ``theta_j`` the basis entries. Each ``theta_j`` is bounded over the box by
+  interval arithmetic with branch and bound (:mod:`uiest.detectability.interval`: sound, rounding
+  included), and the 2^r corners of that box, mapped through the exact relations, are the vertices.
+- **parameter box**: the same with the user's functions ``theta(z)``; every entry must be an exact
+  combination of theta's forms. A map that does not carry the Jacobian is refused, naming the
+  entry, the residual of its best affine fit at the points that excite the entries and the
+  parameters most, and where.
+- **sampled cover** (only on request, :mod:`uiest.detectability.sampled_cover`): a polytope around
+  sampled values, evidence and not a proof.
+
+The vertices are evaluated in floating point from the exact coefficients; :attr:`Cover.rounding`
+bounds that rounding relative to the largest vertex entry (a few units in the last place).
 """
 
 from __future__ import annotations
 
 import itertools
 from dataclasses import dataclass
+from fractions import Fraction
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
-import scipy.optimize
-import scipy.spatial
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import interval
+from uiest.detectability.affine import Expressed, Forms, constant_of, express, variable_part
 from uiest.detectability.lmi import batched, grid_points
-from uiest.errors import ModelError
+from uiest.detectability.sampled_cover import sampled_vertices
+from uiest.errors import ModelError, OptionError
 
-MARGIN = 1e-4
-"""Faces of a sampled cover are pushed out by this fraction of the samples' extent."""
+CONSTANT, ENTRIES, PARAMETER_BOX, SAMPLED = "constant", "exact by entries", "parameter box", "sampled cover"
+"""The kinds of cover; all but SAMPLED are proofs."""
 
-SPAN_RTOL = 1e-10
-"""Directions of the sampled matrices below this fraction of their spread are dropped (rank)."""
+METHODS = ("exact", "sampled")
+"""``cover(method=...)``: "exact" (a proof, or a ModelError saying why none is possible) or "sampled"."""
+
+MAX_PARAMETERS = 10
+"""Most parameters (basis entries) of an exact cover: 2^10 = 1024 vertices."""
 
 AFFINE_RTOL = 1e-9
-"""Largest residual of a parameter map's affine fit, relative to the matrices' size."""
+"""A parameter map whose best affine fit misses an entry by more than this fraction of its spread is 'not affine'."""
 
-MAX_BOX_DIMENSION = 10
-"""Beyond this many independent directions a cover would need over 1024 vertices."""
+WHAT_TO_DO = "give parameters= (a few functions of x and u it is affine in), a smaller X, or cover='sampled' (a check "
+"at samples, not a proof)"
 
 
 @dataclass(frozen=True)
@@ -57,18 +65,24 @@ class Cover:
     vertices : ndarray, shape (m, a, b)
         The matrices ``M_1 .. M_m``.
     kind : str
-        "constant", "parameter box" or "sampled cover".
+        :data:`CONSTANT`, :data:`ENTRIES`, :data:`PARAMETER_BOX` or :data:`SAMPLED`.
     sound : bool
-        True when the hull provably contains M over the whole box (constant, or a parameter
-        box with interval bounds); False for a sampled cover.
+        True when the hull provably contains M over the whole box (every kind but SAMPLED).
     dimension : int
-        Dimension of the affine set the matrices vary in (number of parameters).
+        Number of parameters (the affine dimension the matrices vary in).
     description : str
         One sentence on how the vertices were found, with the numbers.
     samples : ndarray, shape (s, a, b)
-        The matrices at the sampled points themselves (the vertex for a constant matrix). The
-        hull of the vertices contains them and more: an LMI infeasible at the vertices but
-        feasible at these is undecided, one infeasible at these is infeasible on the domain.
+        The matrices at sampled points of the box and, for exact covers, at the points where the
+        parameters' extremes were found. The hull of the vertices contains them: an LMI infeasible
+        at these is infeasible on the domain.
+    rounding : float
+        Bound on the rounding of the vertices' floating-point evaluation, relative to their
+        largest entry (0 for a sampled cover, whose vertices carry no exact claim).
+    extremes : ndarray, shape (k, n) or None
+        Points of the box where the parameters' extremes were found (exact covers), where narrow
+        features of the Jacobian are: the adversarial search of :mod:`uiest.detectability.falsify`
+        starts pairs there.
 
     """
 
@@ -78,6 +92,8 @@ class Cover:
     dimension: int
     description: str
     samples: FloatArray
+    rounding: float = 0.0
+    extremes: FloatArray | None = None
 
 
 def relevant_axes(fun: ca.Function) -> FloatArray:
@@ -92,6 +108,7 @@ def cover(
     box: Box,
     *,
     parameters: ca.Function | None = None,
+    method: str = "exact",
     samples: int = 4000,
     seed: int = 0,
     names: tuple[str, ...] | None = None,
@@ -105,26 +122,33 @@ def cover(
     box : Box
         The domain of z; sides that M depends on must be finite.
     parameters : casadi.Function, optional
-        ``z (n,) -> theta (r,)`` with M affine in theta (a parameter box); None for a sampled cover.
+        ``z (n,) -> theta (r,)`` that M is affine in (a parameter box); None: the exact cover by entries.
+    method : {"exact", "sampled"}
+        "sampled" covers the values at samples (not a proof); ``parameters`` are then ignored.
     samples : int
         Uniform samples of the box (besides corners and a grid).
     seed : int
         Seed of the samples.
     names : tuple of str, optional
-        Names of the entries of z, for error messages.
+        Names of the entries of z, for messages.
 
     Raises
     ------
     ModelError
-        An unbounded side that M depends on, or M not affine in the given parameters.
+        An unbounded side that M depends on; M not affine in the given parameters (or not provably);
+        an exact cover that needs more than :data:`MAX_PARAMETERS` parameters or an operation interval
+        arithmetic cannot bound (the message says what to do).
 
     """
+    if method not in METHODS:
+        raise OptionError(f"cover: expected one of {METHODS}, got {method!r}")
     names = names or tuple(f"z[{i}]" for i in range(box.size))
-    mask = relevant_axes(fun) | (relevant_axes(parameters) if parameters is not None else False)
+    use = parameters if method == "exact" else None
+    mask = relevant_axes(fun) | (relevant_axes(use) if use is not None else False)
     rows, cols = fun.size_out(0)
     if not mask.any():
         value = np.asarray(fun(box.center), dtype=float).reshape(1, rows, cols)
-        return Cover(value, "constant", True, 0, "the matrix is constant over the domain (structurally)", value)
+        return Cover(value, CONSTANT, True, 0, "the matrix is constant over the domain (structurally)", value)
     unbounded = [names[i] for i in np.flatnonzero(mask & ~(np.isfinite(box.lower) & np.isfinite(box.upper)))]
     if unbounded:
         raise ModelError(
@@ -134,10 +158,167 @@ def cover(
     center = box.center
     domain = Box(np.where(mask, box.lower, center), np.where(mask, box.upper, center))
     points = _sample_points(domain, samples, seed)
-    values = _evaluate(fun, points)
-    if parameters is not None:
-        return _parameter_cover(values, parameters, points, domain, rows, cols, seed)
-    return _sampled_cover(fun, values, points, domain, rows, cols)
+    if method == "sampled":
+        values = _evaluate(fun, points)
+        vertices, r, description = sampled_vertices(fun, values, points, domain, rows, cols)
+        return Cover(vertices, SAMPLED, False, r, description, _unvec(values, rows, cols))
+    return _exact(fun, domain, use, points, seed, names)
+
+
+def _fixed(fun: ca.Function, domain: Box) -> ca.Function:
+    """``fun`` with the degenerate sides of ``domain`` substituted (CasADi folds what becomes constant)."""
+    z = ca.SX.sym("z", domain.size)
+    sides = enumerate(zip(domain.lower, domain.upper, strict=True))
+    given = [ca.SX(float(lo)) if lo == hi else z[i] for i, (lo, hi) in sides]
+    return ca.Function(fun.name(), [z], [ca.densify(fun(ca.vertcat(*given) if given else z))])
+
+
+def _exact(
+    fun: ca.Function, domain: Box, parameters: ca.Function | None, points: FloatArray, seed: int, names: tuple[str, ...]
+) -> Cover:
+    rows, cols = fun.size_out(0)
+    fixed = _fixed(fun, domain)
+    forms = Forms()
+    entries = forms.of(fixed)
+    varying = [e for e, form in enumerate(entries) if variable_part(form)]
+    z = ca.SX.sym("z", domain.size)
+    matrix = ca.vec(fixed(z))
+    if not varying:
+        value = np.array([float(constant_of(form)) for form in entries])
+        vertex = _unvec(value[None], rows, cols)
+        return Cover(vertex, CONSTANT, True, 0, "every entry of the matrix is constant over the domain (exact forms)",
+                     vertex)  # fmt: skip
+    if parameters is None:
+        basis_forms = [entries[e] for e in varying]
+        reduction = express(basis_forms, basis_forms)
+        theta = ca.Function("theta", [z], [ca.vertcat(*[matrix[varying[j]] for j in reduction.basis])])
+        kind = ENTRIES
+    else:
+        given = _fixed(parameters, domain)
+        basis_forms = forms.of(given)
+        reduction = express(basis_forms, [entries[e] for e in varying])
+        outside = [varying[i] for i, c in reduction.coefficients.items() if c is None]
+        if outside:
+            raise _not_carried(fixed, given, outside, domain, points, names, rows)
+        theta = ca.Function("theta", [z], [ca.vec(given(z))[list(reduction.basis)]])
+        kind = PARAMETER_BOX
+    r = len(reduction.basis)
+    if r > MAX_PARAMETERS:
+        raise ModelError(
+            f"the Jacobian's {len(varying)} varying entries span {r} independent functions over the domain (exact "
+            f"forms), more than {MAX_PARAMETERS} for an exact cover (2^{r} vertices): {WHAT_TO_DO}"
+        )
+    found = _bounds(theta, domain, rows, kind, reduction, varying, seed)
+    offset, slopes = _coefficients(entries, varying, basis_forms, reduction)
+    corners = np.array(list(itertools.product(*zip(found.lower, found.upper, strict=True))))
+    flat = offset + corners @ slopes
+    flat = np.unique(flat, axis=0)
+    size = max(float(np.abs(flat).max()), 1e-300)
+    rounding = (r + 2) * 2.0**-53 * float((np.abs(offset) + np.abs(corners) @ np.abs(slopes)).max()) / size
+    gap = float(np.max(found.gap / np.maximum(found.upper - found.lower, 1e-300)))
+    what = (f"{r} of its {len(varying)} varying entries (the others are exact combinations of them)"
+            if kind == ENTRIES else
+            f"{r} parameters that carry its {len(varying)} varying entries exactly")  # fmt: skip
+    description = (
+        f"{len(flat)} corners of the box of {what}, bounded by interval arithmetic ({found.boxes} sub-boxes, within "
+        f"{gap:.1e} of the attained range)"
+    )
+    extremes = np.vstack([found.lower_at, found.upper_at])
+    samples = _unvec(_evaluate(fun, np.vstack([points, extremes])), rows, cols)
+    return Cover(_unvec(flat, rows, cols), kind, True, r, description, samples, rounding, extremes)
+
+
+def _coefficients(
+    entries: list[dict], varying: list[int], basis_forms: list[dict], reduction: Expressed
+) -> tuple[FloatArray, FloatArray]:
+    """``vec M = offset + theta @ slopes`` (exact rationals rounded once): offset (d,), slopes (r, d)."""
+    position = {j: k for k, j in enumerate(reduction.basis)}
+    offset = [constant_of(form) for form in entries]
+    slopes = [[Fraction(0)] * len(entries) for _ in reduction.basis]
+    for i, e in enumerate(varying):
+        for j, c in (reduction.coefficients[i] or {}).items():
+            slopes[position[j]][e] = c
+            offset[e] -= c * constant_of(basis_forms[j])
+    return np.array([float(c) for c in offset]), np.array([[float(c) for c in row] for row in slopes]).reshape(
+        len(reduction.basis), len(entries)
+    )
+
+
+def _entry(e: int, rows: int) -> str:
+    return f"[{e % rows}, {e // rows}]"
+
+
+def _bounds(
+    theta: ca.Function, domain: Box, rows: int, kind: str, reduction: Expressed, varying: list[int], seed: int
+) -> interval.Bounds:
+    """Interval bounds of the parameters; ModelError when interval arithmetic cannot give finite ones."""
+    what = "the parameters" if kind == PARAMETER_BOX else "the Jacobian's entries"
+    try:
+        found = interval.bounds(theta, domain, seed=seed)
+    except interval.IntervalUnsupportedError as exc:
+        raise ModelError(f"interval arithmetic cannot bound {what} over the domain ({exc}): {WHAT_TO_DO}") from None
+    infinite = np.flatnonzero(~(np.isfinite(found.lower) & np.isfinite(found.upper)))
+    if len(infinite):
+        j = int(infinite[0])
+        name = f"parameter {reduction.basis[j]}" if kind == PARAMETER_BOX else (
+            f"entry {_entry(varying[reduction.basis[j]], rows)}")  # fmt: skip
+        raise ModelError(
+            f"interval arithmetic finds {name} unbounded over the domain (bounds {found.lower[j]:.3g} .. "
+            f"{found.upper[j]:.3g}; e.g. a division by a quantity that can vanish): {WHAT_TO_DO}"
+        )
+    return found
+
+
+def _not_carried(
+    fixed: ca.Function,
+    given: ca.Function,
+    outside: list[int],
+    domain: Box,
+    points: FloatArray,
+    names: tuple[str, ...],
+    rows: int,
+) -> ModelError:
+    """Why a parameter map does not carry the entries ``outside``: the best affine fit's residual and where.
+
+    The fit uses the sampled points and the points where interval branch and bound found the
+    extremes of the parameters and of those entries (narrow features are found there).
+    """
+    z = ca.SX.sym("z", domain.size)
+    entries = ca.Function("entries", [z], [ca.vec(fixed(z))[outside]])
+    extra = [points]
+    for f in (given, entries):
+        try:
+            found = interval.bounds(f, domain)
+            extra += [found.lower_at, found.upper_at]
+        except interval.IntervalUnsupportedError:
+            pass
+    at = np.vstack(extra)
+    values = _evaluate(entries, at)
+    theta = _evaluate(given, at)
+    design = np.hstack([np.ones((len(at), 1)), theta])
+    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
+    residual = np.abs(design @ coef - values)
+    spread = np.ptp(values, axis=0)
+    spread = np.where(spread > 0, spread, np.abs(values).max(axis=0))
+    relative = residual.max(axis=0) / np.maximum(spread, 1e-300)
+    worst = int(np.argmax(relative))
+    point = at[int(np.argmax(residual[:, worst]))]
+    sides = zip(names, point, domain.lower, domain.upper, strict=True)
+    where = ", ".join(f"{n}={v:.6g}" for n, v, lo, hi in sides if lo < hi)
+    entry = _entry(outside[worst], rows)
+    if relative[worst] > AFFINE_RTOL:
+        return ModelError(
+            f"parameters: the Jacobian is not affine in the given parameters: entry {entry} (scaled) misses its best "
+            f"affine fit in them by {residual[:, worst].max():.3g} ({relative[worst]:.2g} of its spread) at {where}, "
+            f"among {len(at)} points; include every nonlinear function of x and u that the Jacobian depends on"
+        )
+    return ModelError(
+        f"parameters: the Jacobian's expressions are not exact combinations of the parameters' expressions (entry "
+        f"{entry}, and {len(outside) - 1} more), though its best affine fit in them misses it by only "
+        f"{relative[worst]:.1e} of its spread at {len(at)} points (an identity the exact forms do not apply, e.g. "
+        "1/cosh(x)^2 for 1 - tanh(x)^2, or rounding in the model's constants); write the parameters as the "
+        "expressions that appear in df/dx, or omit parameters= for the exact cover by the Jacobian's entries"
+    )
 
 
 def _sample_points(domain: Box, samples: int, seed: int) -> FloatArray:
@@ -157,173 +338,3 @@ def _evaluate(fun: ca.Function, points: FloatArray) -> FloatArray:
 def _unvec(flat: FloatArray, rows: int, cols: int) -> FloatArray:
     """Inverse of the column-major flattening of :func:`_evaluate`: (m, a b) -> (m, a, b)."""
     return np.transpose(flat.reshape(-1, cols, rows), (0, 2, 1))
-
-
-def _parameter_cover(
-    values: FloatArray, parameters: ca.Function, points: FloatArray, domain: Box, rows: int, cols: int, seed: int
-) -> Cover:
-    (theta,) = (a.reshape(len(points), -1) for a in batched(parameters, [points]))
-    r = theta.shape[1]
-    design = np.hstack([np.ones((len(points), 1)), theta])
-    coef, *_ = np.linalg.lstsq(design, values, rcond=None)
-    residual = float(np.abs(design @ coef - values).max())
-    size = max(1.0, float(np.abs(values).max()))
-    if residual > AFFINE_RTOL * size:
-        raise ModelError(
-            f"parameters: the Jacobian is not affine in the given parameters (largest residual of the affine fit "
-            f"{residual:.3g} at {len(points)} points, relative {residual / size:.2e} > {AFFINE_RTOL:g}); include "
-            "every nonlinear function of x and u that the Jacobian depends on"
-        )
-    try:
-        found = interval.bounds(parameters, domain, seed=seed)
-        if not np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
-            raise interval.IntervalUnsupportedError("interval arithmetic left a bound infinite")
-        lower, upper, sound = found.lower, found.upper, True
-        gap = float(np.max(found.gap / np.maximum(upper - lower, 1e-300)))
-        how = (
-            f"bounds of theta by interval arithmetic ({found.boxes} sub-boxes, within {gap:.1e} of the attained range)"
-        )
-    except interval.IntervalUnsupportedError as exc:
-        lower, upper = theta.min(axis=0), theta.max(axis=0)
-        width = upper - lower
-        lower, upper, sound = lower - MARGIN * width, upper + MARGIN * width, False
-        how = f"bounds of theta sampled ({exc}), widened by {MARGIN:g}"
-    corners = np.array(list(itertools.product(*zip(lower, upper, strict=True))))
-    vertices = _unvec(coef[0] + corners @ coef[1:], rows, cols)
-    return Cover(
-        vertices,
-        "parameter box",
-        sound,
-        r,
-        f"{2**r} corners of the box of {r} parameters the Jacobian is affine in (fit checked at {len(points)} points "
-        f"to {residual / size:.1e}); {how}",
-        _unvec(values, rows, cols),
-    )
-
-
-def _span(deviation: FloatArray) -> FloatArray:
-    """Orthonormal rows (r, d) spanning the deviations (m, d) up to ``SPAN_RTOL`` of their size."""
-    _, s, vt = np.linalg.svd(deviation, full_matrices=False)
-    biggest = float(np.abs(deviation).max())
-    for r in range(1, len(s) + 1):
-        residual = deviation - (deviation @ vt[:r].T) @ vt[:r]
-        if np.abs(residual).max() <= SPAN_RTOL * biggest:
-            return vt[:r]
-    return vt
-
-
-def _directions(r: int, entries: FloatArray) -> FloatArray:
-    """Unit face normals in r-dimensional whitened coordinates: evenly spread ones and +-entries."""
-    if r == 1:
-        return np.array([[1.0], [-1.0]])
-    if r == 2:
-        angle = np.linspace(0.0, 2.0 * np.pi, 16, endpoint=False)
-        spread = np.stack([np.cos(angle), np.sin(angle)], axis=1)
-    elif r == 3:
-        spread = np.array([d for d in itertools.product((-1.0, 0.0, 1.0), repeat=3) if any(d)])
-    else:
-        spread = np.vstack([np.eye(r), -np.eye(r)])
-    if r <= 3:
-        norms = np.linalg.norm(entries, axis=1, keepdims=True)
-        useful = entries[norms[:, 0] > 1e-9 * norms.max()] / norms[norms[:, 0] > 1e-9 * norms.max()]
-        spread = np.vstack([spread, useful, -useful])
-    spread = spread / np.linalg.norm(spread, axis=1, keepdims=True)
-    keep = [0]
-    for i in range(1, len(spread)):  # drop duplicate directions
-        if np.min(np.linalg.norm(spread[keep] - spread[i], axis=1)) > 1e-9:
-            keep.append(i)
-    return spread[keep]
-
-
-def _sampled_cover(
-    fun: ca.Function, values: FloatArray, points: FloatArray, domain: Box, rows: int, cols: int
-) -> Cover:
-    mean = values.mean(axis=0)
-    deviation = values - mean
-    if np.abs(deviation).max() <= 1e-12 * max(1.0, float(np.abs(mean).max())):
-        description = f"the matrix did not vary at {len(points)} sampled points"
-        return Cover(_unvec(mean[None], rows, cols), "sampled cover", False, 0, description, _unvec(values, rows, cols))
-    basis = _span(deviation)  # (r, d)
-    r = basis.shape[0]
-    if r > MAX_BOX_DIMENSION:
-        raise ModelError(
-            f"the Jacobian varies in {r} independent directions over the domain (more than {MAX_BOX_DIMENSION}); "
-            "give parameters= (the few functions of x and u it is affine in) or a smaller domain"
-        )
-    coords = deviation @ basis.T
-    spread = coords.std(axis=0)
-    if r >= 4:  # a box in the better of two coordinate systems: the SVD axes or r pivot entries
-        normals, scale = _box_axes(basis, coords)
-    else:
-        normals = _directions(r, (basis * spread[:, None]).T)  # entry j's direction, whitened
-        scale = 1.0 / spread
-    functionals = (normals * scale) @ basis  # (d, a b): support values are functionals @ (M - mean)
-    support = _supports(fun, functionals, mean, values, points, domain)
-    extent = support + _supports_low(functionals, deviation)
-    support = support + MARGIN * extent
-    face_coords = normals * scale  # rows: normal in unwhitened span coordinates
-    if r == 1:
-        vertex_coords = np.array([[support[0] / face_coords[0, 0]], [-support[1] / abs(face_coords[1, 0])]])
-    elif r >= 4:
-        vertex_coords = _box_vertices(face_coords, support)
-    else:
-        halfspaces = np.hstack([face_coords, -support[:, None]])
-        vertex_coords = scipy.spatial.HalfspaceIntersection(halfspaces, np.zeros(r)).intersections
-    vertices = _unvec(mean + vertex_coords @ basis, rows, cols)
-    return Cover(
-        vertices,
-        "sampled cover",
-        False,
-        r,
-        f"{len(vertices)} vertices of a polytope with {len(normals)} faces around the Jacobians at {len(points)} "
-        f"sampled points (affine span of dimension {r}; faces at the largest sampled or locally maximised value "
-        f"+ {MARGIN:g} of the extent)",
-        _unvec(values, rows, cols),
-    )
-
-
-def _box_axes(basis: FloatArray, coords: FloatArray) -> tuple[FloatArray, FloatArray]:
-    """Face normals (2r, r) and whitening (r,) of the smaller of the SVD box and the pivot-entry box."""
-    r = basis.shape[0]
-    svd_volume = float(np.prod(np.ptp(coords, axis=0)))
-    _, _, pivots = scipy.linalg.qr(basis, pivoting=True)
-    pivot = basis[:, pivots[:r]]  # entries = coords @ pivot, so coords = entries @ inv(pivot)
-    pivot_volume = float(np.prod(np.ptp(coords @ pivot, axis=0)) / abs(np.linalg.det(pivot)))
-    axes = np.eye(r) if svd_volume <= pivot_volume else pivot.T / np.linalg.norm(pivot.T, axis=1, keepdims=True)
-    return np.vstack([axes, -axes]), np.ones(r)
-
-
-def _box_vertices(face_coords: FloatArray, support: FloatArray) -> FloatArray:
-    """Vertices of ``{c : n_i c <= b_i}`` for r pairs of opposite normals (a parallelotope)."""
-    r = face_coords.shape[1]
-    axes = face_coords[:r]
-    corners = np.array(list(itertools.product(*[(-support[r + i], support[i]) for i in range(r)])))
-    return np.linalg.solve(axes, corners.T).T
-
-
-def _supports_low(functionals: FloatArray, deviation: FloatArray) -> FloatArray:
-    """``-min`` of each functional over the samples (the extent's other side)."""
-    return -(deviation @ functionals.T).min(axis=0)
-
-
-def _supports(
-    fun: ca.Function, functionals: FloatArray, mean: FloatArray, values: FloatArray, points: FloatArray, domain: Box
-) -> FloatArray:
-    """Largest value of each functional ``l @ (vec M(z) - mean)`` over the box: sampled, then L-BFGS-B."""
-    sampled = (values - mean) @ functionals.T  # (m, d)
-    z = ca.SX.sym("z", domain.size)
-    expr = ca.mtimes(ca.DM(functionals), ca.vec(fun(z)) - ca.DM(mean))
-    evaluate = ca.Function("supports", [z], [expr, ca.jacobian(expr, z)])
-    bounds = list(zip(domain.lower, domain.upper, strict=True))
-    best = sampled.max(axis=0)
-    for j in range(functionals.shape[0]):
-
-        def negative(zv: FloatArray, j: int = j) -> tuple[float, FloatArray]:
-            value, grad = evaluate(zv)
-            return -float(value[j]), -np.asarray(grad[j, :], dtype=float).ravel()
-
-        start = points[int(np.argmax(sampled[:, j]))]
-        result = scipy.optimize.minimize(negative, start, jac=True, method="L-BFGS-B", bounds=bounds,
-                                         options={"maxiter": 50})  # fmt: skip
-        best[j] = max(best[j], -float(result.fun))
-    return best

@@ -140,7 +140,7 @@ def certify_delta_ioss(
     w_spread : float
         Used only without ``w_bounds`` and ``system.w_range``.
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, samples, kappa_max,
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, kappa_max,
         gain_max, tol, seed).
 
     """

@@ -25,6 +25,7 @@ of P is minimised, then the gains. The numpy re-check at every vertex decides.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
@@ -34,15 +35,15 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed
-from uiest.detectability import lmi
+from uiest.detectability import cover as covers
+from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
-    SOLVER_FAILED,
-    STATUS_OF,
     check_rate,
     quad,
     sample_pairs,
+    verdict,
 )
-from uiest.detectability.cover import Cover, cover
+from uiest.detectability.cover import Cover
 from uiest.errors import OptionError
 
 if TYPE_CHECKING:
@@ -144,6 +145,8 @@ class DissipationSolution:
         The vertices of J (and G).
     output_constant : bool
         Whether G is constant (else the vertex argument covers J only).
+    falsification : Falsification or None
+        The adversarial search on the solved inequality (None when not solved).
 
     """
 
@@ -157,6 +160,7 @@ class DissipationSolution:
     margin: float
     cover: Cover
     output_constant: bool
+    falsification: falsify.Falsification | None = None
 
     @property
     def coverage(self) -> str:
@@ -167,10 +171,17 @@ class DissipationSolution:
 
     def certificate_fields(self, scale: FloatArray, seconds: float) -> dict[str, Any]:
         """The :class:`~uiest.detectability.certificate.Certificate` fields of this solution."""
+        unproved = " and ".join(
+            ([f"the cover is sampled ({self.cover.description})"] if not self.cover.sound else [])
+            + (["the output Jacobian varies, so r G'G is checked at the vertices only"]
+               if not self.output_constant else [])
+        )  # fmt: skip
+        certified, status, reason = verdict(self.outcome, self.reason, unproved=unproved,
+                                            falsification=self.falsification)  # fmt: skip
         return {
-            "certified": self.outcome == lmi.FEASIBLE,
-            "status": STATUS_OF.get(self.outcome, SOLVER_FAILED),
-            "reason": self.reason,
+            "certified": certified,
+            "status": status,
+            "reason": reason,
             "rate": self.mu,
             "rate_min": self.mu_min,
             "P_scaled": self.P,
@@ -179,6 +190,7 @@ class DissipationSolution:
             "coverage": self.coverage,
             "sound": self.cover.sound and self.output_constant,
             "margin": self.margin,
+            "falsification": self.falsification,
         }
 
 
@@ -321,6 +333,8 @@ def check_options(options: dict[str, Any], caller: str) -> None:
         check_samples(options["samples"], "samples", low=10)
     if "seed" in options:
         check_seed(options["seed"])
+    if "cover" in options and options["cover"] not in covers.METHODS:
+        raise OptionError(f"cover: expected one of {covers.METHODS}, got {options['cover']!r}")
 
 
 def solve(
@@ -329,6 +343,7 @@ def solve(
     mu: float | None,
     structure: str = "full",
     parameters: ca.Function | None = None,
+    cover: str = "exact",
     samples: int = 4000,
     kappa_max: float = 1e6,
     gain_max: float = 1e4,
@@ -338,8 +353,10 @@ def solve(
 ) -> DissipationSolution:
     """Find (P, q, r) of the module docstring; mu given or ``min(2 mu_min, (1 + mu_min) / 2)``.
 
-    ``parameters`` is a function of ``(z, u, d)`` that J is affine in (a parameter box); else
-    J is covered by sampling (:func:`uiest.detectability.cover.cover`).
+    ``parameters`` is a function of ``(z, u, d)`` that J is affine in (a parameter box); else the
+    exact cover by J's entries (:func:`uiest.detectability.cover.cover`); ``cover="sampled"``
+    covers J at samples only (never certified). A solved inequality is searched for violating pairs
+    (:func:`falsify_solution`).
     """
     if structure not in STRUCTURES:
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
@@ -348,7 +365,7 @@ def solve(
     point = ca.SX.sym("p", J_fun.numel_in(0))
     output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
     stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
-    covered = cover(stacked, model.domain, parameters=parameters, samples=samples, seed=seed)
+    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
     n = model.n
     J = covered.vertices[:, :n, :]
     if output_constant:
@@ -389,8 +406,40 @@ def solve(
         if ok
         else f"re-check failed: worst eigenvalue margin {margin:.2e} at mu={mu_used:.6g}{note}"
     )
-    return DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min), P, q,
-                               r, margin, covered, output_constant)  # fmt: skip
+    solution = DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min),
+                                   P, q, r, margin, covered, output_constant)  # fmt: skip
+    return falsify_solution(model, solution, seed)
+
+
+def falsify_solution(model: IncrementalModel, solution: DissipationSolution, seed: int) -> DissipationSolution:
+    """``solution`` with the adversarial search (:func:`uiest.detectability.falsify.search`) on its inequality.
+
+    Scaled, per pair ``(z, d), (z~, d~)`` and shared u: ``lhs = |F(z,u,d) - F(z~,u,d~)|_P^2`` against
+    ``rhs = mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2``. Unsolved solutions
+    are returned as they are.
+    """
+    if solution.outcome != lmi.FEASIBLE:
+        return solution
+    n, nu, nd = model.n, model.u_box.size, model.nd
+    a, b, u = ca.SX.sym("a", n + nd), ca.SX.sym("b", n + nd), ca.SX.sym("u", nu)
+    z_scale, d_scale, y_scale = ca.DM(model.z_scale), ca.DM(model.d_scale), ca.DM(model.y_scale)
+    dz_next = (model.step(a[:n], u, a[n:]) - model.step(b[:n], u, b[n:])) / z_scale
+    dz, dd = (a[:n] - b[:n]) / z_scale, (a[n:] - b[n:]) / d_scale
+    dy = (model.output(a[:n], a[n:]) - model.output(b[:n], b[n:])) / y_scale
+    weights = np.repeat(solution.q, [size for _, size in model.channels]) if model.channels else np.zeros(0)
+    P = ca.DM(solution.P)
+    lhs = ca.bilin(P, dz_next, dz_next)
+    rhs = solution.mu * ca.bilin(P, dz, dz) + ca.dot(ca.DM(weights), dd * dd) + solution.r * ca.sumsqr(dy)
+    joint = Box(np.concatenate([model.z_box.lower, model.d_box.lower]),
+                np.concatenate([model.z_box.upper, model.d_box.upper]))  # fmt: skip
+    extremes = solution.cover.extremes
+    anchors = None if extremes is None else np.hstack([extremes[:, :n], extremes[:, n + nu :]])
+    channels = tuple(f"{name}[{i}]" for name, size in model.channels for i in range(size))
+    labels = tuple(f"z[{i}]" for i in range(n)) + channels + tuple(f"u[{i}]" for i in range(nu))
+    found = falsify.search(ca.Function("dissipation_terms", [a, b, u], [lhs, rhs]), joint, model.u_box,
+                           np.concatenate([model.z_scale, model.d_scale]), anchors=anchors, labels=labels,
+                           seed=seed)  # fmt: skip
+    return dataclasses.replace(solution, falsification=found)
 
 
 @dataclass(frozen=True)

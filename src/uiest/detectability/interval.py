@@ -248,16 +248,21 @@ def enclosure(
         nothing is known).
 
     """
-    fun = _dense(fun)
-    lo, hi = _natural(fun, lower, upper)
     if derivative is None:
-        return lo, hi
+        return _natural(_dense(fun), lower, upper)
+    lo, hi, _, _ = _enclose(_dense(fun), lower, upper, _jacobian_part(derivative))
+    return lo, hi
+
+
+def _enclose(
+    fun: ca.Function, lower: FloatArray, upper: FloatArray, jacobian: ca.Function
+) -> tuple[FloatArray, FloatArray, FloatArray, FloatArray]:
+    """:func:`enclosure` with the mean-value form, also returning the derivative's enclosure (m, k, n) twice."""
+    lo, hi = _natural(fun, lower, upper)
     center = 0.5 * (lower + upper)
     k, n = fun.numel_out(0), fun.numel_in(0)
     g_lo, g_hi = _natural(fun, center, center)
-    jac_lo, jac_hi = (
-        a.reshape(-1, n, k).transpose(0, 2, 1) for a in _natural(_jacobian_part(derivative), lower, upper)
-    )
+    jac_lo, jac_hi = (a.reshape(-1, n, k).transpose(0, 2, 1) for a in _natural(jacobian, lower, upper))
     d_lo, d_hi = (lower - center)[:, None, :], (upper - center)[:, None, :]
     terms = np.stack([jac_lo * d_lo, jac_lo * d_hi, jac_hi * d_lo, jac_hi * d_hi])
     terms = np.where(np.isnan(terms), 0.0, terms)  # 0 * inf on a degenerate side: the term is 0
@@ -265,7 +270,7 @@ def enclosure(
     with np.errstate(invalid="ignore"):
         slack = (n + 2) * UNIT_ROUNDOFF * (np.abs(g_lo) + np.abs(g_hi) + np.abs(terms).max(axis=0).sum(axis=2))
     mv_lo, mv_hi = _widen(low - slack, high + slack)
-    return np.maximum(lo, mv_lo), np.minimum(hi, mv_hi)
+    return np.maximum(lo, mv_lo), np.minimum(hi, mv_hi), jac_lo, jac_hi
 
 
 def _dense(fun: ca.Function) -> ca.Function:
@@ -318,6 +323,8 @@ class Bounds:
         ``lower - attained_lower`` etc.).
     boxes : int
         Sub-boxes evaluated.
+    lower_at, upper_at : ndarray, shape (k, n)
+        The points where ``attained_lower`` and ``attained_upper`` were found.
 
     """
 
@@ -326,6 +333,8 @@ class Bounds:
     attained_lower: FloatArray
     attained_upper: FloatArray
     boxes: int
+    lower_at: FloatArray
+    upper_at: FloatArray
 
     @property
     def gap(self) -> FloatArray:
@@ -336,11 +345,14 @@ class Bounds:
 def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 40_000, seed: int = 0) -> Bounds:
     """Sound lower and upper bounds of each output of ``fun`` over ``box``, tight to ``rtol``.
 
-    Branch and bound per output and side: sub-boxes whose enclosure could exceed the best value
-    found at a point (by more than ``rtol`` times the attained range) are split along their
-    widest side (relative to the box), until none is left or ``max_boxes`` sub-boxes were
-    evaluated; the bound is the worst enclosure among the boxes kept, so it is sound either way.
-    Degenerate sides of ``box`` are never split. Raises :class:`IntervalUnsupportedError`.
+    Branch and bound on every output and side at once: a sub-box stays open for a side while its
+    enclosure could exceed the best value found at a point (by more than ``rtol`` times the
+    attained range), and a box open for any side is split along the side where the function
+    changes most (the largest ``max|dg/dz_i| * width_i`` from the derivative's enclosure, for its
+    most open output; the widest side relative to the box where that is unbounded), until none is
+    left or ``max_boxes`` sub-boxes were evaluated; each bound is the worst enclosure among the boxes
+    closed or left open for it, so it is sound either way. Degenerate sides of ``box`` are never
+    split. Raises :class:`IntervalUnsupportedError`.
     """
     check_supported(fun)
     fun = _dense(fun)
@@ -349,54 +361,95 @@ def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 4
     rng = np.random.default_rng(seed)
     k = fun.numel_out(0)
     points = np.vstack([box.corners() if box.size <= 10 else box.lower[None], box.center[None], box.sample(rng, 256)])
-    values = np.asarray(fun.map(len(points))(points.T), dtype=float).reshape(k, -1)
-    attained_lo, attained_hi = values.min(axis=1), values.max(axis=1)
-    lower, upper = np.empty(k), np.empty(k)
-    used = 0
-    for j in range(k):
-        for sign in (1.0, -1.0):
-            best = attained_hi[j] if sign > 0 else -attained_lo[j]
-            tol = rtol * max(attained_hi[j] - attained_lo[j], 1e-300)
-            bound, best, n = _branch_and_bound(fun, j, sign, box, best, tol, max_boxes)
-            used += n
-            if sign > 0:
-                upper[j], attained_hi[j] = bound, best
-            else:
-                lower[j], attained_lo[j] = -bound, -best
-    return Bounds(lower, upper, attained_lo, attained_hi, used)
+    values = np.asarray(fun.map(len(points))(points.T), dtype=float).reshape(k, -1).T  # (m, k)
+    sides = np.hstack([values, -values])  # side j: output j from above; side k + j: from below
+    best = np.nanmax(np.where(np.isnan(sides), -np.inf, sides), axis=0)
+    at = points[np.argmax(np.where(np.isnan(sides), -np.inf, sides), axis=0)]
+    bound, best, at, used = _branch_and_bound(fun, box, best, at, rtol, max_boxes)
+    return Bounds(-bound[k:], bound[:k], -best[k:], best[:k], used, at[k:], at[:k])
 
 
 def _branch_and_bound(
-    fun: ca.Function, j: int, sign: float, box: Box, best: float, tol: float, max_boxes: int
-) -> tuple[float, float, int]:
-    """Upper bound of ``sign * fun_j`` over ``box``; returns (bound, best point value, boxes used)."""
+    fun: ca.Function, box: Box, best: FloatArray, at: FloatArray, rtol: float, max_boxes: int
+) -> tuple[FloatArray, FloatArray, FloatArray, int]:
+    """Upper bounds of each side ``(g_1, .., g_k, -g_1, .., -g_k)`` over ``box`` (see :func:`bounds`).
+
+    ``best`` (2k,) and ``at`` (2k, n) are the largest values found so far and their points; returns
+    (bounds, best, at, boxes used).
+    """
+    k = fun.numel_out(0)
     scale = np.where(box.width > 0, box.width, 1.0)
     splittable = box.width > 0
-    derivative = centered(fun)
+    jacobian = _jacobian_part(centered(fun))
+    partner = np.concatenate([np.arange(k, 2 * k), np.arange(k)])  # the opposite side of each side
     lower, upper = box.lower[None].copy(), box.upper[None].copy()
+    open_ = np.ones((1, 2 * k), dtype=bool)
+    kept = np.full(2 * k, -np.inf)
+    best, at = best.copy(), at.copy()
     used = 0
-    kept_bound = -np.inf
     while len(lower):
-        lo, hi = enclosure(fun, lower, upper, derivative)
+        lo, hi, jac_lo, jac_hi = _enclose(fun, lower, upper, jacobian)
         used += len(lower)
-        ub = sign * (hi[:, j] if sign > 0 else lo[:, j])
+        ub = np.hstack([hi, -lo])
         ub = np.where(np.isnan(ub), np.inf, ub)
         mid = 0.5 * (lower + upper)
-        point = sign * np.asarray(fun.map(len(mid))(mid.T), dtype=float).reshape(fun.numel_out(0), -1)[j]
+        value = np.asarray(fun.map(len(mid))(mid.T), dtype=float).reshape(k, -1).T
+        point = np.hstack([value, -value])
         if np.any(point > ub + 1e-9 * np.maximum(1.0, np.abs(point))):  # a value above its own enclosure
             raise IntervalUnsupportedError(f"an enclosure of {fun.name()} misses a value it contains (a bug)")
-        best = max(best, float(np.nanmax(point, initial=-np.inf)))
-        open_ = ub > best + tol
-        if used + 2 * int(open_.sum()) > max_boxes or not splittable.any():
-            return max(kept_bound, float(ub.max(initial=-np.inf))), best, used
-        kept_bound = max(kept_bound, float(ub[~open_].max(initial=-np.inf)))
-        lower, upper = lower[open_], upper[open_]
-        axis = np.argmax(np.where(splittable, (upper - lower) / scale, -1.0), axis=1)
-        cut = 0.5 * (lower[np.arange(len(lower)), axis] + upper[np.arange(len(lower)), axis])
+        point = np.where(np.isnan(point), -np.inf, point)
+        better = point.max(axis=0) > best
+        if better.any():
+            index = np.argmax(point, axis=0)
+            best = np.where(better, point.max(axis=0), best)
+            at[better] = mid[index[better]]
+        low = -best[partner]
+        with np.errstate(invalid="ignore"):
+            tol = rtol * np.maximum(np.maximum(best - low, 1e-9 * np.maximum(np.abs(best), np.abs(low))), 1e-300)
+            still = open_ & (ub > best + tol)
+        kept = np.maximum(kept, np.where(open_ & ~still, ub, -np.inf).max(axis=0))
+        busy = still.any(axis=1)
+        if used + 2 * int(busy.sum()) > max_boxes or not splittable.any():
+            return np.maximum(kept, np.where(still, ub, -np.inf).max(axis=0)), best, at, used
+        lower, upper, open_, ub = lower[busy], upper[busy], still[busy], ub[busy]
+        with np.errstate(invalid="ignore", over="ignore"):
+            excess = np.where(open_, (ub - best) / tol, -np.inf)
+        output = np.argmax(excess, axis=1) % k  # the output most open in each box
+        rows = np.arange(len(lower))
+        axis = _split_axis(lower, upper, jac_lo[busy][rows, output], jac_hi[busy][rows, output], splittable, scale)
+        cut = 0.5 * (lower[rows, axis] + upper[rows, axis])
         left_upper, right_lower = upper.copy(), lower.copy()
-        left_upper[np.arange(len(lower)), axis] = cut
-        right_lower[np.arange(len(lower)), axis] = cut
+        left_upper[rows, axis] = cut
+        right_lower[rows, axis] = cut
         lower, upper = np.vstack([lower, right_lower]), np.vstack([left_upper, upper])
-    if kept_bound < best - 1e-9 * max(1.0, abs(best)):
+        open_ = np.vstack([open_, open_])
+    finite = np.isfinite(best)
+    if np.any(finite & (kept < np.where(finite, best, 0.0) - 1e-9 * np.maximum(1.0, np.abs(best)))):
         raise IntervalUnsupportedError(f"the enclosures of {fun.name()} lie below a value attained (a bug)")
-    return max(kept_bound, best), best, used
+    return np.maximum(kept, best), best, at, used
+
+
+def _split_axis(
+    lower: FloatArray,
+    upper: FloatArray,
+    jac_lo: FloatArray,
+    jac_hi: FloatArray,
+    splittable: FloatArray,
+    scale: FloatArray,
+) -> FloatArray:
+    """The side to halve per box: the largest smear ``max|dg/dz_i| * width_i`` (where the function changes most).
+
+    Where a smear is infinite (no derivative bound), the widest side relative to the box among those.
+    """
+    width = upper - lower
+    with np.errstate(invalid="ignore"):
+        smear = np.maximum(np.abs(jac_lo), np.abs(jac_hi)) * width
+    smear = np.where(np.isnan(smear), np.inf, smear)
+    smear = np.where(splittable, smear, -1.0)
+    relative = np.where(splittable, width / scale, -1.0)
+    unknown = np.isinf(smear)
+    by_width = np.argmax(np.where(unknown, relative, -1.0), axis=1)
+    by_smear = np.argmax(smear, axis=1)
+    use_width = unknown.any(axis=1) | (smear.max(axis=1) <= 0.0)
+    fallback = np.argmax(relative, axis=1)
+    return np.where(unknown.any(axis=1), by_width, np.where(use_width, fallback, by_smear))

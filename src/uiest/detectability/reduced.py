@@ -173,7 +173,7 @@ def certify_reduced_ioss(
     mu : float, optional
         Discount to certify; None minimises it (``mu = min(2 mu_min, (1 + mu_min) / 2)``).
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, samples, kappa_max,
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, kappa_max,
         gain_max, tol, seed).
 
     """

@@ -29,20 +29,20 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
-from uiest.box import FloatArray
+from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed, shown
-from uiest.detectability import lmi
+from uiest.detectability import cover as covers
+from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
-    SOLVER_FAILED,
-    STATUS_OF,
     UNDECIDED,
     StrongDetectabilityBase,
     Verification,
     check_rate,
     quad,
     sample_pairs,
+    verdict,
 )
-from uiest.detectability.cover import Cover, cover
+from uiest.detectability.cover import Cover
 from uiest.detectability.strong_lmi import StrongLMI, StrongSolution
 from uiest.detectability.structure import InputStructure, input_structure
 from uiest.errors import ModelError, OptionError
@@ -155,6 +155,7 @@ def certify_strong_detectability(
     mu: float | None = None,
     *,
     parameters: Callable[[Any, Any], Any] | ca.Function | None = None,
+    cover: str = "exact",
     samples: int = 4000,
     tol: float = 1e-4,
     seed: int = 0,
@@ -172,10 +173,16 @@ def certify_strong_detectability(
     parameters : callable or casadi.Function, optional
         ``theta(x, u)``: the few scalar functions of the state and known input that the state
         Jacobian ``df/dx`` is affine in (e.g. ``lambda x, u: [ca.sin(x[1]), x[0]]``), traced like
-        :meth:`System.from_callables`. The cover is then the box of theta, bounded by interval
-        arithmetic (exact); without it the Jacobian is sampled (a "sampled cover").
+        :meth:`System.from_callables`, written as they appear in df/dx: every entry must be an exact
+        combination of them (:mod:`uiest.detectability.cover`). The cover is then the box of theta,
+        bounded by interval arithmetic. Without it, the box of a basis of the Jacobian's own
+        entries ("exact by entries").
+    cover : {"exact", "sampled"}
+        "sampled" covers the Jacobians at samples only: the result is at best "holds at the samples,
+        not proved", never ``certified``.
     samples : int
-        Uniform samples of X x U for the cover (besides corners and a grid).
+        Uniform samples of X x U for a sampled cover, and the points at whose Jacobians an LMI
+        infeasible at the cover's vertices is re-checked (besides corners and a grid).
     tol : float
         Bisection tolerance on mu.
     seed : int
@@ -185,13 +192,20 @@ def certify_strong_detectability(
         The estimator's horizon grows with it: ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``,
         so a bound trades larger noise gains for a shorter certified window.
 
+    Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
+    of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
+    makes it "refuted". The search's size and worst ratio are in ``falsification``.
+
     Raises
     ------
     ModelError
         Unbounded X (or U where the Jacobian depends on u), a nonlinear output, a failed
-        matching condition or an unknown input whose direction is not constant (with the ranks).
+        matching condition or an unknown input whose direction is not constant (with the ranks);
+        parameters the Jacobian is not (provably) affine in; no exact cover possible (too many
+        independent entries, an operation interval arithmetic cannot bound: the message says what
+        to do).
     OptionError
-        ``mu`` outside (0, 1), bad ``samples``, ``tol`` or ``max_condition``.
+        ``mu`` outside (0, 1), bad ``cover``, ``samples``, ``tol`` or ``max_condition``.
 
     """
     start = time.perf_counter()
@@ -205,14 +219,17 @@ def certify_strong_detectability(
         isinstance(max_condition, float | int) and not isinstance(max_condition, bool) and 1.0 < max_condition < np.inf
     ):
         raise OptionError(f"max_condition: expected a finite number > 1 or None, got {max_condition!r}")
+    if cover not in covers.METHODS:
+        raise OptionError(f"cover: expected one of {covers.METHODS}, got {cover!r}")
     structure = input_structure(system, seed=seed)
     theta = None if parameters is None else _parameter_function(parameters, system)
-    covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
-                    names=structure.names)  # fmt: skip
+    covered = covers.cover(structure.state_jacobian, structure.box, parameters=theta, method=cover, samples=samples,
+                           seed=seed, names=structure.names)  # fmt: skip
     solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol, max_condition=max_condition)
-    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant" and max_condition is None:
+    if solution.outcome == lmi.INFEASIBLE and covered.kind != covers.CONSTANT and max_condition is None:
         solution = _decided_at_samples(solution, covered, structure, mu, tol)
-    return _certificate(system, structure, covered, solution, time.perf_counter() - start)
+    found = _falsify(system, structure, covered, solution, seed) if solution.outcome == lmi.FEASIBLE else None
+    return _certificate(system, structure, covered, solution, found, time.perf_counter() - start)
 
 
 def _decided_at_samples(
@@ -252,9 +269,51 @@ def _parameter_function(parameters: Any, system: System) -> ca.Function:
     return ca.Function("theta", [z], [theta])
 
 
+def _falsify(
+    system: System, structure: InputStructure, covered: Cover, solution: StrongSolution, seed: int
+) -> falsify.Falsification:
+    r"""The adversarial search on the LMI's inequality, scaled, with the worst unknown-input increment.
+
+    ``max_dd |a + B dd|_P^2 - s2 |C (a + B dd)|^2 <= mu |dx|_P^2 + s1 |C dx|^2`` with
+    ``a = S_x^-1 (f(x, u, w0) - f(x~, u, w0))``; the maximum over dd is ``a' Q a - g' H^-1 g`` with
+    ``Q = P - s2 C'C``, ``H = B' Q B`` (negative definite when the LMI holds) and ``g = B' Q a``.
+    Close pairs step along ker C; anchors are the points where the cover's parameters reach their extremes.
+    """
+    nx, nu = system.nx, system.nu
+    P, C, B = solution.P, structure.C, structure.B
+    Q = P - solution.s2 * C.T @ C
+    H = B.T @ Q @ B
+    x, xt, u = ca.SX.sym("x", nx), ca.SX.sym("xt", nx), ca.SX.sym("u", nu)
+    w0 = ca.DM(system.nominal_w)
+    sx = system.x.scale
+    a = (system.f(x, u, w0) - system.f(xt, u, w0)) / ca.DM(sx)
+    dx = (x - xt) / ca.DM(sx)
+    lhs = ca.bilin(ca.DM(Q), a, a)
+    if B.shape[1]:
+        if np.linalg.eigvalsh(0.5 * (H + H.T))[-1] >= 0.0:  # some unknown input makes the left side unbounded
+            lhs = ca.SX.inf() * (1.0 + ca.sumsqr(dx))
+        else:
+            g = ca.mtimes(ca.DM(B.T @ Q), a)
+            lhs = lhs - ca.bilin(ca.DM(np.linalg.inv(H)), g, g)
+    rhs = solution.mu * ca.bilin(ca.DM(P), dx, dx) + solution.s1 * ca.sumsqr(ca.mtimes(ca.DM(C), dx))
+    terms = ca.Function("strong_terms", [x, xt, u], [lhs, rhs])
+    box = structure.box
+    anchors = covered.extremes[:, :nx] if covered.extremes is not None else None
+    U = Box(box.lower[nx:], box.upper[nx:])
+    return falsify.search(terms, system.x.bounds, U, sx, directions=scipy.linalg.null_space(C), anchors=anchors,
+                          labels=tuple(system.x.names) + tuple(system.u.names), seed=seed)  # fmt: skip
+
+
 def _certificate(
-    system: System, structure: InputStructure, covered: Cover, solution: StrongSolution, seconds: float
+    system: System,
+    structure: InputStructure,
+    covered: Cover,
+    solution: StrongSolution,
+    found: falsify.Falsification | None,
+    seconds: float,
 ) -> StrongDetectability:
+    unproved = "" if covered.sound else f"the cover is sampled ({covered.description})"
+    certified, status, reason = verdict(solution.outcome, solution.reason, unproved=unproved, falsification=found)
     ok = solution.outcome == lmi.FEASIBLE
     sx, sy, sv = system.x.scale, system.y.scale, system.v.scale
     sigma_y = solution.sigma_y if ok else float("nan")
@@ -264,16 +323,15 @@ def _certificate(
     gain = sx * np.sqrt(2.0 * sigma_v * diameter**2 / alpha_1) if ok else np.full(system.nx, np.nan)
     D = structure.D
     R_v_scaled = sigma_y * (D.T @ D if structure.noise_constant else structure.D_norm**2 * np.eye(system.nv))
-    sound = covered.sound and structure.structural
+    sound = covered.sound  # the input structure is proved (exact forms of df/dw)
     coverage = (
         f"{covered.kind} ({'sound' if covered.sound else 'sampled, not a proof'}): {covered.description}; "
         f"input structure {structure.evidence}"
     )
-    status = STATUS_OF.get(solution.outcome, SOLVER_FAILED)
     return StrongDetectability(
-        certified=ok,
+        certified=certified,
         status=status,
-        reason=solution.reason,
+        reason=reason,
         rate=solution.mu,
         rate_min=solution.mu_min,
         P_scaled=solution.P,
@@ -295,6 +353,7 @@ def _certificate(
         eps=solution.eps,
         n_vertices=len(covered.vertices),
         design=solution.design,
+        falsification=found,
     )
 
 

@@ -6,12 +6,14 @@ exactly. :func:`input_structure` reads the form off a :class:`~uiest.system.Syst
 
 - ``C = dh/dx`` must be constant and ``dh/dv`` independent of x (checked structurally; a
   nonlinear output needs the paper's change of state phi first);
-- B is an orthonormal basis of the span of ``df/dw`` over X x U x W, found structurally when
-  ``df/dw`` is constant and otherwise from samples (w up to 1e6 of its scale, directions kept
-  down to 1e-12 of the largest: only rounding is dropped). A sampled structure is evidence, not
-  a proof, and the certificate says so (``sound`` is False). If that span is
-  larger than ``df/dw``'s rank at a single point, the input's direction varies with the state:
-  B is the whole span, which is sound but adds directions the output must see;
+- B is an orthonormal basis of a space that provably holds ``df/dw`` over X x U x W: its
+  columns when ``df/dw`` is constant, and otherwise the columns of the constant matrices of its
+  exact form ``df/dw = sum_m C_m m(x, u, w)`` (:mod:`uiest.detectability.affine`: monomials m of
+  the model's nonlinear functions, exact rational coefficients), so a direction that appears only
+  at large w or in a corner of X is never missed. Samples (w up to 1e6 of its scale) give the
+  rank of ``df/dw`` at a single point for the messages. If the span is larger than that, the
+  input's direction varies with the state: B is the whole span, which is sound but adds
+  directions the output must see;
 - matching ``rank(C B) = rank(B)`` is required (the unknown input must show in the next output).
 
 Everything is in scaled coordinates ``x / x.scale`` etc.; the LMI's state Jacobian is
@@ -22,11 +24,13 @@ elimination anyway, and removing it makes A independent of w).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from fractions import Fraction
 
 import casadi as ca
 import numpy as np
 
 from uiest.box import Box, FloatArray
+from uiest.detectability.affine import Forms
 from uiest.detectability.lmi import batched, finite_box
 from uiest.errors import ModelError
 from uiest.system import System
@@ -60,9 +64,8 @@ class InputStructure:
     pointwise_rank : int
         Largest rank of ``df/dw`` at a single point (< rank_B: the direction varies).
     evidence : str
-        How B was found ("structural": df/dw is constant; else "sampled at m points").
-    structural : bool
-        Whether B was found structurally (a proof) rather than sampled.
+        How B was found ("structural": df/dw is constant; "exact forms": the span of its form's
+        constant matrices); either way the span of B provably holds every input direction.
     state_jacobian : casadi.Function
         ``z = (x, u) -> A (nx, nx)``, the scaled, projected Jacobian of f in x at ``w0``.
     box : Box
@@ -82,7 +85,6 @@ class InputStructure:
     rank_CB: int  # noqa: N815
     pointwise_rank: int
     evidence: str
-    structural: bool
     state_jacobian: ca.Function
     box: Box
     names: tuple[str, ...]
@@ -151,20 +153,18 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
         if not finite.any():
             raise ModelError("f: df/dw is not finite at any sampled point of X x U x W")
         B_samples = B_samples[finite]
-        evidence = f"sampled at {int(finite.sum())} points of X x U x W (|w| up to 1e6 scales)"
+        evidence = "sampled"
     B_scaled = B_samples * sw[None, None, :] / sx[None, :, None]
     biggest = float(np.abs(B_scaled).max()) if B_scaled.size else 0.0
     pointwise = max((_rank(Bi, np.linalg.norm(Bi, 2)) for Bi in B_scaled), default=0) if biggest > 0 else 0
-    columns = np.concatenate(list(B_scaled), axis=1) if B_scaled.size else np.zeros((nx, 0))
-    with np.errstate(over="ignore", invalid="ignore"):
-        norms = np.linalg.norm(columns, axis=0)
-    usable = np.isfinite(norms) & (norms > 0)
-    stacked = columns[:, usable] / norms[usable]  # directions only: large |w| must not drown the rest
-    basis, s, _ = np.linalg.svd(stacked, full_matrices=False) if stacked.size else (np.zeros((nx, 0)), [], None)
-    rank_B = int(np.sum(np.asarray(s) > DIRECTION_RTOL * s[0])) if len(s) and s[0] > 0 else 0
-    B = basis[:, :rank_B]
-    if rank_B < len(s) and evidence.startswith("sampled"):
-        evidence += f"; other directions below {float(s[rank_B] / s[0]):.1e} of the largest (rounding)"
+    if evidence.startswith("structural"):
+        B = _orthonormal(list(B_scaled[0].T), nx, None)
+    else:
+        directions, terms = _form_directions(ca.Function("Bw", [ca.vertcat(x, u, w)], [B_expr]), nx, nw)
+        B = _orthonormal([d / sx for d in directions], nx, len(directions))
+        evidence = (f"exact forms (df/dw is a combination of {terms} constant matrices; {pointwise} direction(s) "
+                    f"at a sampled point)")  # fmt: skip
+    rank_B = B.shape[1]
     rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
     if matching and rank_CB < rank_B:
         varying = (
@@ -203,8 +203,47 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
         rank_CB=rank_CB,
         pointwise_rank=pointwise,
         evidence=evidence,
-        structural=evidence.startswith("structural"),
         state_jacobian=state_jacobian,
         box=box,
         names=tuple(system.x.names) + tuple(system.u.names),
     )
+
+
+def _form_directions(fun: ca.Function, nx: int, nw: int) -> tuple[list[FloatArray], int]:
+    """Independent columns (exact elimination) of the constant matrices of ``fun``'s form, and their count.
+
+    ``fun(z) = df/dw (nx, nw) = sum_m C_m m(z)``: every column of ``df/dw`` at any z lies in the span
+    of the columns of the ``C_m``.
+    """
+    entries = Forms().of(fun)
+    monomials = sorted({m for form in entries for m in form})
+    columns = [[form.get(m, Fraction(0)) for form in entries[j * nx : (j + 1) * nx]] for m in monomials
+               for j in range(nw)]  # fmt: skip
+    pivots: list[tuple[int, list[Fraction]]] = []
+    kept = []
+    for column in columns:
+        v = list(column)
+        for i, p in pivots:
+            if v[i]:
+                factor = v[i] / p[i]
+                v = [a - factor * b for a, b in zip(v, p, strict=True)]
+        nonzero = [i for i, a in enumerate(v) if a]
+        if nonzero:
+            pivots.append((nonzero[0], v))
+            kept.append(np.array([float(a) for a in column]))
+    return kept, len(monomials)
+
+
+def _orthonormal(directions: list[FloatArray], nx: int, rank: int | None) -> FloatArray:
+    """An orthonormal basis (nx, r) of the span of ``directions``: r = ``rank`` (known exactly), or numerical.
+
+    The numerical rank keeps directions down to ``DIRECTION_RTOL`` of the largest (only rounding is dropped:
+    the unknown input is unbounded).
+    """
+    columns = [d / np.linalg.norm(d) for d in directions if np.all(np.isfinite(d)) and np.linalg.norm(d) > 0]
+    if not columns:
+        return np.zeros((nx, 0))
+    basis, s, _ = np.linalg.svd(np.stack(columns, axis=1), full_matrices=False)
+    if rank is None:
+        rank = int(np.sum(s > DIRECTION_RTOL * s[0]))
+    return basis[:, :rank]

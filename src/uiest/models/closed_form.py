@@ -78,12 +78,13 @@ def system(
 
 
 def jacobian_parameters() -> Any:
-    """``theta(x, u) = (x2 / cosh(x1)^2, tanh(x1))``, the functions the state Jacobian is affine in.
+    """``theta(x, u) = (x2 (1 - tanh(x1)^2), tanh(x1))``, the functions the state Jacobian is affine in.
 
     With the unknown input's direction (x1) projected out, ``df/dx = [[0, 0], [a1 theta_1,
-    a0 + a1 theta_2]]``: the box of theta over X is an exact certificate cover.
+    a0 + a1 theta_2]]``, written as the model's derivative writes it (``1 - tanh^2``, not
+    ``1 / cosh^2``): the box of theta over X is an exact certificate cover.
     """
-    return lambda x, u: [x[1] / np.cosh(x[0]) ** 2, np.tanh(x[0])]
+    return lambda x, u: [x[1] * (1.0 - np.tanh(x[0]) ** 2), np.tanh(x[0])]
 
 
 def reduction(**kwargs: Any) -> ReducedModel:

@@ -191,12 +191,15 @@ def system(params: CropParameters | None = None, **overrides: Any) -> System:
 
 
 def jacobian_parameters(params: CropParameters | None = None, **overrides: Any) -> Any:
-    """The two functions of the state the certificate's state Jacobian is affine in, as ``theta(x, u)``.
+    """The three functions of the state the certificate's state Jacobian is affine in, as ``theta(x, u)``.
 
     With the unknown input's direction projected out, ``df/dx`` varies through
-    ``F(x^{d,1}) phi'(x^c)`` and ``exp(-xi_1 x^{d,1}) phi(x^c)`` only (u is the fixed temperature),
-    so the box of these two over X gives an exact cover (``certify_strong_detectability(...,
-    parameters=jacobian_parameters())``).
+    ``F(x^{d,1}) phi'(x^c)`` and ``phi'(x^c)`` (its first column) and ``exp(-xi_1 x^{d,1}) phi(x^c)``
+    (its second) only (u is the fixed temperature), each entry an exact combination of these three
+    as the model writes them, so the box of theta over X gives an exact cover
+    (``certify_strong_detectability(..., parameters=jacobian_parameters())``). The first column is
+    nearly a multiple of ``(exp(-xi_1 x^{d,1}) - 1) phi'(x^c)`` alone, but only up to the rounding of
+    the model's constants, so that is not a proof.
     """
     p = (params or CropParameters()).with_overrides(**overrides)
 
@@ -205,7 +208,7 @@ def jacobian_parameters(params: CropParameters | None = None, **overrides: Any) 
         phi = ca.Function("phi", [co2], [photosynthesis(p, p.temperature, co2)])
         dphi = ca.Function("dphi", [co2], [ca.jacobian(photosynthesis(p, p.temperature, co2), co2)])
         decay = np.exp(-p.xi_1 * x[1])
-        return [(decay - 1.0) * dphi(x[0]), decay * phi(x[0])]
+        return [decay * dphi(x[0]), dphi(x[0]), decay * phi(x[0])]
 
     return theta
 
