@@ -8,6 +8,7 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -32,6 +33,25 @@ to optimality with a non-positive margin (within the stated bounds on P and the 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
              "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED, "undecided": UNDECIDED}  # fmt: skip
 """Certificate status of each solver outcome (:mod:`uiest.detectability.lmi` and the LMI modules)."""
+
+
+DEFAULT_MAX_CONDITION = 1e6
+"""Default bound on cond(P) (scaled coordinates) of every certificate's rate problem and design.
+
+A larger bound can buy a faster rate (states seen only through a weak coupling need an ill-conditioned
+storage), paid in the weights: the estimator's cost then weighs outputs and noise up to cond(P) times more
+against its prior, its noise gain grows and its window problem spans more digits. 1e6 keeps those weights
+within what the double-precision window solvers resolve and is where every known answer is reached (a
+linear system's ``max |zero|^2`` needs a well-conditioned P); :meth:`Certificate.tradeoff` shows what a
+larger bound buys for a given model, and ``max_condition=`` asks for it.
+"""
+
+
+def check_condition(value: object, name: str = "max_condition") -> float:
+    """``value`` as a bound on cond(P): a finite number > 1; OptionError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 1.0 < float(value) < np.inf:
+        raise OptionError(f"{name}: expected a finite number > 1, got {value!r}")
+    return float(value)
 
 
 def strong_horizon(mu: float, condition: float) -> int:
