@@ -61,6 +61,9 @@ DESIGN_SLACK = 0.5
 TRACE_WEIGHT = 1e-3
 """Weight of ``tr(P_hat) / n`` beside the weights in the design objective."""
 
+CONDITION_RTOL = 1e-6
+"""A design's cond(P) may exceed max_condition by this fraction (the solver's tolerance); more is a failed solve."""
+
 R_SAFETY = 1e-3
 """The closed-form output weight is multiplied by ``1 + R_SAFETY``."""
 
@@ -384,6 +387,27 @@ def multiplier(vertices: Vertices, P: FloatArray, mu: float) -> float:
 def design_once(
     vertices: Vertices, P_rate: FloatArray, sigma: float, mu: float, delta: float, kappa: float, structure: str
 ) -> tuple[str, Design | None]:
+    """Stage 2 on ``vertices`` with cond(P) free, then, if that exceeds kappa, with it bounded.
+
+    A bound far above the solution's condition number only hurts the solver, so it is imposed where it binds.
+    """
+    status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=False)
+    if designed is not None and np.linalg.cond(designed.P) > kappa:
+        status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=True)
+    return status, designed
+
+
+def design_solve(
+    vertices: Vertices,
+    P_rate: FloatArray,
+    sigma: float,
+    mu: float,
+    delta: float,
+    kappa: float,
+    structure: str,
+    *,
+    bounded: bool,
+) -> tuple[str, Design | None]:
     """Stage 2 on ``vertices`` in the coordinates balanced at ``P_rate``, weights per unit of sigma."""
     n, nd = vertices.n, vertices.nd
     T = balancing(P_rate) if structure == "full" else np.eye(n)
@@ -393,7 +417,10 @@ def design_once(
     if structure == "full":
         P = cp.Variable((n, n), symmetric=True)
         P_hat = P
-        constraints = [P_hat >> W, P_hat << kappa * W]
+        constraints = [P_hat >> W]
+        if bounded:  # lambda_min(P) >= low >= 1, lambda_max(P) <= kappa low: cond(P) <= kappa at any scale
+            low = cp.Variable()
+            constraints += [low >= 1.0, P_hat >> low * W, P_hat << (kappa * low) * W]
     else:
         P = cp.Variable(nonneg=True)
         P_hat = P * np.eye(n)
@@ -417,6 +444,8 @@ def design_once(
     low = float(np.linalg.eigvalsh(P_val)[0])
     if not low > 0.0:
         return "singular storage", None
+    if bounded and np.linalg.cond(P_val) > kappa * (1.0 + CONDITION_RTOL):
+        return f"cond(P) {np.linalg.cond(P_val):.6g} above max_condition ({status})", None
     q_val = np.maximum(np.asarray(q.value, dtype=float).reshape(-1), 0.0) * sigma
     return status, Design(P_val / low, q_val / low, "design")
 

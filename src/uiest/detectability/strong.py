@@ -33,11 +33,13 @@ from uiest.box import FloatArray
 from uiest.checks import check_samples, check_seed, shown
 from uiest.detectability import lmi
 from uiest.detectability.certificate import (
+    DEFAULT_MAX_CONDITION,
     SOLVER_FAILED,
     STATUS_OF,
     UNDECIDED,
     StrongDetectabilityBase,
     Verification,
+    check_condition,
     check_rate,
     quad,
     sample_pairs,
@@ -158,7 +160,7 @@ def certify_strong_detectability(
     samples: int = 4000,
     tol: float = 1e-4,
     seed: int = 0,
-    max_condition: float | None = None,
+    max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> StrongDetectability:
     """Certify strong nonlinear detectability of ``system`` (theo:Lyapunov) by LMIs.
 
@@ -180,10 +182,11 @@ def certify_strong_detectability(
         Bisection tolerance on mu.
     seed : int
         Seed of the samples.
-    max_condition : float, optional
-        Largest cond(P) of the design (> 1; None: no bound, the output gains alone are minimised).
-        The estimator's horizon grows with it: ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``,
-        so a bound trades larger noise gains for a shorter certified window.
+    max_condition : float
+        Largest cond(P) (scaled coordinates, > 1) of the rate problem and the design
+        (:data:`~uiest.detectability.certificate.DEFAULT_MAX_CONDITION`). A larger bound can buy a
+        faster rate at the price of larger weights; :meth:`StrongDetectability.tradeoff` tabulates it.
+        The estimator's horizon grows with cond(P): ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``.
 
     Raises
     ------
@@ -201,22 +204,19 @@ def certify_strong_detectability(
     samples, seed = check_samples(samples, "samples", low=10), check_seed(seed)
     if not (isinstance(tol, float | int) and 0.0 < tol < 0.1):
         raise OptionError(f"tol: expected a number in (0, 0.1), got {tol!r}")
-    if max_condition is not None and not (
-        isinstance(max_condition, float | int) and not isinstance(max_condition, bool) and 1.0 < max_condition < np.inf
-    ):
-        raise OptionError(f"max_condition: expected a finite number > 1 or None, got {max_condition!r}")
+    kappa = check_condition(max_condition)
     structure = input_structure(system, seed=seed)
     theta = None if parameters is None else _parameter_function(parameters, system)
     covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
-    solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol, max_condition=max_condition)
-    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant" and max_condition is None:
-        solution = _decided_at_samples(solution, covered, structure, mu, tol)
+    solution = StrongLMI(covered.vertices, structure.B, structure.C, kappa).solve(mu, tol=tol)
+    if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant":
+        solution = _decided_at_samples(solution, covered, structure, mu, tol, kappa)
     return _certificate(system, structure, covered, solution, time.perf_counter() - start)
 
 
 def _decided_at_samples(
-    solution: StrongSolution, covered: Cover, structure: InputStructure, mu: float | None, tol: float
+    solution: StrongSolution, covered: Cover, structure: InputStructure, mu: float | None, tol: float, kappa: float
 ) -> StrongSolution:
     """Infeasible at the cover's vertices: infeasible on X if also at the sampled Jacobians, else undecided.
 
@@ -225,7 +225,7 @@ def _decided_at_samples(
     that none works at the Jacobians of actual points of X does (the LMI must hold at each of them).
     """
     samples = covered.samples
-    at_samples = StrongLMI(samples, structure.B, structure.C).solve(None, tol=tol)
+    at_samples = StrongLMI(samples, structure.B, structure.C, kappa).solve(None, tol=tol)
     where = f"{len(samples)} sampled points of X"
     if at_samples.outcome == lmi.INFEASIBLE:
         return dataclasses.replace(solution, reason=f"{solution.reason}, at the Jacobians of {where} themselves")
