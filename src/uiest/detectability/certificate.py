@@ -9,6 +9,7 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 from __future__ import annotations
 
 import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -16,6 +17,7 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed
+from uiest.detectability.tradeoff import DEFAULT_LEVELS, Tradeoff, tabulate
 from uiest.errors import CertificationError, OptionError
 
 CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED = (
@@ -217,6 +219,33 @@ class Certificate:
 
     def _details(self) -> dict[str, object]:
         return {}
+
+    def tradeoff(self, levels: Sequence[float] = DEFAULT_LEVELS) -> Tradeoff:
+        """This certificate made again with cond(P) bounded by each of ``levels`` (at its default rate).
+
+        Each row gives the smallest rate found, the rate, cond(P), the minimal horizon, the weight on the
+        outputs over ``lambda_min(P)`` and the noise gain per state (:mod:`uiest.detectability.tradeoff`):
+        what a faster rate costs. The certify function is called once per level with the arguments this
+        certificate was made with, except ``mu`` and ``max_condition``.
+
+        Raises
+        ------
+        OptionError
+            Bad ``levels``, or a certificate not made by a certify function that bounds cond(P).
+        """
+        recertify = getattr(self, "recertify", None)
+        if recertify is None:
+            raise OptionError(f"tradeoff: a {type(self).__name__} is not made by a certify function that bounds cond(P)")
+        return tabulate(self.kind, self._state_labels(), lambda level: recertify(max_condition=level), levels)
+
+    def _state_labels(self) -> tuple[str, ...]:
+        """Labels of the storage's states (with units where known)."""
+        return tuple(f"z{i + 1}" for i in range(len(self.scale)))
+
+
+def state_labels(names: Sequence[str], units: Sequence[str]) -> tuple[str, ...]:
+    """``name [unit]`` (``name`` alone without a unit)."""
+    return tuple(f"{n} [{u}]" if u else n for n, u in zip(names, units, strict=True))
 
 
 @dataclass(frozen=True, eq=False)

@@ -100,6 +100,16 @@ class IncrementalModel:
             np.concatenate([self.z_box.upper, self.u_box.upper, self.d_box.upper]),
         )
 
+    def diameter(self, channel: str) -> float:
+        """The scaled diameter ``|width / scale|`` of a channel's box (the largest scaled increment in it)."""
+        start = 0
+        for name, size in self.channels:
+            if name == channel:
+                part = slice(start, start + size)
+                return float(np.linalg.norm(self.d_box.width[part] / self.d_scale[part]))
+            start += size
+        raise KeyError(channel)
+
     def jacobians(self) -> tuple[ca.Function, ca.Function]:
         """Functions of ``p = (z, u, d)``: the scaled J (n, n + nd) and G (p, n + nd)."""
         n, nu = self.n, self.u_box.size
@@ -249,15 +259,18 @@ def solve(
         return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
     mu_min = bisection.rate
     mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
-    outcome = stage.probe(mu_used) if mu_used not in stage.solutions else lmi.FEASIBLE
+    outcome = stage.settle(mu_used)
     if outcome == lmi.INFEASIBLE and mu_used < mu_min:
         return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}"
                     f" with cond(P) <= {kappa:g}", mu_min)  # fmt: skip
     if outcome != lmi.FEASIBLE:  # above a feasible rate, 'infeasible' contradicts monotonicity: a failure
         return fail(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} ('{outcome}'; "
                     f"mu_min={mu_min:.6g} was feasible){note}", mu_min)  # fmt: skip
-    P_rate, t = stage.conditioned(mu_used)
-    finished = design_and_check(vertices, P_rate, t, mu_used, kappa, structure)
+    found = stage.storage(mu_used)
+    if found is None:
+        return fail(lmi.FAILED, f"no storage with cond(P) <= {kappa:g} found at mu={mu_used:.6g} to the solver's "
+                    f"accuracy (mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip
+    finished = design_and_check(vertices, *found, mu_used, kappa, structure)
     if finished is None:
         return fail(lmi.FAILED, f"no finite weights for the rate problem's storage at mu={mu_used:.6g} "
                     f"(mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip

@@ -55,6 +55,9 @@ REBALANCE_CONDITION = 30.0
 MAX_REBALANCE = 4
 """Re-balancings per rate probe."""
 
+DECISIVE_MARGIN = 1e-6
+"""A margin solved to optimality beyond this size decides a probe without re-solving in re-balanced coordinates."""
+
 DESIGN_SLACK = 0.5
 """The design imposes the inequality at ``mu - DESIGN_SLACK * t``, t the rate problem's margin at mu."""
 
@@ -282,9 +285,9 @@ class RateStage:
     """Bisection on the rate with cutting planes over the vertices, in coordinates re-balanced as it goes.
 
     Each probe solves in the current coordinates; while the storage found is ill-conditioned in them
-    (``cond(T^T P T) > REBALANCE_CONDITION``), the coordinates are re-balanced at it and the probe solved
-    again (at most ``MAX_REBALANCE`` times). A probe still ill-conditioned with ``|t| <= MARGIN_FLOOR`` decides
-    nothing.
+    (``cond(T^T P T) > REBALANCE_CONDITION``), the coordinates are re-balanced at it, and the probe solved
+    again unless its margin was decisive (at most ``MAX_REBALANCE`` times). A probe still ill-conditioned
+    with ``|t| <= MARGIN_FLOOR`` decides nothing.
     """
 
     def __init__(self, vertices: Vertices, structure: str, kappa: float) -> None:
@@ -312,29 +315,72 @@ class RateStage:
             return True
         return float(np.linalg.cond(self.T.T @ P @ self.T)) <= REBALANCE_CONDITION
 
+    def _within(self, P: FloatArray) -> bool:
+        """Whether P is positive definite with ``cond(P) <= kappa`` (to ``CONDITION_RTOL``)."""
+        w = np.linalg.eigvalsh(P)
+        return bool(w[0] > 0.0 and w[-1] <= self.kappa * (1.0 + CONDITION_RTOL) * w[0])
+
     def _solve(self, mu: float) -> tuple[str, FloatArray | None, float]:
         """The margin problem at mu on the active vertices, re-balanced until the storage is well-conditioned."""
         status, P, t = self._rate_problem().solve(mu)
         for _ in range(MAX_REBALANCE):
             if P is None or self._balanced(P):
                 break
-            self.T = balancing(P)
+            self.T = balancing(P)  # the next probe starts from these coordinates
             self._version += 1
+            if abs(t) > DECISIVE_MARGIN and status == "optimal":
+                break
             status, P, t = self._rate_problem().solve(mu)
         if P is not None and not self._balanced(P) and not abs(t) > MARGIN_FLOOR:
             return "ill-conditioned in every balancing tried", None, t
         return status, P, t
 
-    def conditioned(self, mu: float) -> tuple[FloatArray, float]:
-        """(P, t) at mu, a rate probed FEASIBLE: the least-conditioned storage keeping half the margin when that
-        solve succeeds and re-checks at every vertex, else the margin problem's."""
+    def settle(self, mu: float) -> str:
+        """:meth:`probe` at mu; where that fails, FEASIBLE if a storage was found feasible at a smaller rate (it
+        holds at mu too, with the margin its kernel blocks have there)."""
+        outcome = lmi.FEASIBLE if mu in self.solutions else self.probe(mu)
+        if outcome == lmi.FAILED:
+            for rate in sorted((r for r in self.solutions if r < mu), reverse=True):
+                P = self.solutions[rate][0]
+                margin = float(self.vertices.kernel_margins(P, mu).min())
+                if margin > MARGIN_FLOOR:
+                    self.solutions[mu] = (P, min(margin, mu))
+                    return lmi.FEASIBLE
+        return outcome
+
+    def storage(self, mu: float) -> tuple[FloatArray, float] | None:
+        """(P, t) at mu, a rate probed FEASIBLE, with P positive definite and ``cond(P) <= kappa``; None if none found.
+
+        The margin problem saturates the bound on cond(P) wherever that buys any margin, and there its P can
+        leave the bound by the solver's tolerance (relative 1e-8 in balanced coordinates, which near 1e12 is
+        the whole smallest eigenvalue). So: the storage of least ``lambda_max`` keeping a quarter of the margin
+        (re-balanced at each one found), else
+        the margin problem's, else one found feasible at a smaller rate (it holds at mu too), each only if
+        within the bound and re-checked on the kernels at mu.
+        """
         P_rate, t = self.solutions[mu]
         if self.vertices.measured_everything:
             return P_rate, t
-        status, P, t_cond = self._rate_problem().conditioned(mu, 0.5 * t)
-        if P is None or not t_cond > MARGIN_FLOOR or not self.vertices.kernel_margins(P, mu).min() > 0.0:
-            return P_rate, t
-        return P, t_cond
+        candidates = []
+        for _ in range(MAX_REBALANCE + 1):  # re-balanced at each storage found, as a probe is
+            _, P, t_cond = self._rate_problem().conditioned(mu, 0.25 * t)
+            if P is None:
+                break
+            candidates.append((P, t_cond))
+            if self._balanced(P):
+                break
+            self.T = balancing(P)
+            self._version += 1
+        candidates.reverse()
+        candidates.append((P_rate, t))
+        candidates += [(self.solutions[rate][0], np.nan) for rate in sorted(self.solutions, reverse=True) if rate < mu]
+        for P, t_found in candidates:
+            if not self._within(P):
+                continue
+            margin = float(self.vertices.kernel_margins(P, mu).min())
+            if margin > MARGIN_FLOOR:
+                return P, (min(margin, mu) if np.isnan(t_found) else t_found)
+        return None
 
     def probe(self, mu: float) -> str:
         """FEASIBLE when the margin problem has ``t* > MARGIN_FLOOR`` and every vertex passes the kernel re-check.
@@ -387,14 +433,22 @@ def multiplier(vertices: Vertices, P: FloatArray, mu: float) -> float:
 def design_once(
     vertices: Vertices, P_rate: FloatArray, sigma: float, mu: float, delta: float, kappa: float, structure: str
 ) -> tuple[str, Design | None]:
-    """Stage 2 on ``vertices`` with cond(P) free, then, if that exceeds kappa, with it bounded.
+    """Stage 2 on ``vertices``: the Schur form, else M itself; cond(P) free, then bounded if it exceeds kappa.
 
     A bound far above the solution's condition number only hurts the solver, so it is imposed where it binds.
+    In balanced coordinates the Schur form ``[[D + r G^T G, J^T P], [P J, P]] >= 0`` is the better-conditioned
+    one on slowly sampled models, whose M carries only a margin of order ``1 - mu``.
     """
-    status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=False)
-    if designed is not None and np.linalg.cond(designed.P) > kappa:
-        status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=True)
-    return status, designed
+    status = ""
+    for schur in (True, False):
+        status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=False,
+                                        schur=schur)  # fmt: skip
+        if designed is not None and np.linalg.cond(designed.P) > kappa:
+            status, designed = design_solve(vertices, P_rate, sigma, mu, delta, kappa, structure, bounded=True,
+                                            schur=schur)  # fmt: skip
+        if designed is not None:
+            return status, designed
+    return status, None
 
 
 def design_solve(
@@ -407,6 +461,7 @@ def design_solve(
     structure: str,
     *,
     bounded: bool,
+    schur: bool,
 ) -> tuple[str, Design | None]:
     """Stage 2 on ``vertices`` in the coordinates balanced at ``P_rate``, weights per unit of sigma."""
     n, nd = vertices.n, vertices.nd
@@ -433,8 +488,12 @@ def design_solve(
         J_hat, G_hat = T_inv @ Ji @ T_full, Gi @ T_full
         rate_part = (mu - delta) * P_hat
         top = rate_part if Dq is None else cp.bmat([[rate_part, zero], [zero.T, (1.0 - delta) * Dq]])
-        M = top + (1.0 - delta) * r * (sigma * G_hat.T @ G_hat) - J_hat.T @ P_hat @ J_hat
-        constraints.append(lmi.symmetric(M) >> 0)
+        supply = top + (1.0 - delta) * r * (sigma * G_hat.T @ G_hat)
+        if schur:
+            block = cp.bmat([[supply, J_hat.T @ P_hat], [P_hat @ J_hat, P_hat]])
+        else:
+            block = supply - J_hat.T @ P_hat @ J_hat
+        constraints.append(lmi.symmetric(block) >> 0)
     problem = cp.Problem(cp.Minimize(cp.sum(q) + r + TRACE_WEIGHT * cp.trace(P_hat) / n), constraints)
     status = lmi.solve(problem)
     if status not in lmi.SOLVED or P.value is None or q.value is None:

@@ -19,6 +19,7 @@ eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import numbers
 import time
 from collections.abc import Callable
@@ -43,6 +44,7 @@ from uiest.detectability.certificate import (
     check_rate,
     quad,
     sample_pairs,
+    state_labels,
 )
 from uiest.detectability.cover import Cover, cover
 from uiest.detectability.strong_lmi import StrongLMI, StrongSolution
@@ -78,6 +80,9 @@ class StrongDetectability(StrongDetectabilityBase):
     output_weight : float
         How many times the certified output weights ``sigma_y``, ``sigma_v`` are (1 as solved; see
         :meth:`with_output_weight`).
+    recertify : callable, optional
+        ``recertify(max_condition=...)`` makes this certificate again with another bound on cond(P)
+        (:meth:`tradeoff`); None when not made by :func:`certify_strong_detectability`.
 
     """
 
@@ -95,8 +100,17 @@ class StrongDetectability(StrongDetectabilityBase):
     n_vertices: int
     design: str
     output_weight: float = 1.0
+    recertify: Callable[..., StrongDetectability] | None = field(default=None, repr=False, compare=False)
 
     kind = "strong_detectability"
+
+    @property
+    def output_gain(self) -> float:
+        """``sigma_y / lambda_min(P)`` (scaled): the weight on outputs against the prior's."""
+        return self.sigma_y / self.alpha_1_scaled
+
+    def _state_labels(self) -> tuple[str, ...]:
+        return state_labels(self.system.x.names, self.system.x.units)
 
     def with_output_weight(self, factor: float) -> StrongDetectability:
         """The weaker certificate with ``sigma_y``, ``sigma_v`` (and ``R_y``, ``R_v``) times ``factor >= 1``.
@@ -206,13 +220,17 @@ def certify_strong_detectability(
         raise OptionError(f"tol: expected a number in (0, 0.1), got {tol!r}")
     kappa = check_condition(max_condition)
     structure = input_structure(system, seed=seed)
-    theta = None if parameters is None else _parameter_function(parameters, system)
+    traced = None if parameters is None else as_function(parameters, "parameters", [("x", system.nx), ("u", system.nu)])
+    theta = None if traced is None else _parameter_function(traced, system)
+    recertify = functools.partial(certify_strong_detectability, system, parameters=traced, samples=samples, tol=tol,
+                                  seed=seed)  # fmt: skip
     covered = cover(structure.state_jacobian, structure.box, parameters=theta, samples=samples, seed=seed,
                     names=structure.names)  # fmt: skip
     solution = StrongLMI(covered.vertices, structure.B, structure.C, kappa).solve(mu, tol=tol)
     if solution.outcome == lmi.INFEASIBLE and covered.kind != "constant":
         solution = _decided_at_samples(solution, covered, structure, mu, tol, kappa)
-    return _certificate(system, structure, covered, solution, time.perf_counter() - start)
+    certificate = _certificate(system, structure, covered, solution, time.perf_counter() - start)
+    return dataclasses.replace(certificate, recertify=recertify)
 
 
 def _decided_at_samples(
