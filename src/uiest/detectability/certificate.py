@@ -221,7 +221,7 @@ class Certificate:
         return {}
 
     def tradeoff(self, levels: Sequence[float] = DEFAULT_LEVELS) -> Tradeoff:
-        """This certificate made again with cond(P) bounded by each of ``levels`` (at its default rate).
+        """Make the certificate again with cond(P) bounded by each of ``levels`` (at its default rate).
 
         Each row gives the smallest rate found, the rate, cond(P), the minimal horizon, the weight on the
         outputs over ``lambda_min(P)`` and the noise gain per state (:mod:`uiest.detectability.tradeoff`):
@@ -232,10 +232,13 @@ class Certificate:
         ------
         OptionError
             Bad ``levels``, or a certificate not made by a certify function that bounds cond(P).
+
         """
         recertify = getattr(self, "recertify", None)
         if recertify is None:
-            raise OptionError(f"tradeoff: a {type(self).__name__} is not made by a certify function that bounds cond(P)")
+            raise OptionError(
+                f"tradeoff: a {type(self).__name__} is not made by a certify function that bounds cond(P)"
+            )
         return tabulate(self.kind, self._state_labels(), lambda level: recertify(max_condition=level), levels)
 
     def _state_labels(self) -> tuple[str, ...]:

@@ -47,7 +47,9 @@ from uiest.detectability.certificate import (
     sample_pairs,
 )
 from uiest.detectability.cover import Cover, cover
-from uiest.detectability.dissipation_lmi import ROUNDING, RateStage, Vertices, design_and_check
+from uiest.detectability.dissipation_design import ROUNDING, design_and_check
+from uiest.detectability.dissipation_lmi import Vertices
+from uiest.detectability.dissipation_rate import RateStage
 from uiest.errors import OptionError
 
 STRUCTURES = ("full", "identity")
@@ -249,8 +251,9 @@ def solve(
     bisection = lmi.bisect_rate(stage.probe, tol=tol)
     notes = [bisection.note] if bisection.note else []
     if stage.inexact:
-        notes.append(f"rate(s) {', '.join(f'{r:.6g}' for r in stage.inexact)} judged infeasible from solves to reduced "
-                     "accuracy")
+        notes.append(
+            f"rate(s) {', '.join(f'{r:.6g}' for r in stage.inexact)} judged infeasible from solves to reduced accuracy"
+        )
     note = f" ({'; '.join(notes)})" if notes else ""
     if bisection.rate is None:
         if bisection.outcome == lmi.INFEASIBLE:

@@ -177,7 +177,10 @@ class Geometry:
 
 
 class RateProblem:
-    """Stage 1 on a set of vertices: ``max t`` with the restricted LMIs ``>= t I``, ``cond(P) <= kappa``; mu a Parameter."""
+    """Stage 1 on a set of vertices: ``max t`` with the restricted LMIs ``>= t I``, ``cond(P) <= kappa``.
+
+    mu is a Parameter: bisection re-solves without recompiling.
+    """
 
     def __init__(self, geometry: Geometry, vertices: FloatArray, kappa: float) -> None:
         g = geometry
@@ -219,7 +222,10 @@ def restricted_margins(
 
 
 class StrongLMI:
-    """Rate bisection, design and closed-form s1 for fixed vertices, B and C (all scaled), ``cond(P) <= max_condition``."""
+    """Rate bisection, design and closed-form s1 for fixed vertices, B and C (all scaled).
+
+    cond(P) is bounded by ``max_condition`` in the rate problem and the design.
+    """
 
     def __init__(
         self, vertices: FloatArray, B: FloatArray, C: FloatArray, max_condition: float = DEFAULT_MAX_CONDITION

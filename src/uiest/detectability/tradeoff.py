@@ -78,8 +78,11 @@ class Tradeoff:
     rows: tuple[TradeoffRow, ...]
 
     def to_pandas(self) -> Any:
-        """One row per bound: max_condition, status, mu_min, mu, condition, horizon, output_weight, and one
-        ``noise_gain <state>`` column per state."""
+        """Return one row per bound as a pandas DataFrame.
+
+        Columns: max_condition, status, mu_min, mu, condition, horizon, output_weight, and one
+        ``noise_gain <state>`` per state.
+        """
         import pandas as pd
 
         records = []
@@ -106,8 +109,9 @@ class Tradeoff:
             worst = int(np.nanargmax(gains)) if ok and np.any(np.isfinite(gains)) else None
             gain = f"{gains[worst]:.3g} ({self.states[worst]})" if worst is not None else "-"
             lines.append((
-                f"{row.max_condition:.0e}", row.status, _number(row.mu_min, ".6g"), _number(row.mu, ".6g") if ok else "-",
-                _number(row.condition, ".3g") if ok else "-", str(row.horizon) if ok else "-",
+                f"{row.max_condition:.0e}", row.status, _number(row.mu_min, ".6g"),
+                _number(row.mu, ".6g") if ok else "-", _number(row.condition, ".3g") if ok else "-",
+                str(row.horizon) if ok else "-",
                 _number(row.output_weight, ".3g") if ok else "-", gain,
             ))  # fmt: skip
         widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
@@ -134,7 +138,7 @@ def tabulate(
     certify: Callable[[float], Any],
     levels: Sequence[float],
 ) -> Tradeoff:
-    """:class:`Tradeoff` of the certificates ``certify(max_condition)`` at each level (checked by :func:`check_levels`)."""
+    """:class:`Tradeoff` of the certificates ``certify(max_condition)`` at each level (see :func:`check_levels`)."""
     rows = []
     for level in check_levels(levels):
         cert = certify(level)
