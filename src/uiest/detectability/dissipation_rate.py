@@ -29,6 +29,10 @@ REBALANCE_CONDITION = 30.0
 MAX_REBALANCE = 4
 """Re-balancings per rate probe."""
 
+MARGIN_CAP = 0.5
+"""The margin problem maximises t only up to ``MARGIN_CAP * mu``: beyond that every storage decides the probe, and
+an interior-point solver returns a central one instead of one pushed to the bound on cond(P)."""
+
 DECISIVE_MARGIN = 1e-6
 """A margin solved to optimality beyond this size decides a probe without re-solving in re-balanced coordinates."""
 
@@ -72,7 +76,7 @@ class RateProblem:
             AK = T_inv @ Ai @ T @ K_hat
             block = self.mu * (K_hat.T @ P_hat @ K_hat) - AK.T @ P_hat @ AK
             constraints.append(lmi.symmetric(block) >> self.t * np.eye(K_hat.shape[1]))
-        self.problem = cp.Problem(cp.Maximize(self.t), constraints)
+        self.problem = cp.Problem(cp.Maximize(self.t), [*constraints, self.t <= MARGIN_CAP * self.mu])
         self.t_req = cp.Parameter(nonneg=True, value=0.0)
         self.conditioning = cp.Problem(cp.Minimize(self.s), [*constraints, self.t >= self.t_req])
 
