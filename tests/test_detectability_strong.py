@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from exact_rates import contraction_rate
 
 from uiest import CertificationError, ModelError, OptionError, System
 from uiest.detectability import certify_strong_detectability, linear_strong_detectability
@@ -264,3 +265,21 @@ def test_a_solver_error_in_the_design_is_retried_before_the_rate_problems_p_is_u
     monkeypatch.setattr(strong_lmi.StrongLMI, "_design_once", lambda self, *args: ("solver_error", None))
     fallback = certify_strong_detectability(system)
     assert fallback.certified and "P from the rate problem" in fallback.reason
+
+
+def test_the_bound_on_cond_p_sets_the_rate_of_non_normal_zero_dynamics():
+    # x3 is measured and carries w; the zero dynamics (x1, x2) are F = [[0.5, 2], [0, 0.3]]: mu_min(kappa) is F's
+    # squared norm in the best P-norm with cond(P) <= kappa, 0.25 only as kappa grows
+    A = np.array([[0.5, 2.0, 0.3], [0.0, 0.3, -0.2], [0.4, 0.1, 0.6]])
+    system = linear.linear_system(A, [[0.0], [0.0], [1.0]], [[0.0, 0.0, 1.0]], **LINEAR_SPEC)
+    table = certify_strong_detectability(system).tradeoff(levels=(10.0, 30.0, 100.0))
+    F = A[:2, :2]
+    for row in table.rows:
+        assert row.status == "certified" and row.condition <= row.max_condition * (1 + 1e-6)
+        assert row.mu_min == pytest.approx(contraction_rate(F, row.max_condition), abs=1e-3)
+        assert row.horizon >= 1 and row.noise_gain.shape == (3,) and row.output_weight > 0
+    assert certify_strong_detectability(system).mu_min == pytest.approx(0.25, abs=1e-3)
+    assert certify_strong_detectability(system, max_condition=10.0).verify(5000).holds
+    assert "x[0]" in str(table) and len(table.to_pandas()) == 3
+    with pytest.raises(OptionError, match="max_condition: expected a finite number > 1"):
+        certify_strong_detectability(system, max_condition=np.inf)
