@@ -23,7 +23,7 @@ else:
 MARGIN_FLOOR = 1e-9
 """Smallest margin ``t*`` of the rate problem (relative to the storage on the kernels) that counts as feasible."""
 
-REBALANCE_CONDITION = 30.0
+REBALANCE_CONDITION = 1e3
 """A storage whose condition number in the current coordinates exceeds this re-balances them."""
 
 MAX_REBALANCE = 4
@@ -119,10 +119,11 @@ class RateProblem:
 class RateStage:
     """Bisection on the rate with cutting planes over the vertices, in coordinates re-balanced as it goes.
 
-    Each probe solves in the current coordinates; while the storage found is ill-conditioned in them
-    (``cond(T^T P T) > REBALANCE_CONDITION``), the coordinates are re-balanced at it, and the probe solved
-    again unless its margin was decisive (at most ``MAX_REBALANCE`` times). A probe still ill-conditioned
-    with ``|t| <= MARGIN_FLOOR`` decides nothing.
+    Each probe solves in the current coordinates; where the storage found is ill-conditioned in them
+    (``cond(T^T P T) > REBALANCE_CONDITION``), the coordinates are re-balanced at it for the later probes, and,
+    while its margin is not decisive (``|t| <= DECISIVE_MARGIN`` or not solved to optimality), the probe is
+    solved again in them (at most ``MAX_REBALANCE`` times). A probe still ill-conditioned with
+    ``|t| <= MARGIN_FLOOR`` decides nothing.
     """
 
     def __init__(self, vertices: Vertices, structure: str, kappa: float) -> None:
