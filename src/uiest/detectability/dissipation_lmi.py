@@ -8,21 +8,24 @@ weight ``r >= 0`` with, at every vertex,
 
 Any finite weights certify, so they are free while the rate is sought, and the solve has four stages:
 
-1. **Rate.** By Finsler's lemma for the map ``xi -> (dd, G_i xi)``, weights with ``M_i > 0`` exist iff
-   ``K_i^T (mu P - A_i^T P A_i) K_i > 0``, K_i an orthonormal basis of ``ker G_{z,i}``: the storage must
-   contract along the states the current output does not see (dd = 0). The margin problem ``max t``
-   with these blocks ``>= t I``, ``cond(P) <= kappa`` (``s W >= P_hat >= s W / kappa``) and ``P_hat <= I``
-   is solved in *balanced* coordinates ``dz = T z_hat`` (``W = T^T T``) in which the last feasible storage
-   is the identity: where the unmeasured states show in the output only through a small one-step
-   coupling, the storage that contracts them has a condition number of order ``1 / coupling^2`` (1e12
-   on slowly sampled models), and in balanced coordinates that is a well-scaled problem. Bisection on mu.
-2. **Design** at the chosen mu, in the coordinates balanced at that rate: the full LMI at the rate
-   ``mu - delta`` with the weights times ``1 - delta`` (so the certificate at mu keeps a margin ``delta``
-   relative to P and the weights), ``P >= I``, ``cond(P) <= kappa``, minimising the weights relative to
-   a feasible point (one closed-form multiplier ``sigma`` for all of them) plus ``1e-3 tr(P_hat) / n``.
+1. **Rate** (:mod:`uiest.detectability.dissipation_rate`). By Finsler's lemma for the map
+   ``xi -> (dd, G_i xi)``, weights with ``M_i > 0`` exist iff ``K_i^T (mu P - A_i^T P A_i) K_i > 0``, K_i an
+   orthonormal basis of ``ker G_{z,i}``: the storage must contract along the states the current output
+   does not see (dd = 0). The margin problem ``max t`` (up to ``mu / 2``) with these blocks ``>= t I``,
+   the storage on the kernels normalised and ``cond(P) <= kappa`` is solved in *balanced* coordinates
+   ``dz = T z_hat`` in which a storage found earlier is the identity: where the unmeasured states show in
+   the output only through a small one-step coupling, the storage that contracts them has a condition
+   number of order ``1 / coupling^2`` (1e12 on slowly sampled models), and in balanced coordinates that
+   is a well-scaled problem. Bisection on mu.
+2. **Design** (:mod:`uiest.detectability.dissipation_design`) at the chosen mu, in the coordinates
+   balanced at a storage within the bound: the full LMI at the rate ``mu - delta`` with the weights
+   times ``1 - delta`` (so the certificate at mu keeps a margin ``delta`` relative to P and the weights),
+   ``P >= I``, ``cond(P) <= kappa``, minimising the weights relative to a feasible point (one closed-form
+   multiplier ``sigma`` for all of them) plus ``1e-3 tr(P_hat) / n``; in the Schur form, else M itself.
 3. **Closed form.** With P and q fixed, the smallest r is a generalised eigenvalue
    (:func:`smallest_weight`), times ``1 + 1e-3``.
-4. **Re-check** in numpy at every vertex (:func:`recheck`), which alone decides: the block of
+4. **Re-check** in numpy at every vertex (:func:`~uiest.detectability.dissipation_design.recheck`), which
+   alone decides: the block of
    ``Q_i = M_i - r G_i^T G_i`` on ``ker G_i`` positive definite, the Schur complement on ``range G_i^T``
    with r positive semidefinite, and the smallest eigenvalue of ``M_i`` itself within its rounding.
 """
