@@ -29,7 +29,7 @@ CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED = (
     "undecided",
 )
 """The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
-to optimality with a non-positive margin (within the stated bounds on P and the gains); "undecided"
+to optimality with a non-positive margin (within the stated bound on cond(P)); "undecided"
 (strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians."""
 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
