@@ -24,6 +24,7 @@ from uiest.detectability import (
     linear_strong_detectability,
 )
 from uiest.models import closed_form, crop_growth, linear
+from uiest.reduction import reduce_quasi_state_affine
 
 
 def henon() -> System:
@@ -55,6 +56,17 @@ def pendulum() -> System:
     )  # fmt: skip
 
 
+def chen_patton() -> System:
+    """Chen and Patton's 3-state UIO example sampled by zero-order hold (dt = 0.1), X = +-1e9 with unit scales."""
+    import scipy.linalg
+
+    A = np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, -1.0]])
+    E, C = np.array([[-1.0], [0.0], [0.0]]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+    M = scipy.linalg.expm(np.block([[A, E], [np.zeros((1, 4))]]) * 0.1)
+    return linear.linear_system(M[:3, :3], M[:3, 3:], C, x_bounds=(-1e9, 1e9), v_bounds=(-1e-2, 1e-2), x_scale=1.0,
+                                name="chen-patton")  # fmt: skip
+
+
 def jobs() -> dict[str, Callable[[], Certificate]]:
     crop = crop_growth.system()
     theta = crop_growth.jacobian_parameters()
@@ -66,7 +78,9 @@ def jobs() -> dict[str, Callable[[], Certificate]]:
         "crop strong (sampled cover)": lambda: certify_strong_detectability(crop, cover="sampled"),
         "crop reduced e-IOSS": lambda: crop_growth.reduction().certify(),
         "crop delta-IOSS (P full)": lambda: certify_delta_ioss(crop),
-        "closed-form +-3/+-60 (sampled)": lambda: certify_strong_detectability(wide),
+        "crop reduced e-IOSS, cond(P) <= 1e12": lambda: crop_growth.reduction().certify(max_condition=1e12),
+        "chen-patton reduced e-IOSS, X = +-1e9": lambda: reduce_quasi_state_affine(chen_patton()).certify(),
+        "closed-form +-3/+-60 (exact by entries)": lambda: certify_strong_detectability(wide),
         "closed-form +-3/+-60 (parameters)": lambda: certify_strong_detectability(
             wide, parameters=closed_form.jacobian_parameters()
         ),

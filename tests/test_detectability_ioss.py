@@ -5,6 +5,7 @@ import json
 import casadi as ca
 import numpy as np
 import pytest
+from exact_rates import contraction_rate, kernel_rate
 
 from uiest import CertificationError, ModelError, OptionError
 from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, lmi
@@ -48,7 +49,7 @@ def test_reduced_unstable_model_is_not_certified():
     assert np.isnan(cert.verify().worst_ratio)
 
 
-def test_reduced_closed_form_certifies_with_its_contraction_rate():
+def test_reduced_closed_form_certifies_with_itscontraction_rate():
     # the closed-form model's reduced model (module docstring): z+ = a(gamma - v) z + u, y = gamma
     a0, a1 = 0.5, 0.3
     z, g, u, v = (ca.SX.sym(s, 1) for s in "zguv")
@@ -182,3 +183,87 @@ def test_a_dissipation_certificate_the_search_refutes_is_not_certified(monkeypat
     cert = certify_delta_ioss(closed_form.system(), w_bounds=(-1, 1), **FAST)
     assert cert.status == "refuted" and not cert.certified, cert.reason
     assert cert.falsification.worst_ratio > 1.0 and "refuted: the pair" in cert.reason
+
+
+def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p():
+    from uiest.detectability.cover import cover
+
+    cert = crop_growth.reduction().certify()
+    table = cert.tradeoff()
+    assert [row.max_condition for row in table.rows] == [1e6, 1e8, 1e10, 1e12]
+    assert all(row.status == "certified" for row in table.rows), str(table)
+    # the exact answer on the certificate's own cover (its output map sees one of the two reduced states)
+    J_fun, G_fun = cert.model.jacobians()
+    vertices = cover(J_fun, cert.model.domain, samples=4000, seed=0).vertices
+    G = np.asarray(G_fun(cert.model.domain.center), dtype=float)
+    exact = [kernel_rate(vertices, G, row.max_condition) for row in table.rows]
+    np.testing.assert_allclose([row.mu_min for row in table.rows], exact, atol=2e-3)
+    # issue 33's independent figures (50-digit arithmetic) at 1e8 and 1e10: 0.985 and 0.866, to two digits
+    assert abs(table.rows[1].mu_min - 0.985) < 0.01 and abs(table.rows[2].mu_min - 0.866) < 0.01
+    # a faster rate costs: the output weight and the noise gain grow with the bound, the rate falls
+    mu_min = [row.mu_min for row in table.rows]
+    assert mu_min == sorted(mu_min, reverse=True) and mu_min[-1] < 0.4 < 0.998 < mu_min[0]
+    weights = [row.output_weight for row in table.rows]
+    assert weights == sorted(weights) and weights[-1] > 1e6 * weights[0]
+    gains = [np.max(row.noise_gain) for row in table.rows]
+    assert gains == sorted(gains) and gains[-1] > 100 * gains[0]
+    assert all(row.condition <= row.max_condition * (1 + 1e-6) for row in table.rows)
+    text = str(table)
+    assert "max cond(P)" in text and "1e+12" in text and "z2" in text
+    frame = table.to_pandas()
+    assert list(frame["max_condition"]) == [1e6, 1e8, 1e10, 1e12] and "noise_gain z1" in frame
+
+
+def test_the_bound_on_cond_p_is_an_argument_of_every_certify_function():
+    f, h, bounds = _linear_reduced(np.array([[0.5, 2.0], [0.0, 0.3]]))
+    system = linear.linear_system(np.diag([0.6, 0.3]), [[1.0], [0.0]], [[0.0, 1.0]], x_bounds=(-1, 1),
+                                  v_bounds=(-1e-2, 1e-2))  # fmt: skip
+    for bad in (1.0, 0.5, np.inf, float("nan"), True, "1e6"):
+        with pytest.raises(OptionError, match="max_condition: expected a finite number > 1"):
+            certify_reduced_ioss(f, h, **bounds, max_condition=bad, **FAST)
+        with pytest.raises(OptionError, match="max_condition: expected a finite number > 1"):
+            certify_delta_ioss(system, w_bounds=(-1, 1), max_condition=bad, **FAST)
+    # the non-normal F (y carries nothing on z): mu_min(kappa) = min over cond(P) <= kappa of |P^1/2 F P^-1/2|^2
+    for kappa in (10.0, 30.0, 100.0):
+        tight = certify_reduced_ioss(f, h, **bounds, max_condition=kappa, **FAST)
+        assert tight.certified and tight.condition <= kappa * (1 + 1e-6), tight.reason
+        assert tight.mu_min == pytest.approx(contraction_rate(np.array([[0.5, 2.0], [0.0, 0.3]]), kappa), abs=1e-3)
+        assert tight.verify(5000, seed=1).holds and f"cond(P) <= {kappa:g}" in tight.reason
+    none = certify_reduced_ioss(f, h, **bounds, max_condition=4.0, **FAST)  # |F| >= 1 in every such norm
+    assert none.status == "infeasible" and "cond(P) <= 4" in none.reason
+    free = certify_reduced_ioss(f, h, **bounds, **FAST)
+    assert free.mu_min == pytest.approx(0.25, abs=1e-3)
+    with pytest.raises(OptionError, match="levels: expected a non-empty sequence"):
+        free.tradeoff(levels=())
+    with pytest.raises(OptionError, match="levels: expected a finite number > 1"):
+        free.tradeoff(levels=(1e6, 0.5))
+
+
+def test_a_solver_that_fails_is_never_reported_as_infeasible(monkeypatch):
+    f, h, bounds = _linear_reduced(np.diag([0.5, 0.3]))
+    monkeypatch.setattr(lmi, "solve", lambda problem: "solver_error")
+    cert = certify_reduced_ioss(f, h, **bounds, **FAST)
+    assert not cert.certified and cert.status == "solver failed", cert.reason
+    monkeypatch.setattr(lmi, "solve", lambda problem: "optimal_inaccurate")  # no solution values: decides nothing
+    delta = certify_delta_ioss(closed_form.system(), w_bounds=(-1, 1), **FAST)
+    assert not delta.certified and delta.status == "solver failed", delta.reason
+
+
+def test_dissipation_certificates_report_their_noise_gain_and_tabulate_after_pickling():
+    import pickle
+
+    f, h, bounds = _linear_reduced(np.array([[0.5, 2.0], [0.0, 0.3]]))
+    cert = pickle.loads(pickle.dumps(certify_reduced_ioss(f, h, **bounds, **FAST)))  # studies ship certificates
+    diameter = np.linalg.norm(0.2 / cert.model.d_scale[1:])
+    np.testing.assert_allclose(cert.noise_gain, 2 * np.sqrt(cert.c_v) * diameter * cert.scale)
+    assert cert.output_gain == pytest.approx(cert.r / np.linalg.eigvalsh(cert.P_scaled)[0])
+    table = cert.tradeoff(levels=(10.0, 1e6))
+    assert [row.status for row in table.rows] == ["certified", "certified"]
+    assert table.rows[0].mu_min > table.rows[1].mu_min == pytest.approx(0.25, abs=1e-3)
+    system = closed_form.system()
+    delta = certify_delta_ioss(system, w_bounds=(-1, 1), **FAST)
+    c_v = delta.q[1] / (delta.eta * np.linalg.eigvalsh(delta.P_scaled)[0])
+    diameter = np.linalg.norm(system.v.bounds.width / system.v.scale)
+    np.testing.assert_allclose(delta.noise_gain, 2 * np.sqrt(c_v) * diameter * system.x.scale)
+    rows = delta.tradeoff(levels=(1e6,)).rows
+    assert rows[0].mu_min == pytest.approx(0.64, abs=1e-3) and rows[0].noise_gain.shape == (2,)

@@ -5,6 +5,7 @@ import json
 
 import numpy as np
 import pytest
+from exact_rates import contraction_rate
 
 from uiest import CertificationError, ModelError, OptionError, System
 from uiest.detectability import certify_strong_detectability, linear_strong_detectability
@@ -376,3 +377,33 @@ def test_every_certificate_reports_its_adversarial_search():
     assert json.loads(json.dumps(cert.to_dict()))["falsification"]["pairs"] == found.pairs
     infeasible = certify_strong_detectability(linear.with_invariant_zeros([1.5], seed=3, **LINEAR_SPEC)[0])
     assert infeasible.falsification is None and infeasible.to_dict()["falsification"] is None
+
+
+def test_the_bound_on_cond_p_sets_the_rate_of_non_normal_zero_dynamics():
+    # x3 is measured and carries w; the zero dynamics (x1, x2) are F = [[0.5, 2], [0, 0.3]]: mu_min(kappa) is F's
+    # squared norm in the best P-norm with cond(P) <= kappa, 0.25 only as kappa grows
+    A = np.array([[0.5, 2.0, 0.3], [0.0, 0.3, -0.2], [0.4, 0.1, 0.6]])
+    system = linear.linear_system(A, [[0.0], [0.0], [1.0]], [[0.0, 0.0, 1.0]], **LINEAR_SPEC)
+    table = certify_strong_detectability(system).tradeoff(levels=(10.0, 30.0, 100.0))
+    F = A[:2, :2]
+    for row in table.rows:
+        assert row.status == "certified" and row.condition <= row.max_condition * (1 + 1e-6)
+        assert row.mu_min == pytest.approx(contraction_rate(F, row.max_condition), abs=1e-3)
+        assert row.horizon >= 1 and row.noise_gain.shape == (3,) and row.output_weight > 0
+    assert certify_strong_detectability(system).mu_min == pytest.approx(0.25, abs=1e-3)
+    assert certify_strong_detectability(system, max_condition=10.0).verify(5000).holds
+    assert "x[0]" in str(table) and len(table.to_pandas()) == 3
+    with pytest.raises(OptionError, match="max_condition: expected a finite number > 1"):
+        certify_strong_detectability(system, max_condition=np.inf)
+
+
+def test_nearly_equal_vertices_still_get_a_design():
+    # a pendulum sampled by RK4 every 0.05: its exact cover has 16 vertices within 1e-3 of each other, on which the
+    # design solve errs (Clarabel); from the two farthest vertices, grown by cutting planes, it solves
+    pendulum = System.from_ode(lambda x, u, w: [x[1], -9.81 * np.sin(x[0]) - 0.5 * x[1] + w[0]],
+                               lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, dt=0.05,
+                               x_bounds=((-3.0, -8.0), (3.0, 8.0)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    cert = certify_strong_detectability(pendulum)
+    assert cert.certified and cert.cover.sound and cert.n_vertices == 16, cert.reason
+    assert cert.design == "design" and "rate problem" not in cert.reason
+    assert cert.verify(20_000).holds

@@ -200,9 +200,11 @@ class ReducedModel:
         return np.asarray(self.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
 
     def certify(self, **options: Any) -> ReducedIOSS:
-        """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain.
+        """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain, scaled by :attr:`z_scale`.
 
-        gamma ranges over Y (``h(X, V)``, bounded by a grid of X x V), v over V, u over U.
+        gamma ranges over Y (``h(X, V)``, bounded by a grid of X x V), v over V, u over U. The reduced
+        state is scaled by :attr:`z_scale` (from the state scales; T(X)'s widths only where they are
+        smaller), as the two-stage UISE's window is: a wide X with small state scales costs no digits.
         """
         system = self.system
         grid = lmi.grid_points(
@@ -219,6 +221,7 @@ class ReducedModel:
             gamma_bounds=Box(ys.min(axis=0), ys.max(axis=0)),
             v_bounds=system.v.bounds,
             u_bounds=u_box if system.nu else None,
+            z_scale=self.z_scale,
             gamma_scale=system.y.scale,
             v_scale=system.v.scale,
             **options,

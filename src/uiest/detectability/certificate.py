@@ -8,6 +8,8 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 
 from __future__ import annotations
 
+import numbers
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
@@ -15,6 +17,7 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.checks import check_samples, check_seed
+from uiest.detectability.tradeoff import DEFAULT_LEVELS, Tradeoff, tabulate
 from uiest.errors import CertificationError, OptionError
 
 if TYPE_CHECKING:
@@ -31,7 +34,7 @@ CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED, NOT
     "refuted",
 )
 """The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
-to optimality with a non-positive margin (within the stated bounds on P and the gains); "undecided"
+to optimality with a non-positive margin (within the stated bound on cond(P)); "undecided"
 (strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians;
 "holds at the samples, not proved" when the LMIs hold but an ingredient was sampled (a sampled cover,
 asked for, or an input structure read off samples); "refuted" when the adversarial search found a
@@ -59,6 +62,25 @@ def verdict(
     if unproved:
         return False, NOT_PROVED, f"{NOT_PROVED}: {unproved}; the LMIs hold at the vertices: {solved}"
     return True, CERTIFIED, reason
+
+
+DEFAULT_MAX_CONDITION = 1e6
+"""Default bound on cond(P) (scaled coordinates) of every certificate's rate problem and design.
+
+A larger bound can buy a faster rate (states seen only through a weak coupling need an ill-conditioned
+storage), paid in the weights: the estimator's cost then weighs outputs and noise up to cond(P) times more
+against its prior, its noise gain grows and its window problem spans more digits. 1e6 keeps those weights
+within what the double-precision window solvers resolve and is where every known answer is reached (a
+linear system's ``max |zero|^2`` needs a well-conditioned P); :meth:`Certificate.tradeoff` shows what a
+larger bound buys for a given model, and ``max_condition=`` asks for it.
+"""
+
+
+def check_condition(value: object, name: str = "max_condition") -> float:
+    """``value`` as a bound on cond(P): a finite number > 1; OptionError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 1.0 < float(value) < np.inf:
+        raise OptionError(f"{name}: expected a finite number > 1, got {value!r}")
+    return float(value)
 
 
 def strong_horizon(mu: float, condition: float) -> int:
@@ -233,6 +255,36 @@ class Certificate:
 
     def _details(self) -> dict[str, object]:
         return {}
+
+    def tradeoff(self, levels: Sequence[float] = DEFAULT_LEVELS) -> Tradeoff:
+        """Make the certificate again with cond(P) bounded by each of ``levels`` (at its default rate).
+
+        Each row gives the smallest rate found, the rate, cond(P), the minimal horizon, the weight on the
+        outputs over ``lambda_min(P)`` and the noise gain per state (:mod:`uiest.detectability.tradeoff`):
+        what a faster rate costs. The certify function is called once per level with the arguments this
+        certificate was made with, except ``mu`` and ``max_condition``.
+
+        Raises
+        ------
+        OptionError
+            Bad ``levels``, or a certificate not made by a certify function that bounds cond(P).
+
+        """
+        recertify = getattr(self, "recertify", None)
+        if recertify is None:
+            raise OptionError(
+                f"tradeoff: a {type(self).__name__} is not made by a certify function that bounds cond(P)"
+            )
+        return tabulate(self.kind, self._state_labels(), lambda level: recertify(max_condition=level), levels)
+
+    def _state_labels(self) -> tuple[str, ...]:
+        """Labels of the storage's states (with units where known)."""
+        return tuple(f"z{i + 1}" for i in range(len(self.scale)))
+
+
+def state_labels(names: Sequence[str], units: Sequence[str]) -> tuple[str, ...]:
+    """``name [unit]`` (``name`` alone without a unit)."""
+    return tuple(f"{n} [{u}]" if u else n for n, u in zip(names, units, strict=True))
 
 
 @dataclass(frozen=True, eq=False)

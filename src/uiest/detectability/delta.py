@@ -18,7 +18,9 @@ Horizon, their eq. (16): the MHE is robustly stable if ``4 eta^M lambda_max(P2, 
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,7 +30,7 @@ import numpy as np
 from uiest.box import Box, FloatArray
 from uiest.checks import check_real, shown
 from uiest.detectability import dissipation, lmi
-from uiest.detectability.certificate import Certificate, Verification, check_rate
+from uiest.detectability.certificate import DEFAULT_MAX_CONDITION, Certificate, Verification, check_rate, state_labels
 from uiest.errors import ModelError, OptionError
 from uiest.system import System
 
@@ -49,6 +51,9 @@ class DeltaIOSS(Certificate):
         The range of w the certificate covers (``system.w_range`` unless given).
     q, r : ndarray, float
         The scaled weights of the dissipation inequality (channels w and v, and the output).
+    recertify : callable, optional
+        ``recertify(max_condition=...)`` makes this certificate again with another bound on cond(P)
+        (:meth:`tradeoff`); None when not made by :func:`certify_delta_ioss`.
 
     """
 
@@ -58,8 +63,29 @@ class DeltaIOSS(Certificate):
     r: float
     structure: str
     w_box: Box
+    recertify: Callable[..., DeltaIOSS] | None = field(default=None, repr=False, compare=False)
 
     kind = "delta_ioss"
+
+    @property
+    def noise_gain(self) -> FloatArray:
+        """Per-step noise gain per state, in the state's units: ``2 sqrt(q_v d^2 / (eta lambda_min(P))) x_scale``.
+
+        The form of theo:stab's (:attr:`ReducedIOSS.noise_gain`) for Assumption 1's noise channel, d V's
+        scaled diameter. NaN when not certified.
+        """
+        if not self.certified:
+            return np.full(self.system.nx, np.nan)
+        c_v = float(self.q[1]) / (self.eta * self.alpha_1_scaled)
+        return 2.0 * np.sqrt(c_v) * self.model.diameter("v") * self.scale
+
+    @property
+    def output_gain(self) -> float:
+        """``r / lambda_min(P)`` (scaled): the weight on outputs against the storage's."""
+        return self.r / self.alpha_1_scaled
+
+    def _state_labels(self) -> tuple[str, ...]:
+        return state_labels(self.system.x.names, self.system.x.units)
 
     @property
     def eta(self) -> float:
@@ -122,6 +148,7 @@ def certify_delta_ioss(
     structure: str = "full",
     w_bounds: Box | tuple[Any, Any] | None = None,
     w_spread: float = 100.0,
+    max_condition: float = DEFAULT_MAX_CONDITION,
     **options: Any,
 ) -> DeltaIOSS:
     """Certify Schiller et al.'s Assumption 1 with ``W = |x - x~|_P^2`` by their Corollary 3.
@@ -139,9 +166,11 @@ def certify_delta_ioss(
         Range of w to cover; default ``system.w_range``, else ``nominal_w +- w_spread * w.scale``.
     w_spread : float
         Used only without ``w_bounds`` and ``system.w_range``.
+    max_condition : float
+        Largest cond(P) in scaled coordinates (:data:`~uiest.detectability.certificate.DEFAULT_MAX_CONDITION`);
+        a larger bound can buy a smaller eta for larger weights (:meth:`DeltaIOSS.tradeoff`).
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, kappa_max,
-        gain_max, tol, seed).
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, tol, seed).
 
     """
     start = time.perf_counter()
@@ -177,6 +206,8 @@ def certify_delta_ioss(
         y_scale=system.y.scale,
         channels=(("w", nw), ("v", nv)),
     )
-    solution = dissipation.solve(model, mu=eta, structure=structure, **options)
+    solution = dissipation.solve(model, mu=eta, structure=structure, max_condition=max_condition, **options)
+    recertify = functools.partial(certify_delta_ioss, system, structure=structure, w_bounds=w_box, **options)
     return DeltaIOSS(**solution.certificate_fields(system.x.scale, time.perf_counter() - start), system=system,
-                     model=model, q=solution.q, r=solution.r, structure=structure, w_box=w_box)  # fmt: skip
+                     model=model, q=solution.q, r=solution.r, structure=structure, w_box=w_box,
+                     recertify=recertify)  # fmt: skip

@@ -2,7 +2,8 @@ r"""Quadratic incremental dissipation inequalities by LMIs: the engine of the i-
 
 A one-step model ``z+ = F(z, u, d)``, ``y = H(z, d)`` with a known input ``u`` (equal in both
 trajectories) and a disturbance ``d`` made of named channels ``d = (d_1, ..., d_c)``. In scaled
-coordinates find ``P >= I``, channel weights ``q_c >= 0`` and an output weight ``r >= 0`` with
+coordinates find ``P >= I`` with ``cond(P) <= max_condition``, channel weights ``q_c >= 0`` and an
+output weight ``r >= 0`` with
 
     |F(z,u,d) - F(z~,u,d~)|_P^2 <= mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2.
 
@@ -14,13 +15,14 @@ equivalent to the Schur form ``[blkdiag(mu P, q I) + r G^T G, J^T P; P J, P] >= 
 et al.'s Corollary 3, eq. (33), which is affine in J: where it holds at the vertices of a cover
 of J over the domain (:mod:`uiest.detectability.cover`) it holds at every mean-value Jacobian.
 If G varies, ``r G^T G`` is not affine in G and the vertex argument covers J only: the
-certificate says so. The solver sees M (not the Schur form): for slow sampled systems
-(``J ~ I``, ``mu ~ 1``) the Schur block is nearly singular and interior-point solvers lose the
-margin ``(1 - mu) P`` in their tolerances, while M carries it directly.
+certificate says so.
 
-The rate is bisected with :func:`uiest.detectability.lmi.bisect_rate` on the margin problem
-(``max t`` with ``M_i >= t I``, ``I / kappa <= P <= I``); at the chosen rate the condition number
-of P is minimised, then the gains. The numpy re-check at every vertex decides.
+:mod:`uiest.detectability.dissipation_lmi` solves it in stages: the rate on the states the output
+does not see (where the weights drop out), a design at the chosen rate, the output weight in closed
+form, and an independent numpy re-check at every vertex, which alone decides. The bound on cond(P)
+is the price of the rate: a storage that contracts states seen only through a weak coupling needs a
+large condition number, and the weights (the noise gain) grow with it
+(:meth:`uiest.detectability.Certificate.tradeoff` tabulates it).
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from __future__ import annotations
 import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -38,27 +40,20 @@ from uiest.checks import check_samples, check_seed
 from uiest.detectability import cover as covers
 from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
+    DEFAULT_MAX_CONDITION,
+    check_condition,
     check_rate,
     quad,
     sample_pairs,
     verdict,
 )
 from uiest.detectability.cover import Cover
+from uiest.detectability.dissipation_design import ROUNDING, design_and_check
+from uiest.detectability.dissipation_lmi import Vertices
+from uiest.detectability.dissipation_rate import RateStage
 from uiest.errors import OptionError
 
-if TYPE_CHECKING:
-    import cvxpy as cp
-else:
-    from uiest.detectability.lmi import cp  # cvxpy, imported when first used
-
 STRUCTURES = ("full", "identity")
-
-MARGIN_FLOOR = 1e-9
-"""Smallest margin ``t*`` of the margin problem that counts as feasible (``P <= I`` normalises it)."""
-
-GAIN_REGULARISATION = 1e-6
-"""Weight of ``sum q + r`` while minimising the condition number: without it the optimal face is
-unbounded in the gains and interior-point solvers end 'inaccurate'."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -108,6 +103,16 @@ class IncrementalModel:
             np.concatenate([self.z_box.upper, self.u_box.upper, self.d_box.upper]),
         )
 
+    def diameter(self, channel: str) -> float:
+        """The scaled diameter ``|width / scale|`` of a channel's box (the largest scaled increment in it)."""
+        start = 0
+        for name, size in self.channels:
+            if name == channel:
+                part = slice(start, start + size)
+                return float(np.linalg.norm(self.d_box.width[part] / self.d_scale[part]))
+            start += size
+        raise KeyError(channel)
+
     def jacobians(self) -> tuple[ca.Function, ca.Function]:
         """Functions of ``p = (z, u, d)``: the scaled J (n, n + nd) and G (p, n + nd)."""
         n, nu = self.n, self.u_box.size
@@ -140,11 +145,15 @@ class DissipationSolution:
     r : float
         Scaled output weight.
     margin : float
-        Smallest eigenvalue of M over the vertices, divided by ``||P||``.
+        The re-check's smallest margin over the vertices (:class:`~uiest.detectability.dissipation_lmi.Recheck`).
     cover : Cover
         The vertices of J (and G).
     output_constant : bool
         Whether G is constant (else the vertex argument covers J only).
+    max_condition : float
+        The bound on cond(P) of the rate problem and the design.
+    design : str
+        Which solve produced P: "design" or the fallback's description ('' when not solved).
     falsification : Falsification or None
         The adversarial search on the solved inequality (None when not solved).
 
@@ -160,6 +169,8 @@ class DissipationSolution:
     margin: float
     cover: Cover
     output_constant: bool
+    max_condition: float
+    design: str
     falsification: falsify.Falsification | None = None
 
     @property
@@ -194,133 +205,6 @@ class DissipationSolution:
         }
 
 
-def margins(
-    J: FloatArray, G: FloatArray, P: FloatArray, q: FloatArray, r: float, channels: Sequence[int], mu: float
-) -> FloatArray:
-    """Independent re-check: min eig of ``blkdiag(mu P, q I) + r G^T G - J^T P J`` per point, over |P|.
-
-    Shapes: J (m, n, n + nd), G (m, p, n + nd); returns (m,).
-    """
-    n = P.shape[0]
-    top = np.zeros((J.shape[2], J.shape[2]))
-    top[:n, :n] = mu * P
-    top[n:, n:] = np.diag(np.repeat(q, channels)) if len(channels) else np.zeros((0, 0))
-    M = top[None] + r * np.einsum("mji,mjk->mik", G, G) - np.einsum("mji,jk,mkl->mil", J, P, J)
-    return lmi.min_eig(M) / np.linalg.eigvalsh(P)[-1]
-
-
-class _Problem:
-    """The LMI ``M(J_i, G_i) >= t I`` on a fixed set of vertices, normalised by ``P <= I``.
-
-    Three problems share the variables; mu, the required margin and the lower bound on P are
-    Parameters (bisection re-solves without recompiling):
-
-    - ``margin``: maximise t with ``I / kappa_max <= P`` and the gains at most ``gain_max``;
-      feasible at mu iff ``t* > 0``.
-    - ``conditioning``: with ``t >= t_req``, maximise s with ``P >= s I`` (minimises the condition
-      number ``1 / s``).
-    - ``gains``: with ``t >= t_req`` and ``P >= s_req I``, minimise ``sum q + r``.
-    """
-
-    def __init__(
-        self, J: FloatArray, G: FloatArray, channels: Sequence[int], structure: str, kappa_max: float, gain_max: float
-    ) -> None:
-        n = J.shape[1]
-        self.mu = cp.Parameter(nonneg=True, value=0.5)
-        self.t_req = cp.Parameter(nonneg=True, value=0.0)
-        self.s_req = cp.Parameter(nonneg=True, value=1.0 / kappa_max)
-        if structure == "full":
-            self.P = cp.Variable((n, n), symmetric=True)
-            P = self.P
-        else:
-            self.P = cp.Variable(nonneg=True)
-            P = self.P * np.eye(n)
-        self.q = cp.Variable(len(channels), nonneg=True)
-        self.r = cp.Variable(nonneg=True)
-        self.t = cp.Variable()
-        self.s = cp.Variable()
-        weights = [self.q[i] * np.ones(size) for i, size in enumerate(channels) if size]
-        D = cp.diag(cp.hstack(weights)) if weights else None
-        common = [P << np.eye(n), P >> np.eye(n) / kappa_max, self.q <= gain_max, self.r <= gain_max]
-        nd = J.shape[2] - n
-        zero = np.zeros((n, nd))
-        for Ji, Gi in zip(J, G, strict=True):
-            top = self.mu * P if D is None else cp.bmat([[self.mu * P, zero], [zero.T, D]])
-            M = top + self.r * (Gi.T @ Gi) - Ji.T @ P @ Ji
-            common.append(lmi.symmetric(M) >> self.t * np.eye(n + nd))
-        self.margin_problem = cp.Problem(cp.Maximize(self.t), common)
-        designed = [*common, self.t >= self.t_req, P >> self.s * np.eye(n)]
-        self.conditioning_problem = cp.Problem(
-            cp.Maximize(self.s - GAIN_REGULARISATION * (cp.sum(self.q) + self.r)), designed
-        )
-        self.gains_problem = cp.Problem(cp.Minimize(cp.sum(self.q) + self.r), [*designed, self.s >= self.s_req])
-        self.n = n
-
-    def values(self) -> tuple[FloatArray, FloatArray, float]:
-        """(P, q, r) of the last solution rescaled to ``lambda_min(P) = 1``, P as an (n, n) matrix."""
-        P = self.P.value if self.P.ndim == 2 else float(self.P.value) * np.eye(self.n)
-        P = np.asarray(P, dtype=float)
-        P = 0.5 * (P + P.T)
-        low = float(np.linalg.eigvalsh(P)[0])
-        q = np.asarray(self.q.value, dtype=float).reshape(-1)
-        return P / low, np.maximum(q, 0.0) / low, max(float(self.r.value), 0.0) / low
-
-
-class _Solver:
-    """Bisection and design on all vertices through an active set grown by cutting planes."""
-
-    def __init__(
-        self, J: FloatArray, G: FloatArray, channels: Sequence[int], structure: str, kappa_max: float, gain_max: float
-    ) -> None:
-        self.J, self.G, self.channels = J, G, list(channels)
-        self.options = (structure, kappa_max, gain_max)
-        self.active = lmi.ActiveSet(np.concatenate([J, G], axis=1))
-        self._problem: _Problem | None = None
-        self._size = -1
-
-    def problem(self) -> _Problem:
-        index = self.active.index
-        if self._problem is None or self._size != len(index):
-            self._problem = _Problem(self.J[index], self.G[index], self.channels, *self.options)
-            self._size = len(index)
-        return self._problem
-
-    def all_margins(self, P: FloatArray, q: FloatArray, r: float, mu: float) -> FloatArray:
-        return margins(self.J, self.G, P, q, r, self.channels, mu)
-
-    def probe(self, mu: float) -> str:
-        """FEASIBLE when the margin problem has ``t* > 0`` and every vertex passes the re-check."""
-
-        def solve() -> tuple[str, object, float]:
-            problem = self.problem()
-            problem.mu.value = mu
-            status = lmi.solve(problem.margin_problem)
-            if status not in lmi.SOLVED or problem.t.value is None:
-                return status, None, float("nan")
-            return status, problem.values(), float(problem.t.value)
-
-        def recheck(values: object) -> FloatArray:
-            return self.all_margins(*values, mu)  # type: ignore[misc]
-
-        return lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)[0]
-
-    def design(self, mu: float, kappa_slack: float) -> tuple[FloatArray, FloatArray, float] | None:
-        """Condition number of P first, then the gains; the margin solution when a design solve fails.
-
-        Call after a FEASIBLE :meth:`probe` at ``mu`` (its solution is loaded).
-        """
-        problem = self.problem()
-        fallback = problem.values()
-        problem.t_req.value = 0.1 * float(problem.t.value)
-        status = lmi.solve(problem.conditioning_problem)
-        if status in lmi.SOLVED:
-            problem.s_req.value = float(problem.s.value) / kappa_slack
-            status = lmi.solve(problem.gains_problem)
-        if status in lmi.SOLVED and self.all_margins(*problem.values(), mu).min() >= 0.0:
-            return problem.values()
-        return fallback
-
-
 def check_options(options: dict[str, Any], caller: str) -> None:
     """OptionError naming any keyword :func:`solve` does not take (``structure`` and ``mu`` are the caller's)."""
     import inspect
@@ -345,9 +229,7 @@ def solve(
     parameters: ca.Function | None = None,
     cover: str = "exact",
     samples: int = 4000,
-    kappa_max: float = 1e6,
-    gain_max: float = 1e4,
-    kappa_slack: float = 1.1,
+    max_condition: float = DEFAULT_MAX_CONDITION,
     tol: float = 1e-4,
     seed: int = 0,
 ) -> DissipationSolution:
@@ -355,12 +237,13 @@ def solve(
 
     ``parameters`` is a function of ``(z, u, d)`` that J is affine in (a parameter box); else the
     exact cover by J's entries (:func:`uiest.detectability.cover.cover`); ``cover="sampled"``
-    covers J at samples only (never certified). A solved inequality is searched for violating pairs
-    (:func:`falsify_solution`).
+    covers J at samples only (never certified). ``max_condition`` bounds cond(P) in the rate problem
+    and in the design. A solved inequality is searched for violating pairs (:func:`falsify_solution`).
     """
     if structure not in STRUCTURES:
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
     mu = check_rate(mu, "mu")
+    kappa = check_condition(max_condition)
     J_fun, G_fun = model.jacobians()
     point = ca.SX.sym("p", J_fun.numel_in(0))
     output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
@@ -372,42 +255,58 @@ def solve(
         G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
     else:
         G = covered.vertices[:, n:, :]
-    channels = [size for _, size in model.channels]
-    solver = _Solver(J, G, channels, structure, kappa_max, gain_max)
+    channels = tuple(size for _, size in model.channels)
+    vertices = Vertices.build(J, G, channels, n)
+    stage = RateStage(vertices, structure, kappa)
     nan = float("nan")
 
     def fail(outcome: str, reason: str, mu_min: float = nan) -> DissipationSolution:
         return DissipationSolution(outcome, reason, nan, mu_min, np.full((n, n), nan), np.full(len(channels), nan),
-                                   nan, nan, covered, output_constant)  # fmt: skip
+                                   nan, nan, covered, output_constant, kappa, "")  # fmt: skip
 
-    bisection = lmi.bisect_rate(solver.probe, tol=tol)
-    note = f" ({bisection.note})" if bisection.note else ""
+    bisection = lmi.bisect_rate(stage.probe, tol=tol)
+    notes = [bisection.note] if bisection.note else []
+    if stage.inexact:
+        notes.append(
+            f"rate(s) {', '.join(f'{r:.6g}' for r in stage.inexact)} judged infeasible from solves to reduced accuracy"
+        )
+    note = f" ({'; '.join(notes)})" if notes else ""
     if bisection.rate is None:
         if bisection.outcome == lmi.INFEASIBLE:
             return fail(lmi.INFEASIBLE, f"infeasible for every rate < 1: no quadratic storage with cond(P) <= "
-                        f"{kappa_max:g} and gains <= {gain_max:g} certifies the inequality{note}")  # fmt: skip
+                        f"{kappa:g} contracts the states the current output does not see{note}")  # fmt: skip
         return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
     mu_min = bisection.rate
     mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
-    outcome = solver.probe(mu_used)
+    outcome = stage.settle(mu_used)
     if outcome == lmi.INFEASIBLE and mu_used < mu_min:
-        return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}",
-                    mu_min)  # fmt: skip
-    values = solver.design(mu_used, kappa_slack) if outcome == lmi.FEASIBLE else None
-    if values is None:
-        return fail(lmi.FAILED, f"the solver failed at mu={mu_used:.6g} ('{outcome}'; mu_min={mu_min:.6g} was "
-                    f"feasible){note}", mu_min)  # fmt: skip
-    P, q, r = values
-    margin = float(solver.all_margins(P, q, r, mu_used).min())
-    ok = margin > 0.0
+        return fail("below mu_min", f"mu={mu_used:.6g} is below the smallest certifiable rate mu_min={mu_min:.6g}"
+                    f" with cond(P) <= {kappa:g}", mu_min)  # fmt: skip
+    if outcome != lmi.FEASIBLE:  # above a feasible rate, 'infeasible' contradicts monotonicity: a failure
+        return fail(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} ('{outcome}'; "
+                    f"mu_min={mu_min:.6g} was feasible){note}", mu_min)  # fmt: skip
+    found = stage.storage(mu_used)
+    if found is None:
+        return fail(lmi.FAILED, f"no storage with cond(P) <= {kappa:g} found at mu={mu_used:.6g} to the solver's "
+                    f"accuracy (mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip
+    finished = design_and_check(vertices, *found, mu_used, kappa, structure)
+    if finished is None:
+        return fail(lmi.FAILED, f"no finite weights for the rate problem's storage at mu={mu_used:.6g} "
+                    f"(mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip
+    check = finished.check
+    ok = check.passed
+    condition = float(np.linalg.cond(finished.P))
+    source = "" if finished.note == "design" else f"; P from {finished.note}"
     reason = (
-        f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g}), condition of P {np.linalg.cond(P):.3g}, "
-        f"re-check margin {margin:.2e}{note}"
+        f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g} with cond(P) <= {kappa:g}), cond(P) {condition:.3g}, "
+        f"re-check margins: kernel {check.kernel.min():.2e}, output {check.schur.min():.2e}{note}{source}"
         if ok
-        else f"re-check failed: worst eigenvalue margin {margin:.2e} at mu={mu_used:.6g}{note}"
+        else f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
+        f"{check.schur.min():.2e}, direct {check.direct.min():.2e} (rounding {ROUNDING:.0e}){note}{source}"
     )
     solution = DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min),
-                                   P, q, r, margin, covered, output_constant)  # fmt: skip
+                                   finished.P, finished.q, float(finished.r), check.margin, covered,
+                                   output_constant, kappa, finished.note)  # fmt: skip
     return falsify_solution(model, solution, seed)
 
 

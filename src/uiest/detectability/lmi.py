@@ -250,22 +250,22 @@ def cutting_plane_probe(
 
 
 class ActiveSet:
-    """The vertices imposed in an LMI: a spread-out subset of at most ``MAX_ACTIVE``, grown by cutting planes.
+    """The vertices imposed in an LMI: a spread-out subset of at most ``size``, grown by cutting planes.
 
     After each solve the re-check runs on every vertex; :meth:`add_worst` adds the most violated
     ones that are not imposed yet (never a duplicate), and the LMI is solved again.
     """
 
-    def __init__(self, vertices: FloatArray) -> None:
+    def __init__(self, vertices: FloatArray, size: int = MAX_ACTIVE) -> None:
         self.all = vertices
         m = len(vertices)
-        if m <= MAX_ACTIVE:
+        if m <= size:
             self.index = list(range(m))
         else:  # farthest-point selection: a spread-out subset
             flat = vertices.reshape(m, -1)
             chosen = [int(np.argmax(np.linalg.norm(flat - flat.mean(axis=0), axis=1)))]
             dist = np.linalg.norm(flat - flat[chosen[0]], axis=1)
-            while len(chosen) < MAX_ACTIVE:
+            while len(chosen) < size:
                 nxt = int(np.argmax(dist))
                 chosen.append(nxt)
                 dist = np.minimum(dist, np.linalg.norm(flat - flat[nxt], axis=1))

@@ -17,7 +17,9 @@ all in scaled norms ``|S^-1 .|``. The horizon condition eq:N_cond is ``N > -log_
 
 from __future__ import annotations
 
+import functools
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -26,7 +28,7 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import dissipation
-from uiest.detectability.certificate import MuCertificate, Verification
+from uiest.detectability.certificate import DEFAULT_MAX_CONDITION, MuCertificate, Verification
 from uiest.errors import ModelError
 
 
@@ -45,14 +47,34 @@ class ReducedIOSS(MuCertificate):
         the two-stage MHE cost eq:cost_MHE.
     q, r : ndarray, float
         The scaled weights of the dissipation inequality (channels gamma and v, and the output).
+    recertify : callable, optional
+        ``recertify(max_condition=...)`` makes this certificate again with another bound on cond(P)
+        (:meth:`tradeoff`); None when not made by :func:`certify_reduced_ioss`.
 
     """
 
     model: dissipation.IncrementalModel = field(repr=False)
     q: FloatArray
     r: float
+    recertify: Callable[..., ReducedIOSS] | None = field(default=None, repr=False, compare=False)
 
     kind = "reduced_eioss"
+
+    @property
+    def noise_gain(self) -> FloatArray:
+        """theo:stab's per-step noise gain per component of z, in z's units: ``2 sqrt(c_v) d z_scale``.
+
+        d is V's scaled diameter: eq:rges_proof_4 bounds the error of z by ``sum_i lambda^i 2 sqrt(c_v) |v - v_bar|``
+        (scaled norms). NaN when not certified.
+        """
+        if not self.certified:
+            return np.full(len(self.scale), np.nan)
+        return 2.0 * np.sqrt(self.c_v) * self.model.diameter("v") * self.scale
+
+    @property
+    def output_gain(self) -> float:
+        """``r / lambda_min(P)`` (scaled): the weight on outputs against the storage's."""
+        return self.r / self.alpha_1_scaled
 
     @property
     def c_x(self) -> float:
@@ -155,6 +177,7 @@ def certify_reduced_ioss(
     gamma_scale: Any = None,
     v_scale: Any = None,
     mu: float | None = None,
+    max_condition: float = DEFAULT_MAX_CONDITION,
     **options: Any,
 ) -> ReducedIOSS:
     """Certify exponential i-IOSS (ass:e-ioss) of a reduced-order model by LMIs.
@@ -172,9 +195,11 @@ def certify_reduced_ioss(
         Nominal magnitudes (default: the box widths). The output shares gamma's scale.
     mu : float, optional
         Discount to certify; None minimises it (``mu = min(2 mu_min, (1 + mu_min) / 2)``).
+    max_condition : float
+        Largest cond(P) in scaled coordinates (:data:`~uiest.detectability.certificate.DEFAULT_MAX_CONDITION`);
+        a larger bound can buy a faster rate for larger weights (:meth:`ReducedIOSS.tradeoff`).
     **options
-        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, kappa_max,
-        gain_max, tol, seed).
+        Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, tol, seed).
 
     """
     start = time.perf_counter()
@@ -207,6 +232,9 @@ def certify_reduced_ioss(
         y_scale=g_scale,
         channels=(("gamma", p), ("v", nv)),
     )
-    solution = dissipation.solve(model, mu=mu, **options)
+    solution = dissipation.solve(model, mu=mu, max_condition=max_condition, **options)
+    recertify = functools.partial(certify_reduced_ioss, f_sharp, h_sharp, z_bounds=z_box, gamma_bounds=g_box,
+                                  v_bounds=v_box, u_bounds=u_box if nu else None, z_scale=model.z_scale,
+                                  gamma_scale=g_scale, v_scale=model.d_scale[p:], **options)  # fmt: skip
     return ReducedIOSS(**solution.certificate_fields(model.z_scale, time.perf_counter() - start), model=model,
-                       q=solution.q, r=solution.r)  # fmt: skip
+                       q=solution.q, r=solution.r, recertify=recertify)  # fmt: skip

@@ -19,6 +19,7 @@ eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 
 from __future__ import annotations
 
 import dataclasses
+import functools
 import numbers
 import time
 from collections.abc import Callable
@@ -34,12 +35,15 @@ from uiest.checks import check_samples, check_seed, shown
 from uiest.detectability import cover as covers
 from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
+    DEFAULT_MAX_CONDITION,
     UNDECIDED,
     StrongDetectabilityBase,
     Verification,
+    check_condition,
     check_rate,
     quad,
     sample_pairs,
+    state_labels,
     verdict,
 )
 from uiest.detectability.cover import Cover
@@ -76,6 +80,9 @@ class StrongDetectability(StrongDetectabilityBase):
     output_weight : float
         How many times the certified output weights ``sigma_y``, ``sigma_v`` are (1 as solved; see
         :meth:`with_output_weight`).
+    recertify : callable, optional
+        ``recertify(max_condition=...)`` makes this certificate again with another bound on cond(P)
+        (:meth:`tradeoff`); None when not made by :func:`certify_strong_detectability`.
 
     """
 
@@ -93,8 +100,17 @@ class StrongDetectability(StrongDetectabilityBase):
     n_vertices: int
     design: str
     output_weight: float = 1.0
+    recertify: Callable[..., StrongDetectability] | None = field(default=None, repr=False, compare=False)
 
     kind = "strong_detectability"
+
+    @property
+    def output_gain(self) -> float:
+        """``sigma_y / lambda_min(P)`` (scaled): the weight on outputs against the prior's."""
+        return self.sigma_y / self.alpha_1_scaled
+
+    def _state_labels(self) -> tuple[str, ...]:
+        return state_labels(self.system.x.names, self.system.x.units)
 
     def with_output_weight(self, factor: float) -> StrongDetectability:
         """The weaker certificate with ``sigma_y``, ``sigma_v`` (and ``R_y``, ``R_v``) times ``factor >= 1``.
@@ -159,7 +175,7 @@ def certify_strong_detectability(
     samples: int = 4000,
     tol: float = 1e-4,
     seed: int = 0,
-    max_condition: float | None = None,
+    max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> StrongDetectability:
     """Certify strong nonlinear detectability of ``system`` (theo:Lyapunov) by LMIs.
 
@@ -187,10 +203,11 @@ def certify_strong_detectability(
         Bisection tolerance on mu.
     seed : int
         Seed of the samples.
-    max_condition : float, optional
-        Largest cond(P) of the design (> 1; None: no bound, the output gains alone are minimised).
-        The estimator's horizon grows with it: ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``,
-        so a bound trades larger noise gains for a shorter certified window.
+    max_condition : float
+        Largest cond(P) (scaled coordinates, > 1) of the rate problem and the design
+        (:data:`~uiest.detectability.certificate.DEFAULT_MAX_CONDITION`). A larger bound can buy a
+        faster rate at the price of larger weights; :meth:`StrongDetectability.tradeoff` tabulates it.
+        The estimator's horizon grows with cond(P): ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``.
 
     Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
     of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
@@ -215,25 +232,26 @@ def certify_strong_detectability(
     samples, seed = check_samples(samples, "samples", low=10), check_seed(seed)
     if not (isinstance(tol, float | int) and 0.0 < tol < 0.1):
         raise OptionError(f"tol: expected a number in (0, 0.1), got {tol!r}")
-    if max_condition is not None and not (
-        isinstance(max_condition, float | int) and not isinstance(max_condition, bool) and 1.0 < max_condition < np.inf
-    ):
-        raise OptionError(f"max_condition: expected a finite number > 1 or None, got {max_condition!r}")
+    kappa = check_condition(max_condition)
     if cover not in covers.METHODS:
         raise OptionError(f"cover: expected one of {covers.METHODS}, got {cover!r}")
     structure = input_structure(system, seed=seed)
-    theta = None if parameters is None else _parameter_function(parameters, system)
+    traced = None if parameters is None else as_function(parameters, "parameters", [("x", system.nx), ("u", system.nu)])
+    theta = None if traced is None else _parameter_function(traced, system)
+    recertify = functools.partial(certify_strong_detectability, system, parameters=traced, cover=cover,
+                                  samples=samples, tol=tol, seed=seed)  # fmt: skip
     covered = covers.cover(structure.state_jacobian, structure.box, parameters=theta, method=cover, samples=samples,
                            seed=seed, names=structure.names)  # fmt: skip
-    solution = StrongLMI(covered.vertices, structure.B, structure.C).solve(mu, tol=tol, max_condition=max_condition)
-    if solution.outcome == lmi.INFEASIBLE and covered.kind != covers.CONSTANT and max_condition is None:
-        solution = _decided_at_samples(solution, covered, structure, mu, tol)
+    solution = StrongLMI(covered.vertices, structure.B, structure.C, kappa).solve(mu, tol=tol)
+    if solution.outcome == lmi.INFEASIBLE and covered.kind != covers.CONSTANT:
+        solution = _decided_at_samples(solution, covered, structure, mu, tol, kappa)
     found = _falsify(system, structure, covered, solution, seed) if solution.outcome == lmi.FEASIBLE else None
-    return _certificate(system, structure, covered, solution, found, time.perf_counter() - start)
+    certificate = _certificate(system, structure, covered, solution, found, time.perf_counter() - start)
+    return dataclasses.replace(certificate, recertify=recertify)
 
 
 def _decided_at_samples(
-    solution: StrongSolution, covered: Cover, structure: InputStructure, mu: float | None, tol: float
+    solution: StrongSolution, covered: Cover, structure: InputStructure, mu: float | None, tol: float, kappa: float
 ) -> StrongSolution:
     """Infeasible at the cover's vertices: infeasible on X if also at the sampled Jacobians, else undecided.
 
@@ -242,7 +260,7 @@ def _decided_at_samples(
     that none works at the Jacobians of actual points of X does (the LMI must hold at each of them).
     """
     samples = covered.samples
-    at_samples = StrongLMI(samples, structure.B, structure.C).solve(None, tol=tol)
+    at_samples = StrongLMI(samples, structure.B, structure.C, kappa).solve(None, tol=tol)
     where = f"{len(samples)} sampled points of X"
     if at_samples.outcome == lmi.INFEASIBLE:
         return dataclasses.replace(solution, reason=f"{solution.reason}, at the Jacobians of {where} themselves")

@@ -16,7 +16,8 @@ every vertex ``A_i`` (Schur complement; affine in ``A_i``),
 No gain on the current output appears: s1 absorbs it (Finsler's lemma). It is solved in stages:
 
 1. **Rate** (bisection on mu): the LMI restricted to ``dx`` in ker C (``dx = N z``), where s1
-   drops out, in the margin form ``max t`` with ``I / kappa <= P <= I``: feasible iff ``t > 0``.
+   drops out, in the margin form ``max t`` with ``I / kappa <= P <= I`` (``kappa = max_condition``): feasible
+   iff ``t > 0``.
 2. **Design** at the chosen mu: the full LMI in the coordinates ``dx = N z + eps R m`` (R an
    orthonormal basis of ``range(C^T)``; this keeps ``s1 eps^2`` of order one), ``P >= I``,
    minimising ``max(s1 eps^2, s2) + 1e-3 tr(P) / n``, i.e. the output gain sigma_y of the paper
@@ -40,14 +41,12 @@ import scipy.linalg
 
 from uiest.box import FloatArray
 from uiest.detectability import lmi
+from uiest.detectability.certificate import DEFAULT_MAX_CONDITION
 
 if TYPE_CHECKING:
     import cvxpy as cp
 else:
     from uiest.detectability.lmi import cp  # cvxpy, imported when first used
-
-KAPPA_MAX = 1e6
-"""Largest condition number of P in the rate problem (a bounded normalisation)."""
 
 MARGIN_FLOOR = 1e-8
 """A rate is feasible when the restricted LMI keeps this margin (P normalised to ||P|| <= 1)."""
@@ -56,10 +55,15 @@ DESIGN_MARGIN = 1e-2
 """The design keeps this fraction of the rate problem's margin at every vertex."""
 
 RETRY_MARGIN = 1e-2
-"""After a solver error in the design, it is solved once more with this fraction of its margin."""
+"""After a solver error in the design, it is solved once more with this fraction of its margin; if that errs too,
+once more from the two farthest-apart vertices, grown by cutting planes (nearly equal vertices, as an RK4 model's
+exact cover over a small step gives, make the solver err on the whole set: a sampled pendulum's 16 vertices)."""
 
 TRACE_WEIGHT = 1e-3
 """Weight of tr(P) / n beside the output gain in the design objective."""
+
+CONDITION_RTOL = 1e-6
+"""A design's cond(P) may exceed max_condition by this fraction (the solver's tolerance); more is a failed solve."""
 
 S1_SAFETY = 1e-3
 """The closed-form s1 is multiplied by 1 + S1_SAFETY, so the measured block keeps a margin."""
@@ -175,9 +179,12 @@ class Geometry:
 
 
 class RateProblem:
-    """Stage 1 on a set of vertices: ``max t`` with the restricted LMIs ``>= t I``; mu a Parameter."""
+    """Stage 1 on a set of vertices: ``max t`` with the restricted LMIs ``>= t I``, ``cond(P) <= kappa``.
 
-    def __init__(self, geometry: Geometry, vertices: FloatArray) -> None:
+    mu is a Parameter: bisection re-solves without recompiling.
+    """
+
+    def __init__(self, geometry: Geometry, vertices: FloatArray, kappa: float) -> None:
         g = geometry
         n, p, k = g.n, g.p, g.k
         self.geometry, self.vertices = g, vertices
@@ -188,7 +195,7 @@ class RateProblem:
         self.t = cp.Variable()
         Y2 = g.Y2(self.P, self.Z)
         s2_cap = 1e6 * max(1.0, float(np.linalg.norm(g.K, 2)) ** 2 if g.K.size else 1.0)
-        constraints = [self.P << np.eye(n), self.P >> np.eye(n) / KAPPA_MAX, self.s2 <= s2_cap]
+        constraints = [self.P << np.eye(n), self.P >> np.eye(n) / kappa, self.s2 <= s2_cap]
         for A in vertices:
             PGN = (self.P @ A - Y2 @ (g.C @ A) / g.eps) @ g.N
             block = cp.bmat([[self.mu * (g.N.T @ self.P @ g.N), np.zeros((k, p)), PGN.T],
@@ -217,10 +224,16 @@ def restricted_margins(
 
 
 class StrongLMI:
-    """Rate bisection, design and closed-form s1 for fixed vertices, B and C (all scaled)."""
+    """Rate bisection, design and closed-form s1 for fixed vertices, B and C (all scaled).
 
-    def __init__(self, vertices: FloatArray, B: FloatArray, C: FloatArray) -> None:
+    cond(P) is bounded by ``max_condition`` in the rate problem and the design.
+    """
+
+    def __init__(
+        self, vertices: FloatArray, B: FloatArray, C: FloatArray, max_condition: float = DEFAULT_MAX_CONDITION
+    ) -> None:
         self.geometry = Geometry(vertices, B, C)
+        self.kappa = float(max_condition)
         self.vertices = vertices
         self.active = lmi.ActiveSet(vertices)
         self._rate_problem: RateProblem | None = None
@@ -228,7 +241,7 @@ class StrongLMI:
 
     def _rate(self) -> RateProblem:
         if self._rate_problem is None or self._rate_size != len(self.active.index):
-            self._rate_problem = RateProblem(self.geometry, self.active.vertices)
+            self._rate_problem = RateProblem(self.geometry, self.active.vertices, self.kappa)
             self._rate_size = len(self.active.index)
         return self._rate_problem
 
@@ -251,14 +264,12 @@ class StrongLMI:
         outcome, solution = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)
         return outcome, solution, found["t"]  # type: ignore[return-value]
 
-    def solve(
-        self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None, max_condition: float | None = None
-    ) -> StrongSolution:
+    def solve(self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None) -> StrongSolution:
         """Bisect for mu_min, design at mu, then the closed-form s1 and the re-check.
 
         mu_min is not bisected when given or when every state is measured; mu defaults to
-        ``mu_min + 0.02 (1 - mu_min)``. ``max_condition`` bounds cond(P) in the design (None: no bound;
-        the design's fallback, the rate problem's P, has cond(P) <= 1e6).
+        ``mu_min + 0.02 (1 - mu_min)``. cond(P) is bounded by ``max_condition`` in the rate problem and the
+        design.
         """
         g = self.geometry
         if g.k == 0:  # every state is measured: any rate works
@@ -268,8 +279,8 @@ class StrongLMI:
         else:
             bisection = lmi.bisect_rate(self.probe, tol=tol)
         if bisection.rate is None:
-            what = ("infeasible for every mu < 1: no quadratic storage with cond(P) <= 1e6 and an output weight "
-                    "within 1e6 of the matched injection's certifies strong detectability"
+            what = (f"infeasible for every mu < 1: no quadratic storage with cond(P) <= {self.kappa:g} and an output "
+                    "weight within 1e6 of the matched injection's certifies strong detectability"
                     if bisection.outcome == lmi.INFEASIBLE else
                     "the LMI solver failed at every rate tried; nothing was decided")  # fmt: skip
             return self._unsolved(bisection.outcome, what, float("nan"), bisection)
@@ -282,19 +293,15 @@ class StrongLMI:
         if outcome != lmi.FEASIBLE:  # above a feasible rate, 'infeasible' contradicts monotonicity: a failure
             return self._unsolved(lmi.FAILED, f"the solver failed in the rate problem at mu={mu_used:.6g} "
                                   f"('{outcome}'; mu_min={mu_min:.6g} was feasible)", mu_min, bisection)  # fmt: skip
-        status, design = self._design(mu_used, DESIGN_MARGIN * t, max_condition)
+        status, design = self._design(mu_used, DESIGN_MARGIN * t)
         if design is None and status not in ("infeasible", "infeasible_inaccurate"):  # a solver error: smaller margin
-            status, design = self._design(mu_used, RETRY_MARGIN * DESIGN_MARGIN * t, max_condition)
+            status, design = self._design(mu_used, RETRY_MARGIN * DESIGN_MARGIN * t)
+        if design is None and status not in ("infeasible", "infeasible_inaccurate") and len(self.active.index) > 2:
+            self.active = lmi.ActiveSet(self.vertices, size=2)  # nearly equal vertices: grown by cutting planes
+            status, design = self._design(mu_used, DESIGN_MARGIN * t)
         note = "design"
         if design is None:
-            fallback_ok = rate_solution is not None and (
-                max_condition is None or np.linalg.cond(rate_solution[0]) <= max_condition
-            )
-            if not fallback_ok and max_condition is not None:  # a fixed-margin design, not the margin problem
-                return self._unsolved(lmi.FAILED, f"no design with cond(P) <= {max_condition:.6g} found at "
-                                      f"mu={mu_used:.6g} (mu_min={mu_min:.6g}; the design solve: '{status}')",
-                                      mu_min, bisection)  # fmt: skip
-            if not fallback_ok or rate_solution is None:
+            if rate_solution is None:
                 return self._unsolved(lmi.FAILED, f"the design solve failed at mu={mu_used:.6g} ({status})",
                                       mu_min, bisection)  # fmt: skip
             P, Y2, s2 = rate_solution
@@ -302,13 +309,11 @@ class StrongLMI:
             design, note = (P / low, Y2 / low, s2 / low), "rate problem (the design solve failed)"
         return self._finish(mu_used, mu_min, *design, note, bisection)
 
-    def _design(
-        self, mu: float, margin: float, max_condition: float | None
-    ) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
+    def _design(self, mu: float, margin: float) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
         """Stage 2 on the active vertices, grown until every vertex has ``N^T Q N > 0``: (solver status, solution)."""
         g = self.geometry
         for _ in range(len(self.vertices)):
-            status, solution = self._design_once(self.active.vertices, mu, margin, max_condition)
+            status, solution = self._design_once(self.active.vertices, mu, margin)
             if solution is None or not g.k:
                 return status, solution
             margins = np.array([np.linalg.eigvalsh(b[0])[0] for b in g.kernel_blocks(self.vertices, *solution, mu)])
@@ -319,7 +324,20 @@ class StrongLMI:
         return "no vertex left to add", None
 
     def _design_once(
-        self, vertices: FloatArray, mu: float, margin: float, max_condition: float | None
+        self, vertices: FloatArray, mu: float, margin: float
+    ) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
+        """The design with cond(P) free, then, if that exceeds ``max_condition``, with it bounded.
+
+        A bound far above the solution's condition number only hurts the solver, so it is imposed
+        where it binds.
+        """
+        status, solution = self._design_solve(vertices, mu, margin, bounded=False)
+        if solution is not None and np.linalg.cond(solution[0]) > self.kappa:
+            status, solution = self._design_solve(vertices, mu, margin, bounded=True)
+        return status, solution
+
+    def _design_solve(
+        self, vertices: FloatArray, mu: float, margin: float, *, bounded: bool
     ) -> tuple[str, tuple[FloatArray, FloatArray, float] | None]:
         g = self.geometry
         n, p, k = g.n, g.p, g.k
@@ -330,8 +348,9 @@ class StrongLMI:
         Y2 = g.Y2(P, Z)
         rank = g.R.shape[1]
         constraints = [P >> np.eye(n), s1_eps2 <= gain, s2 <= gain]
-        if max_condition is not None:
-            constraints.append(P << max_condition * np.eye(n))
+        if bounded:  # lambda_min(P) >= low >= 1, lambda_max(P) <= kappa low: cond(P) <= kappa at any scale
+            low = cp.Variable()
+            constraints += [low >= 1.0, P >> low * np.eye(n), P << (self.kappa * low) * np.eye(n)]
         measured = cp.bmat([[np.zeros((k, k)), np.zeros((k, rank))], [np.zeros((rank, k)), s1_eps2 * g.measured_gram]])
         for A in vertices:
             H = (P @ A - Y2 @ (g.C @ A) / g.eps) @ T
@@ -344,6 +363,8 @@ class StrongLMI:
         if status not in lmi.SOLVED or P.value is None:
             return status, None
         Pv = 0.5 * (P.value + P.value.T)
+        if bounded and np.linalg.cond(Pv) > self.kappa * (1.0 + CONDITION_RTOL):
+            return f"cond(P) {np.linalg.cond(Pv):.6g} above max_condition ({status})", None
         return status, (Pv, g.Y2(Pv, None if Z is None else Z.value), float(s2.value))
 
     def _finish(

@@ -18,7 +18,8 @@ def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "
     horizon = certificate.min_horizon() if certificate.certified else None
     if spec.N == 0:
         row["N"] = horizon
-    noise_gain = getattr(certificate, "noise_gain", None)
+    # per state of x; a reduced certificate's gains are per state of z_sharp, which the report's columns are not
+    noise_gain = None if certificate.kind == "reduced_eioss" else getattr(certificate, "noise_gain", None)
     return {
         **row,
         "status": certificate.status,
