@@ -89,12 +89,7 @@ class RateProblem:
         status = lmi.solve(self.problem)
         if status not in lmi.SOLVED or self.P.value is None or self.t.value is None:
             return status, None, float("nan")
-        if self.structure == "full":
-            P = self.T_inv.T @ (0.5 * (self.P.value + self.P.value.T)) @ self.T_inv
-        else:
-            P = float(self.P.value) * np.eye(self.n)
-        P = 0.5 * (P + P.T)
-        low = float(np.linalg.eigvalsh(P)[0])
+        P, low = self._storage()
         return status, (P / low if low > 0.0 else P), float(self.t.value)
 
     def conditioned(self, mu: float, t_req: float) -> tuple[str, FloatArray | None, float]:
@@ -107,13 +102,18 @@ class RateProblem:
         status = lmi.solve(self.conditioning)
         if status not in lmi.SOLVED or self.P.value is None or self.t.value is None:
             return status, None, float("nan")
+        P, low = self._storage()
+        return (status, P / low, float(self.t.value)) if low > 0.0 else ("singular storage", None, float("nan"))
+
+    def _storage(self) -> tuple[FloatArray, float]:
+        """The solved P in the original coordinates (symmetrised) and its smallest eigenvalue."""
+        assert self.P.value is not None
         if self.structure == "full":
             P = self.T_inv.T @ (0.5 * (self.P.value + self.P.value.T)) @ self.T_inv
         else:
             P = float(self.P.value) * np.eye(self.n)
         P = 0.5 * (P + P.T)
-        low = float(np.linalg.eigvalsh(P)[0])
-        return (status, P / low, float(self.t.value)) if low > 0.0 else ("singular storage", None, float("nan"))
+        return P, float(np.linalg.eigvalsh(P)[0])
 
 
 class RateStage:
