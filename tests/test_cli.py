@@ -195,3 +195,20 @@ def test_estimate_prints_warnings_as_messages_and_the_guarantee_with_its_verdict
     assert "UserWarning" not in result.output and "warnings.warn" not in result.output and ".py:" not in result.output
     column = " ".join(line.split("│")[4].strip() for line in lines if line.startswith("│"))  # the guarantee column
     assert column.startswith("holds but vacuous: bound ") and "> X's width 2 for x[0]" in column
+
+
+def test_certify_prints_a_certificate_that_does_not_hold_beside_the_others(tmp_path):
+    import json
+
+    # an invariant zero at 1.5: strong detectability does not hold, so no estimator guarantee to print for it
+    model = tmp_path / "unstable_zero.py"
+    model.write_text(
+        "from uiest.models import linear\nsystem, *_ = linear.with_invariant_zeros([1.5], seed=1, x_bounds=(-10, 10), "
+        "v_bounds=(-1e-3, 1e-3))\n"
+    )
+    out = tmp_path / "certs.json"
+    result = runner.invoke(app, ["certify", str(model), "--out", str(out), "--verify", "200"], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    strong = json.loads(out.read_text())["certificates"][0]
+    assert not strong["certified"] and strong["guarantee"] is None
+    assert f"strong detectability: {strong['reason']}" in result.output.replace("\n", "")

@@ -288,8 +288,8 @@ def certify(
     console.print(table)
     for record in records:
         console.print(f"{record['certificate']}: {record['reason']}", highlight=False, soft_wrap=True, markup=False)
-        if "guarantee" in record:
-            guarantee = record["guarantee"]
+        guarantee = record.get("guarantee")
+        if guarantee is not None:  # None: the certificate does not hold, so no estimator is built from it
             line = f"  {guarantee['estimator']} with N = min horizon, {guarantee['theorem']}: {guarantee['text']}"
             console.print(line, highlight=False, soft_wrap=True, markup=False)
     out.parent.mkdir(parents=True, exist_ok=True)
