@@ -417,6 +417,13 @@ def test_a_domain_meant_as_unbounded_needs_scales_not_widths(solver):
     assert np.abs(two_stage.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
 
 
+def test_the_scale_warning_names_the_users_line():
+    wide = linear.linear_system(np.array([[0.5]]), [[1.0]], [[1.0]], x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3))
+    with pytest.warns(UserWarning, match="x_scale: the largest state scale") as caught:
+        UISE(wide, weights=UISEWeights.from_scales(wide, 0.5), N=3, x0_prior=np.zeros(1))
+    assert [w.filename for w in caught] == [__file__]  # not uiest's estimators/base.py
+
+
 def test_fixed_lag_estimates_are_the_windows_older_nodes():
     from uiest.estimators import TwoStageUISE, TwoStageWeights
     from uiest.reduction import reduce_quasi_state_affine

@@ -256,7 +256,7 @@ class WindowEstimator(StreamingEstimator):
                     f"is {ratio:.3g} times the prior's magnitude; a window solve resolves about 1e-8 of a scale. Give "
                     "scales for the accuracy you need (System.with_scales, or x_scale= when building the system)",
                     UserWarning,
-                    stacklevel=2,
+                    stacklevel=user_stacklevel(),
                 )
 
     # ------------------------------------------------------------------ options
