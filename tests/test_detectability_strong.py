@@ -407,3 +407,19 @@ def test_nearly_equal_vertices_still_get_a_design():
     assert cert.certified and cert.cover.sound and cert.n_vertices == 16, cert.reason
     assert cert.design == "design" and "rate problem" not in cert.reason
     assert cert.verify(20_000).holds
+
+
+def test_a_sampled_cover_of_a_step_in_the_zero_dynamics_is_a_typed_error_or_not_certified():
+    # x2's own gain jumps from 0.6 to 4.6 on a band 1e-4 wide: the sampled values span a degenerate polytope
+    def f(x, u, w):
+        return [0.5 * x[0] + 0.2 * np.sin(x[1]) + w[0], 0.6 * x[1] + 0.2 * x[0] + 4e-4 * np.tanh((x[1] - 0.7) / 1e-4)]
+
+    system = System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1,
+                                   x_bounds=((-5.0, -3.0), (5.0, 3.0)), v_bounds=(-0.01, 0.01))  # fmt: skip
+    assert certify_strong_detectability(system).status == "infeasible"
+    try:
+        sampled = certify_strong_detectability(system, cover="sampled")
+    except ModelError as exc:
+        assert "sampled cover" in str(exc) and "exact cover" in str(exc)
+    else:
+        assert not sampled.certified

@@ -68,7 +68,13 @@ def sampled_vertices(
         vertex_coords = _box_vertices(face_coords, support)
     else:
         halfspaces = np.hstack([face_coords, -support[:, None]])
-        vertex_coords = scipy.spatial.HalfspaceIntersection(halfspaces, np.zeros(r)).intersections
+        try:
+            vertex_coords = scipy.spatial.HalfspaceIntersection(halfspaces, np.zeros(r)).intersections
+        except scipy.spatial.QhullError as exc:  # the samples' mean not strictly inside every face
+            raise ModelError(
+                f"cover: the sampled cover's polytope around the Jacobians at {len(points)} sampled points is "
+                f"degenerate (qhull: {str(exc).splitlines()[0]}); use the exact cover (the default) or parameters="
+            ) from None
     vertices = _unvec(mean + vertex_coords @ basis, rows, cols)
     description = (
         f"{len(vertices)} vertices of a polytope with {len(normals)} faces around the Jacobians at {len(points)} "
