@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from exact_rates import contraction_rate, kernel_rate
 
-from uiest import CertificationError, ModelError, OptionError
+from uiest import CertificationError, ModelError, OptionError, System
 from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, lmi
 from uiest.estimators import MHEWeights, TwoStageWeights
 from uiest.models import closed_form, crop_growth, linear
@@ -267,3 +267,18 @@ def test_dissipation_certificates_report_their_noise_gain_and_tabulate_after_pic
     np.testing.assert_allclose(delta.noise_gain, 2 * np.sqrt(c_v) * diameter * system.x.scale)
     rows = delta.tradeoff(levels=(1e6,)).rows
     assert rows[0].mu_min == pytest.approx(0.64, abs=1e-3) and rows[0].noise_gain.shape == (2,)
+
+
+def test_infeasible_at_the_vertices_only_is_undecided_not_infeasible():
+    # the unmeasured pair rotates by x1 and shrinks by 0.9: P = I contracts it at 0.81, but the box of (cos, sin)
+    # has corners of norm 0.9 sqrt(2) > 1, so no storage works at the cover's vertices; at the Jacobians themselves
+    # one does, so "infeasible" would be false
+    def f(x, u, w):
+        c, s = np.cos(x[0]), np.sin(x[0])
+        return [0.5 * x[0] + w[0], 0.9 * (c * x[1] - s * x[2]), 0.9 * (s * x[1] + c * x[2])]
+
+    system = System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=3, nw=1, nv=1,
+                                   x_bounds=((-3, -1, -1), (3, 1, 1)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    cert = certify_delta_ioss(system, w_bounds=(-1, 1))
+    assert cert.status == "undecided" and not cert.certified, cert.reason
+    assert "feasible at the Jacobians of" in cert.reason and "mu_min 0.81" in cert.reason

@@ -140,9 +140,8 @@ class Certificate:
         One of "certified", "infeasible" (proved by the solver), "solver failed",
         "below the smallest rate" (a given rate below the one found), "re-check failed",
         "holds at the samples, not proved" (a sampled ingredient), "refuted" (a violating pair was
-        found), and for strong detectability "undecided" (infeasible only at a cover's vertices,
-        feasible at the sampled Jacobians themselves; delta-IOSS and reduced certificates report
-        "infeasible" at their vertices without that re-check).
+        found), and "undecided" (infeasible only at a cover's vertices, not at the sampled Jacobians
+        themselves: "infeasible" needs both).
     reason : str
         One sentence with the numbers.
     rate, rate_min : float

@@ -41,6 +41,7 @@ from uiest.detectability import cover as covers
 from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
     DEFAULT_MAX_CONDITION,
+    UNDECIDED,
     check_condition,
     check_rate,
     quad,
@@ -272,10 +273,15 @@ def solve(
         )
     note = f" ({'; '.join(notes)})" if notes else ""
     if bisection.rate is None:
-        if bisection.outcome == lmi.INFEASIBLE:
-            return fail(lmi.INFEASIBLE, f"infeasible for every rate < 1: no quadratic storage with cond(P) <= "
-                        f"{kappa:g} contracts the states the current output does not see{note}")  # fmt: skip
-        return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
+        if bisection.outcome != lmi.INFEASIBLE:
+            return fail(lmi.FAILED, f"the LMI solver failed at every rate tried; nothing was decided{note}")
+        reason = (f"infeasible for every rate < 1: no quadratic storage with cond(P) <= {kappa:g} contracts the states "
+                  f"the current output does not see")  # fmt: skip
+        if covered.kind == covers.CONSTANT:
+            return fail(lmi.INFEASIBLE, f"{reason}{note}")
+        outcome, reason, mu_min = _decided_at_samples(covered, G_fun, model, channels, structure, kappa, mu, tol,
+                                                      output_constant, reason)  # fmt: skip
+        return fail(outcome, f"{reason}{note}", mu_min)
     mu_min = bisection.rate
     mu_used = mu if mu is not None else min(2.0 * mu_min, 0.5 * (1.0 + mu_min))
     outcome = stage.settle(mu_used)
@@ -339,6 +345,53 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
                            np.concatenate([model.z_scale, model.d_scale]), anchors=anchors, labels=labels,
                            seed=seed)  # fmt: skip
     return dataclasses.replace(solution, falsification=found)
+
+
+def _decided_at_samples(
+    covered: Cover,
+    G_fun: ca.Function,
+    model: IncrementalModel,
+    channels: tuple[int, ...],
+    structure: str,
+    kappa: float,
+    mu: float | None,
+    tol: float,
+    output_constant: bool,
+    reason: str,
+) -> tuple[str, str, float]:
+    """Infeasible at the cover's vertices: infeasible if also at the sampled Jacobians themselves, else undecided.
+
+    The vertices' hull holds the Jacobians and more (a box of the entries' bounds), so that no storage works
+    at the vertices proves nothing by itself; that none works at the Jacobians of actual points of the domain
+    does. Returns (outcome, reason, mu_min at the samples or NaN).
+    """
+    n = model.n
+    J = covered.samples[:, :n, :]
+    if output_constant:
+        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
+    else:
+        G = covered.samples[:, n:, :]
+    bisection = lmi.bisect_rate(RateStage(Vertices.build(J, G, channels, n), structure, kappa).probe, tol=tol)
+    where = f"{len(J)} sampled points of the domain"
+    if bisection.outcome == lmi.INFEASIBLE:
+        return lmi.INFEASIBLE, f"{reason}, at the Jacobians of {where} themselves", float("nan")
+    if bisection.rate is not None and mu is not None and mu < bisection.rate:
+        return (
+            "below mu_min",
+            (
+                f"mu={mu:.6g} is below the smallest rate certifiable at the Jacobians of {where} "
+                f"themselves ({bisection.rate:.6g}; at the cover's vertices none is)"
+            ),
+            bisection.rate,
+        )
+    found = (
+        f"feasible at the Jacobians of {where} themselves (mu_min {bisection.rate:.6g} there)"
+        if bisection.rate is not None
+        else f"the solver did not decide at the Jacobians of {where} themselves"
+    )
+    return UNDECIDED, (f"{reason} at the {len(covered.vertices)} vertices of the cover, whose hull holds more than the "
+                       f"Jacobians, but {found}: neither certified nor refuted; a tighter cover may certify "
+                       "(parameters=, a smaller domain)"), float("nan")  # fmt: skip
 
 
 @dataclass(frozen=True)
