@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from uiest import ModelError
+from uiest import ModelError, System
 from uiest.models import crop_growth
 from uiest.reduction import ReducedModel
 
@@ -87,3 +87,19 @@ def test_assumption_report_of_the_crop_reduction():
     # dh_T/dz_flat: y^c -> 1, y^d -> -a_d3/a_c1 (x^{d,2} = z_2 - (a_d3/a_c1) x^c): the best margin is 3.28
     assert report.dominance_outputs == (1,)
     assert report.dominance_margin == pytest.approx(0.8 * 4.1)
+
+
+def test_the_reduced_domain_is_proved_not_read_off_a_grid():
+    # z3 = x3 + 0.3 sin(4 x2) reaches 1.3 at x2 = pi/8, between the points of a 5-point grid of X (1.273 there):
+    # a box from the grid would leave part of T_sharp(X) outside the certificate's domain
+    system = System.from_callables(
+        lambda x, u, w: [0.5 * x[0] + 0.2 * x[1] + w[0], 0.5 * x[1] + 0.1 * x[0], 0.5 * x[2] + 0.1 * x[1]],
+        lambda x, v: [x[0] + v[0]], nx=3, nw=1, nv=1, x_bounds=(-1.0, 1.0), v_bounds=(-0.01, 0.01),
+    )  # fmt: skip
+    reduced = ReducedModel.from_maps(
+        system, lambda x: [x[0], x[1], x[2] + 0.3 * np.sin(4.0 * x[1])],
+        lambda z: [z[0], z[1], z[2] - 0.3 * np.sin(4.0 * z[1])], lambda y, z, v: [y[0] - v[0]], n_flat=1,
+    )  # fmt: skip
+    assert reduced.z_bounds_note == "" and reduced.z_bounds.upper[1] >= 1.3 and reduced.z_bounds.lower[1] <= -1.3
+    cert = reduced.certify()
+    assert cert.certified and cert.sound, cert.reason

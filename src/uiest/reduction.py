@@ -13,6 +13,7 @@ eq:fullest, ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -23,7 +24,8 @@ import numpy as np
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_int, check_samples, check_seed, shown
-from uiest.detectability import lmi
+from uiest.detectability import interval, lmi
+from uiest.detectability.certificate import NOT_PROVED
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
@@ -69,6 +71,28 @@ class AssumptionReport:
         return max(self.inverse_error, self.psi_error, self.w_sensitivity) <= ASSUMPTION_TOL
 
 
+GRID_POINTS = 5
+"""Points per axis of the grid that bounds a map's range where interval arithmetic cannot (not a proof)."""
+
+
+def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box, str]:
+    """A box containing ``fun(box)``: proved by interval arithmetic, else the range over a grid of ``box``.
+
+    Returns (box, note); the note is empty when proved, else says that ``what`` was bounded at a grid.
+    """
+    try:
+        found = interval.bounds(fun, box, seed=seed)
+        if np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
+            return Box(found.lower, found.upper), ""
+        reason = "interval arithmetic left a bound infinite"
+    except interval.IntervalUnsupportedError as exc:
+        reason = str(exc)
+    grid = lmi.grid_points(box, GRID_POINTS)
+    values = np.asarray(fun.map(len(grid))(grid.T), dtype=float).reshape(-1, len(grid)).T
+    note = f"{what} bounded at a grid of {len(grid)} points, not proved ({reason})"
+    return Box(values.min(axis=0), values.max(axis=0)), note
+
+
 @dataclass(frozen=True, eq=False)
 class ReducedModel:
     """A system with its reduction (T, psi) and the reduced-order model eq:sys_red.
@@ -89,6 +113,9 @@ class ReducedModel:
         ``(z_sharp, gamma (ny,), v (nv,)) -> y (ny,)``.
     z_bounds : Box
         Box containing ``T_sharp(X)`` (the projection of T(X) onto z_sharp).
+    z_bounds_note : str
+        Empty when ``z_bounds`` is proved (interval arithmetic, or given); else how it was found (a grid of
+        X: a certificate on it is "holds at the samples, not proved").
 
     """
 
@@ -100,6 +127,7 @@ class ReducedModel:
     f_sharp: ca.Function = field(repr=False)
     h_sharp: ca.Function = field(repr=False)
     z_bounds: Box
+    z_bounds_note: str = ""
 
     @property
     def n_sharp(self) -> int:
@@ -172,15 +200,16 @@ class ReducedModel:
         z_next = ca.substitute(z_next, w, ca.DM(system.nominal_w))
         f_sharp = ca.Function("f_sharp", [z, g, u, v], [z_next], ["z_sharp", "gamma", "u", "v"], ["z_sharp_next"])
         h_sharp = ca.Function("h_sharp", [z, g, v], [system.h(x, v)], ["z_sharp", "gamma", "v"], ["y"])
+        note = ""
         if z_bounds is None and n_sharp == 0:
             box = Box(np.zeros(0), np.zeros(0))
         elif z_bounds is None:
-            grid = lmi.grid_points(system.x.bounds, 5)
-            zs = np.asarray(T_fun.map(len(grid))(grid.T), dtype=float).T[:, n_flat:]
-            box = Box(zs.min(axis=0), zs.max(axis=0))
+            x_sym = ca.SX.sym("x", nx)
+            T_sharp = ca.Function("T_sharp", [x_sym], [T_fun(x_sym)[n_flat:]])
+            box, note = range_box(T_sharp, system.x.bounds, "T_sharp(X)", seed)
         else:
             box = Box.coerce(z_bounds, n_sharp, "z_bounds")
-        return cls(system, int(n_flat), T_fun, T_inv_fun, psi_fun, f_sharp, h_sharp, box)
+        return cls(system, int(n_flat), T_fun, T_inv_fun, psi_fun, f_sharp, h_sharp, box, note)
 
     def check_assumptions(self, n_points: int = 1000, seed: int = 0) -> AssumptionReport:
         """Largest violations of Assumption ass on random points, and the remark's dominance margin d."""
@@ -202,23 +231,22 @@ class ReducedModel:
     def certify(self, **options: Any) -> ReducedIOSS:
         """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain, scaled by :attr:`z_scale`.
 
-        gamma ranges over Y (``h(X, V)``, bounded by a grid of X x V), v over V, u over U. The reduced
+        gamma ranges over Y (``h(X, V)``, bounded by interval arithmetic), v over V, u over U. The reduced
         state is scaled by :attr:`z_scale` (from the state scales; T(X)'s widths only where they are
         smaller), as the two-stage UISE's window is: a wide X with small state scales costs no digits.
         """
         system = self.system
-        grid = lmi.grid_points(
-            Box(np.concatenate([system.x.bounds.lower, system.v.bounds.lower]),
-                np.concatenate([system.x.bounds.upper, system.v.bounds.upper])),
-            3,
-        )  # fmt: skip
-        ys = np.asarray(system.h.map(len(grid))(grid[:, : system.nx].T, grid[:, system.nx :].T), dtype=float).T
+        xv = ca.SX.sym("xv", system.nx + system.nv)
+        h = ca.Function("h_xv", [xv], [system.h(xv[: system.nx], xv[system.nx :])])
+        XV = Box(np.concatenate([system.x.bounds.lower, system.v.bounds.lower]),
+                 np.concatenate([system.x.bounds.upper, system.v.bounds.upper]))  # fmt: skip
+        gamma_box, gamma_note = range_box(h, XV, "h(X, V)", int(options.get("seed", 0)))
         u_box = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
-        return certify_reduced_ioss(
+        cert = certify_reduced_ioss(
             self.f_sharp,
             self.h_sharp,
             z_bounds=self.z_bounds,
-            gamma_bounds=Box(ys.min(axis=0), ys.max(axis=0)),
+            gamma_bounds=gamma_box,
             v_bounds=system.v.bounds,
             u_bounds=u_box if system.nu else None,
             z_scale=self.z_scale,
@@ -226,6 +254,11 @@ class ReducedModel:
             v_scale=system.v.scale,
             **options,
         )
+        unproved = "; ".join(note for note in (self.z_bounds_note, gamma_note) if note)
+        if not (unproved and cert.certified):
+            return cert
+        return dataclasses.replace(cert, certified=False, status=NOT_PROVED, sound=False,
+                                   reason=f"{NOT_PROVED}: {unproved}; {cert.reason}")  # fmt: skip
 
 
 def _assumption_report(
