@@ -1,8 +1,11 @@
-"""The process pool's shutdown when a worker was reaped by someone else (it must not hang)."""
+"""The process pool: its shutdown when a worker was reaped by someone else (it must not hang), its warnings."""
 
 import subprocess
 import sys
 import textwrap
+import warnings
+
+from uiest.experiments import executors
 
 GHOST_WORKER = textwrap.dedent(
     """
@@ -39,3 +42,16 @@ def test_a_broken_pool_whose_worker_was_reaped_elsewhere_stops_and_the_interpret
         done = _run(abandon)
         assert done.returncode == 0, done.stderr
         assert done.stdout.split() == ["broken", "stopped"]
+
+
+def test_a_workers_warnings_are_plain_lines_once_each(capfd):
+    # a spawned worker has no CLI around it: its warnings are one line each, without source lines, once per worker
+    pool = executors.spawn_pool(1)
+    try:
+        for _ in range(3):
+            pool.submit(warnings.warn, "x_scale: a warning every task repeats", UserWarning).result()
+    finally:
+        executors.stop_pool(pool, abandon=False)
+    err = capfd.readouterr().err
+    assert err.count("warning: x_scale: a warning every task repeats") == 1, err
+    assert "UserWarning" not in err and "warnings.warn" not in err

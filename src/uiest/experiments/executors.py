@@ -18,8 +18,10 @@ import contextlib
 import math
 import os
 import signal
+import sys
 import threading
 import time
+import warnings
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
@@ -82,9 +84,33 @@ def _exit_with_parent(parent: int) -> None:
     threading.Thread(target=watch, name="parent-watch", daemon=True).start()
 
 
+def _plain_warnings() -> None:
+    """Worker initializer: warnings as one ``warning: <message>`` line on stderr, each message once per worker.
+
+    A worker's tasks repeat the same warnings (a scale warning per estimator built); the parent's CLI shows its
+    own warnings as such lines, and a worker's would otherwise print Python's source lines, once per task.
+    """
+    shown: set[str] = set()
+
+    def show(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
+             line: str | None = None) -> None:  # fmt: skip
+        text = str(message)
+        if text not in shown:
+            shown.add(text)
+            sys.stderr.write(f"warning: {text}\n")
+
+    warnings.showwarning = show
+
+
+def _worker_init(parent: int) -> None:
+    """Worker initializer: :func:`_exit_with_parent` and :func:`_plain_warnings`."""
+    _exit_with_parent(parent)
+    _plain_warnings()
+
+
 def spawn_pool(width: int) -> ProcessPoolExecutor:
-    """A pool of ``width`` spawned processes that end themselves when this process is gone."""
-    return ProcessPoolExecutor(max_workers=width, mp_context=get_context("spawn"), initializer=_exit_with_parent,
+    """A pool of ``width`` spawned processes that end themselves when this process is gone (warnings as plain lines)."""
+    return ProcessPoolExecutor(max_workers=width, mp_context=get_context("spawn"), initializer=_worker_init,
                                initargs=(os.getpid(),))  # fmt: skip
 
 
