@@ -152,6 +152,7 @@ def test_the_fie_the_standard_mhe_and_the_filters():
     mhe = StandardMHE(system, certificate=delta, N=10, x0_prior=np.zeros(2))
     g = mhe.guarantee
     assert g.applies and np.all(np.isfinite(g.error_bound)) and "[-0.5], upper=[0.5]" in g.assumes
+    assert str(g).startswith("holds while w in [-0.5, 0.5]")  # its condition in the text, not only in assumes
     rng = np.random.default_rng(2)
     for estimator in (fie, mhe):
         bound, settling = estimator.guarantee.error_bound, estimator.guarantee.settling_steps

@@ -67,6 +67,9 @@ class Guarantee:
         (then it holds only in the limit).
     assumes : str
         What the bound assumes besides the theorem's assumptions.
+    condition : str
+        A hypothesis the bound rests on that the user must know to read it (the standard MHE's: the
+        unknown input in its known range); the text says "holds while <condition>".
     bound_note : str
         Why some states have no finite bound (empty when all have one).
 
@@ -82,6 +85,7 @@ class Guarantee:
     settling_steps: int | None = None
     assumes: str = ""
     bound_note: str = ""
+    condition: str = ""
 
     def __post_init__(self) -> None:
         width = np.array(self.x_width, dtype=float, ndmin=1)
@@ -148,15 +152,16 @@ class Guarantee:
         verdict = self.verdict
         if verdict is Verdict.NONE:
             return f"none: {self.reason}"
+        holds = f"holds while {self.condition}" if self.condition else "holds"
         if verdict is Verdict.NO_BOUND:
-            return f"holds, no finite bound: {self.bound_note}"
+            return f"{holds}, no finite bound: {self.bound_note}"
         informative, vacuous = self.informative_states, self.vacuous_states
         missing = ~self.bounded_states
         after = self._after()
         if verdict is Verdict.INFORMATIVE:
-            return f"holds, bound {self._bounds(informative)} {after} (informative)"
+            return f"{holds}, bound {self._bounds(informative)} {after} (informative)"
         if verdict is Verdict.PARTIAL:
-            text = f"holds, bound {self._bounds(informative)} {after} (informative there)"
+            text = f"{holds}, bound {self._bounds(informative)} {after} (informative there)"
         else:
             assert self.error_bound is not None
             wide = ", ".join(
@@ -164,7 +169,7 @@ class Guarantee:
                 f"for {self.names[i]}"
                 for i in np.flatnonzero(vacuous)
             )
-            text = f"holds but vacuous: bound {wide}"
+            text = f"{holds} but vacuous: bound {wide}"
             if informative.any():
                 text += f"; informative for {self._bounds(informative)} {after}"
         if missing.any():

@@ -173,15 +173,17 @@ class StreamingEstimator:
         x = self.system.x
         return Guarantee.none(theorem, reason, x.bounds.width, x.names, x.units)
 
-    def _holds(self, theorem: str, bound: FloatArray, settling: int | None, assumes: str, note: str = "") -> Guarantee:
-        """The theorem's guarantee with a bound per state (NaN: none for that state, ``note`` says why)."""
+    def _holds(self, theorem: str, bound: FloatArray, settling: int | None, assumes: str, note: str = "",
+               condition: str = "") -> Guarantee:  # fmt: skip
+        """The theorem's guarantee with a bound per state (NaN: none for that state, ``note`` says why).
+
+        ``condition``: a hypothesis the text must name ("holds while ...").
+        """
         x = self.system.x
         if not note and not np.all(np.isfinite(bound)):
             note = "the noise range V is unbounded"
-        if getattr(getattr(self, "certificate", None), "sound", True) is False:
-            assumes += "; the certificate's inequality holds at its cover's vertices, a sampled cover (not a proof)"
         return Guarantee(theorem=theorem, applies=True, x_width=x.bounds.width, names=x.names, units=x.units,
-                         error_bound=bound, settling_steps=settling, bound_note=note,
+                         error_bound=bound, settling_steps=settling, bound_note=note, condition=condition,
                          assumes=f"{assumes}; settling counted from an initial error up to X's width in every "
                          "state")  # fmt: skip
 

@@ -152,7 +152,9 @@ class StandardMHE(WindowEstimator):
             if w_range is None
             else ""
         )
-        return self._holds(self.theorem, bound, settling, assumes, note)
+        within = "" if w_range is None else "w in " + " x ".join(
+            f"[{lo:.4g}, {hi:.4g}]" for lo, hi in zip(w_range.lower, w_range.upper, strict=True))  # fmt: skip
+        return self._holds(self.theorem, bound, settling, assumes, note, condition=within)
 
     def __repr__(self) -> str:
         return (
