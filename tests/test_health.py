@@ -69,8 +69,11 @@ def test_a_too_narrow_x_reports_at_bound_steps_and_warns_and_a_wide_one_does_not
     pattern = (
         rf"{kind}: the estimate of {re.escape(name)} at or beyond X's (lower|upper) side -?1( and upper side 1)? in"
     )
-    with pytest.warns(BoundWarning, match=pattern + r" \d+ of 201 steps"):
+    with pytest.warns(BoundWarning, match=pattern + r" \d+ of 201 steps") as caught:
         narrow = _estimator(kind, make(1.0)).run(u, truth.y)
+    message = str(caught[0].message)
+    assert "physical limit" in message and "the estimate is wrong there" in message
+    assert ("keeps its estimates in X" in message) == (kind == "UISE")  # the filters' estimates may leave X
     beyond = np.abs(truth.x[:, state]) >= 1.0
     counts = narrow.counts()
     assert counts["at_bound"] == counts[f"at_bound_{name}"] == narrow.at_bound_steps[state] > 0.05 * (K + 1)

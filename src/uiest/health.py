@@ -143,13 +143,21 @@ def status_text(
 
 
 def bound_message(
-    estimator: str, at_bound_steps: NDArray[np.bool_], x_hat: FloatArray, box: Box, names: tuple[str, ...]
+    estimator: str,
+    at_bound_steps: NDArray[np.bool_],
+    x_hat: FloatArray,
+    box: Box,
+    names: tuple[str, ...],
+    *,
+    constrained: bool = True,
 ) -> str | None:
     """The warning of a run whose estimates lie at a side of X in more than :data:`BOUND_SHARE` of the steps.
 
     ``at_bound_steps (K+1, nx)`` and ``x_hat (K+1, nx)`` are the run's flags and estimates; the
     message names each such state, the side (lower or upper, with its value) and the share of
-    steps. None when no state reaches the share.
+    steps, then the three readings: X too narrow (``constrained``: the estimator keeps its estimates
+    in X, so a true state beyond a side is estimated at it), a physical limit the state reaches, or
+    an estimate wrong there. None when no state reaches the share.
     """
     steps = at_bound_steps.shape[0]
     if not steps:
@@ -166,10 +174,16 @@ def bound_message(
         sides = [f"{side} side {value:.6g}" for side, value, n in pairs if n]
         described.append(f"{names[i]} at or beyond X's {' and '.join(sides)} in {counts[i]} of {steps} steps "
                          f"({100.0 * counts[i] / steps:.0f} %)")  # fmt: skip
+    narrow = (
+        "X may be too narrow (this estimator keeps its estimates in X, so a true state beyond a side is estimated at "
+        "it: give a wider X)"
+        if constrained
+        else "X may be too narrow for the true state (give a wider X)"
+    )
     return (
-        f"{estimator}: the estimate of {'; '.join(described)}. X may be too narrow: the window estimators keep "
-        "their estimates in X, so a true state beyond a side is estimated at it. Give a wider X unless that side is "
-        "a physical limit the state reaches (then estimates on it are expected)"
+        f"{estimator}: the estimate of {'; '.join(described)}. Three readings: {narrow}; the side is a physical "
+        "limit the state reaches (estimates on it are then expected); or the estimate is wrong there (the data or "
+        "the estimator's weights do not determine the state: see its guarantee)"
     )
 
 

@@ -714,7 +714,8 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         states_at_bound[k] = est.at_bound
         for name, values in health.items():
             values.append(getattr(est, name))
-    message = bound_message(estimator.estimator_name, states_at_bound, x_hat, s.x.bounds, s.x.names)
+    message = bound_message(estimator.estimator_name, states_at_bound, x_hat, s.x.bounds, s.x.names,
+                            constrained=isinstance(estimator, WindowEstimator))  # fmt: skip
     if message is not None:
         warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
     return EstimationResult(
