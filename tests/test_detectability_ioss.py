@@ -203,7 +203,7 @@ def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p()
     # a faster rate costs: the output weight and the noise gain grow with the bound, the rate falls
     mu_min = [row.mu_min for row in table.rows]
     assert mu_min == sorted(mu_min, reverse=True) and mu_min[-1] < 0.4 < 0.998 < mu_min[0]
-    weights = [row.output_weight for row in table.rows]
+    weights = [row.output_gain for row in table.rows]
     assert weights == sorted(weights) and weights[-1] > 1e6 * weights[0]
     gains = [np.max(row.noise_gain) for row in table.rows]
     assert gains == sorted(gains) and gains[-1] > 100 * gains[0]

@@ -389,7 +389,7 @@ def test_the_bound_on_cond_p_sets_the_rate_of_non_normal_zero_dynamics():
     for row in table.rows:
         assert row.status == "certified" and row.condition <= row.max_condition * (1 + 1e-6)
         assert row.mu_min == pytest.approx(contraction_rate(F, row.max_condition), abs=1e-3)
-        assert row.horizon >= 1 and row.noise_gain.shape == (3,) and row.output_weight > 0
+        assert row.horizon >= 1 and row.noise_gain.shape == (3,) and row.output_gain > 0
     assert certify_strong_detectability(system).mu_min == pytest.approx(0.25, abs=1e-3)
     assert certify_strong_detectability(system, max_condition=10.0).verify(5000).holds
     assert "x[0]" in str(table) and len(table.to_pandas()) == 3
@@ -423,3 +423,14 @@ def test_a_sampled_cover_of_a_step_in_the_zero_dynamics_is_a_typed_error_or_not_
         assert "sampled cover" in str(exc) and "exact cover" in str(exc)
     else:
         assert not sampled.certified
+
+
+def test_the_tradeoff_of_a_reweighted_certificate_keeps_its_output_weight():
+    system, *_ = linear.with_invariant_zeros([0.5, 0.2], seed=3, **LINEAR_SPEC)
+    cert = certify_strong_detectability(system)
+    heavier = cert.with_output_weight(10.0)
+    (plain,) = cert.tradeoff(levels=(1e6,)).rows
+    (row,) = heavier.tradeoff(levels=(1e6,)).rows
+    assert row.certified and plain.certified
+    np.testing.assert_allclose(row.noise_gain, np.sqrt(10.0) * plain.noise_gain, rtol=1e-9)
+    np.testing.assert_allclose(row.noise_gain, heavier.noise_gain, rtol=1e-9)

@@ -8,9 +8,9 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from enum import StrEnum
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
@@ -23,22 +23,28 @@ from uiest.errors import CertificationError, OptionError
 if TYPE_CHECKING:
     from uiest.detectability.falsify import Falsification
 
-CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED, NOT_PROVED, REFUTED = (
-    "certified",
-    "infeasible",
-    "solver failed",
-    "below the smallest rate",
-    "re-check failed",
-    "undecided",
-    "holds at the samples, not proved",
-    "refuted",
-)
-"""The statuses a certificate can end in; "infeasible" only when the solver solved the margin problem
-to optimality with a non-positive margin (within the stated bound on cond(P)); "undecided"
-(strong detectability) when that happened at a cover's vertices but not at the sampled Jacobians;
-"holds at the samples, not proved" when the LMIs hold but an ingredient was sampled (a sampled cover,
-asked for, or an input structure read off samples); "refuted" when the adversarial search found a
-pair that violates the inequality the LMIs claimed."""
+
+class CertificateStatus(StrEnum):
+    """The statuses a certificate can end in (compare with the strings or the members).
+
+    ``INFEASIBLE`` only when the solver solved the margin problem to optimality with a non-positive
+    margin (within the stated bound on cond(P)), at a cover's vertices and at the sampled Jacobians
+    themselves; ``UNDECIDED`` when that happened at the vertices only; ``NOT_PROVED`` when the LMIs
+    hold but an ingredient was sampled (a sampled cover, asked for, or a domain bounded at a grid);
+    ``REFUTED`` when the adversarial search found a pair that violates the inequality the LMIs claimed.
+    """
+
+    CERTIFIED = "certified"
+    INFEASIBLE = "infeasible"
+    SOLVER_FAILED = "solver failed"
+    BELOW_RATE = "below the smallest rate"
+    RECHECK_FAILED = "re-check failed"
+    UNDECIDED = "undecided"
+    NOT_PROVED = "holds at the samples, not proved"
+    REFUTED = "refuted"
+
+
+CERTIFIED, INFEASIBLE, SOLVER_FAILED, BELOW_RATE, RECHECK_FAILED, UNDECIDED, NOT_PROVED, REFUTED = CertificateStatus
 
 STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": SOLVER_FAILED,
              "below mu_min": BELOW_RATE, "re-check failed": RECHECK_FAILED, "undecided": UNDECIDED}  # fmt: skip
@@ -47,13 +53,13 @@ STATUS_OF = {"feasible": CERTIFIED, "infeasible": INFEASIBLE, "solver failed": S
 
 def verdict(
     outcome: str, reason: str, *, unproved: str = "", falsification: Falsification | None = None
-) -> tuple[bool, str, str]:
+) -> tuple[bool, CertificateStatus, str]:
     """``(certified, status, reason)`` of an LMI outcome once the adversarial search and the ingredients are known.
 
     A solved LMI is "refuted" when the search found a violating pair, "holds at the samples, not
     proved" when ``unproved`` names a sampled ingredient, else "certified".
     """
-    status = STATUS_OF.get(outcome, SOLVER_FAILED)
+    status = CertificateStatus(STATUS_OF.get(outcome, SOLVER_FAILED))
     if status != CERTIFIED:
         return False, status, reason
     solved = reason.removeprefix("certified: ")
@@ -74,13 +80,6 @@ within what the double-precision window solvers resolve and is where every known
 linear system's ``max |zero|^2`` needs a well-conditioned P); :meth:`Certificate.tradeoff` shows what a
 larger bound buys for a given model, and ``max_condition=`` asks for it.
 """
-
-
-def check_condition(value: object, name: str = "max_condition") -> float:
-    """``value`` as a bound on cond(P): a finite number > 1; OptionError naming ``name`` otherwise."""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 1.0 < float(value) < np.inf:
-        raise OptionError(f"{name}: expected a finite number > 1, got {value!r}")
-    return float(value)
 
 
 def strong_horizon(mu: float, condition: float) -> int:
@@ -136,7 +135,7 @@ class Certificate:
         True only when the inequality is proved on the whole domain: the LMIs were solved at the
         vertices of an exact cover, the independent numpy re-check passed, and the adversarial
         search (``falsification``) found no violating pair.
-    status : str
+    status : CertificateStatus
         One of "certified", "infeasible" (proved by the solver), "solver failed",
         "below the smallest rate" (a given rate below the one found), "re-check failed",
         "holds at the samples, not proved" (a sampled ingredient), "refuted" (a violating pair was
@@ -169,7 +168,7 @@ class Certificate:
     """
 
     certified: bool
-    status: str
+    status: CertificateStatus
     reason: str
     rate: float
     rate_min: float
@@ -182,6 +181,9 @@ class Certificate:
     falsification: Falsification | None = field(default=None, kw_only=True)
 
     kind: ClassVar[str] = "certificate"
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "status", CertificateStatus(self.status))
 
     @property
     def P(self) -> FloatArray:
@@ -274,7 +276,12 @@ class Certificate:
             raise OptionError(
                 f"tradeoff: a {type(self).__name__} is not made by a certify function that bounds cond(P)"
             )
-        return tabulate(self.kind, self._state_labels(), lambda level: recertify(max_condition=level), levels)
+        return tabulate(self.kind, self._state_labels(), lambda level: self._like_this(recertify(max_condition=level)),
+                        levels)  # fmt: skip
+
+    def _like_this(self, certificate: Any) -> Any:
+        """``certificate`` (made again at another bound on cond(P)) with this one's later changes applied."""
+        return certificate
 
     def _state_labels(self) -> tuple[str, ...]:
         """Labels of the storage's states (with units where known)."""

@@ -42,7 +42,6 @@ from uiest.detectability import falsify, lmi
 from uiest.detectability.certificate import (
     DEFAULT_MAX_CONDITION,
     UNDECIDED,
-    check_condition,
     check_rate,
     quad,
     sample_pairs,
@@ -52,6 +51,7 @@ from uiest.detectability.cover import Cover
 from uiest.detectability.dissipation_design import ROUNDING, design_and_check
 from uiest.detectability.dissipation_lmi import Vertices
 from uiest.detectability.dissipation_rate import RateStage
+from uiest.detectability.tradeoff import check_condition
 from uiest.errors import OptionError
 
 STRUCTURES = ("full", "identity")

@@ -39,7 +39,6 @@ from uiest.detectability.certificate import (
     UNDECIDED,
     StrongDetectabilityBase,
     Verification,
-    check_condition,
     check_rate,
     quad,
     sample_pairs,
@@ -49,6 +48,7 @@ from uiest.detectability.certificate import (
 from uiest.detectability.cover import Cover
 from uiest.detectability.strong_lmi import StrongLMI, StrongSolution
 from uiest.detectability.structure import InputStructure, input_structure
+from uiest.detectability.tradeoff import check_condition
 from uiest.errors import ModelError, OptionError
 from uiest.system import System, as_function
 
@@ -140,6 +140,12 @@ class StrongDetectability(StrongDetectabilityBase):
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         return _verify(self, n_pairs, seed)
+
+    def _like_this(self, certificate: Any) -> Any:
+        """The certificate with this one's output weight factor (:meth:`with_output_weight`)."""
+        if self.output_weight == 1.0 or not certificate.certified:
+            return certificate
+        return certificate.with_output_weight(self.output_weight)
 
     def _details(self) -> dict[str, object]:
         ok = self.certified

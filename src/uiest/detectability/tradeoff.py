@@ -11,6 +11,7 @@ function's default rate.
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -32,6 +33,8 @@ class TradeoffRow:
     ----------
     max_condition : float
         The bound on cond(P) (scaled coordinates).
+    certified : bool
+        Whether the certificate made with that bound holds.
     status : str
         The certificate's status ("certified", "infeasible", ...).
     mu_min, mu : float
@@ -42,20 +45,21 @@ class TradeoffRow:
         The certificate's ``min_horizon()`` at mu (None when not certified).
     noise_gain : ndarray (n,)
         The certificate's per-step noise gain per state, in the state's units (NaN when not certified).
-    output_weight : float
+    output_gain : float
         The weight on the scaled output increment over ``lambda_min(P)`` (scaled): how much more the
         estimator's cost trusts an output than its prior.
 
     """
 
     max_condition: float
+    certified: bool
     status: str
     mu_min: float
     mu: float
     condition: float
     horizon: int | None
     noise_gain: FloatArray
-    output_weight: float
+    output_gain: float
 
 
 @dataclass(frozen=True)
@@ -80,7 +84,7 @@ class Tradeoff:
     def to_pandas(self) -> Any:
         """Return one row per bound as a pandas DataFrame.
 
-        Columns: max_condition, status, mu_min, mu, condition, horizon, output_weight, and one
+        Columns: max_condition, status, mu_min, mu, condition, horizon, output_gain, and one
         ``noise_gain <state>`` per state.
         """
         import pandas as pd
@@ -94,17 +98,17 @@ class Tradeoff:
                 "mu": row.mu,
                 "condition": row.condition,
                 "horizon": row.horizon,
-                "output_weight": row.output_weight,
+                "output_gain": row.output_gain,
             }
             record.update({f"noise_gain {name}": float(g) for name, g in zip(self.states, row.noise_gain, strict=True)})
             records.append(record)
         return pd.DataFrame.from_records(records)
 
     def __str__(self) -> str:
-        head = ("max cond(P)", "status", "mu_min", "mu", "cond(P)", "min N", "output weight", "largest noise gain")
+        head = ("max cond(P)", "status", "mu_min", "mu", "cond(P)", "min N", "output gain", "largest noise gain")
         lines = [head]
         for row in self.rows:
-            ok = row.status == "certified"
+            ok = row.certified
             gains = np.asarray(row.noise_gain, dtype=float)
             worst = int(np.nanargmax(gains)) if ok and np.any(np.isfinite(gains)) else None
             gain = f"{gains[worst]:.3g} ({self.states[worst]})" if worst is not None else "-"
@@ -112,7 +116,7 @@ class Tradeoff:
                 f"{row.max_condition:.0e}", row.status, _number(row.mu_min, ".6g"),
                 _number(row.mu, ".6g") if ok else "-", _number(row.condition, ".3g") if ok else "-",
                 str(row.horizon) if ok else "-",
-                _number(row.output_weight, ".3g") if ok else "-", gain,
+                _number(row.output_gain, ".3g") if ok else "-", gain,
             ))  # fmt: skip
         widths = [max(len(line[i]) for line in lines) for i in range(len(head))]
         text = ["  ".join(cell.rjust(width) for cell, width in zip(line, widths, strict=True)) for line in lines]
@@ -123,10 +127,15 @@ def _number(value: float, spec: str) -> str:
     return format(value, spec) if np.isfinite(value) else "-"
 
 
+def check_condition(value: object, name: str = "max_condition") -> float:
+    """``value`` as a bound on cond(P): a finite number > 1; OptionError naming ``name`` otherwise."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not 1.0 < float(value) < np.inf:
+        raise OptionError(f"{name}: expected a finite number > 1, got {value!r}")
+    return float(value)
+
+
 def check_levels(levels: Sequence[float]) -> tuple[float, ...]:
     """``levels`` as bounds on cond(P): a non-empty sequence of finite numbers > 1; OptionError otherwise."""
-    from uiest.detectability.certificate import check_condition
-
     if isinstance(levels, str | bytes) or not isinstance(levels, Sequence) or not levels:
         raise OptionError(f"levels: expected a non-empty sequence of finite numbers > 1, got {levels!r}")
     return tuple(check_condition(level, "levels") for level in levels)
@@ -145,9 +154,10 @@ def tabulate(
         ok = bool(cert.certified)
         nan = np.full(len(states), np.nan)
         rows.append(TradeoffRow(
-            max_condition=level, status=cert.status, mu_min=float(cert.rate_min), mu=float(cert.rate),
+            max_condition=level, certified=ok, status=str(cert.status), mu_min=float(cert.rate_min),
+            mu=float(cert.rate),
             condition=float(cert.condition) if ok else float("nan"), horizon=cert.min_horizon() if ok else None,
             noise_gain=np.asarray(cert.noise_gain, dtype=float) if ok else nan,
-            output_weight=float(cert.output_gain) if ok else float("nan"),
+            output_gain=float(cert.output_gain) if ok else float("nan"),
         ))  # fmt: skip
     return Tradeoff(kind, states, tuple(rows))
