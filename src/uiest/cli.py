@@ -199,7 +199,7 @@ def estimate(
     console.print(_health_table(results))
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
         if issubclass(caught_warning.category, BoundWarning):
-            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True)
+            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
         else:
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
                                    caught_warning.lineno)  # fmt: skip

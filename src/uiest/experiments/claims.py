@@ -143,7 +143,7 @@ class Claim:
             return f"{self.case}: {self.statement}: not measured ({self.detail})"
         e = self.effect
         runs = len(e.ratios)
-        span = f"; {runs} runs, interval {e.low:.3g} .. {e.high:.3g}" if runs > 1 else "; 1 run"
+        span = f"; {runs} runs, interval {e.low:.3g} .. {e.high:.3g}" if runs > 1 else "; 1 run, no spread measured"
         detail = f"; {self.detail}" if self.detail else ""
         return (f"{self.case}: {self.statement}: {e.verdict} ({self.quantity} {e.center:.3g}: "
                 f"{relative(e.center, self.below, self.above)}{span}{detail})")  # fmt: skip

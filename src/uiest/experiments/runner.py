@@ -316,7 +316,7 @@ def run_case(
         if result is not None:
             results[spec.name] = result
             frames.append(_step_frame(case, run, spec.name, truth, result))
-        x_names = truth.names.get("x") or tuple(f"x{i}" for i in range(truth.x.shape[1]))
+        x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
         counts = result.counts() if result is not None else dict.fromkeys(count_names(x_names), -1)
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
                      "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
@@ -362,8 +362,8 @@ def _outcomes(
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
-    x_names = truth.names.get("x") or tuple(f"x{i}" for i in range(truth.x.shape[1]))
-    w_names = truth.names.get("w") or tuple(f"w{i}" for i in range(truth.w.shape[1]))
+    x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
+    w_names = truth.names.get("w") or tuple(f"w[{i}]" for i in range(truth.w.shape[1]))
     data: dict[str, object] = {"case": case, "run": run, "estimator": name, "k": np.arange(truth.x.shape[0]),
                                "t": truth.t}  # fmt: skip
     for i, label in enumerate(x_names):

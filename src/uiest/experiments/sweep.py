@@ -68,7 +68,7 @@ def run_task(task: Task) -> pd.DataFrame:
         system, truth, prior = simulate_run(scenario, task.case, task.run, study)
     except Exception as exc:  # recorded, whatever it is
         return pd.DataFrame([{**base, "estimator": "", "error": f"{type(exc).__name__}: {exc}"}])
-    names = truth.names.get("x") or tuple(f"x{i}" for i in range(system.nx))
+    names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(system.nx))
     base["x_outside"] = int(truth.x_outside.sum())
     rows = []
     for spec in scenario.estimators:
