@@ -6,9 +6,7 @@ error the noise leaves (:func:`uiest.estimators.bounds.strong_bound`, the bound 
 :attr:`UISE.guarantee <uiest.estimators.UISE.guarantee>`): with ``lambda = 8^{1/N} mu`` it is
 proportional to ``1 / sqrt(lambda (1 - lambda))``. That bound is worst-case (every noise sample
 aligned): it is smallest near ``lambda = 1/2``, while under independent noise a slower forgetting
-averages more samples and errs less (measured on random 3-state linear systems: the bound's
-choice, mu ~ 0.3-0.6, gave 1.0-1.4x the linear UIO's RMSE, mu = 0.9 gave 1.04x). :func:`design_uise`
-therefore
+averages more samples and errs less. :func:`design_uise` therefore
 
 1. certifies at the minimal rate and at a grid of rates (``rates``, those above its design rate), within a
    CPU budget; each certified rate gets the horizon ``N <= max_horizon`` that minimises its bound
@@ -56,8 +54,7 @@ CONDITION_MARGIN = 0.99
 
 OUTPUT_WEIGHTS = (1.0, 10.0, 100.0)
 """Factors on a strong certificate's output weights the UISE design tries (``with_output_weight``): the certified
-weights can leave the prior dominant over directly measured states (a Rossler map, N = 15: measured y RMSE 0.22 at x1,
-0.0015 at x100)."""
+weights can leave the prior dominant over directly measured states."""
 
 ERROR_TOLERANCE = 1.02
 """Candidates whose :func:`regret` is within this factor of the best one's are equally accurate: the smallest

@@ -78,10 +78,8 @@ FAILURES = frozenset({Outcome.FAILED, Outcome.ERROR, Outcome.UPDATE_SKIPPED, Out
 
 AT_BOUND_RTOL = 1e-5
 """A state lies at a side of a box when it is within this fraction of the box's width (its scale where the width
-is infinite) of that side, or beyond it. Gauss-Newton puts an estimate held by a side on it (clipped); IPOPT's
-interior-point iterate stops short of it, by up to 1.2e-6 of the width on the models of bench/at_bound.py; the
-nearest estimates there that no side held lay 1.8e-5 of the width from it (a level decaying towards its physical
-side 0)."""
+is infinite) of that side, or beyond it: wider than an interior-point solver's distance to an active side, narrower
+than an estimate's distance to a side that does not hold it (measured in DEVELOPING.md, "Step health")."""
 
 BOUND_SHARE = 0.05
 """A run warns (:func:`bound_message`) when some state's estimate lies at a side of X in more than this share of

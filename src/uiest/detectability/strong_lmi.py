@@ -57,7 +57,7 @@ DESIGN_MARGIN = 1e-2
 RETRY_MARGIN = 1e-2
 """After a solver error in the design, it is solved once more with this fraction of its margin; if that errs too,
 once more from the two farthest-apart vertices, grown by cutting planes (nearly equal vertices, as an RK4 model's
-exact cover over a small step gives, make the solver err on the whole set: a sampled pendulum's 16 vertices)."""
+exact cover over a small step gives, can make the solver err on the whole set)."""
 
 TRACE_WEIGHT = 1e-3
 """Weight of tr(P) / n beside the output gain in the design objective."""
