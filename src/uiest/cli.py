@@ -321,7 +321,7 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
                                     f"{found['local_searches']} local)")  # fmt: skip
     if not record["certified"]:
         return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", "-",
-                record.get("cover", "-"), search, "-", time_s]  # fmt: skip
+                record.get("cover_kind") or "-", search, "-", time_s]  # fmt: skip
     kind = record["kind"]
     cond = record["c_x"] if kind == "reduced_eioss" else record["condition_scaled"]
     noise = "-"
@@ -333,7 +333,7 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
         gains = f"c_y {record['c_y']:.3g}\nc_v {record['c_v']:.3g}\nc_gamma {record['c_gamma']:.3g}"
     else:
         gains = "Q_w, Q_v, R: see JSON"
-    cover = record["coverage"].split(":")[0]
+    cover = record["cover_kind"]
     ratio = f"{record['verify_worst_ratio']:.4g} ({record['verify_pairs']} pairs)"
     guarantee = record.get("guarantee")
     verdict = "-" if guarantee is None else f"{guarantee['estimator']}: {guarantee.get('verdict', 'none')}"

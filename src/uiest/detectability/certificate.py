@@ -153,7 +153,10 @@ class Certificate:
     solve_time : float
         Seconds, from the call to the result.
     coverage : str
-        How the domain was covered (exact vertices, parameter box, sampled cover).
+        How the domain was covered, in words (with the numbers).
+    cover_kind : str
+        The cover's kind as data: "constant", "exact by entries", "parameter box", "sampled cover", or
+        "exact" (a linear system's one Jacobian).
     sound : bool
         True when every ingredient is proved over the whole domain (the vertices cover it; for the
         dissipation certificates, the output Jacobian is constant); False when one was sampled
@@ -179,6 +182,7 @@ class Certificate:
     sound: bool
     margin: float
     falsification: Falsification | None = field(default=None, kw_only=True)
+    cover_kind: str = field(default="", kw_only=True)
 
     kind: ClassVar[str] = "certificate"
 
@@ -248,6 +252,7 @@ class Certificate:
             "min_horizon": self.min_horizon() if ok else None,
             "solve_time_s": self.solve_time,
             "coverage": self.coverage,
+            "cover_kind": self.cover_kind,
             "sound": self.sound,
             "margin": self.margin,
             "falsification": None if self.falsification is None else self.falsification.to_dict(),

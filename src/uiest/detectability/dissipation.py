@@ -200,6 +200,7 @@ class DissipationSolution:
             "scale": scale,
             "solve_time": seconds,
             "coverage": self.coverage,
+            "cover_kind": self.cover.kind,
             "sound": self.cover.sound and self.output_constant,
             "margin": self.margin,
             "falsification": self.falsification,

@@ -336,6 +336,7 @@ def linear_strong_detectability(
         scale=np.ones(n),
         solve_time=time.perf_counter() - start,
         coverage="exact: a linear system has one Jacobian",
+        cover_kind="exact",
         sound=True,
         margin=margin,
         matching=matching,

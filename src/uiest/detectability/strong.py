@@ -362,6 +362,7 @@ def _certificate(
         scale=sx,
         solve_time=seconds,
         coverage=coverage,
+        cover_kind=covered.kind,
         sound=sound,
         margin=solution.margin,
         system=system,

@@ -28,7 +28,7 @@ def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "
         "rate_requested": spec.mu,
         "min_horizon": horizon,
         "noise_gain": None if noise_gain is None else [float(g) for g in noise_gain],
-        "coverage": certificate.coverage.split(" (")[0] + (", proved" if certificate.sound else ", partly sampled"),
+        "coverage": certificate.cover_kind + (", proved" if certificate.sound else ", partly sampled"),
         "sound": certificate.sound,
         "solve_time_s": certificate.solve_time,
         "reason": certificate.reason,
