@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 
 from uiest import BoundWarning, simulate
 from uiest.cli import app
-from uiest.estimators import EKF, UISE, EstimationResult, Outcome, UISEWeights
+from uiest.estimators import EKF, UISE, EstimationResult, Guarantee, Outcome, UISEWeights
 from uiest.estimators import base as base_module
 from uiest.health import AT_BOUND_RTOL, at_bound, status_text
 from uiest.models import closed_form, linear
@@ -171,13 +171,16 @@ def test_the_status_line_is_derived_from_the_fields():
     assert line.startswith("solved (Converged); y[k] misses outputs") and "; at a side of X: x1; held there" in line
     fields = dict(t=np.arange(2.0), x_hat=np.zeros((2, 1)), w_hat=np.zeros((1, 1)), iterations=[0, 0],
                   solve_time=[0.0, 0.0], cost=[0.0, 0.0], window=[0, 0], missing=np.zeros((2, 1), bool),
-                  estimator="test", horizon=None, guarantee="none")  # fmt: skip
+                  estimator="test", horizon=None,
+                  guarantee=Guarantee.none("test", "none", np.ones(1), ("x",), ("",)))  # fmt: skip
     result = EstimationResult(outcome=["prior", "error"], reason=["", "ValueError: x"], **fields)
     assert result.status.tolist() == ["prior", "error (ValueError: x)"] and result.failures == 1
     from uiest import DataError
 
     with pytest.raises(DataError, match="outcome: expected"):
         EstimationResult(outcome=["prior", "propagated (no data)"], **fields)
+    with pytest.raises(DataError, match="guarantee: expected a uiest.guarantee.Guarantee, got str"):
+        EstimationResult(outcome=["prior", "error"], **{**fields, "guarantee": "none"})
 
 
 def test_the_cli_counts_the_steps_and_shows_the_bound_warning_as_a_message(tmp_path):

@@ -418,6 +418,8 @@ class EstimationResult(_PicklableNames):
     cpu_time: FloatArray | None = None
 
     def __post_init__(self) -> None:
+        if not isinstance(self.guarantee, Guarantee):
+            raise DataError(f"guarantee: expected a uiest.guarantee.Guarantee, got {type(self.guarantee).__name__}")
         for name, dtype in (
             ("t", float),
             ("x_hat", float),
