@@ -179,7 +179,7 @@ def test_the_status_line_is_derived_from_the_fields():
 
     with pytest.raises(DataError, match="outcome: expected"):
         EstimationResult(outcome=["prior", "propagated (no data)"], **fields)
-    with pytest.raises(DataError, match="guarantee: expected a uiest.guarantee.Guarantee, got str"):
+    with pytest.raises(DataError, match=r"guarantee: expected a uiest\.guarantee\.Guarantee, got str"):
         EstimationResult(outcome=["prior", "error"], **{**fields, "guarantee": "none"})
 
 
