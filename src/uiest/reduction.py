@@ -74,6 +74,9 @@ class AssumptionReport:
 GRID_POINTS = 5
 """Points per axis of the grid that bounds a map's range where interval arithmetic cannot (not a proof)."""
 
+SNAP_RTOL = 1e-12
+"""A proved bound this close (relative to the range) to a value attained at a point is taken as that value."""
+
 
 def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box, str]:
     """A box containing ``fun(box)``: proved by interval arithmetic, else the range over a grid of ``box``.
@@ -83,7 +86,12 @@ def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box
     try:
         found = interval.bounds(fun, box, seed=seed)
         if np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
-            return Box(found.lower, found.upper), ""
+            # a bound within rounding of a value attained at a point is that value: the outward rounding of
+            # interval arithmetic would otherwise move a box found exactly (a linear map's) by a few units
+            slack = SNAP_RTOL * np.maximum(found.attained_upper - found.attained_lower, np.abs(found.attained_upper))
+            lower = np.where(found.attained_lower - found.lower <= slack, found.attained_lower, found.lower)
+            upper = np.where(found.upper - found.attained_upper <= slack, found.attained_upper, found.upper)
+            return Box(lower, upper), ""
         reason = "interval arithmetic left a bound infinite"
     except interval.IntervalUnsupportedError as exc:
         reason = str(exc)
