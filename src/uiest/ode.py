@@ -30,6 +30,8 @@ The integrator (``method``) takes ``substeps`` equal steps per sample (at most `
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import casadi as ca
 import numpy as np
 import scipy.linalg
@@ -48,6 +50,29 @@ RADAU_A = np.array([[5.0 / 12.0, -1.0 / 12.0], [3.0 / 4.0, 1.0 / 4.0]])
 RADAU_B = np.array([3.0 / 4.0, 1.0 / 4.0])
 MAX_SUBSTEPS = 1000
 """Most RK4 substeps per sample: the steps are unrolled into the model's expression graph."""
+
+
+@dataclass(frozen=True, eq=False)
+class ContinuousModel:
+    """The continuous-time model a :class:`~uiest.system.System` was sampled from (:meth:`System.from_ode`).
+
+    Attributes
+    ----------
+    rhs : casadi.Function
+        ``(x (nx,), u (nu,), w (nw,)) -> dx/dt (nx,)``.
+    method : str
+        The integrator (:data:`METHODS`).
+    substeps : int
+        Integrator steps per sample.
+    input_channel : str
+        How w enters the sampled model (:data:`INPUT_CHANNELS`).
+
+    """
+
+    rhs: ca.Function
+    method: str
+    substeps: int
+    input_channel: str
 
 
 def rk4_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, substeps: int) -> ca.SX:

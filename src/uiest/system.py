@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import casadi as ca
 import numpy as np
@@ -24,6 +24,9 @@ from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_int, check_real, real_array
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.signal import Signal
+
+if TYPE_CHECKING:
+    from uiest.ode import ContinuousModel
 
 BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
 
@@ -168,6 +171,9 @@ class System:
         Sampling time, in ``time_unit``.
     name : str
         Short name of the system.
+    sampled_from : ContinuousModel or None
+        The continuous-time model :meth:`from_ode` sampled (its right-hand side, integrator and
+        input channel); None for a model given in discrete time.
 
     """
 
@@ -182,6 +188,7 @@ class System:
     dt: float = 1.0
     time_unit: str = "s"
     name: str = "system"
+    sampled_from: ContinuousModel | None = None
 
     def __post_init__(self) -> None:
         self._check_functions()
@@ -362,6 +369,8 @@ class System:
         through its per-sample integral ``Gamma (w - w0)`` (constant direction, linearised at
         the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
         :mod:`uiest.ode` for the discretisation error. Further keywords as in :meth:`from_functions`.
+        The system keeps the continuous model in ``sampled_from`` (the analysis names the zeros
+        sampling created from it).
         """
         from uiest import ode
 
@@ -373,19 +382,21 @@ class System:
         X = Box.coerce(spec.get("x_bounds"), nx, "x_bounds")
         u_ref = Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center
         w_ref = np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center
-        f, _ = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel=input_channel, method=method,
-                              x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
+        f, channel = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel=input_channel, method=method,
+                                    x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
         unstable = None
         if method == "rk4":
             unstable = ode.rk4_instability(rhs_f, X, u_ref, w_ref, dt / substeps)
             if unstable:
                 warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
         try:
-            return cls.from_functions(f, h_f, dt=dt, **spec)
+            system = cls.from_functions(f, h_f, dt=dt, **spec)
         except ModelError as exc:
             if unstable and "not finite" in str(exc):
                 raise ModelError(f"{exc}; {unstable}") from exc
             raise
+        origin = ode.ContinuousModel(rhs=rhs_f, method=method, substeps=int(substeps), input_channel=channel)
+        return dataclasses.replace(system, sampled_from=origin)
 
     # ------------------------------------------------------------------ sizes
     @property
