@@ -1,8 +1,10 @@
 """uiest: state estimation for nonlinear systems with unbounded unknown inputs.
 
-The public entry points are :class:`System`, :func:`simulate` and the result containers;
-models live in :mod:`uiest.models`.
+The public entry points are :class:`System`, :func:`simulate`, :func:`analyse` (which estimator
+a model admits, and why) and the result containers; models live in :mod:`uiest.models`.
 """
+
+from typing import Any
 
 from uiest.box import Box
 from uiest.errors import (
@@ -23,6 +25,16 @@ from uiest.system import Linearization, System
 
 __version__ = "0.1.0"
 
+
+def __getattr__(name: str) -> Any:
+    """``analyse`` and ``ModelAnalysis`` from :mod:`uiest.analysis` (imported on first use: it needs the estimators)."""
+    if name in ("analyse", "ModelAnalysis"):
+        from uiest import analysis
+
+        return getattr(analysis, name)
+    raise AttributeError(f"module 'uiest' has no attribute {name!r}")
+
+
 __all__ = [
     "BoundWarning",
     "Box",
@@ -31,6 +43,7 @@ __all__ = [
     "DomainWarning",
     "GaussianNoise",
     "Linearization",
+    "ModelAnalysis",
     "ModelError",
     "OptionError",
     "Signal",
@@ -40,5 +53,6 @@ __all__ = [
     "UiestError",
     "UniformNoise",
     "__version__",
+    "analyse",
     "simulate",
 ]

@@ -297,6 +297,31 @@ def certify(
     console.print(f"wrote {out}")
 
 
+@app.command()
+@_user_errors
+def analyse(
+    model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`) or a model file (.py).")],
+    max_horizon: Annotated[int, typer.Option(help="Longest estimator window N considered.")] = 60,
+    json_file: Annotated[Path | None, typer.Option("--json", help="Also write the analysis as JSON.")] = None,
+) -> None:
+    """Which estimator suits a model, and why: structure, zeros, near-zeros, certificates, recommendation."""
+    import json
+
+    from uiest.analysis import analyse as analyse_model
+
+    _positive(max_horizon, "--max-horizon")
+    if json_file is not None:
+        writable_file(json_file, "--json")
+    system = models.load(model).build()
+    with console.status(f"analysing {system.name}"):
+        analysis = analyse_model(system, max_horizon=max_horizon)
+    console.print(analysis.text(), highlight=False, soft_wrap=True, markup=False)
+    if json_file is not None:
+        json_file.parent.mkdir(parents=True, exist_ok=True)
+        json_file.write_text(json.dumps({"model": model, **analysis.to_dict()}, indent=2, default=float))
+        console.print(f"wrote {json_file}")
+
+
 ROWS = ("status", "rate (mu, eta)", "smallest rate", "cond(P) (c_x)", "gains (scaled)", "noise gain per step",
         "min horizon", "guarantee at min horizon", "cover", "search: max ratio", "verify: max ratio",
         "time")  # fmt: skip

@@ -1,0 +1,209 @@
+r"""Near-zeros: frequencies at which an unknown input is nearly invisible in the outputs.
+
+**The system matrix.** At each linearisation point (scaled coordinates, :mod:`uiest.analysis.points`)
+the Rosenbrock matrix ``R(z) = [zI - A, -B_o; C, 0]``, with ``B_o`` an orthonormal basis of range(B)
+times ``max(1, ||A||)`` (the zeros and this measure do not depend on how w is scaled). Its smallest
+singular value over its largest, ``sigma(z)``, vanishes at an invariant zero; small values on the unit
+circle ``|z| = 1`` (sustained oscillations) or in the ring ``sqrt(mu) <= |z| <= 1`` (modes decaying more
+slowly than a certificate's rate mu allows) are near-zeros, also where several outputs leave no exact
+zero.
+
+**The noise amplification.** An unknown input ``w[k] = Re(omega z^k)`` with ``|z| = 1`` moves the
+state by ``x[k] = Re(xi z^k)``, ``xi = (zI - A)^-1 B omega``, and the outputs by ``C xi``. With each output
+disturbed by a noise of amplitude up to ``eps_i`` (half the range of ``dh/dv v`` over V, for an output
+whose noise is its own), two such motions whose outputs differ by at most ``2 eps`` give the same
+measurements, so any estimator that allows arbitrary unknown inputs errs on one of them by at least ::
+
+    floor_i = max_omega |xi_i| / |diag(eps)^-1 C xi|     (state i's units)
+
+the **error floor** reported: the largest over the frequencies and points, of the model linearised
+there (a lower bound for small motions; it says nothing about motions that leave X).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.optimize import minimize_scalar
+
+from uiest.analysis.points import Linearisations
+from uiest.box import FloatArray
+from uiest.system import System
+
+ANGLES = 1441
+"""Frequencies on the upper half of the unit circle (conjugates give the same values), ``0 .. pi``."""
+RADII = 6
+"""Circles between ``sqrt(mu)`` and 1 searched for the ring's minimum."""
+
+
+@dataclass(frozen=True)
+class FrequencyMinimum:
+    """Where ``sigma(z)`` (module docstring) is smallest over a region.
+
+    Attributes
+    ----------
+    z : complex
+    sigma : float
+        Smallest singular value of the scaled system matrix over its largest, at z.
+    point : ndarray (nx,)
+        The linearisation point (state).
+
+    """
+
+    z: complex
+    sigma: float
+    point: FloatArray
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain data for JSON."""
+        return {"z": [self.z.real, self.z.imag], "sigma": self.sigma, "point": self.point.tolist()}
+
+
+@dataclass(frozen=True, eq=False)
+class NearZeros:
+    """The near-zeros of a model (module docstring).
+
+    Attributes
+    ----------
+    unit_circle : FrequencyMinimum
+        The smallest ``sigma(z)`` on ``|z| = 1``.
+    ring : FrequencyMinimum or None
+        The smallest over ``sqrt(mu) <= |z| <= 1`` for a certificate's rate mu (None without one).
+    ring_radius : float or None
+        ``sqrt(mu)``.
+    noise : ndarray (ny,) or None
+        ``eps``: each output's noise amplitude (y units); None where V is unbounded, an output has no
+        noise or the noises mix (then there is no floor).
+    error_floor : ndarray (nx,)
+        The error floor per state (state units); NaN without ``noise``, inf at an exact zero on the circle.
+    floor_z : complex or None
+        The frequency at which the floor's largest share of X's width is reached.
+    floor_point : ndarray (nx,) or None
+        The linearisation point of ``floor_z``.
+
+    """
+
+    unit_circle: FrequencyMinimum
+    ring: FrequencyMinimum | None
+    ring_radius: float | None
+    noise: FloatArray | None
+    error_floor: FloatArray
+    floor_z: complex | None
+    floor_point: FloatArray | None
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain data for JSON (inf and NaN as floats)."""
+        return {
+            "unit_circle": self.unit_circle.to_dict(),
+            "ring": None if self.ring is None else self.ring.to_dict(),
+            "ring_radius": self.ring_radius,
+            "noise": None if self.noise is None else self.noise.tolist(),
+            "error_floor": [float(f) for f in self.error_floor],
+            "floor_z": None if self.floor_z is None else [self.floor_z.real, self.floor_z.imag],
+            "floor_point": None if self.floor_point is None else self.floor_point.tolist(),
+        }
+
+
+def _input_basis(A: FloatArray, B: FloatArray) -> FloatArray:
+    """Orthonormal basis of range(B) times ``max(1, ||A||)``, shape (n, rank)."""
+    if not B.size:
+        return np.zeros((A.shape[0], 0))
+    U, s, _ = np.linalg.svd(B, full_matrices=False)
+    rank = int(np.sum(s > 1e-12 * s[0])) if s[0] > 0 else 0
+    return U[:, :rank] * max(1.0, float(np.linalg.norm(A, 2)))
+
+
+def sigma(A: FloatArray, Q: FloatArray, C: FloatArray, z: np.ndarray) -> FloatArray:
+    """``sigma(z)`` (module docstring) for ``Q`` from :func:`_input_basis`, at every z of a 1-D array."""
+    n, q, p = A.shape[0], Q.shape[1], C.shape[0]
+    R = np.zeros((len(z), n + p, n + q), dtype=complex)
+    R[:, :n, :n] = z[:, None, None] * np.eye(n) - A
+    R[:, :n, n:] = -Q
+    R[:, n:, :n] = C
+    s = np.linalg.svd(R, compute_uv=False)
+    return s[:, -1] / s[:, 0]
+
+
+def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray, z: np.ndarray) -> FloatArray:
+    """The floor per state (state units) at each z: shape (len(z), nx); inf where the outputs do not move."""
+    n = A.shape[0]
+    if not Q.shape[1]:  # no unknown input: nothing is hidden
+        return np.zeros((len(z), n))
+    floors = np.zeros((len(z), n))  # at an eigenvalue of A on the circle the input does not set the motion: no claim
+    shifted = z[:, None, None] * np.eye(n) - A
+    regular = np.linalg.cond(shifted) < 1e12
+    if not regular.any():
+        return floors
+    T = np.linalg.solve(shifted[regular], np.broadcast_to(Q, (int(regular.sum()), *Q.shape)))
+    Y = C_noise @ T  # outputs over their noise amplitudes
+    _, s, Vh = np.linalg.svd(Y, full_matrices=False)
+    with np.errstate(divide="ignore"):
+        inverse = np.where(s > 1e-14 * s[:, :1], 1.0 / s, np.inf)
+    # floor_i^2 = x_i (Y^H Y)^-1 x_i^H with x_i the i-th row of T (state units): |x_i V diag(1/s)|
+    projected = (T @ np.conj(np.swapaxes(Vh, 1, 2))) * inverse[:, None, :]
+    values = np.sqrt(np.sum(np.abs(np.nan_to_num(projected, nan=np.inf)) ** 2, axis=2)) * scale[None, :]
+    floors[regular] = values
+    return floors
+
+
+def output_noise(system: System, D: FloatArray) -> FloatArray | None:
+    """``eps`` (y units) from the scaled ``dh/dv`` at the reference point, or None (:class:`NearZeros`)."""
+    V = system.v.bounds
+    nonzero = D != 0
+    if not (np.all(np.isfinite(V.width)) and np.all(nonzero.sum(axis=1) == 1) and np.all(nonzero.sum(axis=0) <= 1)):
+        return None
+    eps = 0.5 * system.y.scale * (np.abs(D) @ (V.width / system.v.scale))  # D = S_y^-1 dh/dv S_v
+    return eps if np.all(eps > 0) else None
+
+
+def _refine(objective: object, angles: FloatArray, best: int) -> float:
+    """The angle minimising ``objective(theta)`` between the grid neighbours of ``angles[best]``."""
+    low, high = angles[max(best - 1, 0)], angles[min(best + 1, len(angles) - 1)]
+    if high <= low:
+        return float(angles[best])
+    found = minimize_scalar(objective, bounds=(low, high), method="bounded", options={"xatol": 1e-10})
+    return float(found.x) if found.fun <= objective(angles[best]) else float(angles[best])  # type: ignore[operator]
+
+
+def find_near_zeros(system: System, lin: Linearisations, rate: float | None = None) -> NearZeros:
+    """The near-zeros of ``system`` at the points of ``lin`` (module docstring); ``rate`` a certificate's mu."""
+    angles = np.linspace(0.0, np.pi, ANGLES)
+    circle = np.exp(1j * angles)
+    bases = [_input_basis(lin.A[i], lin.B[i]) for i in range(lin.count)]
+    sigmas = np.array([sigma(lin.A[i], bases[i], lin.C[i], circle) for i in range(lin.count)])
+    point, k = np.unravel_index(int(np.argmin(sigmas)), sigmas.shape)
+    A, Q, C = lin.A[point], bases[point], lin.C[point]
+    theta = _refine(lambda t: float(sigma(A, Q, C, np.array([np.exp(1j * t)]))[0]), angles, int(k))
+    z = complex(np.exp(1j * theta))
+    unit = FrequencyMinimum(z, float(sigma(A, Q, C, np.array([z]))[0]), lin.x[point] * 1.0)
+
+    ring = radius = None
+    if rate is not None and np.isfinite(rate) and 0.0 < rate < 1.0:
+        radius = float(np.sqrt(rate))
+        grid = (np.linspace(radius, 1.0, RADII)[:, None] * np.exp(1j * angles[::4])[None, :]).ravel()
+        values = np.array([sigma(lin.A[i], bases[i], lin.C[i], grid) for i in range(lin.count)])
+        p, j = np.unravel_index(int(np.argmin(values)), values.shape)
+        ring = FrequencyMinimum(complex(grid[j]), float(values[p, j]), lin.x[p] * 1.0)
+
+    eps = output_noise(system, lin.D[0])
+    floor = np.full(system.nx, np.nan)
+    floor_z = floor_point = None
+    if eps is not None:
+        C_noise = [lin.C[i] * (system.y.scale / eps)[:, None] for i in range(lin.count)]
+        width = np.where(np.isfinite(system.x.bounds.width), system.x.bounds.width, system.x.scale)
+        floors = np.array([_floor(lin.A[i], bases[i], C_noise[i], system.x.scale, circle) for i in range(lin.count)])
+        share = np.max(floors / width[None, None, :], axis=2)
+        p, j = np.unravel_index(int(np.argmax(share)), share.shape)
+        A, Q = lin.A[p], bases[p]
+
+        def negative_share(t: float) -> float:
+            value = _floor(A, Q, C_noise[p], system.x.scale, np.array([np.exp(1j * t)]))[0] / width
+            return -float(np.max(value))
+
+        theta = _refine(negative_share, angles, int(j)) if np.isfinite(share[p, j]) else float(angles[j])
+        floor_z = complex(np.exp(1j * theta))
+        refined = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
+        floor = np.maximum(np.max(floors, axis=(0, 1)), refined)
+        floor_point = lin.x[p] * 1.0
+    return NearZeros(unit, ring, radius, eps, floor, floor_z, floor_point)

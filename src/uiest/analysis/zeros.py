@@ -1,0 +1,190 @@
+r"""Invariant zeros of the linearised model, and the ones sampling created.
+
+The invariant zeros of ``[zI - A, -B; C, 0]`` (:func:`~uiest.detectability.invariant_zeros`) at each
+linearisation point; the strong-detectability rate of any quadratic certificate is at least
+``max |z|^2`` over them. Per unknown-input-to-output channel ``w_j -> y_i`` the zeros at the
+reference point.
+
+**Sampling zeros.** A continuous-time model sampled with the input held has, besides the images
+``exp(s dt)`` of its own zeros s, zeros that sampling creates (r - 1 for a channel of relative
+degree r; they tend to the roots of the Euler-Frobenius polynomial as dt -> 0,
+:func:`~uiest.analysis.points.euler_frobenius_roots`). For a system from ``from_ode`` the
+continuous model's zeros at the same point are mapped by ``exp(s dt)`` and paired with the
+sampled model's zeros by least total distance (:func:`scipy.optimize.linear_sum_assignment`); the
+sampled zeros left unpaired are the ones sampling created.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import linear_sum_assignment
+
+from uiest.analysis.points import Linearisations, euler_frobenius_roots, relative_degrees
+from uiest.box import FloatArray
+from uiest.detectability.linear import invariant_zeros
+from uiest.system import System
+
+ComplexArray = NDArray[np.complex128]
+
+
+@dataclass(frozen=True)
+class Zero:
+    """One invariant zero.
+
+    Attributes
+    ----------
+    value : complex
+    from_sampling : bool or None
+        Created by sampling (True), the image ``exp(s dt)`` of a zero s of the continuous model
+        (False), or unknown: the model was not sampled by ``from_ode`` (None).
+    limit : float or None
+        For a channel's zero created by sampling: the Euler-Frobenius root it tends to as dt -> 0.
+
+    """
+
+    value: complex
+    from_sampling: bool | None = None
+    limit: float | None = None
+
+    @property
+    def modulus(self) -> float:
+        """``|value|``."""
+        return abs(self.value)
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain data for JSON."""
+        return {"real": self.value.real, "imag": self.value.imag, "modulus": self.modulus,
+                "from_sampling": self.from_sampling, "limit": self.limit}  # fmt: skip
+
+
+@dataclass(frozen=True)
+class Channel:
+    """The channel from unknown input ``w_j`` to output ``y_i`` at the reference point.
+
+    Attributes
+    ----------
+    input, output : str
+        The names of w_j and y_i.
+    steps : int or None
+        Samples until w_j moves y_i (None: not within nx).
+    continuous_degree : int or None
+        The continuous model's relative degree of the channel (None: not sampled by ``from_ode``,
+        or not reached within nx differentiations).
+    zeros : tuple of Zero
+        The channel's zeros, by decreasing modulus.
+
+    """
+
+    input: str
+    output: str
+    steps: int | None
+    continuous_degree: int | None
+    zeros: tuple[Zero, ...]
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain data for JSON."""
+        return {"input": self.input, "output": self.output, "steps": self.steps,
+                "continuous_degree": self.continuous_degree, "zeros": [z.to_dict() for z in self.zeros]}  # fmt: skip
+
+
+@dataclass(frozen=True, eq=False)
+class Zeros:
+    """The linearised model's invariant zeros over the points, and its channels' zeros.
+
+    Attributes
+    ----------
+    reference : tuple of Zero
+        The zeros at the reference point (x0 or X's centre), by decreasing modulus.
+    largest : Zero or None
+        The zero of largest modulus over all points (None: no point has a zero).
+    largest_at : ndarray (nx,) or None
+        The state where it is.
+    points : int
+        Points searched.
+    channels : tuple of Channel
+        Every ``w_j -> y_i`` at the reference point (inputs outer, outputs inner).
+
+    """
+
+    reference: tuple[Zero, ...]
+    largest: Zero | None
+    largest_at: FloatArray | None
+    points: int
+    channels: tuple[Channel, ...]
+
+    @property
+    def largest_modulus(self) -> float:
+        """``max |z|`` over the points (0 when there is no zero)."""
+        return 0.0 if self.largest is None else self.largest.modulus
+
+    def to_dict(self) -> dict[str, object]:
+        """Plain data for JSON."""
+        return {
+            "reference": [z.to_dict() for z in self.reference],
+            "largest": None if self.largest is None else self.largest.to_dict(),
+            "largest_at": None if self.largest_at is None else self.largest_at.tolist(),
+            "points": self.points,
+            "channels": [c.to_dict() for c in self.channels],
+        }
+
+
+def created_by_sampling(sampled: ComplexArray, continuous: ComplexArray, dt: float) -> np.ndarray:
+    """(len(sampled),) bool: the sampled zeros not paired with an image ``exp(s dt)`` of a continuous zero s."""
+    unpaired = np.ones(len(sampled), dtype=bool)
+    if len(sampled) and len(continuous):
+        images = np.exp(np.asarray(continuous) * dt)
+        rows, _ = linear_sum_assignment(np.abs(np.asarray(sampled)[:, None] - images[None, :]))
+        unpaired[rows] = False
+    return unpaired
+
+
+def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | None, G: FloatArray | None,
+              dt: float, degree: int | None = None) -> tuple[Zero, ...]:  # fmt: skip
+    """The zeros of (A, B, C), classified against the continuous (A_c, G, C) when given.
+
+    The ones sampling created get their Euler-Frobenius limits when the continuous relative degree is given.
+    """
+    found = invariant_zeros(A, B, C)
+    if A_c is None or G is None:
+        return tuple(Zero(complex(z)) for z in found)
+    sampling = created_by_sampling(found, invariant_zeros(A_c, G, C), dt)
+    limits: dict[int, float] = {}
+    roots = euler_frobenius_roots(degree) if degree else np.zeros(0)
+    created = np.flatnonzero(sampling)
+    if len(created) and len(roots):
+        rows, cols = linear_sum_assignment(np.abs(found[created][:, None] - roots[None, :]))
+        limits = {int(created[r]): float(roots[c]) for r, c in zip(rows, cols, strict=True)}
+    return tuple(Zero(complex(z), bool(sampling[i]), limits.get(i)) for i, z in enumerate(found))
+
+
+def find_zeros(system: System, lin: Linearisations) -> Zeros:
+    """The zeros of ``system`` linearised at the points of ``lin`` (module docstring)."""
+    dt = system.dt
+    moduli = []
+    for i in range(lin.count):
+        z = invariant_zeros(lin.A[i], lin.B[i], lin.C[i])
+        moduli.append(float(np.abs(z).max(initial=-1.0)))
+    best = int(np.argmax(moduli))
+
+    def continuous(i: int) -> tuple[FloatArray | None, FloatArray | None]:
+        return (None, None) if lin.A_c is None or lin.G is None else (lin.A_c[i], lin.G[i])
+
+    reference = _zeros_at(lin.A[0], lin.B[0], lin.C[0], *continuous(0), dt)
+    largest = largest_at = None
+    if moduli[best] >= 0.0:
+        largest = _zeros_at(lin.A[best], lin.B[best], lin.C[best], *continuous(best), dt)[0]
+        largest_at = lin.x[best] * 1.0
+    steps = relative_degrees(lin.A[:1], lin.B[:1], lin.C[:1])[0]
+    degrees = None if lin.A_c is None or lin.G is None else relative_degrees(lin.A_c[:1], lin.G[:1], lin.C[:1])[0]
+    channels = []
+    for j, w_name in enumerate(system.w.names):
+        for i, y_name in enumerate(system.y.names):
+            degree = None if degrees is None or degrees[i, j] == 0 else int(degrees[i, j])
+            A_c, G = continuous(0)
+            zeros = _zeros_at(lin.A[0], lin.B[0][:, j : j + 1], lin.C[0][i : i + 1], A_c,
+                              None if G is None else G[:, j : j + 1], dt, degree)  # fmt: skip
+            channels.append(Channel(w_name, y_name, int(steps[i, j]) or None, degree, zeros))
+    return Zeros(reference, largest, largest_at, lin.count, tuple(channels))
