@@ -247,6 +247,9 @@ def reason(a: ModelAnalysis) -> str:
     hidden = hidden_motion(a)
     if hidden is not None:
         text += f"; {hidden}"
+    elif cause is Cause.VACUOUS and a.near_zeros.noise is not None:
+        text += (f", while the error floor of an estimator allowing arbitrary unknown inputs is below "
+                 f"{FLOOR_SHARE:.0%} of X's width in every state: the bound is wide, not the model's limit")  # fmt: skip
     if rec is Recommendation.SMOOTH_INPUT_MHE:
         text += "; an estimator assuming a smooth unknown input (small steps w[k+1] - w[k]) suits it"
     else:

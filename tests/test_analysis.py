@@ -1,0 +1,295 @@
+"""uiest.analyse on models written for it: mechanical (sampling zeros), process, linear with known zeros, delayed."""
+
+import json
+import runpy
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+import uiest
+from uiest import DataError, OptionError, System, simulate
+from uiest.analysis import Cause, Recommendation, analyse
+from uiest.analysis.points import euler_frobenius_roots
+from uiest.cli import app
+from uiest.models.linear import with_invariant_zeros
+
+ROOT = Path(__file__).resolve().parents[1]
+NOISE = 1e-3
+
+
+def pendulum() -> System:
+    """examples/pendulum.py: a damped pendulum with an unknown torque, the angle measured (RK4, dt = 0.05)."""
+    return runpy.run_path(str(ROOT / "examples" / "pendulum.py"))["system"]
+
+
+def two_masses() -> System:
+    """Two masses on springs, both positions measured, an unknown force on mass 1 (dt = 0.04)."""
+    m1, m2, k1, k2, k12, c = 1.0, 0.5, 1.0, 1.0, 50.0, 0.2
+
+    def rhs(x, u, w):
+        q1, q2, p1, p2 = x
+        return [p1, p2, (-k1 * q1 - k12 * (q1 - q2) - c * p1 + w[0]) / m1, (-k2 * q2 + k12 * (q1 - q2) - c * p2) / m2]
+
+    return System.from_ode(
+        rhs, lambda x, v: [x[0] + v[0], x[1] + v[1]], nx=4, nw=1, nv=2, dt=0.04,
+        x_bounds=((-1, -1, -5, -5), (1, 1, 5, 5)), v_bounds=(-NOISE, NOISE), x_names=("q1", "q2", "p1", "p2"),
+        w_names=("force",), y_names=("q1_measured", "q2_measured"), name="two masses",
+    )  # fmt: skip
+
+
+def cart() -> System:
+    """A cart with friction pushed by an unknown force, its position measured (dt = 0.1)."""
+    return System.from_ode(
+        lambda x, u, w: [x[1], -0.5 * x[1] + w[0]], lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, dt=0.1,
+        x_bounds=((-10, -5), (10, 5)), v_bounds=(-1e-2, 1e-2), x_names=("position", "speed"), name="cart",
+    )  # fmt: skip
+
+
+G, AREA, OUTLET = 981.0, (28.0, 32.0, 28.0, 32.0), (0.071, 0.057, 0.071, 0.057)
+PUMP, SPLIT = (3.33, 3.35), (0.7, 0.6)
+
+
+def quadruple_tank(*, upper: bool, dt: float) -> System:
+    """Johansson's quadruple tank (cm, s); unknown inflows into the lower (measured) or the upper tanks."""
+
+    def rhs(x, u, w):
+        q = [OUTLET[i] * np.sqrt(2 * G * x[i]) for i in range(4)]
+        pumps = [SPLIT[0] * PUMP[0] * u[0], SPLIT[1] * PUMP[1] * u[1], (1 - SPLIT[1]) * PUMP[1] * u[1],
+                 (1 - SPLIT[0]) * PUMP[0] * u[0]]  # fmt: skip
+        d = [0, 0, w[0], w[1]] if upper else [w[0], w[1], 0, 0]
+        return [(-q[0] + q[2] + pumps[0] + d[0]) / AREA[0], (-q[1] + q[3] + pumps[1] + d[1]) / AREA[1],
+                (-q[2] + pumps[2] + d[2]) / AREA[2], (-q[3] + pumps[3] + d[3]) / AREA[3]]  # fmt: skip
+
+    return System.from_ode(
+        rhs, lambda x, v: [x[0] + v[0], x[1] + v[1]], nx=4, nu=2, nw=2, nv=2, dt=dt,
+        x_bounds=((4, 4, 1, 1), (20, 20, 6, 6)), u_bounds=((2.5, 2.5), (3.5, 3.5)), v_bounds=(-0.05, 0.05),
+        x_names=("h1", "h2", "h3", "h4"), x_units=("cm",) * 4, name="quadruple tank",
+    )  # fmt: skip
+
+
+def reactor() -> System:
+    return runpy.run_path(str(ROOT / "examples" / "reactor.py"))["system"]
+
+
+def relative_degree_two() -> System:
+    """w moves x1, which reaches the measured x2 one step later (matching fails)."""
+
+    def f(x, u, w):
+        return [x[0] + w[0], x[0] + 0.3 * ca.sin(x[2]), (0.5 + 0.3 * ca.tanh(x[1])) * x[2] + u[0]]
+
+    return System.from_callables(f, lambda x, v: [x[1] + v[0]], nx=3, nu=1, nw=1, nv=1, x_bounds=(-5, 5),
+                                 u_bounds=(-1, 1), v_bounds=(-1e-3, 1e-3), name="relative degree 2")  # fmt: skip
+
+
+def linear(zeros, **keywords) -> System:
+    return with_invariant_zeros(zeros, x_bounds=(-10, 10), v_bounds=(-NOISE, NOISE), seed=3, **keywords)[0]
+
+
+@pytest.fixture(scope="module")
+def analysed():
+    """Each model's analysis, made once."""
+    cache = {}
+
+    def get(name, **keywords):
+        key = (name, tuple(sorted(keywords.items())))
+        if key not in cache:
+            builders = {"pendulum": pendulum, "two masses": two_masses, "cart": cart, "reactor": reactor,
+                        "tank": lambda: quadruple_tank(upper=False, dt=1.0),
+                        "upper tank": lambda: quadruple_tank(upper=True, dt=2.0),
+                        "relative degree 2": relative_degree_two}  # fmt: skip
+            cache[key] = analyse(builders[name](), **keywords)
+        return cache[key]
+
+    return get
+
+
+def second_order_zero(system: System) -> float:
+    """The zero of a 2-state SISO channel y = x1 from its Jacobians: ``b1 (z - a22) + a12 b2 = 0``."""
+    lin = system.linearize(system.x.bounds.center)
+    (_, a12), (_, a22) = lin.A
+    b1, b2 = lin.B_w[:, 0]
+    return a22 - a12 * b2 / b1
+
+
+def hidden_ratio(system: System, z: complex, state: int) -> float:
+    """|x_state| / |C x / eps| for x = (zI - A)^-1 B at X's centre (one unknown input)."""
+    lin = system.linearize(system.x.bounds.center)
+    x = np.linalg.solve(z * np.eye(system.nx) - lin.A, lin.B_w[:, 0])
+    eps = 0.5 * system.v.bounds.width
+    return float(abs(x[state]) / np.linalg.norm((lin.C @ x) / eps))
+
+
+# ---------------------------------------------------------------------------------------------- mechanical
+def test_pendulum_sampling_zero_is_named_and_a_smooth_input_estimator_recommended(analysed):
+    a = analysed("pendulum")
+    system = pendulum()
+    assert a.matching and a.steps == (1,) and a.continuous_degree == (2,)
+    (zero,) = a.zeros.reference
+    assert zero.value.imag == 0 and zero.value.real == pytest.approx(second_order_zero(system), abs=1e-9)
+    assert -1.0 < zero.value.real < -0.99 and zero.from_sampling
+    (channel,) = a.zeros.channels
+    assert channel.continuous_degree == 2 and channel.zeros[0].limit == pytest.approx(-1.0)
+    # the smallest certified rate is the known answer |z|^2 (matching holds)
+    assert a.strong.certified and a.strong.certificate.rate_min == pytest.approx(zero.modulus**2, abs=2e-3)
+    assert a.strong.min_horizon > 60 and not a.strong.guarantee.applies
+    assert a.recommendation is Recommendation.SMOOTH_INPUT_MHE and a.cause is Cause.WINDOW_TOO_LONG
+    # near z = -1 the torque hides the rate: more than X's width for an angle noise of 1e-3
+    assert abs(a.near_zeros.unit_circle.z + 1) < 1e-6 and a.near_zeros.unit_circle.sigma < 1e-4
+    assert a.near_zeros.error_floor[1] > 12.0 and a.near_zeros.error_floor[0] == pytest.approx(NOISE)
+    assert a.near_zeros.error_floor[1] >= hidden_ratio(system, -1.0, 1) * (1 - 1e-9)
+    for words in (f"{zero.value.real:.4g}", "created by sampling", "alternating every sample", "rate by", "smooth"):
+        assert words in a.reason
+
+
+def test_pendulum_floor_at_the_reference_point_alone_is_the_transfer_ratio_and_the_nonlinear_model_hides_it():
+    system = pendulum()
+    a = analyse(system, points=1)
+    floor = hidden_ratio(system, -1.0, 1)
+    assert a.near_zeros.error_floor[1] == pytest.approx(floor, rel=1e-6)
+    # the sampled nonlinear model: a torque alternating every sample moves the rate by +-2 rad/s while the angle
+    # moves by 2 / floor * 1e-3 rad, below the angle noise
+    lin = system.linearize(system.x.bounds.center)
+    xi = np.linalg.solve(-np.eye(2) - lin.A, lin.B_w[:, 0])
+    scale = 2.0 / abs(xi[1])
+    record = simulate(system, scale * xi, 200, w=lambda k, x: [scale * (-1.0) ** k])
+    assert np.abs(record.x[:, 1]).min() > 1.9 and np.abs(record.x[:, 0]).max() < NOISE
+
+
+def test_two_masses_without_an_exact_zero_still_name_the_channel_sampling_zero(analysed):
+    a = analysed("two masses")
+    assert a.zeros.reference == ()  # two outputs: no exact invariant zero
+    q1, q2 = a.zeros.channels
+    assert q1.continuous_degree == 2 and q2.continuous_degree == 4
+    sampled = [z for z in q1.zeros if z.from_sampling]
+    assert len(sampled) == 1 and -1.0 < sampled[0].value.real < -0.99 and sampled[0].limit == pytest.approx(-1)
+    assert sum(not z.from_sampling for z in q1.zeros) == 2  # images of the continuous zeros -0.1 +- 7.1j
+    np.testing.assert_allclose(sorted(z.value.real for z in q2.zeros), euler_frobenius_roots(4), atol=0.2)
+    assert all(z.from_sampling for z in q2.zeros)
+    assert abs(a.near_zeros.unit_circle.z + 1) < 1e-6 and a.near_zeros.unit_circle.sigma < 1e-4
+    assert a.near_zeros.error_floor[2] > 10.0  # p1, beyond X's width
+    assert a.near_zeros.error_floor[2] >= hidden_ratio(two_masses(), -1.0, 2) * (1 - 1e-9)
+    # the certified UISE's bound is an upper bound, the floor a lower one
+    assert a.strong.certified and a.strong.guarantee.applies and not a.strong.guarantee.informative
+    assert np.all(a.strong.guarantee.error_bound >= a.near_zeros.error_floor)
+    assert a.recommendation is Recommendation.SMOOTH_INPUT_MHE and a.cause is Cause.VACUOUS
+    assert "near-zero" in a.reason and f"{sampled[0].value.real:.4g}" in a.reason and "p1 by" in a.reason
+
+
+def test_cart_zero_and_a_longer_window_left_vacuous_as_the_floor_implies(analysed):
+    a = analysed("cart")
+    (zero,) = a.zeros.reference
+    assert zero.value.real == pytest.approx(second_order_zero(cart()), abs=1e-9) and zero.from_sampling
+    assert a.recommendation is Recommendation.SMOOTH_INPUT_MHE and a.cause is Cause.WINDOW_TOO_LONG
+    longer = analysed("cart", max_horizon=80)
+    assert longer.strong.N <= 80 and longer.strong.guarantee.applies
+    assert longer.cause is Cause.VACUOUS and longer.near_zeros.error_floor[1] > 10.0  # speed: X's width is 10
+    assert np.all(longer.strong.guarantee.error_bound >= longer.near_zeros.error_floor)
+
+
+# ---------------------------------------------------------------------------------------------- process
+def test_reactor_certifies_with_an_informative_bound_and_gets_the_uise(analysed):
+    a = analysed("reactor")
+    assert a.continuous_degree == (1,) and not any(z.from_sampling for z in a.zeros.reference)
+    assert a.recommendation is Recommendation.UISE and a.cause is Cause.UISE_INFORMATIVE
+    guarantee = a.strong.guarantee
+    assert guarantee.informative and a.strong.min_horizon <= a.strong.N <= 60
+    # any quadratic certificate's rate is at least max |z|^2 over the linearisations
+    assert a.strong.certificate.rate_min >= a.zeros.largest_modulus**2 - 1e-6
+    assert np.all(guarantee.error_bound >= a.near_zeros.error_floor)
+    assert a.near_zeros.error_floor[1] == pytest.approx(2e-3)  # the measured temperature: its noise
+    assert f"N = {a.strong.N}" in a.reason and "informative" in a.reason
+
+
+def test_quadruple_tank_window_limit_decides_between_uise_and_smooth_input_mhe(analysed):
+    a = analysed("tank")
+    assert a.zeros.largest_modulus < 1 and not any(z.from_sampling for z in a.zeros.reference)
+    assert a.strong.min_horizon > 60 and a.cause is Cause.WINDOW_TOO_LONG
+    assert a.recommendation is Recommendation.SMOOTH_INPUT_MHE and "exceeds max_horizon 60" in a.reason
+    longer = analysed("tank", max_horizon=80)
+    assert longer.recommendation is Recommendation.UISE and longer.strong.guarantee.informative
+
+
+def test_quadruple_tank_with_inflows_into_the_upper_tanks_has_sampling_zeros(analysed):
+    a = analysed("upper tank")
+    assert a.continuous_degree == (2, 2) and len(a.zeros.reference) == 2
+    assert all(z.from_sampling and abs(z.value + 1) < 0.02 for z in a.zeros.reference)
+    # the integral input channel's direction is fixed at X's centre: far from it the sampling zero leaves the disk
+    assert a.zeros.largest.from_sampling and a.zeros.largest_modulus > 1
+    assert a.cause is Cause.ZERO_OUTSIDE and a.recommendation is Recommendation.SMOOTH_INPUT_MHE
+    assert np.all(a.near_zeros.error_floor[2:] > 5.0)  # h3, h4: beyond X's width
+    assert "not strongly detectable" in a.reason
+
+
+# ---------------------------------------------------------------------------------------------- known answers
+def test_linear_zeros_are_exact_and_the_certified_rate_is_their_largest_modulus_squared():
+    a = analyse(linear([0.5, 0.2]))
+    np.testing.assert_allclose(sorted(z.value.real for z in a.zeros.reference), [0.2, 0.5], atol=1e-9)
+    assert all(z.from_sampling is None for z in a.zeros.reference) and a.continuous_degree is None
+    assert a.zeros.largest_modulus == pytest.approx(0.5, abs=1e-9)
+    assert a.strong.certificate.rate_min == pytest.approx(0.25, abs=1e-3)
+    assert a.recommendation is Recommendation.UISE
+    ring = a.near_zeros.ring
+    assert a.near_zeros.ring_radius == pytest.approx(np.sqrt(a.strong.certificate.rate))
+    assert ring.sigma < 0.1 * a.near_zeros.unit_circle.sigma and abs(ring.z - 0.5) < 0.05
+
+
+def test_linear_zero_outside_and_at_one():
+    outside = analyse(linear([1.2, 0.3]))
+    assert outside.zeros.largest.value.real == pytest.approx(1.2, abs=1e-9)
+    assert outside.cause is Cause.ZERO_OUTSIDE and outside.recommendation is Recommendation.SMOOTH_INPUT_MHE
+    at_one = analyse(linear([1.0, 0.5]))
+    assert not at_one.random_walk.detectable and at_one.random_walk.mode == pytest.approx(1.0)
+    assert at_one.recommendation is Recommendation.EKF_UKF and "not detectable either" in at_one.reason
+
+
+def test_euler_frobenius_roots():
+    np.testing.assert_allclose(euler_frobenius_roots(2), [-1.0])
+    np.testing.assert_allclose(euler_frobenius_roots(3), [-2 - np.sqrt(3), -2 + np.sqrt(3)])
+    np.testing.assert_allclose(euler_frobenius_roots(4), [-5 - 2 * np.sqrt(6), -1.0, -5 + 2 * np.sqrt(6)], atol=1e-12)
+
+
+def test_matching_fails_recommends_the_delayed_uise(analysed):
+    a = analysed("relative degree 2")
+    assert not a.matching and (a.rank_CB, a.rank_B) == (0, 1) and a.steps == (2,)
+    assert a.strong.certificate is None and "matching fails" in a.strong.not_applicable
+    assert a.delayed.certified and a.delayed.certificate.rate_min == pytest.approx(0.64, abs=1e-3)
+    bound = a.delayed.guarantee.error_bound
+    assert np.isnan(bound[0]) and np.all(bound[1:] < a.x_width[1:])  # x1 = a, the delayed system's input
+    assert a.recommendation is Recommendation.DELAYED_UISE and a.cause is Cause.DELAYED_INFORMATIVE
+
+
+# ---------------------------------------------------------------------------------------------- API and CLI
+def test_system_records_the_continuous_model_it_was_sampled_from():
+    system = pendulum()
+    assert system.sampled_from.method == "rk4" and system.sampled_from.input_channel == "integral"
+    assert system.with_scales(x=[1.0, 2.0]).sampled_from is system.sampled_from
+    assert relative_degree_two().sampled_from is None
+
+
+def test_analysis_is_plain_data_and_refuses_bad_input(analysed):
+    a = analysed("pendulum")
+    data = json.loads(json.dumps(a.to_dict(), default=float))
+    assert data["recommendation"] == "smooth-input MHE" and data["cause"] == "WINDOW_TOO_LONG"
+    assert data["zeros"]["reference"][0]["from_sampling"] is True and data["reason"] == a.reason
+    assert str(a) == a.text() and a.text().splitlines()[-2] == f"recommended: {a.reason}"
+    assert a.cpu_time > 0 and uiest.analyse is analyse
+    with pytest.raises(OptionError, match="system"):
+        analyse("pendulum")
+    with pytest.raises(OptionError, match="max_horizon"):
+        analyse(pendulum(), max_horizon=0)
+    with pytest.raises(DataError, match="x0"):
+        analyse(pendulum(), x0=[0.0])
+
+
+def test_cli_analyse_prints_the_recommendation_and_writes_json(tmp_path):
+    runner = CliRunner()
+    out = tmp_path / "analysis.json"
+    result = runner.invoke(app, ["analyse", str(ROOT / "examples" / "reactor.py"), "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "recommended: UISE" in result.output
+    assert json.loads(out.read_text())["recommendation"] == "UISE"
+    bad = runner.invoke(app, ["analyse", "linear-example", "--max-horizon", "0"])
+    assert bad.exit_code == 2 and "--max-horizon" in bad.output
