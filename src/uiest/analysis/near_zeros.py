@@ -31,7 +31,7 @@ from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
 from uiest.system import System
 
-ANGLES = 1441
+ANGLES = 721
 """Frequencies on the upper half of the unit circle (conjugates give the same values), ``0 .. pi``."""
 RADII = 6
 """Circles between ``sqrt(mu)`` and 1 searched for the ring's minimum."""
@@ -132,7 +132,8 @@ def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray,
         return np.zeros((len(z), n))
     floors = np.zeros((len(z), n))  # at an eigenvalue of A on the circle the input does not set the motion: no claim
     shifted = z[:, None, None] * np.eye(n) - A
-    regular = np.linalg.cond(shifted) < 1e12
+    eigenvalues = np.linalg.eigvals(A)
+    regular = np.min(np.abs(z[:, None] - eigenvalues[None, :]), axis=1, initial=np.inf) > 1e-9
     if not regular.any():
         return floors
     T = np.linalg.solve(shifted[regular], np.broadcast_to(Q, (int(regular.sum()), *Q.shape)))
