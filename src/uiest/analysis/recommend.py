@@ -21,6 +21,7 @@ at the near-zero's frequency hides (:mod:`uiest.analysis.near_zeros`).
 from __future__ import annotations
 
 import enum
+import re
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -192,9 +193,14 @@ def _near_zero_text(a: ModelAnalysis, z: complex) -> str:
     return text + ")"
 
 
+FIRST_CLAUSE = r" \(|; |: the "
+"""Where an error message's first clause ends (the reason quotes only that)."""
+
+
 def _certificate_text(design: EstimatorDesign) -> str:
     if design.certificate is None:
-        return f"not applicable: {design.not_applicable.split('; ')[0]}"
+        first = re.split(FIRST_CLAUSE, design.not_applicable, maxsplit=1)[0]
+        return f"not applicable: {first}"
     return str(design.status)
 
 
@@ -242,14 +248,17 @@ def reason(a: ModelAnalysis) -> str:
     else:
         assert strong.guarantee is not None
         text = f"the certified UISE's guarantee {strong.guarantee.text}"
-    if limiting is not None:
+    if limiting is not None and strong.certified:
         text += f", limited by {zero_text(a, limiting)} (|z|^2 = {number(limiting.modulus**2)})"
+    elif limiting is not None:
+        text += (f"; any certificate's rate is at least |z|^2 = {number(limiting.modulus**2)} for "
+                 f"{zero_text(a, limiting)}")  # fmt: skip
     hidden = hidden_motion(a)
     if hidden is not None:
         text += f"; {hidden}"
     elif cause is Cause.VACUOUS and a.near_zeros.noise is not None:
         text += (f", while the error floor of an estimator allowing arbitrary unknown inputs is below "
-                 f"{FLOOR_SHARE:.0%} of X's width in every state: the bound is wide, not the model's limit")  # fmt: skip
+                 f"{FLOOR_SHARE:.0%} of X's width in every state: the bound is wide, not the model")  # fmt: skip
     if rec is Recommendation.SMOOTH_INPUT_MHE:
         text += "; an estimator assuming a smooth unknown input (small steps w[k+1] - w[k]) suits it"
     else:

@@ -40,6 +40,8 @@ class ModelAnalysis:
         The integrator of the continuous-time model the system was sampled from (None: discrete-time).
     x_width : ndarray (nx,)
         X's width (the state scale where X is unbounded).
+    reference : ndarray (nx,)
+        The reference point (x0, or X's centre): the first linearisation point.
     rank_CB, rank_B : int
         Matching ranks (:func:`uiest.delay.matching_ranks`).
     steps : tuple of (int or None), one per unknown input
@@ -74,6 +76,7 @@ class ModelAnalysis:
     time_unit: str
     continuous_method: str | None
     x_width: FloatArray
+    reference: FloatArray
     rank_CB: int  # noqa: N815
     rank_B: int  # noqa: N815
     steps: tuple[int | None, ...]
@@ -138,7 +141,7 @@ class ModelAnalysis:
         n = len(self.state_names)
         sizes = (f"{n} state{'s' * (n != 1)}, {len(self.input_names)} unknown input{'s' * (len(self.input_names) != 1)}"
                  f", {len(self.output_names)} output{'s' * (len(self.output_names) != 1)}")  # fmt: skip
-        every = f"every {self.dt:g} {self.time_unit}"
+        every = f"every {self.dt:g} " + (self.time_unit if self.time_unit not in ("", "-") else "time units")
         sampled = (f"; sampled {every} from a continuous-time model ({self.continuous_method})"
                    if self.continuous_method else f"; discrete-time, dt = {self.dt:g} {self.time_unit}")  # fmt: skip
         lines = [f"{self.system_name}: {sizes}{sampled}", "structure"]
@@ -162,12 +165,14 @@ class ModelAnalysis:
             )
             lines.append(f"  {name}: {reach}{degree}")
         zeros = self.zeros
-        lines.append(f"invariant zeros (the model linearised at {zeros.points} points of X x U)")
-        lines.append(f"  at the reference point: {self._zeros_text(zeros.reference)}")
+        left_out = f"; {zeros.dropped} left out: Jacobians not finite there" if zeros.dropped else ""
+        lines.append(f"invariant zeros (the model linearised at {zeros.points} points of X x U{left_out})")
+        reference = point_text(self.state_names, self.reference)
+        lines.append(f"  at the reference point {reference}: {self._zeros_text(zeros.reference)}")
         if zeros.largest is not None and zeros.largest_at is not None:
             lines.append(f"  largest modulus {number(zeros.largest_modulus)}: {self._zeros_text((zeros.largest,))} at "
                          f"{point_text(self.state_names, zeros.largest_at)}")  # fmt: skip
-        lines.append("channels w -> y at the reference point (samples to reach y; zeros)")
+        lines.append("channels w -> y at the reference point (samples until w moves y; zeros)")
         for c in zeros.channels:
             degree = "" if c.continuous_degree is None else f", continuous relative degree {c.continuous_degree}"
             reach = "not reached" if c.steps is None else f"{c.steps} sample{'s' * (c.steps != 1)}"
@@ -228,6 +233,7 @@ class ModelAnalysis:
             "time_unit": self.time_unit,
             "continuous_method": self.continuous_method,
             "x_width": self.x_width.tolist(),
+            "reference": self.reference.tolist(),
             "rank_CB": self.rank_CB,
             "rank_B": self.rank_B,
             "matching": self.matching,

@@ -104,6 +104,8 @@ class Zeros:
         The state where it is.
     points : int
         Points searched.
+    dropped : int
+        Sampled points left out (a Jacobian not finite there).
     channels : tuple of Channel
         Every ``w_j -> y_i`` at the reference point (inputs outer, outputs inner).
 
@@ -114,6 +116,7 @@ class Zeros:
     largest_at: FloatArray | None
     points: int
     channels: tuple[Channel, ...]
+    dropped: int = 0
 
     @property
     def largest_modulus(self) -> float:
@@ -127,6 +130,7 @@ class Zeros:
             "largest": None if self.largest is None else self.largest.to_dict(),
             "largest_at": None if self.largest_at is None else self.largest_at.tolist(),
             "points": self.points,
+            "dropped": self.dropped,
             "channels": [c.to_dict() for c in self.channels],
         }
 
@@ -187,4 +191,4 @@ def find_zeros(system: System, lin: Linearisations) -> Zeros:
             zeros = _zeros_at(lin.A[0], lin.B[0][:, j : j + 1], lin.C[0][i : i + 1], A_c,
                               None if G is None else G[:, j : j + 1], dt, degree)  # fmt: skip
             channels.append(Channel(w_name, y_name, int(steps[i, j]) or None, degree, zeros))
-    return Zeros(reference, largest, largest_at, lin.count, tuple(channels))
+    return Zeros(reference, largest, largest_at, lin.count, tuple(channels), lin.dropped)
