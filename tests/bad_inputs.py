@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 
 from uiest import DataError, GaussianNoise, ModelError, OptionError, System, Trajectory, UniformNoise, simulate
+from uiest.analysis import analyse
 from uiest.detectability import (
     certify_delta_ioss,
     certify_reduced_ioss,
@@ -724,6 +725,11 @@ def api_cases(tmp: Path) -> list[Case]:
             ok=lambda r: (r["error"] == "ZeroDivisionError: injected").all(),
         ),
         *_fuzz_cases(tmp),
+        # model analysis
+        Case("analyse: a model name, not a System", lambda: analyse("closed-form"), OptionError, "system"),
+        Case("analyse: max_horizon = 0", lambda: analyse(s(), max_horizon=0), OptionError, "max_horizon"),
+        Case("analyse: points = 0", lambda: analyse(s(), points=0), OptionError, "points"),
+        Case("analyse: x0 of the wrong length", lambda: analyse(s(), x0=[1.0, 2.0, 3.0]), DataError, "x0"),
     ]
     return cases
 
@@ -1127,6 +1133,9 @@ def cli_cases(tmp: Path) -> list[CliCase]:
             "--steps 1: settle",
         ),
         CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
+        CliCase("analyse an unknown model", ("analyse", "no-such"), 2, "unknown name"),
+        CliCase("analyse --max-horizon 0", ("analyse", "closed-form", "--max-horizon", "0"), 2, "--max-horizon"),
+        CliCase("analyse --json unwritable", ("analyse", "closed-form", "--json", f"{bad}/a.json"), 2, "cannot write"),
         CliCase(
             "sweep where out/results.parquet is a folder",
             ("sweep", str(_sweep_file(tmp, "grid = {N = [3]}")), "--out", str(_results_folder(tmp)), "--workers", "1"),
