@@ -193,7 +193,7 @@ def _near_zero_text(a: ModelAnalysis, z: complex) -> str:
     return text + ")"
 
 
-FIRST_CLAUSE = r" \(|; |: the "
+FIRST_CLAUSE = r" \(|; "
 """Where an error message's first clause ends (the reason quotes only that)."""
 
 
