@@ -22,6 +22,7 @@ there (a lower bound for small motions; it says nothing about motions that leave
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -158,13 +159,13 @@ def output_noise(system: System, D: FloatArray) -> FloatArray | None:
     return eps if np.all(eps > 0) else None
 
 
-def _refine(objective: object, angles: FloatArray, best: int) -> float:
+def _refine(objective: Callable[[float], float], angles: FloatArray, best: int) -> float:
     """The angle minimising ``objective(theta)`` between the grid neighbours of ``angles[best]``."""
     low, high = angles[max(best - 1, 0)], angles[min(best + 1, len(angles) - 1)]
     if high <= low:
         return float(angles[best])
     found = minimize_scalar(objective, bounds=(low, high), method="bounded", options={"xatol": 1e-10})
-    return float(found.x) if found.fun <= objective(angles[best]) else float(angles[best])  # type: ignore[operator]
+    return float(found.x) if found.fun <= objective(float(angles[best])) else float(angles[best])
 
 
 def find_near_zeros(system: System, lin: Linearisations, rate: float | None = None) -> NearZeros:
