@@ -52,7 +52,7 @@ G, AREA, OUTLET = 981.0, (28.0, 32.0, 28.0, 32.0), (0.071, 0.057, 0.071, 0.057)
 PUMP, SPLIT = (3.33, 3.35), (0.7, 0.6)
 
 
-def quadruple_tank(*, upper: bool, dt: float) -> System:
+def quadruple_tank(*, upper: bool, dt: float, lower: tuple[float, ...] = (4, 4, 1, 1)) -> System:
     """Johansson's quadruple tank (cm, s); unknown inflows into the lower (measured) or the upper tanks."""
 
     def rhs(x, u, w):
@@ -65,7 +65,7 @@ def quadruple_tank(*, upper: bool, dt: float) -> System:
 
     return System.from_ode(
         rhs, lambda x, v: [x[0] + v[0], x[1] + v[1]], nx=4, nu=2, nw=2, nv=2, dt=dt,
-        x_bounds=((4, 4, 1, 1), (20, 20, 6, 6)), u_bounds=((2.5, 2.5), (3.5, 3.5)), v_bounds=(-0.05, 0.05),
+        x_bounds=(lower, (20, 20, 6, 6)), u_bounds=((2.5, 2.5), (3.5, 3.5)), v_bounds=(-0.05, 0.05),
         x_names=("h1", "h2", "h3", "h4"), x_units=("cm",) * 4, name="quadruple tank",
     )  # fmt: skip
 

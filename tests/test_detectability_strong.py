@@ -434,3 +434,20 @@ def test_the_tradeoff_of_a_reweighted_certificate_keeps_its_output_weight():
     assert row.certified and plain.certified
     np.testing.assert_allclose(row.noise_gain, np.sqrt(10.0) * plain.noise_gain, rtol=1e-9)
     np.testing.assert_allclose(row.noise_gain, heavier.noise_gain, rtol=1e-9)
+
+
+def test_the_search_does_not_refute_with_pairs_closer_than_rounding():
+    # the quadruple tank with h3, h4 down to 0.5 cm: its local maximisation once drove a pair to one unit in the last
+    # place apart (h3 = 0.5 and 0.5 - 1.1e-16), where lhs / rhs measures rounding (4.13): "refuted" a valid certificate
+    from test_analysis import quadruple_tank
+
+    from uiest.detectability import falsify
+
+    cert = certify_strong_detectability(quadruple_tank(upper=False, dt=1.0, lower=(4, 4, 0.5, 0.5)))
+    assert cert.certified, cert.reason
+    found = cert.falsification
+    width = cert.system.x.bounds.width / cert.system.x.scale
+    assert np.linalg.norm(
+        (found.first - found.second) / cert.system.x.scale
+    ) >= falsify.MIN_SEPARATION * np.linalg.norm(width)
+    assert found.worst_ratio <= 1.0 and cert.verify(20_000).holds

@@ -15,7 +15,9 @@ and disturbance of each trajectory). Before a ``certify_*`` function returns a c
    the boxes) from the worst pairs found.
 
 A ratio above ``1 + REFUTE_RTOL`` refutes the certificate (:attr:`Falsification.refuted`); the
-tolerance sits far above the rounding of the ratio for pairs at least 1e-6 of the width apart.
+tolerance sits far above the rounding of the ratio for pairs at least :data:`MIN_SEPARATION` of the
+box's scaled diameter apart, and closer pairs (which clipping at a side or a local maximisation can
+make) are not scored.
 Not finding a violation proves nothing; finding one disproves the certificate.
 """
 
@@ -44,6 +46,10 @@ ITERATIONS = 60
 
 REFUTE_RTOL = 1e-6
 """A pair whose ratio exceeds ``1 + REFUTE_RTOL`` refutes the certificate."""
+
+MIN_SEPARATION = 1e-7
+"""Pairs closer than this fraction of the box's scaled diameter are not scored: their ratio measures the rounding
+of the model's evaluation (two states one unit in the last place apart gave ratios of 4)."""
 
 
 @dataclass(frozen=True)
@@ -170,13 +176,14 @@ def search(
     lhs, rhs = (np.asarray(v, dtype=float).ravel() for v in terms.map(len(a))(a.T, b.T, s.T))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(rhs > 0.0, lhs / rhs, np.where(lhs > 0.0, np.inf, -np.inf))
-    ratio = np.where(np.isnan(ratio), -np.inf, ratio)
+    floor = MIN_SEPARATION * float(np.linalg.norm(np.where(domain.width > 0, domain.width, 0.0) / scale))
+    ratio = np.where(np.isnan(ratio) | (np.linalg.norm((a - b) / scale, axis=1) < floor), -np.inf, ratio)
     best = int(np.argmax(ratio))
     worst = (float(ratio[best]), a[best], b[best], s[best])
     evaluations = 0
     started = 0
     if np.isfinite(worst[0]):
-        local = _local(terms, domain, shared)
+        local = _local(terms, domain, shared, scale, floor)
         for i in _starts(ratio, a, b, searches):
             value, point, count = local(np.concatenate([a[i], b[i], s[i]]))
             evaluations += count
@@ -199,8 +206,10 @@ def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list
     return chosen
 
 
-def _local(terms: ca.Function, domain: Box, shared: Box):  # type: ignore[no-untyped-def]
+def _local(terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floor: float):  # type: ignore[no-untyped-def]
     """A maximiser of ``lhs / rhs`` from a start ``(a, b, s)``: returns (ratio, point, evaluations).
+
+    Points whose pair is closer than ``floor`` (scaled by ``scale``) score -inf.
 
     Projected gradient ascent in the boxes (coordinates scaled to [0, 1]) with Barzilai-Borwein steps
     and an Armijo backtrack, CasADi's gradient; pure numpy on a few numbers per step (scipy's L-BFGS-B
@@ -227,7 +236,10 @@ def _local(terms: ca.Function, domain: Box, shared: Box):  # type: ignore[no-unt
         def objective(t: FloatArray) -> tuple[float, FloatArray]:
             nonlocal count
             count += 1
-            value, grad, denominator = evaluate(point(t))
+            full = point(t)
+            if np.linalg.norm((full[:n] - full[n : 2 * n]) / scale) < floor:
+                return -np.inf, np.zeros_like(t)
+            value, grad, denominator = evaluate(full)
             value, denominator = float(value), float(denominator)
             if not (np.isfinite(value) and denominator > 0.0):
                 return -np.inf, np.zeros_like(t)
