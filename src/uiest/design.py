@@ -46,6 +46,7 @@ from uiest.errors import CertificationError, DataError, OptionError
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
+from uiest.scales import data_scales
 from uiest.system import System
 
 CONDITION_MARGIN = 0.99
@@ -215,6 +216,7 @@ def design_uise(
     from uiest.detectability.certificate import horizon_condition
     from uiest.estimators import UISE
 
+    system = data_scales(system, as_vector(x0, system.nx, "x0"))
     certify = dict(certify_options or {})
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
     v_bar = _v_prior(system, options)
@@ -264,7 +266,9 @@ def design_two_stage(
     the one the guarantee carries to the states).
     """
     from uiest.estimators import TwoStageUISE
+    from uiest.estimators.two_stage import reduced_data_scales
 
+    reduced = reduced_data_scales(reduced, as_vector(x0, reduced.system.nx, "x0"))
     system = reduced.system
     certify = dict(certify_options or {})
     v_bar = _v_prior(system, options)
