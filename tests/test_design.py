@@ -1,11 +1,12 @@
 """UISE.design: mu and N chosen for accuracy, against the linear UIO on systems without invariant zeros."""
 
+import pickle
 import warnings
 
 import numpy as np
 import pytest
 
-from uiest import CertificationError, DataError, OptionError, simulate
+from uiest import CertificationError, DataError, HorizonError, OptionError, simulate
 from uiest.design import ERROR_TOLERANCE, regret
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
@@ -92,8 +93,14 @@ def test_design_refuses_what_it_cannot_do():
         UISE.design(system, x0_prior=np.zeros(3), max_horizon=0)
     # an invariant zero at 0.6: mu >= 0.36, and 8 mu^N cond(P) < 1 has no solution with N = 1 (cond(P) >= 1)
     zero, *_ = linear.with_invariant_zeros([0.6], seed=3, x_bounds=(-10.0, 10.0), v_bounds=(-1e-3, 1e-3))
-    with pytest.raises(CertificationError, match="max_horizon: no certified rate"):
+    with pytest.raises(HorizonError, match="max_horizon: no certified rate") as refused:
         UISE.design(zero, x0_prior=np.zeros(zero.nx), max_horizon=1, rates=(0.5,))
+    # the shortest certified window as data (the CLI names its own flag with it), kept through pickling
+    shortest = min(certify_strong_detectability(zero, mu=mu).min_horizon() for mu in (None, 0.5))
+    assert isinstance(refused.value, CertificationError)
+    assert (refused.value.limit, refused.value.shortest) == (1, shortest)
+    copy = pickle.loads(pickle.dumps(refused.value))
+    assert (copy.limit, copy.shortest, str(copy)) == (1, shortest, str(refused.value))
 
 
 def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():

@@ -120,6 +120,23 @@ def test_estimate_takes_the_mhe_weights_from_a_certificate_and_names_why_a_uise_
     mhe, note = build_estimator("mhe", entry, system, x0)
     assert note.startswith("delta-IOSS certificate") and mhe.certificate is not None
     assert mhe.certificate.min_horizon() <= mhe.N
-    # the reactor certifies, but not with a two-sample window: "no certified design", not "not certified"
+    # the reactor certifies, but not with a two-sample window: "no certified design", not "not certified", and the
+    # hint names the CLI's flag, not the library's argument
     uise, note = build_estimator("uise", entry, system, x0, horizon=2)
-    assert note.startswith("no certified design (max_horizon:") and uise.N == 2 and not uise.guaranteed
+    assert note.startswith("no certified design (certified, but with no window within --horizon 2: the shortest is ")
+    assert "max_horizon" not in note and uise.N == 2 and not uise.guaranteed
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:design. the chosen guarantee is not informative")
+def test_the_default_horizon_limit_admits_a_certified_window_longer_than_30():
+    # the quadruple tank's shortest certified window is 34: the default limit of 30 once fell back to uncertified
+    # weights; without --horizon a window up to 60 is admitted where none of at most 30 certifies
+    from uiest.estimate import DEFAULT_MAX_HORIZON, LONGEST_HORIZON, build_estimator
+
+    entry = load(ROOT / "tests" / "quadruple_tank.py")
+    system = entry.build()
+    uise, note = build_estimator("uise", entry, system, np.asarray(entry.setup().x0))
+    assert uise.guaranteed and DEFAULT_MAX_HORIZON < uise.N <= LONGEST_HORIZON
+    assert note == f"designed: mu={uise.weights.mu:.3g}, N={uise.N}, certified"
+    assert uise.design_report.certificate.min_horizon() > DEFAULT_MAX_HORIZON

@@ -10,6 +10,7 @@ from uiest.errors import (
     CertificationError,
     DataError,
     DomainWarning,
+    HorizonError,
     ModelError,
     OptionError,
     SolverError,
@@ -17,7 +18,7 @@ from uiest.errors import (
 )
 from uiest.noise import GaussianNoise, UniformNoise
 from uiest.results import Trajectory
-from uiest.signal import Signal
+from uiest.signal import ScaleSource, Signal
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
@@ -30,9 +31,11 @@ __all__ = [
     "DataError",
     "DomainWarning",
     "GaussianNoise",
+    "HorizonError",
     "Linearization",
     "ModelError",
     "OptionError",
+    "ScaleSource",
     "Signal",
     "SolverError",
     "System",

@@ -42,7 +42,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, user_stacklevel
-from uiest.errors import CertificationError, DataError, OptionError
+from uiest.errors import CertificationError, DataError, HorizonError, OptionError
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
@@ -209,7 +209,8 @@ def design_uise(
     Raises
     ------
     CertificationError
-        When no rate certifies, or no certified rate has an admissible N within ``max_horizon``.
+        When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
+        certified rate has an admissible N within ``max_horizon``.
 
     """
     from uiest.detectability import certify_strong_detectability
@@ -356,10 +357,13 @@ def _design(
         if N is not None:
             candidates.append(weigh(cert, N))
     if not candidates:
-        raise CertificationError(
-            f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} "
-            f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it, and "
-            "the estimator built from a certificate with a shorter N runs without a guarantee)"
+        shortest = min(cert.min_horizon() for cert in certificates)
+        raise HorizonError(
+            f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} (the shortest certified "
+            f"window: {shortest}; max_horizon={shortest} admits it, and the estimator built from a certificate "
+            "with a shorter N runs without a guarantee)",
+            max_horizon,
+            shortest,
         )
     chosen, cert = choose(candidates)
     candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
