@@ -1,9 +1,12 @@
 """UISE.design: mu and N chosen for accuracy, against the linear UIO on systems without invariant zeros."""
 
+import pickle
+import warnings
+
 import numpy as np
 import pytest
 
-from uiest import CertificationError, DataError, OptionError, simulate
+from uiest import CertificationError, DataError, HorizonError, OptionError, simulate
 from uiest.design import ERROR_TOLERANCE, regret
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
@@ -90,8 +93,14 @@ def test_design_refuses_what_it_cannot_do():
         UISE.design(system, x0_prior=np.zeros(3), max_horizon=0)
     # an invariant zero at 0.6: mu >= 0.36, and 8 mu^N cond(P) < 1 has no solution with N = 1 (cond(P) >= 1)
     zero, *_ = linear.with_invariant_zeros([0.6], seed=3, x_bounds=(-10.0, 10.0), v_bounds=(-1e-3, 1e-3))
-    with pytest.raises(CertificationError, match="max_horizon: no certified rate"):
+    with pytest.raises(HorizonError, match="max_horizon: no certified rate") as refused:
         UISE.design(zero, x0_prior=np.zeros(zero.nx), max_horizon=1, rates=(0.5,))
+    # the shortest certified window as data (the CLI names its own flag with it), kept through pickling
+    shortest = min(certify_strong_detectability(zero, mu=mu).min_horizon() for mu in (None, 0.5))
+    assert isinstance(refused.value, CertificationError)
+    assert (refused.value.limit, refused.value.shortest) == (1, shortest)
+    copy = pickle.loads(pickle.dumps(refused.value))
+    assert (copy.limit, copy.shortest, str(copy)) == (1, shortest, str(refused.value))
 
 
 def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
@@ -203,18 +212,49 @@ def test_a_certificate_with_larger_output_weights_still_holds_and_the_design_tri
     assert {c.output_weight for c in design.candidates if (c.mu, c.N) == (best.mu, best.N)} == {1.0, 10.0, 100.0}
 
 
-def chen_patton(dt=0.1, noise=1e-2):
+def chen_patton(dt=0.1, noise=1e-2, x_scale=1.0):
     """The 3-state UIO example of Chen and Patton (Robust Model-Based Fault Diagnosis for Dynamic Systems, 1999),
-    ``dx/dt = A x + E d``, ``y = C x``, sampled by zero-order hold (d held over a step), X = +-1e9 with unit scales:
-    "unbounded" as a user writes it. No invariant zeros, so a linear UIO's poles are free."""
+    ``dx/dt = A x + E d``, ``y = C x``, sampled by zero-order hold (d held over a step), X = +-1e9 with unit scales
+    (None: none given): "unbounded" as a user writes it. No invariant zeros, so a linear UIO's poles are free."""
     import scipy.linalg
 
     A = np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, -1.0]])
     E = np.array([[-1.0], [0.0], [0.0]])
     C = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
     M = scipy.linalg.expm(np.block([[A, E], [np.zeros((1, 4))]]) * dt)
-    return linear.linear_system(M[:3, :3], M[:3, 3:], C, x_bounds=(-1e9, 1e9), v_bounds=(-noise, noise), x_scale=1.0,
-                                name="chen-patton")  # fmt: skip
+    return linear.linear_system(M[:3, :3], M[:3, 3:], C, x_bounds=(-1e9, 1e9), v_bounds=(-noise, noise),
+                                x_scale=x_scale, name="chen-patton")  # fmt: skip
+
+
+def chen_patton_record(system, K=300):
+    """A sine, uniform noise and a step of 50 at K/2 as the unknown input; output noise uniform in +-0.01."""
+    rng = np.random.default_rng(0)
+    w = (3 * np.sin(0.05 * np.arange(K)) + rng.uniform(-1, 1, K) + 50.0 * (np.arange(K) >= K // 2))[:, None]
+    return simulate(system, [1.0, -1.0, 2.0], K, w=w, v=rng.uniform(-1e-2, 1e-2, (K + 1, 2)))
+
+
+def test_uise_design_where_x_means_unbounded_takes_scales_from_data_and_matches_the_linear_uio():
+    # X = +-1e9 and no scales: X's width as every state's scale (2e9) made the design pick mu 0.1, N 4 and gave
+    # 45-4600x the UIO's RMSE per state, with a scale warning per noise trial; the scales now come from the prior
+    # and a short simulation (uiest.scales)
+    from uiest.signal import ScaleSource
+
+    system = chen_patton(x_scale=None)
+    assert system.x.scale.tolist() == [2e9] * 3
+    traj = chen_patton_record(system)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        designed = UISE.design(system, x0_prior=np.zeros(3))
+        result = designed.run(None, traj.y)
+    assert not [w for w in caught if "scale" in str(w.message)], [str(w.message) for w in caught]
+    assert set(designed.system.x.scale_source) == {ScaleSource.DATA} and np.all(designed.system.x.scale < 10)
+    uio = LinearUIO(system, x0_prior=np.zeros(3)).run(None, traj.y)
+
+    def rmse(r):
+        return np.sqrt(np.mean(r.error(traj.x)[50:] ** 2, axis=0))
+
+    assert result.failures == 0 and designed.guaranteed
+    assert np.all(rmse(result) <= 1.2 * rmse(uio)), (rmse(result), rmse(uio))
 
 
 def test_two_stage_design_on_the_chen_patton_benchmark_matches_the_linear_uio():

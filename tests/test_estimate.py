@@ -120,6 +120,58 @@ def test_estimate_takes_the_mhe_weights_from_a_certificate_and_names_why_a_uise_
     mhe, note = build_estimator("mhe", entry, system, x0)
     assert note.startswith("delta-IOSS certificate") and mhe.certificate is not None
     assert mhe.certificate.min_horizon() <= mhe.N
-    # the reactor certifies, but not with a two-sample window: "no certified design", not "not certified"
+    # the reactor certifies, but not with a two-sample window: "no certified design", not "not certified", and the
+    # hint names the CLI's flag, not the library's argument
     uise, note = build_estimator("uise", entry, system, x0, horizon=2)
-    assert note.startswith("no certified design (max_horizon:") and uise.N == 2 and not uise.guaranteed
+    assert note.startswith("no certified design (certified, but with no window within --horizon 2: the shortest is ")
+    assert "max_horizon" not in note and uise.N == 2 and not uise.guaranteed
+
+
+@pytest.mark.slow
+@pytest.mark.filterwarnings("ignore:design. the chosen guarantee is not informative")
+def test_the_default_horizon_limit_admits_a_certified_window_longer_than_30():
+    # the quadruple tank's shortest certified window is 34: the default limit of 30 once fell back to uncertified
+    # weights; without --horizon a window up to 60 is admitted where none of at most 30 certifies
+    from uiest.estimate import DEFAULT_MAX_HORIZON, LONGEST_HORIZON, build_estimator
+
+    entry = load(ROOT / "tests" / "quadruple_tank.py")
+    system = entry.build()
+    uise, note = build_estimator("uise", entry, system, np.asarray(entry.setup().x0))
+    assert uise.guaranteed and DEFAULT_MAX_HORIZON < uise.N <= LONGEST_HORIZON
+    assert note == f"designed: mu={uise.weights.mu:.3g}, N={uise.N}, certified"
+    assert uise.design_report.certificate.min_horizon() > DEFAULT_MAX_HORIZON
+
+
+CHEN_PATTON_WIDE = """
+import numpy as np
+import scipy.linalg
+from uiest.models import linear
+
+A = np.array([[-1.0, 1.0, 0.0], [-1.0, 0.0, 0.0], [0.0, -1.0, -1.0]])
+E, C = np.array([[-1.0], [0.0], [0.0]]), np.array([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]])
+M = scipy.linalg.expm(np.block([[A, E], [np.zeros((1, 4))]]) * 0.1)
+system = linear.linear_system(M[:3, :3], M[:3, 3:], C, x_bounds=(-1e9, 1e9), v_bounds=(-0.01, 0.01))
+"""
+
+
+@pytest.mark.slow
+def test_estimate_on_a_model_whose_x_means_unbounded_takes_scales_from_the_data(tmp_path):
+    # Chen-Patton with X = +-1e9 and no scales: with X's width as the scales the designed UISE erred by 10.2
+    # (RMSE over the states; the UIO 0.10) and each estimator warned about the scales
+    model = tmp_path / "chen_patton_wide.py"
+    model.write_text(CHEN_PATTON_WIDE)
+    system = load(model).build()
+    rng = np.random.default_rng(0)
+    w = (3 * np.sin(0.05 * np.arange(300)) + 50.0 * (np.arange(300) >= 150))[:, None]
+    traj = simulate(system, [1.0, -1.0, 2.0], 300, w=w, v=rng.uniform(-0.01, 0.01, (301, 2)))
+    data = tmp_path / "record.csv"
+    traj.to_pandas().to_csv(data)
+    out = tmp_path / "out"
+    result = CliRunner().invoke(app, ["estimate", str(model), "--data", str(data), "--estimator", "uise",
+                                      "--estimator", "uio", "--x0", "0,0,0", "--out", str(out)])  # fmt: skip
+    assert result.exit_code == 0, result.output
+    assert "scale" not in result.output, result.output
+    columns = [f"x[{i}]_hat" for i in range(3)]
+    rmse = {kind: np.sqrt(np.mean((pd.read_csv(out / f"estimates_{kind}.csv")[columns].to_numpy() - traj.x) ** 2))
+            for kind in ("uise", "uio")}  # fmt: skip
+    assert rmse["uise"] <= 1.2 * rmse["uio"], rmse

@@ -1,6 +1,8 @@
 """Estimators against known answers: linear systems with huge unknown inputs, the closed-form system,
 FIE == UISE while k <= N, the crop model; weights, guarantees, streaming, warm starts, failures."""
 
+import warnings
+
 import numpy as np
 import pytest
 from failing_solver import FailingSolver
@@ -392,36 +394,43 @@ def test_standard_mhe_raises_a_tiny_certified_eta_to_keep_the_window_well_scaled
 
 
 @pytest.mark.parametrize("solver", ["gn", "ipopt"])
-def test_a_domain_meant_as_unbounded_needs_scales_not_widths(solver):
-    # X = +-1e9: with scales from X's width a noise-free UISE errs by ~0.5 (gn); with state scales
-    # from a trajectory's magnitudes the UISE and the two-stage UISE recover the state to 1e-8 of
-    # |x|, and the width-derived scales are warned about.
+def test_a_domain_meant_as_unbounded_gets_scales_from_data_not_widths(solver):
+    # X = +-1e9 without scales: with scales from X's width a noise-free UISE erred by ~0.5 (gn). The estimators
+    # take the state scales from the prior and a short simulation (uiest.scales) instead, as a user does from a
+    # trajectory's magnitudes, and recover the state to 1e-8 of |x| without a warning.
     from uiest.estimators import TwoStageUISE, TwoStageWeights
     from uiest.reduction import reduce_quasi_state_affine
+    from uiest.signal import ScaleSource
 
     A = np.array([[0.8, 0.3, 0.0], [-0.2, 0.7, 0.4], [0.1, -0.3, 0.6]])
     B, C = np.array([[1.0], [0.0], [0.5]]), np.array([[1.0, 0, 0], [0, 1.0, 0]])
     wide = linear.linear_system(A, B, C, x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3))
-    with pytest.warns(UserWarning, match=r"x_scale: the largest state scale \(2e\+09.*2e\+09 times the prior"):
-        UISE(wide, weights=UISEWeights.from_scales(wide, 0.5), N=10, x0_prior=np.zeros(3))
     rng = np.random.default_rng(0)
     traj = simulate(wide, [1.0, -1.0, 2.0], 150, w=(5 * rng.standard_normal(150))[:, None])
-    system = wide.with_scales(traj)  # the magnitudes of a simulated record
-    assert np.all(system.x.scale < 100) and np.all(system.x.scale == np.abs(traj.x).max(axis=0))
+    scaled = wide.with_scales(traj)  # the magnitudes of a simulated record
+    assert np.all(scaled.x.scale == np.abs(traj.x).max(axis=0)) and set(scaled.x.scale_source) == {ScaleSource.DATA}
     scale = np.abs(traj.x[-20:]).max()
-    uise = UISE(system, weights=UISEWeights.from_scales(system, 0.5), N=10, x0_prior=np.zeros(3), solver=solver)
-    assert np.abs(uise.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
-    reduced = reduce_quasi_state_affine(system)
-    two_stage = TwoStageUISE(reduced, weights=TwoStageWeights.from_scales(reduced, 0.5), N=10, x0_prior=np.zeros(3),
-                             solver=solver)  # fmt: skip
-    assert np.abs(two_stage.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
+    for system in (wide, scaled):
+        with warnings.catch_warnings():
+            warnings.simplefilter("error", UserWarning)
+            uise = UISE(system, weights=UISEWeights.from_scales(scaled, 0.5), N=10, x0_prior=np.zeros(3),
+                        solver=solver)  # fmt: skip
+            reduced = reduce_quasi_state_affine(system)
+            two_stage = TwoStageUISE(reduced, weights=TwoStageWeights.from_scales(reduce_quasi_state_affine(scaled),
+                                     0.5), N=10, x0_prior=np.zeros(3), solver=solver)  # fmt: skip
+        assert np.all(uise.system.x.scale < 100) and np.all(two_stage.reduced.system.x.scale < 100)
+        assert np.abs(uise.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
+        assert np.abs(two_stage.run(None, traj.y).error(traj.x)[-20:]).max() < 1e-8 * scale
 
 
-def test_the_scale_warning_names_the_users_line():
-    wide = linear.linear_system(np.array([[0.5]]), [[1.0]], [[1.0]], x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3))
-    with pytest.warns(UserWarning, match="x_scale: the largest state scale") as caught:
-        UISE(wide, weights=UISEWeights.from_scales(wide, 0.5), N=3, x0_prior=np.zeros(1))
+def test_the_scale_warning_remains_where_no_data_gives_a_scale_and_names_the_users_line():
+    # nothing moves the state (prior 0, the unknown input does not enter): X's width stays its scale, and warns
+    wide = linear.linear_system([[0.5]], [[0.0]], [[1.0]], x_bounds=(-1e9, 1e9), v_bounds=(-1e-3, 1e-3))
+    message = r"x_scale: the largest state scale \(2e\+09.*2e\+09 times the prior"
+    with pytest.warns(UserWarning, match=message) as caught:
+        est = UISE(wide, weights=UISEWeights.from_scales(wide, 0.5), N=3, x0_prior=np.zeros(1))
     assert [w.filename for w in caught] == [__file__]  # not uiest's estimators/base.py
+    assert est.system is wide
 
 
 def test_fixed_lag_estimates_are_the_windows_older_nodes():

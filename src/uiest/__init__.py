@@ -12,6 +12,7 @@ from uiest.errors import (
     CertificationError,
     DataError,
     DomainWarning,
+    HorizonError,
     ModelError,
     OptionError,
     SolverError,
@@ -19,7 +20,7 @@ from uiest.errors import (
 )
 from uiest.noise import GaussianNoise, UniformNoise
 from uiest.results import Trajectory
-from uiest.signal import Signal
+from uiest.signal import ScaleSource, Signal
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
@@ -42,10 +43,12 @@ __all__ = [
     "DataError",
     "DomainWarning",
     "GaussianNoise",
+    "HorizonError",
     "Linearization",
     "ModelAnalysis",
     "ModelError",
     "OptionError",
+    "ScaleSource",
     "Signal",
     "SolverError",
     "System",

@@ -149,7 +149,11 @@ def estimate(
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
     lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
     horizon: Annotated[
-        int | None, typer.Option(help="Largest N of a design (default 30); N when the model does not certify (20).")
+        int | None,
+        typer.Option(
+            help="Largest N of a design (default 30, or up to 60 where only a longer window certifies); "
+            "N when the model does not certify (20)."
+        ),
     ] = None,
     w_variance: Annotated[
         float | None, typer.Option(help="EKF/UKF random-walk variance, times w's scale^2 (default: tuned).")
@@ -160,6 +164,7 @@ def estimate(
     from uiest.box import as_vector
     from uiest.estimate import build_estimator, default_prior, errors_against_truth, run_estimators, write_estimates
     from uiest.results import read_record
+    from uiest.scales import data_scales
 
     kinds = estimator or ["uise"]
     _positive(lag, "--lag", allow_zero=True)
@@ -178,6 +183,7 @@ def estimate(
         except ValueError:
             raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
         prior = as_vector(values, system.nx, "--x0")
+    system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
     built, notes = {}, {}
     with console.status("building estimators") as status:
         for kind in kinds:

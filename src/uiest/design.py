@@ -42,10 +42,11 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, user_stacklevel
-from uiest.errors import CertificationError, DataError, OptionError
+from uiest.errors import CertificationError, DataError, HorizonError, OptionError
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
+from uiest.scales import data_scales
 from uiest.system import System
 
 CONDITION_MARGIN = 0.99
@@ -208,13 +209,15 @@ def design_uise(
     Raises
     ------
     CertificationError
-        When no rate certifies, or no certified rate has an admissible N within ``max_horizon``.
+        When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
+        certified rate has an admissible N within ``max_horizon``.
 
     """
     from uiest.detectability import certify_strong_detectability
     from uiest.detectability.certificate import horizon_condition
     from uiest.estimators import UISE
 
+    system = data_scales(system, as_vector(x0, system.nx, "x0"))
     certify = dict(certify_options or {})
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
     v_bar = _v_prior(system, options)
@@ -264,7 +267,9 @@ def design_two_stage(
     the one the guarantee carries to the states).
     """
     from uiest.estimators import TwoStageUISE
+    from uiest.estimators.two_stage import reduced_data_scales
 
+    reduced = reduced_data_scales(reduced, as_vector(x0, reduced.system.nx, "x0"))
     system = reduced.system
     certify = dict(certify_options or {})
     v_bar = _v_prior(system, options)
@@ -352,10 +357,13 @@ def _design(
         if N is not None:
             candidates.append(weigh(cert, N))
     if not candidates:
-        raise CertificationError(
-            f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} "
-            f"(min_horizon() of the minimal rate: {first.min_horizon()}; a larger max_horizon admits it, and "
-            "the estimator built from a certificate with a shorter N runs without a guarantee)"
+        shortest = min(cert.min_horizon() for cert in certificates)
+        raise HorizonError(
+            f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} (the shortest certified "
+            f"window: {shortest}; max_horizon={shortest} admits it, and the estimator built from a certificate "
+            "with a shorter N runs without a guarantee)",
+            max_horizon,
+            shortest,
         )
     chosen, cert = choose(candidates)
     candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants

@@ -27,6 +27,26 @@ class CertificationError(UiestError, RuntimeError):
     """A certificate was required but could not be established."""
 
 
+class HorizonError(CertificationError):
+    """Certificates hold, but each needs a longer window than the largest horizon allowed.
+
+    Attributes
+    ----------
+    limit : int
+        The largest horizon allowed (``max_horizon``).
+    shortest : int
+        The shortest window any certificate found admits (its ``min_horizon()``), > ``limit``.
+
+    """
+
+    def __init__(self, message: str, limit: int, shortest: int) -> None:
+        super().__init__(message)
+        self.limit, self.shortest = int(limit), int(shortest)
+
+    def __reduce__(self) -> tuple[type, tuple[str, int, int]]:
+        return (type(self), (str(self), self.limit, self.shortest))
+
+
 class SolverError(UiestError, RuntimeError):
     """A numerical solver failed and the caller asked for failures to be raised."""
 

@@ -4,16 +4,16 @@
 model certifies:
 
 - ``uise``: :meth:`UISE.design <uiest.estimators.UISE.design>` (certified mu and N <= ``horizon``,
-  default 30, chosen for accuracy); when there is no certified design (the model does not certify,
-  or its certified window is longer than ``horizon``), explicit weights
-  ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon`` (default 20), and the run says why and
-  that it has no guarantee.
+  chosen for accuracy; without ``horizon``: N <= 30, or, where no window of at most 30 certifies,
+  N <= 60); when there is no certified design (the model does not certify, or its certified window is
+  longer than that limit), explicit weights ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon``
+  (default 20), and the run says why (naming ``--horizon``) and that it has no guarantee.
 - ``delayed``: the same for :class:`~uiest.estimators.DelayedUISE` (relative degree 2, ``lag >= 1``).
 - ``two-stage``: :meth:`TwoStageUISE.design <uiest.estimators.TwoStageUISE.design>` on the
   model's reduction (a model without ``reduction()`` is refused), same fallback.
 - ``mhe``: the standard MHE with the weights of a delta-IOSS certificate
   (:func:`~uiest.detectability.certify_delta_ioss`) and N = ``horizon`` (20) or its ``min_horizon()`` if
-  longer (up to 30); without one, ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon``.
+  longer (up to ``horizon``, default 60); without one, ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon``.
 - ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else tuned on
   a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
 - ``uio``: the linear UIO (linear models only).
@@ -34,7 +34,7 @@ import numpy as np
 
 from uiest.box import FloatArray
 from uiest.delay import matching_ranks
-from uiest.errors import CertificationError, ModelError, OptionError
+from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
 from uiest.models import ModelEntry
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
@@ -44,7 +44,9 @@ FALLBACK_RATE = 0.8
 """Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
 DEFAULT_HORIZON = 20
 DEFAULT_MAX_HORIZON = 30
-"""The designs' ``max_horizon`` when ``horizon`` is not given."""
+"""The designs' ``max_horizon`` when ``horizon`` is not given, as the library's (a window's cost grows with N)."""
+LONGEST_HORIZON = 60
+"""Without ``horizon``: the longest certified window admitted where none of at most DEFAULT_MAX_HORIZON certifies."""
 
 
 def default_prior(entry: ModelEntry, system: System) -> FloatArray:
@@ -84,18 +86,24 @@ def build_estimator(
                 "input of relative degree 2 use --estimator delayed"
             )
     if kind in ("uise", "delayed", "two-stage"):
-        longest = DEFAULT_MAX_HORIZON if horizon is None else horizon
-        design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
-        try:
-            if kind == "uise":
-                built = est.UISE.design(system, x0_prior=x0, **design_kw)
-            elif kind == "delayed":
-                built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
-            else:
-                built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
-            return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
-        except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x, N too short
-            note = f"no certified design ({exc}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
+        for longest in (DEFAULT_MAX_HORIZON, LONGEST_HORIZON) if horizon is None else (horizon,):
+            design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
+            try:
+                if kind == "uise":
+                    built = est.UISE.design(system, x0_prior=x0, **design_kw)
+                elif kind == "delayed":
+                    built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
+                else:
+                    built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
+                return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
+            except HorizonError as exc:  # certified, with a longer window: the next limit may admit it
+                reason = horizon_reason(exc.limit, exc.shortest)
+                if exc.shortest > LONGEST_HORIZON:
+                    break
+            except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
+                reason = str(exc)
+                break
+        note = f"no certified design ({reason}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
         if kind == "uise":
             return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
                             **options), note  # fmt: skip
@@ -124,13 +132,21 @@ def build_estimator(
     )
 
 
+def horizon_reason(limit: int, shortest: int) -> str:
+    """Why a certificate gave no estimator: its shortest window exceeds the limit (named as the CLI's flag)."""
+    return (
+        f"certified, but with no window within --horizon {limit}: the shortest is {shortest}, "
+        f"--horizon {shortest} admits it"
+    )
+
+
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any]) -> Any:
     """The standard MHE with delta-IOSS certificate weights where the model certifies, else explicit ones."""
     from uiest.detectability import certify_delta_ioss
     from uiest.estimators import MHEWeights, StandardMHE
 
     baseline = "a baseline: the unknown input is penalised as a disturbance"
-    longest = DEFAULT_MAX_HORIZON if horizon is None else horizon
+    longest = LONGEST_HORIZON if horizon is None else horizon
     try:
         cert = certify_delta_ioss(system)
         reason = cert.reason
@@ -139,7 +155,7 @@ def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, o
             mhe = StandardMHE(system, certificate=cert, N=window, x0_prior=x0, **options)
             return mhe, f"delta-IOSS certificate: eta={mhe.weights.eta:.3g}, N={window} ({baseline})"
         if cert.certified:
-            reason = f"certified, but min_horizon() = {cert.min_horizon()} > {longest}"
+            reason = horizon_reason(longest, cert.min_horizon())
     except (CertificationError, ModelError) as exc:
         reason = str(exc)
     weights = MHEWeights.from_scales(system, FALLBACK_RATE)

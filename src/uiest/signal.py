@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -13,6 +14,21 @@ from uiest.errors import ModelError
 
 SIGNAL_KINDS = ("x", "u", "w", "v", "y")
 """The five signals of ``x+ = f(x, u, w), y = h(x, v)``, in this order everywhere."""
+
+
+class ScaleSource(enum.Enum):
+    """Where a component's nominal scale came from."""
+
+    GIVEN = "given"
+    """By the user (``x_scale=`` and the like, ``System.with_scales(x=...)``, or a Signal built with its scale)."""
+    WIDTH = "domain width"
+    """The finite width of the signal's domain (of ``w_range`` for w)."""
+    OUTPUT = "output spread"
+    """For y: the first-order output change caused by moving x and v by their scales."""
+    DATA = "data"
+    """Magnitudes of a record or a short model simulation (:mod:`uiest.scales`, ``System.with_scales(trajectory)``)."""
+    UNIT = "unit"
+    """1: nothing gave a magnitude (an unbounded domain)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -29,6 +45,8 @@ class Signal:
         The domain (X, U, V, Y; for w always the whole space, see ``System.w_range``).
     scale : ndarray, shape (n,)
         Positive nominal magnitudes; solvers and certificates work in ``z / scale``.
+    scale_source : tuple of ScaleSource, length n, optional
+        Where each scale came from; default: all ``GIVEN`` (a signal built with its scales).
 
     """
 
@@ -37,6 +55,7 @@ class Signal:
     units: tuple[str, ...]
     bounds: Box
     scale: FloatArray
+    scale_source: tuple[ScaleSource, ...] | None = None
 
     def __post_init__(self) -> None:
         n = self.bounds.size
@@ -51,6 +70,10 @@ class Signal:
             raise ModelError(f"{self.kind}_scale: expected {n} positive finite numbers, got {scale.tolist()}")
         scale.setflags(write=False)
         object.__setattr__(self, "scale", scale)
+        sources = (ScaleSource.GIVEN,) * n if self.scale_source is None else tuple(self.scale_source)
+        if len(sources) != n or not all(isinstance(source, ScaleSource) for source in sources):
+            raise ModelError(f"{self.kind}: expected {n} ScaleSource values as scale_source, got {sources!r}")
+        object.__setattr__(self, "scale_source", sources)
 
     @property
     def size(self) -> int:
@@ -68,11 +91,13 @@ class Signal:
         units: Sequence[str] | None = None,
         scale: ArrayLike | None = None,
         fallback_scale: ArrayLike | None = None,
+        fallback_source: ScaleSource = ScaleSource.WIDTH,
     ) -> Signal:
         """Build a signal from optional user data.
 
         Default names are ``kind[i]``, default units ``""``. The scale, per component, is the
-        given one, else the finite non-zero width of ``bounds``, else ``fallback_scale``, else 1.
+        given one, else the finite non-zero width of ``bounds``, else ``fallback_scale`` where it is
+        positive and finite (its source ``fallback_source``), else 1; :attr:`scale_source` says which.
         """
         box = Box.coerce(bounds, n, f"{kind}_bounds")
         names_t = tuple(f"{kind}[{i}]" for i in range(n)) if names is None else tuple(str(s) for s in names)
@@ -82,9 +107,15 @@ class Signal:
                 scale_arr = np.broadcast_to(np.asarray(scale, dtype=float), (n,)).copy()
             except ValueError as exc:
                 raise ModelError(f"{kind}_scale: expected {n} positive numbers, got {scale!r}") from exc
+            sources = (ScaleSource.GIVEN,) * n
         else:
-            fallback = np.ones(n) if fallback_scale is None else np.broadcast_to(fallback_scale, (n,))
+            fallback = np.full(n, np.nan) if fallback_scale is None else np.broadcast_to(fallback_scale, (n,))
+            has_fallback = np.isfinite(fallback) & (fallback > 0)
             width = box.width
             usable = np.isfinite(width) & (width > 0)
-            scale_arr = np.where(usable, np.where(usable, width, 1.0), fallback)
-        return cls(kind=kind, names=names_t, units=units_t, bounds=box, scale=scale_arr)
+            scale_arr = np.where(usable, np.where(usable, width, 1.0), np.where(has_fallback, fallback, 1.0))
+            sources = tuple(
+                ScaleSource.WIDTH if wide else fallback_source if known else ScaleSource.UNIT
+                for wide, known in zip(usable, has_fallback, strict=True)
+            )
+        return cls(kind=kind, names=names_t, units=units_t, bounds=box, scale=scale_arr, scale_source=sources)

@@ -23,7 +23,7 @@ from numpy.typing import ArrayLike
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_int, check_real, real_array
 from uiest.errors import DataError, ModelError, OptionError
-from uiest.signal import Signal
+from uiest.signal import ScaleSource, Signal
 
 if TYPE_CHECKING:
     from uiest.ode import ContinuousModel
@@ -282,10 +282,9 @@ class System:
             scale=w_scale,
             fallback_scale=None if known_w is None else _usable_width(known_w),
         )
-        y_fallback = _output_scale(h, x, v)
-        y = Signal.build(
-            "y", ny, bounds=y_bounds, names=y_names, units=y_units, scale=y_scale, fallback_scale=y_fallback
-        )
+        y_fallback = output_spread(h, x, v)
+        y = Signal.build("y", ny, bounds=y_bounds, names=y_names, units=y_units, scale=y_scale,
+                         fallback_scale=y_fallback, fallback_source=ScaleSource.OUTPUT)  # fmt: skip
         return cls(f=f, h=h, x=x, u=u, w=w, v=v, y=y, w_range=known_w, dt=dt, time_unit=time_unit, name=name)
 
     @classmethod
@@ -442,28 +441,37 @@ class System:
         trajectory : Trajectory, optional
             A simulated or measured record: each signal's scale becomes the largest magnitude of
             each component over the record (``max_k |x_i[k]|``; NaN entries ignored), where that
-            is positive and finite; components that are zero throughout keep their scale.
+            is positive and finite (source ``ScaleSource.DATA``); components that are zero
+            throughout keep their scale.
         **scales : array_like
             ``x=``, ``u=``, ``w=``, ``v=``, ``y=``: explicit scales (positive; a scalar broadcasts),
-            applied after the trajectory's.
+            applied after the trajectory's (source ``ScaleSource.GIVEN``).
 
         Use it when X is a wide safety box (say ``±1e9`` for "unbounded"): scales from X's width
-        would make a solve resolve only about 1e-8 of that width.
+        would make a solve resolve only about 1e-8 of that width. The estimators and designs do
+        this themselves where the user gave no scales (:func:`uiest.scales.data_scales`).
 
         """
         unknown = sorted(set(scales) - {"x", "u", "w", "v", "y"})
         if unknown:
             raise OptionError(f"scales: unknown signals {unknown}; expected some of ['x', 'u', 'w', 'v', 'y']")
         new = {s.kind: s.scale for s in self.signals}
+        sources = {s.kind: s.scale_source for s in self.signals}
         if trajectory is not None:
             for kind in new:
-                new[kind] = _peak_scale(trajectory, kind, new[kind])
+                peak = _peak_magnitude(trajectory, kind, len(new[kind]))
+                found = np.isfinite(peak) & (peak > 0)
+                new[kind] = np.where(found, peak, new[kind])
+                sources[kind] = tuple(ScaleSource.DATA if data else source
+                                      for data, source in zip(found, sources[kind], strict=True))  # fmt: skip
         for kind, value in scales.items():
             given = real_array(value, f"{kind}", "positive scales", error=OptionError)
             if given.size not in (1, len(new[kind])) or not np.all(np.isfinite(given) & (given > 0)):
                 raise OptionError(f"{kind}: expected {len(new[kind])} positive finite scales, got {given.tolist()}")
             new[kind] = np.broadcast_to(given.reshape(-1), new[kind].shape)
-        signals = {s.kind: dataclasses.replace(s, scale=np.array(new[s.kind], dtype=float)) for s in self.signals}
+            sources[kind] = (ScaleSource.GIVEN,) * len(new[kind])
+        signals = {s.kind: dataclasses.replace(s, scale=np.array(new[s.kind], dtype=float),
+                                               scale_source=sources[s.kind]) for s in self.signals}  # fmt: skip
         return dataclasses.replace(self, **signals)
 
     # ------------------------------------------------------------------ numerics
@@ -538,20 +546,19 @@ class System:
         )
 
 
-def _peak_scale(trajectory: Any, kind: str, fallback: FloatArray) -> FloatArray:
-    """Largest magnitude per component of ``trajectory.<kind>`` (NaN ignored); ``fallback`` where not positive."""
+def _peak_magnitude(trajectory: Any, kind: str, n: int) -> FloatArray:
+    """Largest magnitude per component of ``trajectory.<kind>`` (NaN ignored; NaN for an all-NaN column), shape (n,)."""
     if not hasattr(trajectory, kind):
         raise DataError(f"trajectory: expected a Trajectory with x, u, w, v, y, got {type(trajectory).__name__}")
     values = real_array(getattr(trajectory, kind), f"trajectory.{kind}", "a real array")
-    if not len(fallback):
-        return fallback
-    if values.size % max(len(fallback), 1):
-        raise DataError(f"trajectory.{kind}: expected {len(fallback)} columns, got shape {values.shape}")
-    values = values.reshape(-1, len(fallback))
+    if not n:
+        return np.zeros(0)
+    if values.size % n:
+        raise DataError(f"trajectory.{kind}: expected {n} columns, got shape {values.shape}")
+    values = values.reshape(-1, n)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN columns
-        peak = np.nanmax(np.abs(values), axis=0) if len(values) else np.zeros(len(fallback))
-    return np.where(np.isfinite(peak) & (peak > 0), peak, fallback)
+        return np.nanmax(np.abs(values), axis=0) if len(values) else np.zeros(n)
 
 
 def _check_sizes(nx: Any, nu: Any, nw: Any, nv: Any) -> tuple[int, int, int, int]:
@@ -588,17 +595,21 @@ def _expression_function(name: str, inputs: list[Any], output: Any, names: list[
 
 
 def _usable_width(box: Box) -> FloatArray:
+    """The box's widths where finite and positive, NaN elsewhere (no scale from the width)."""
     width = box.width
-    return np.where(np.isfinite(width) & (width > 0), width, 1.0)
+    return np.where(np.isfinite(width) & (width > 0), width, np.nan)
 
 
-def _output_scale(h: ca.Function, x: Signal, v: Signal) -> FloatArray:
-    """First-order output magnitude ``sqrt(sum_j (dh_i/dz_j s_j)^2)`` over z = (x, v) at the centre."""
+def output_spread(h: ca.Function, x: Signal, v: Signal, at: FloatArray | None = None) -> FloatArray:
+    """First-order output magnitude ``sqrt(sum_j (dh_i/dz_j s_j)^2)`` over z = (x, v), shape (ny,).
+
+    At ``x = at`` (default X's centre) and V's centre; NaN where it is not positive and finite.
+    """
     xs, vs = ca.SX.sym("x", x.size), ca.SX.sym("v", v.size)
     jac = ca.Function("jac_h", [xs, vs], [ca.jacobian(h(xs, vs), ca.vertcat(xs, vs))])
     try:
-        sens = np.asarray(jac(x.bounds.center, v.bounds.center), dtype=float)
+        sens = np.asarray(jac(x.bounds.center if at is None else at, v.bounds.center), dtype=float)
     except RuntimeError as exc:
         raise ModelError(f"h: evaluation failed at the domain centre: {exc}") from exc
     spread = np.sqrt(((sens * np.concatenate([x.scale, v.scale])) ** 2).sum(axis=1))
-    return np.where(np.isfinite(spread) & (spread > 0), spread, 1.0)
+    return np.where(np.isfinite(spread) & (spread > 0), spread, np.nan)

@@ -28,6 +28,7 @@ from uiest.estimators.bounds import strong_bound
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
+from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowTrajectory
 
@@ -55,7 +56,8 @@ class DelayedUISE(UISE):
     free_input = False  # its nodes are the delayed system's; its newest input is found from later outputs
 
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
-        self.delayed = delayed_system(check_system(system))
+        system = data_scales(check_system(system), keywords.get("x0_prior"))
+        self.delayed = delayed_system(system)
         certificate = keywords.get("certificate")
         if keywords.get("N") is None and getattr(certificate, "certified", False) and isinstance(lag, int | np.integer):
             keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)  # type: ignore[union-attr]
@@ -70,7 +72,8 @@ class DelayedUISE(UISE):
 
         if "records" in design_options:  # they would score a UISE of the delayed system, not this estimator
             raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")
-        delayed = delayed_system(check_system(system))
+        system = data_scales(check_system(system), x0_prior)
+        delayed = delayed_system(system)
         design = design_uise(delayed.system, delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior"), **design_options)
         est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip

@@ -41,6 +41,7 @@ from uiest.estimators.uise import check_system
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.guarantee import Guarantee
 from uiest.results import EstimationResult, StepEstimate
+from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
 
@@ -73,7 +74,7 @@ class FIE(WindowEstimator):
         max_steps: int = 500,
         **options: Any,
     ) -> None:
-        check_system(system)
+        system = data_scales(check_system(system), x0_prior)
         self.weights, self.certificate, _ = resolve_weights(
             UISEWeights, certificate, weights, None, lambda w: w.check(system), needs_horizon=False
         )

@@ -38,6 +38,7 @@ from uiest.estimators.bounds import mhe_bound
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import DeltaCertificate, MHEWeights, resolve_weights
 from uiest.guarantee import Guarantee
+from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
 
@@ -105,7 +106,7 @@ class StandardMHE(WindowEstimator):
         normalise: bool | None = None,
         **options: Any,
     ) -> None:
-        check_system(system)
+        system = data_scales(check_system(system), x0_prior)
         self.weights, self.certificate, N = resolve_weights(
             MHEWeights, certificate, weights, N, lambda w: w.check(system)
         )

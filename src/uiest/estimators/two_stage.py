@@ -65,6 +65,7 @@ unknown input needed), outcome ``FAILED`` with the solver's status; ``strict=Tru
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from typing import Any
 
@@ -82,8 +83,15 @@ from uiest.estimators.projection import Projection
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certificate_z_scale, resolve_weights
 from uiest.guarantee import Guarantee
 from uiest.reduction import ReducedModel
+from uiest.scales import data_scales
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
+
+
+def reduced_data_scales(reduced: ReducedModel, x0_prior: ArrayLike | None) -> ReducedModel:
+    """``reduced`` with its system's scales from data (:func:`~uiest.scales.data_scales`); itself where none change."""
+    system = data_scales(reduced.system, x0_prior)
+    return reduced if system is reduced.system else dataclasses.replace(reduced, system=system)
 
 
 class TwoStageUISE(WindowEstimator):
@@ -143,6 +151,7 @@ class TwoStageUISE(WindowEstimator):
     ) -> None:
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
+        reduced = reduced_data_scales(reduced, x0_prior)
         self.reduced = reduced
         self.design_report: Any = None
         """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
@@ -184,6 +193,7 @@ class TwoStageUISE(WindowEstimator):
 
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
+        reduced = reduced_data_scales(reduced, x0_prior)
         design = design_two_stage(reduced, x0_prior, **design_options)
         est = cls(reduced, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip

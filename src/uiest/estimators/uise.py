@@ -39,6 +39,7 @@ from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import strong_bound
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.guarantee import Guarantee
+from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
 
@@ -58,6 +59,9 @@ class UISE(WindowEstimator):
     Parameters
     ----------
     system : System
+        Where the user gave no state scales and X's width is no scale (unbounded, or far wider than the
+        states' magnitudes), the estimator uses :func:`~uiest.scales.data_scales` from ``x0_prior``
+        (:attr:`system` is then that copy).
     certificate : StrongDetectability, optional
         Gives ``mu, P, R_y, R_v`` and the default horizon ``min_horizon()``.
     weights : UISEWeights, optional
@@ -97,7 +101,8 @@ class UISE(WindowEstimator):
         force: bool = False,
         **options: Any,
     ) -> None:
-        window_system = self._window_system(check_system(system), force)
+        system = data_scales(check_system(system), x0_prior)
+        window_system = self._window_system(system, force)
         self.design_report: Any = None
         """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
         self.weights, self.certificate, N = resolve_weights(
@@ -137,7 +142,8 @@ class UISE(WindowEstimator):
         """
         from uiest.design import design_uise, estimator_options
 
-        design = design_uise(check_system(system), x0_prior, **design_options)
+        system = data_scales(check_system(system), x0_prior)
+        design = design_uise(system, x0_prior, **design_options)
         est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design
