@@ -32,7 +32,7 @@ W_SPREAD = 100.0
 
 def increment_bound(dw_bound: ArrayLike, nw: int, name: str = "dw_bound") -> FloatArray:
     """``dw_bound`` as (nw,) positive finite numbers (a scalar broadcasts); OptionError naming ``name`` otherwise."""
-    arr = real_array(dw_bound, name, f"a positive number or {nw} positive numbers", error=OptionError)
+    arr = real_array(dw_bound, name, f"a positive finite number or {nw} of them", error=OptionError)
     if arr.ndim > 1 or arr.size not in (1, nw) or not np.all(np.isfinite(arr) & (arr > 0)):
         raise OptionError(f"{name}: expected a positive finite number or {nw} of them, got {arr.tolist()}")
     return np.broadcast_to(arr.reshape(-1), (nw,)).astype(float)

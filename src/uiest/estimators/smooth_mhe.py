@@ -45,6 +45,8 @@ from numpy.typing import ArrayLike
 
 from uiest.augmented import augmented_system, increment_bound
 from uiest.box import Box, FloatArray, as_vector
+from uiest.checks import check_int
+from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, DataError, ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import mhe_bound
@@ -59,8 +61,10 @@ DW_SIGMAS = 3.0
 """Given only a variance, the increments' bound is ``DW_SIGMAS`` standard deviations; given only a bound, the
 variance is ``(bound / DW_SIGMAS)^2``."""
 
-DEFAULT_HORIZON = 10
-"""N of :meth:`SmoothInputMHE.design` (or the certificate's ``min_horizon()`` when longer)."""
+DEFAULT_HORIZON = 30
+"""N of :meth:`SmoothInputMHE.design` (or the certificate's ``min_horizon()`` when longer): the window is the
+estimator's whole memory (its prior is weak beside the data), so a state the outputs see only through the model
+gains from a long one."""
 
 MAX_HORIZON = 60
 """The longest certified window :meth:`SmoothInputMHE.design` accepts by default."""
@@ -247,30 +251,30 @@ class SmoothInputMHE(WindowEstimator):
     ) -> SmoothInputMHE:
         """Certify the augmented model (:func:`~uiest.detectability.certify_delta_ioss`) and build the estimator.
 
-        With a certificate whose ``min_horizon() <= max_horizon``: N = ``max(N or DEFAULT_HORIZON,
-        min_horizon())``. Otherwise explicit :func:`variance_weights` with ``eta = FALLBACK_ETA``,
-        N = ``N or DEFAULT_HORIZON``, and :attr:`why_uncertified` (and the guarantee) says why.
-        ``certify_options`` go to ``certify_delta_ioss``; ``options`` are the window options.
+        With a certificate whose ``min_horizon() <= max(N, max_horizon)``: N (default
+        ``min(DEFAULT_HORIZON, max_horizon)``), raised to ``min_horizon()`` when shorter. Otherwise explicit
+        :func:`variance_weights` with ``eta = FALLBACK_ETA`` and that N, and :attr:`why_uncertified` (and the
+        guarantee) says why. ``certify_options`` go to ``certify_delta_ioss``; ``options`` are the window options.
         """
-        from uiest.detectability import certify_delta_ioss
-
         check_system(system)
+        longest = check_int(max_horizon, "max_horizon", low=1)
+        window = min(DEFAULT_HORIZON, longest) if N is None else check_int(N, "N", low=1)
+        longest = max(window, longest)
         bound, variance = increments(dw_bound, dw_variance, system.nw)
         aug = augmented_system(system, bound, w_bounds)
-        longest = max_horizon if N is None else max(N, max_horizon)
         try:
             cert = certify_delta_ioss(aug, **(certify_options or {}))
             reason = cert.reason
             if cert.certified and cert.min_horizon() <= longest:
                 return cls(system, certificate=cert, dw_variance=variance, x0_prior=x0_prior,
-                           N=max(N or DEFAULT_HORIZON, cert.min_horizon()), **options)  # fmt: skip
+                           N=max(window, cert.min_horizon()), **options)  # fmt: skip
             if cert.certified:
                 reason = f"certified, but min_horizon() = {cert.min_horizon()} > max_horizon = {longest}"
         except (CertificationError, ModelError) as exc:  # X unbounded, say
             reason = str(exc)
         weights = variance_weights(aug, variance, FALLBACK_ETA)
         est = cls(system, weights=weights, dw_variance=variance, dw_bound=bound, w_bounds=w_bounds,
-                  x0_prior=x0_prior, N=N or DEFAULT_HORIZON, **options)  # fmt: skip
+                  x0_prior=x0_prior, N=window, **options)  # fmt: skip
         est.why_uncertified = f"the augmented model's delta-IOSS is not certified ({reason})"
         return est
 
