@@ -135,8 +135,11 @@ def main() -> None:
                     np.asarray(x0, float), None, 0.01, slice(K // 2, K // 2 + 40), (-20.0, 20.0))  # fmt: skip
     entry = load("examples/reactor.py")
     system, setup = entry.build(), entry.setup()
-    for label, fault in (("the example's drifting fault", setup.w),
-                         ("a fault stepping to -0.4 at k = 200", lambda k, x: np.array([-0.4 * (k >= 200)]))):  # fmt: skip
+
+    def step(k, x):
+        return np.array([-0.4 * (k >= 200)])
+
+    for label, fault in (("the example's drifting fault", setup.w), ("a fault stepping to -0.4 at k = 200", step)):
         traj = simulate(system, setup.x0, setup.steps, u=setup.u, w=fault, v=setup.noise, seed=0)
         window = slice(20, None) if label.startswith("the") else slice(200, 240)
         compare(f"reactor, {label}", system, traj.x, traj.y, setup.x0, traj.u, 1e-4, window, (-1.0, 1.0))
