@@ -266,6 +266,25 @@ def test_bounded_increments_hold_each_window_to_the_bound_and_penalised_ones_fol
 # ---------------------------------------------------------------------------------------------- guarantees, errors
 
 
+def test_the_error_stays_within_the_guarantee_and_an_outage_is_bridged():
+    system = linear.example()  # zeros {0.5, 0.2}; X = +-10
+    variance, K = 1e-4, 300
+    mhe = SmoothInputMHE.design(system, dw_variance=variance, w_bounds=(-5.0, 5.0), x0_prior=np.zeros(3), lag=3)
+    g = mhe.guarantee
+    assert g.verdict is Verdict.INFORMATIVE, g.text  # measured: x[0] 13.8, x[1] 7.42, x[2] 17 after 19 steps
+    steps = 3 * np.sqrt(variance) * np.random.default_rng(0).choice([-1.0, 1.0], K)  # increments at their bound
+    w = np.clip(np.cumsum(steps), -5.0, 5.0)[:, None]
+    traj = simulate(system, np.zeros(3), K, w=w, v=UniformNoise.symmetric(1e-3), seed=1)
+    result = mhe.run(None, traj.y)
+    assert np.all(np.abs(result.x_hat - traj.x)[g.settling_steps :] <= g.error_bound)  # measured at most 0.0023
+    y = traj.y.copy()
+    y[100:140] = np.nan  # longer than the window: propagated with the input held, then solved again
+    gap = mhe.run(None, y)
+    assert gap.failures == 0 and np.count_nonzero(gap.outcome == "propagated") == 10
+    assert rms(gap.x_hat[200:] - traj.x[200:]) < 1.01 * rms(result.x_hat[200:] - traj.x[200:])  # measured equal
+    assert np.all(np.isfinite(gap.x_lag[:100])) and np.all(np.isnan(gap.x_lag[-3:]))  # x[k-3] from window k
+
+
 def test_the_guarantee_says_none_and_why_without_a_certificate_or_window():
     system, *_ = double_integrator()
     # X unbounded: no certificate; design falls back to explicit weights and says why

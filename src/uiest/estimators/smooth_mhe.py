@@ -176,7 +176,9 @@ class SmoothInputMHE(WindowEstimator):
         Noise prior in V (default 0).
     constrain_increments : bool
         Constrain the estimated increments to ``[-dw_bound, dw_bound]`` (default False: penalised
-        only, so a jump beyond the bound is followed within the window, without the guarantee).
+        only, so a jump beyond the bound is followed within the window). Either way the guarantee
+        needs only the true increments within the bound: the augmented model is affine in dw with
+        a constant Jacobian, so the certificate's inequality holds for any estimated increment.
     normalise : bool, optional
         As for :class:`~uiest.estimators.StandardMHE` (raise a tiny eta to ``SPAN^(-1/N)``).
     **options
@@ -315,11 +317,12 @@ class SmoothInputMHE(WindowEstimator):
         if self.certificate is None:
             return self._no_guarantee(self.theorem, self.why_uncertified or "explicit weights without a delta-IOSS "
                                       "certificate of the augmented model")  # fmt: skip
-        missing = self._horizon_missing("delta-IOSS", "Schiller et al. 2023, eq. (16)")
-        if missing:
-            return self._no_guarantee(self.theorem, missing)
-        assert self.N is not None
         aug, w = self.augmented, self.weights
+        n_min = int(np.floor(np.log(4.0) / np.log(1.0 / w.eta))) + 1  # their eq. (16) with P1 = P2, at the eta used
+        assert self.N is not None
+        if n_min > self.N:
+            return self._no_guarantee(self.theorem, f"N={self.N} < min_horizon()={n_min} (Schiller et al. 2023, "
+                                      "eq. (16))")  # fmt: skip
         dw_box = getattr(self.certificate, "w_box", None)
         dw_box = aug.w_range if dw_box is None else dw_box
         bound, settling = mhe_bound(w.P, w.Q_w, w.Q_v, w.eta, self.N, dw_box, self.w_prior, aug.v.bounds, self.v_prior,
@@ -352,7 +355,7 @@ def _certified_model(system: System, certificate: Any) -> System:
     if not isinstance(aug, System):
         raise OptionError(f"certificate: expected {expected}, got {type(certificate).__name__} without a system")
     sizes, wanted = (aug.nx, aug.nu, aug.nw, aug.nv, aug.ny), (nx + nw, system.nu, nw, system.nv, system.ny)
-    if sizes != wanted or aug.w_range is None or not aug.x.bounds.is_bounded:
+    if sizes != wanted or aug.w_range is None or not (aug.w_range.is_bounded and aug.x.bounds.is_bounded):
         raise OptionError(f"certificate: expected {expected} (sizes nx, nu, nw, nv, ny = {wanted}, a bounded X x W "
                           f"and a range of dw), got sizes {sizes}")  # fmt: skip
     rng = np.random.default_rng(0)
