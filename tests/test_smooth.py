@@ -260,7 +260,7 @@ def test_bounded_increments_hold_each_window_to_the_bound_and_penalised_ones_fol
         error[held] = rms([s.x_hat - xk for s, xk in zip(steps[62:68], x[62:68], strict=True)])
     assert largest[True] <= 0.3 * (1 + 1e-9)  # the bound: 3 standard deviations of the increments
     assert largest[False] > 1.0  # the jump of 5 within one window
-    assert error[False] < 0.6 * error[True]  # measured 0.09 against 0.20 in the samples 2..7 after the jump
+    assert error[False] < 0.6 * error[True]  # measured 0.066 against 0.20 in the samples 2..7 after the jump
 
 
 # ---------------------------------------------------------------------------------------------- guarantees, errors
