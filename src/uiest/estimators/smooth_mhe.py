@@ -95,8 +95,11 @@ def noise_variance(system: System) -> FloatArray:
     return np.where(np.isfinite(V.width), V.width**2 / 12.0, system.v.scale**2)
 
 
-def variance_weights(augmented: System, dw_variance: ArrayLike, eta: float, P: ArrayLike | None = None) -> MHEWeights:
+def variance_weights(augmented: System, dw_variance: ArrayLike, eta: float) -> MHEWeights:
     """The weights of the module docstring: ``Q_w = Sigma_dw^-1 / 2``, ``Q_v = Sigma_v^-1``, ``R = 2 Sigma_y^-1``.
+
+    The prior weight is ``P = Sigma_0^-1 / 2`` with the EKF's prior covariances, ``Sigma_0 = diag(x.scale^2 / 12,
+    w.scale^2)`` (the augmented model's states); a certificate replaces it (:func:`certified_weights`).
 
     Parameters
     ----------
@@ -106,20 +109,15 @@ def variance_weights(augmented: System, dw_variance: ArrayLike, eta: float, P: A
         Variance of each increment per sample.
     eta : float
         Discount in (0, 1).
-    P : array_like (nx + nw, nx + nw), optional
-        Prior weight; default ``Sigma_0^-1 / 2`` with the EKF's prior covariances,
-        ``Sigma_0 = diag(x.scale^2 / 12, w.scale^2)`` (states of the augmented model).
 
     """
     variance = increment_bound(dw_variance, augmented.nw, "dw_variance")
     sigma_v = noise_variance(augmented)
     D = augmented.linearize(augmented.x.bounds.center).D_v
     sigma_y = np.maximum(np.einsum("ij,j,ij->i", D, sigma_v, D), (NOISE_FLOOR * augmented.y.scale) ** 2)
-    if P is None:
-        nx = augmented.nx - augmented.nw
-        sigma_0 = augmented.x.scale**2 / np.concatenate([np.full(nx, 12.0), np.ones(augmented.nw)])
-        P = np.diag(0.5 / sigma_0)
-    return MHEWeights(eta=eta, P=np.asarray(P, dtype=float), Q_w=np.diag(0.5 / variance), Q_v=np.diag(1.0 / sigma_v),
+    nx = augmented.nx - augmented.nw
+    sigma_0 = augmented.x.scale**2 / np.concatenate([np.full(nx, 12.0), np.ones(augmented.nw)])
+    return MHEWeights(eta=eta, P=np.diag(0.5 / sigma_0), Q_w=np.diag(0.5 / variance), Q_v=np.diag(1.0 / sigma_v),
                       R=np.diag(2.0 / sigma_y))  # fmt: skip
 
 
