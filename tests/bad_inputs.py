@@ -36,6 +36,7 @@ from uiest.estimators import (
     LinearUIO,
     MHEWeights,
     Outcome,
+    SmoothInputMHE,
     StandardMHE,
     TwoStageUISE,
     TwoStageWeights,
@@ -369,6 +370,24 @@ def api_cases(tmp: Path) -> list[Case]:
             ),
             DataError,
             "w_prior",
+        ),
+        Case(
+            "smooth-input MHE without a bound or variance of the increments",
+            lambda: SmoothInputMHE(s(), weights=MHEWeights(0.5, np.eye(3), [[1]], [[1]], [[1]]), N=3),
+            OptionError,
+            "dw_bound, dw_variance",
+        ),
+        Case(
+            "smooth-input MHE: a negative increment variance",
+            lambda: SmoothInputMHE.design(s(), dw_variance=-0.1),
+            OptionError,
+            "dw_variance",
+        ),
+        Case(
+            "smooth-input MHE with the certificate of the model itself",
+            lambda: SmoothInputMHE(s(), certificate=certify_delta_ioss(s(), w_bounds=(-1, 1))),
+            OptionError,
+            "augmented_system",
         ),
         Case(
             "FIE beyond max_steps",

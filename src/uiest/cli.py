@@ -144,7 +144,8 @@ def estimate(
         Path, typer.Option(help="Measurements: .csv or .parquet with u and y columns named as the model's.")
     ],
     estimator: Annotated[
-        list[str] | None, typer.Option(help="uise, delayed, two-stage, mhe, ekf, ukf or uio; repeat for several.")
+        list[str] | None,
+        typer.Option(help="uise, delayed, two-stage, mhe, smooth, ekf, ukf or uio; repeat for several."),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
     lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
@@ -156,7 +157,8 @@ def estimate(
         ),
     ] = None,
     w_variance: Annotated[
-        float | None, typer.Option(help="EKF/UKF random-walk variance, times w's scale^2 (default: tuned).")
+        float | None,
+        typer.Option(help="EKF/UKF random-walk (smooth: increment) variance, times w's scale^2 (default: tuned)."),
     ] = None,
     x0: Annotated[str | None, typer.Option(help="Prior of x[0], comma separated (default: the model's).")] = None,
 ) -> None:

@@ -16,6 +16,9 @@ model certifies:
   longer (up to ``horizon``, default 60); without one, ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon``.
 - ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else tuned on
   a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
+- ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
+  increments' variance ``w_variance`` (the EKF's random walk: given, or the EKF's tuned one) and
+  ``max_horizon`` as for the UISE.
 - ``uio``: the linear UIO (linear models only).
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
@@ -39,7 +42,7 @@ from uiest.models import ModelEntry
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
-ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "ekf", "ukf", "uio")
+ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "smooth", "ekf", "ukf", "uio")
 FALLBACK_RATE = 0.8
 """Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
 DEFAULT_HORIZON = 20
@@ -117,18 +120,21 @@ def build_estimator(
         return _standard_mhe(system, x0, N, horizon, options)
     if kind == "uio":
         return est.LinearUIO(system, x0_prior=x0), "Chen-Patton-Zhang observer (DARE gain)"
-    cls = est.EKF if kind == "ekf" else est.UKF
     if w_variance is not None:
-        return cls(system, w_variance=w_variance * system.w.scale**2, x0_prior=x0), (
-            f"random-walk variance {w_variance:g} w.scale^2 (given)"
-        )
-    if entry.setup is None:
+        factor, source = w_variance, "given"
+    elif entry.setup is None:
         raise OptionError(
             f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
         )
-    factor = study.tuned_variance(kind)
+    else:
+        tuned = "ekf" if kind == "smooth" else kind
+        factor = study.tuned_variance(tuned)
+        source = f"the {tuned.upper()}'s, tuned on a separate simulation (seed {TUNING_SEED})"
+    if kind == "smooth":
+        return _smooth_mhe(system, x0, factor, source, horizon, options)
+    cls = est.EKF if kind == "ekf" else est.UKF
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
-        f"random-walk variance {factor:g} w.scale^2, tuned on a separate simulation (seed {TUNING_SEED})"
+        f"random-walk variance {factor:g} w.scale^2 ({source})"
     )
 
 
@@ -138,6 +144,19 @@ def horizon_reason(limit: int, shortest: int) -> str:
         f"certified, but with no window within --horizon {limit}: the shortest is {shortest}, "
         f"--horizon {shortest} admits it"
     )
+
+
+def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, horizon: int | None,
+                options: dict[str, Any]) -> tuple[Any, str]:  # fmt: skip
+    """The smooth-input MHE with increments of variance ``factor * w.scale^2`` (:meth:`SmoothInputMHE.design`)."""
+    from uiest.estimators import SmoothInputMHE
+
+    mhe = SmoothInputMHE.design(system, dw_variance=factor * system.w.scale**2, x0_prior=x0,
+                                max_horizon=DEFAULT_MAX_HORIZON if horizon is None else horizon, **options)  # fmt: skip
+    increments = f"increment variance {factor:g} w.scale^2 ({source})"
+    if mhe.certificate is None:
+        return mhe, f"{mhe.why_uncertified}; explicit weights eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
+    return mhe, f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any]) -> Any:

@@ -3,6 +3,8 @@
 - :class:`UISE`: MHE-based unknown input state estimator (theo:MHE_full).
 - :class:`FIE`: full information estimator (lem:FIE), growing window.
 - :class:`StandardMHE`: robust MHE of Schiller et al. 2023, one-step-ahead (baseline).
+- :class:`SmoothInputMHE`: that MHE on the model with the unknown input as a state of bounded, penalised
+  increments (:func:`uiest.augmented.augmented_system`), current measurement included.
 - :class:`DelayedUISE`: the UISE of the delayed system, x[k-lag] for an input of relative degree 2.
 - :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (theo:stab).
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
@@ -12,7 +14,7 @@ Each has a ``guarantee`` (:class:`~uiest.guarantee.Guarantee`): whether its theo
 worst-case error bound per state (:mod:`uiest.estimators.bounds`).
 
 Index convention: ``u[k]``, ``w[k]`` act between k and k+1; ``x_hat[k]`` estimates ``x[k]``;
-the UISE and the FIE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
+the UISE, the FIE and the smooth-input MHE use ``y[0..k]``, the standard MHE ``y[0..k-1]``; the window at time k
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
@@ -20,6 +22,7 @@ from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
 from uiest.estimators.linear_uio import LinearUIO
+from uiest.estimators.smooth_mhe import SmoothInputMHE
 from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
@@ -48,6 +51,7 @@ __all__ = [
     "LinearUIO",
     "MHEWeights",
     "Outcome",
+    "SmoothInputMHE",
     "StandardMHE",
     "StepEstimate",
     "TwoStageUISE",

@@ -18,9 +18,12 @@ on the ellipsoid):
   ``S = 16 s_v / (mu (1 - mu))``;
 - Schiller et al. 2023 (standard MHE, P1 = P2 = P): with ``(a + b)^2 <= 2 a^2 + 2 b^2`` and
   optimality, ``W_k <= 4 eta^N W_{k-N} + 4 sum_{j=1}^{N} eta^{j-1} d``, so ``lam = 4^{1/N} eta``,
-  ``c = 4``, ``S = 4 d / (1 - lam)``,
+  ``c = 4``, ``S = 4 d / (1 - lam)``; with the current output in the cost (the smooth-input MHE: node k
+  weighted ``eta^-1 (2 |v - v_bar|_{Q_v}^2 + |h - y|_R^2)``), the estimate's extra term is >= 0 and the true
+  trajectory's is at most ``2 s_q / eta``, so ``S = 4 d / (1 - lam) + 2 s_q / (eta (1 - lam^N))``,
 
-with ``s_v = max_{v in V} |v - v_bar|_{R_v}^2`` and ``d = max |w - w_bar|_{Q_w}^2 + max |v - v_bar|_{Q_v}^2``
+with ``s_v = max_{v in V} |v - v_bar|_{R_v}^2``, ``s_q = max_{v in V} |v - v_bar|_{Q_v}^2`` and
+``d = max |w - w_bar|_{Q_w}^2 + s_q``
 (:func:`box_quadratic_max`).
 
 **Linear forms** (the two-stage UISE's map to x, the linear UIO): ``|e_i| <= a_i lam^k E_0 + b_i``
@@ -162,11 +165,19 @@ def mhe_bound(
     v_box: Box,
     v_bar: FloatArray,
     x_width: FloatArray,
+    *,
+    current: bool = False,
 ) -> tuple[FloatArray, int | None]:
-    """Schiller et al. 2023's bound for the standard MHE (module docstring); ``w_box`` None: w's range is unknown."""
-    d = noise_quadratic(Q_w, w_box, w_bar) + noise_quadratic(Q_v, v_box, v_bar)
+    """Schiller et al. 2023's bound (module docstring); ``w_box`` None: w's range is unknown.
+
+    ``current``: the window also measures node k (weighted ``eta^-1``), as the smooth-input MHE's does.
+    """
+    s_q = noise_quadratic(Q_v, v_box, v_bar)
+    d = noise_quadratic(Q_w, w_box, w_bar) + s_q
     rate = 4.0 ** (1.0 / N) * eta
     settled = 4.0 * d / (1.0 - rate) if rate < 1.0 else float("inf")
+    if current and rate < 1.0:
+        settled += 2.0 * s_q / (eta * (1.0 - rate**N))
     return quadratic_bound(P, np.eye(P.shape[0]), settled, box_quadratic_max(P, -x_width, x_width), 4.0, rate)
 
 

@@ -18,8 +18,10 @@ def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "
     horizon = certificate.min_horizon() if certificate.certified else None
     if spec.N == 0:
         row["N"] = horizon
-    # per state of x; a reduced certificate's gains are per state of z_sharp, which the report's columns are not
-    noise_gain = None if certificate.kind == "reduced_eioss" else getattr(certificate, "noise_gain", None)
+    # per state of x; a reduced certificate's gains are per state of z_sharp, an augmented model's per state of
+    # (x, w): the report's columns are neither
+    per_x = certificate.kind != "reduced_eioss" and spec.kind != "smooth-mhe"
+    noise_gain = getattr(certificate, "noise_gain", None) if per_x else None
     return {
         **row,
         "status": certificate.status,

@@ -20,6 +20,7 @@ import numpy as np
 import pandas as pd
 
 from uiest import models
+from uiest.augmented import augmented_system
 from uiest.box import FloatArray
 from uiest.errors import OptionError, UiestError
 from uiest.estimators import (
@@ -27,11 +28,13 @@ from uiest.estimators import (
     UISE,
     EstimationResult,
     MHEWeights,
+    SmoothInputMHE,
     StandardMHE,
     TwoStageUISE,
     TwoStageWeights,
     UISEWeights,
 )
+from uiest.estimators.smooth_mhe import increments, variance_weights
 from uiest.experiments import executors
 from uiest.experiments.certificates import summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
@@ -53,7 +56,7 @@ STUDY_MAX_STEPS = 10_000_000
 
 def _certificate(study: StudyModel, spec: EstimatorSpec) -> Any:
     """The certificate of a spec with ``weights = "certificate"``, else None."""
-    return study.certificate(spec.kind, spec.mu) if spec.weights == "certificate" else None
+    return study.certificate(spec.kind, spec.mu, spec.w_variance) if spec.weights == "certificate" else None
 
 
 def _uise(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
@@ -109,8 +112,20 @@ def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: s
     return (EKF if spec.kind == "ekf" else UKF)(system, w_variance=factor * system.w.scale**2, x0_prior=prior)
 
 
+def _smooth_mhe(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+    system = study.system
+    variance = study.increment_variance(spec.w_variance) * system.w.scale**2
+    certificate = _certificate(study, spec)
+    if certificate is not None:
+        return SmoothInputMHE(system, certificate=certificate, dw_variance=variance, N=spec.N or None,
+                              x0_prior=prior, solver=solver)  # fmt: skip
+    bound, _ = increments(None, variance, system.nw)
+    weights = variance_weights(augmented_system(system, bound), variance, spec.mu)
+    return SmoothInputMHE(system, weights=weights, dw_variance=variance, N=spec.N, x0_prior=prior, solver=solver)
+
+
 BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _standard_mhe, "two-stage": _two_stage,
-                                "ekf": _kalman, "ukf": _kalman}  # fmt: skip
+                                "smooth-mhe": _smooth_mhe, "ekf": _kalman, "ukf": _kalman}  # fmt: skip
 """Estimator factories by ``EstimatorSpec.kind``."""
 
 
@@ -255,7 +270,7 @@ def run_study(
     for spec in scenario.estimators:
         if spec.weights == "certificate":
             try:
-                certificates.append(summary(spec, study.certificate(spec.kind, spec.mu)))
+                certificates.append(summary(spec, study.certificate(spec.kind, spec.mu, spec.w_variance)))
             except UiestError as exc:  # the estimator's runs record the same error; the study goes on
                 certificates.append(summary(spec, None, f"{type(exc).__name__}: {exc}"))
     step_frames, run_rows = [], []

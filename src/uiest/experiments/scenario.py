@@ -18,7 +18,7 @@ import tomli_w
 from uiest.errors import OptionError
 from uiest.paths import writable_file
 
-ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "fie", "ekf", "ukf")
+ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "smooth-mhe", "fie", "ekf", "ukf")
 CASES = ("noise-free", "noisy")
 WEIGHT_SOURCES = ("explicit", "certificate")
 
@@ -37,7 +37,7 @@ class EstimatorSpec:
         Horizon (ignored by the FIE). 0 with certificate weights: the certificate's
         ``min_horizon()``, the shortest horizon its theorem allows.
     mu : float
-        Discount of the weights (eta for the standard MHE). With certificate weights, the rate
+        Discount of the weights (eta for the standard and the smooth-input MHE). With certificate weights, the rate
         the certificate is designed at when it certifies there (``mu >= mu_min``), else the
         certificate's default rate (the report says which).
     output_weight, prior_weight, noise_weight, disturbance_weight : float
@@ -46,10 +46,12 @@ class EstimatorSpec:
     weights : {"explicit", "certificate"}
         "certificate": weights from the model's certificate (strong detectability for the UISE
         and FIE, the reduced model's e-IOSS for the two-stage UISE, delta-IOSS for the standard
-        MHE), computed once per study; the estimator then states whether its theorem applies.
+        MHE and, of the augmented model, for the smooth-input MHE), computed once per study; the
+        estimator then states whether its theorem applies.
     w_variance : float
-        EKF and UKF: the random walk's step variance in units of ``w.scale^2``; 0 (default):
-        tuned on a separate simulation of the model's default setup (seed 12345).
+        EKF and UKF: the random walk's step variance in units of ``w.scale^2``; the smooth-input MHE:
+        its increments' variance, in the same units; 0 (default): the EKF's or UKF's, tuned on a
+        separate simulation of the model's default setup (seed 12345).
 
     """
 

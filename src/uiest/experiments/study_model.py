@@ -17,10 +17,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from uiest import models
+from uiest.augmented import augmented_system
 from uiest.checks import check_real
 from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
 from uiest.errors import CertificationError, OptionError
+from uiest.estimators.smooth_mhe import DW_SIGMAS
 from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
@@ -31,6 +35,7 @@ KIND_CERTIFICATE = {
     "fie": "strong detectability (theo:Lyapunov)",
     "two-stage": "reduced model's e-IOSS (ass:e-ioss)",
     "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
+    "smooth-mhe": "delta-IOSS of the model with w as a state (Schiller et al. 2023)",
 }
 """The certificate that designs each estimator kind's weights."""
 
@@ -79,16 +84,25 @@ class StudyModel:
             raise OptionError(f"the two-stage UISE: the model {self.name!r} has no reduction() (T, psi)")
         return self.entry.reduction()
 
-    def certificate(self, kind: str, mu: float) -> Certificate:
+    def certificate(self, kind: str, mu: float, w_variance: float = 0.0) -> Certificate:
         """The certificate that designs the weights of an estimator of ``kind`` (computed once).
 
         Certified at ``mu`` when ``mu`` is at least the smallest rate found, else at the
         certificate's default rate. Raises :class:`CertificationError` when it does not hold.
+        ``w_variance``: the smooth-input MHE's increment variance (:meth:`increment_variance`), whose
+        bound is part of the model it certifies; ignored by the other kinds.
         """
         if kind not in KIND_CERTIFICATE:
             raise OptionError(f"kind: expected one of {sorted(KIND_CERTIFICATE)}, got {kind!r}")
         rate = check_real(mu, "mu", "a number in (0, 1)")
+        if kind == "smooth-mhe":
+            factor = self.increment_variance(w_variance)
+            return self._known(("certificate", kind, rate, factor), lambda: self._certify(kind, rate, factor))
         return self._known(("certificate", kind, rate), lambda: self._certify(kind, rate))
+
+    def increment_variance(self, w_variance: float) -> float:
+        """The smooth-input MHE's increment variance in ``w.scale^2``: ``w_variance`` if > 0, else the EKF's tuned."""
+        return w_variance if w_variance > 0 else self.tuned_variance("ekf")
 
     def tuned_variance(self, kind: str) -> float:
         """The EKF/UKF random-walk factor (in ``w.scale^2``), tuned on a default simulation (computed once).
@@ -104,9 +118,9 @@ class StudyModel:
         for spec in specs:
             try:
                 if spec.weights == "certificate":
-                    self.certificate(spec.kind, spec.mu)
-                if spec.kind in ("ekf", "ukf") and spec.w_variance == 0:
-                    self.tuned_variance(spec.kind)
+                    self.certificate(spec.kind, spec.mu, spec.w_variance)
+                if spec.kind in ("ekf", "ukf", "smooth-mhe") and spec.w_variance == 0:
+                    self.tuned_variance("ekf" if spec.kind == "smooth-mhe" else spec.kind)
             except Exception:  # kept in `known`: each run of the estimator records it
                 pass
 
@@ -137,7 +151,7 @@ class StudyModel:
             raise value.with_traceback(None)
         return value
 
-    def _certify(self, kind: str, mu: float) -> Certificate:
+    def _certify(self, kind: str, mu: float, factor: float = 0.0) -> Certificate:
         make: Callable[[float | None], Certificate]
         if kind in ("uise", "fie"):
             theta = self.entry.jacobian_parameters() if self.entry.jacobian_parameters is not None else None
@@ -146,6 +160,9 @@ class StudyModel:
             make = lambda rate: self.reduction.certify(mu=rate)  # noqa: E731
         elif kind == "standard-mhe":
             make = lambda rate: certify_delta_ioss(self.system, rate)  # noqa: E731
+        elif kind == "smooth-mhe":
+            augmented = augmented_system(self.system, DW_SIGMAS * np.sqrt(factor) * self.system.w.scale)
+            make = lambda rate: certify_delta_ioss(augmented, rate)  # noqa: E731
         else:
             raise OptionError(f"estimators.kind: no certificate for {kind!r}")
         default = make(None)
