@@ -374,7 +374,7 @@ class KalmanFilter(StreamingEstimator):
         def score(factor: float) -> Score:
             return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0_prior, **keywords).score(u_arr, y_arr)
 
-        profile = maximise_likelihood(score, grid, name="w_variance", scale=system.w.scale)
+        profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
         if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
             warnings.warn(f"{cls.__name__}.fit: {profile.summary()}", UserWarning, stacklevel=2)
         estimator = cls(system, w_variance=profile.variance, x0_prior=x0_prior, **keywords)

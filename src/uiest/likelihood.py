@@ -90,6 +90,8 @@ class LikelihoodProfile:
     ----------
     name : str
         The variance's name (``"w_variance"``).
+    unit : str
+        What a factor multiplies (``"w.scale^2"``).
     factors : ndarray (n,)
         Variances tried, in units of ``scale^2``, increasing (the grid and the refinement's points).
     log_likelihood : ndarray (n,)
@@ -105,6 +107,7 @@ class LikelihoodProfile:
     """
 
     name: str
+    unit: str
     factors: FloatArray
     log_likelihood: FloatArray
     unscored: NDArray[np.int_]
@@ -177,9 +180,8 @@ class LikelihoodProfile:
     def summary(self) -> str:
         """One line: the chosen variance, the profile's shape and the interval the record supports."""
         lo, hi = self.interval
-        unit = "scale^2"
         shape = self.shape
-        text = f"{self.name} {self.chosen:.3g} {unit} by likelihood ({shape.value}"
+        text = f"{self.name} {self.chosen:.3g} {self.unit}, the likelihood's maximum ({shape.value}"
         if shape is ProfileShape.FLAT:
             return (
                 text + f": the log-likelihood varies by {self.spread:.2g} over {self.grid[0]:.3g} .. "
@@ -197,6 +199,7 @@ class LikelihoodProfile:
         lo, hi = self.interval
         return {
             "name": self.name,
+            "unit": self.unit,
             "factors": self.factors.tolist(),
             "log_likelihood": [float(v) if np.isfinite(v) else None for v in self.log_likelihood],
             "unscored": self.unscored.tolist(),
@@ -224,6 +227,7 @@ def maximise_likelihood(
     grid: FloatArray,
     *,
     name: str,
+    unit: str,
     scale: FloatArray,
     refine: int = REFINE_STEPS,
 ) -> LikelihoodProfile:
@@ -266,6 +270,7 @@ def maximise_likelihood(
     scores = [points[q] for q in factors]
     return LikelihoodProfile(
         name=name,
+        unit=unit,
         factors=factors,
         log_likelihood=np.array([s.log_likelihood if s.admissible else -np.inf for s in scores]),
         unscored=np.array([s.unscored + s.diverged for s in scores], dtype=int),

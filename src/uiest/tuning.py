@@ -31,6 +31,10 @@ from uiest.kalman import EKF
 from uiest.likelihood import ProfileShape, Score, check_grid, maximise_likelihood
 from uiest.system import System
 
+ARRIVAL_FLOOR = 1e-6
+"""The smallest standard deviation, in scales of x, of :func:`arrival_covariance` along any direction (a window solve
+resolves about 1e-8 of a scale)."""
+
 
 class WhiteInputEKF(EKF):
     """The EKF of the standard MHE's model: ``w[k] ~ N(w0, w_variance)`` independent (not a random walk).
@@ -92,9 +96,9 @@ def fit_standard_mhe(
     Returns
     -------
     StandardMHE
-        With :meth:`MHEWeights.from_variances <uiest.estimators.MHEWeights.from_variances>` weights (no guarantee:
-        explicit weights) and ``likelihood``, the :class:`~uiest.likelihood.LikelihoodProfile`. Warns
-        (``UserWarning``) when the profile is flat or reaches the default grid's upper end.
+        With :func:`likelihood_weights` at the chosen variance (explicit weights: no guarantee) and
+        ``likelihood``, the :class:`~uiest.likelihood.LikelihoodProfile`. Warns (``UserWarning``) when the profile
+        is flat or reaches the default grid's upper end.
 
     """
     u_arr, y_arr = check_run_data(system, u, y)
@@ -105,15 +109,36 @@ def fit_standard_mhe(
         return WhiteInputEKF(system, w_variance=factor * scale2, x0_prior=x0_prior, v_covariance=v_covariance,
                              P0=P0).score(u_arr, y_arr)  # fmt: skip
 
-    profile = maximise_likelihood(score, grid, name="w_variance", scale=system.w.scale)
+    profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
     if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
         warnings.warn(f"fit_standard_mhe: {profile.summary()}", UserWarning, stacklevel=2)
-    chosen = WhiteInputEKF(system, w_variance=profile.variance, x0_prior=x0_prior, v_covariance=v_covariance, P0=P0)
-    weights = MHEWeights.from_variances(system, eta, w_variance=profile.variance, v_covariance=v_covariance,
-                                        P0=arrival_covariance(chosen, u_arr, y_arr), at=x0_prior)  # fmt: skip
+    weights = likelihood_weights(system, u_arr, y_arr, x0_prior=x0_prior, eta=eta, w_variance=profile.variance,
+                                 v_covariance=v_covariance, P0=P0)  # fmt: skip
     mhe = StandardMHE(system, weights=weights, N=N, x0_prior=x0_prior, **options)
     mhe.likelihood = profile
     return mhe
+
+
+def likelihood_weights(
+    system: System,
+    u: ArrayLike | None,
+    y: ArrayLike,
+    *,
+    x0_prior: ArrayLike,
+    eta: float,
+    w_variance: ArrayLike,
+    v_covariance: ArrayLike | None = None,
+    P0: ArrayLike | None = None,
+) -> MHEWeights:
+    """The standard MHE's Gaussian weights for a given disturbance covariance ``w_variance`` (module docstring).
+
+    :meth:`MHEWeights.from_variances <uiest.estimators.MHEWeights.from_variances>` with the window prior's covariance
+    from :func:`arrival_covariance` of the :class:`WhiteInputEKF` with ``w_variance`` run over the record (u, y).
+    """
+    u_arr, y_arr = check_run_data(system, u, y)
+    white = WhiteInputEKF(system, w_variance=w_variance, x0_prior=x0_prior, v_covariance=v_covariance, P0=P0)
+    return MHEWeights.from_variances(system, eta, w_variance=w_variance, v_covariance=v_covariance,
+                                     P0=arrival_covariance(white, u_arr, y_arr), at=x0_prior)  # fmt: skip
 
 
 def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray) -> FloatArray:
@@ -121,7 +146,8 @@ def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray) -> FloatArr
 
     ``u (K, nu)``, ``y (K+1, ny)`` checked; the filter starts from its prior. It is the window prior's covariance of
     :func:`fit_standard_mhe`: the uncertainty of an estimate after the filter has settled (the first half holds the
-    transient from ``P0``).
+    transient from ``P0``). A direction the filter knows exactly (a state without process noise that the outputs
+    pin down) is given a standard deviation of ``ARRIVAL_FLOOR`` scales, so that the weight stays finite.
     """
     estimator.reset()
     nx, K = estimator.system.nx, len(y) - 1
@@ -135,7 +161,10 @@ def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray) -> FloatArr
                 count += 1
     if not count:
         raise OptionError("P0: the filter of the chosen variance has no finite covariance on the record's second half")
-    return total / count
+    scale = estimator.system.x.scale
+    values, vectors = np.linalg.eigh(total / count / np.outer(scale, scale))
+    floored = (vectors * np.maximum(values, ARRIVAL_FLOOR**2)) @ vectors.T
+    return floored * np.outer(scale, scale)
 
 
-__all__ = ["WhiteInputEKF", "arrival_covariance", "fit_standard_mhe"]
+__all__ = ["WhiteInputEKF", "arrival_covariance", "fit_standard_mhe", "likelihood_weights"]
