@@ -78,8 +78,8 @@ def test_the_filters_log_likelihood_is_the_kalman_filters_with_missing_channels_
 def test_the_likelihood_maximum_of_a_gaussian_random_walk_lies_near_its_true_variance():
     # K = 400 steps: the profile's 95 % interval (L within LIKELIHOOD_INTERVAL of its maximum, Wilks) spans a factor
     # of 1.56 (median of 40 records in bench/tuning.py: chosen / true 0.75 .. 1.28, the true variance inside the
-    # interval in 37 of 40), so the standard deviation of log(chosen) is about log(1.56) / 3.92 = 0.11 and a
-    # factor 2 either side is 6 of them
+    # interval in 37 of 40), so the standard deviation of log(chosen) is about log(1.56) / 3.92 = 0.11 (0.13 over
+    # 100 records) and a factor 2 either side is more than 5 of them
     system = _system()
     true_factor = STEP**2 / system.w.scale[0] ** 2
     for seed in (1, 2):
