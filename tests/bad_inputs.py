@@ -31,6 +31,7 @@ from uiest.detectability import (
 )
 from uiest.errors import CertificationError, UiestError
 from uiest.estimators import (
+    EKF,
     FIE,
     UISE,
     LinearUIO,
@@ -460,6 +461,24 @@ def api_cases(tmp: Path) -> list[Case]:
             lambda: MHEWeights.from_scales(s(), 0.5, disturbance=-1.0),
             OptionError,
             "disturbance",
+        ),
+        Case(
+            "from_variances: a zero variance",
+            lambda: MHEWeights.from_variances(s(), 0.5, w_variance=0.0),
+            OptionError,
+            "w_variance: expected a positive definite",
+        ),
+        Case(
+            "EKF.fit: a negative variance on the grid",
+            lambda: EKF.fit(s(), trajectory().u, trajectory().y, x0_prior=[0.5, 1.0], variances=[1e-3, -1.0]),
+            OptionError,
+            "variances",
+        ),
+        Case(
+            "EKF.fit: y of the wrong shape",
+            lambda: EKF.fit(s(), trajectory().u, trajectory().y[:, :0], x0_prior=[0.5, 1.0]),
+            DataError,
+            "y",
         ),
         # certificates
         Case("certify: mu = 1.5", lambda: certify_strong_detectability(s(), 1.5), OptionError, "mu"),

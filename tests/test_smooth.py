@@ -373,9 +373,12 @@ def test_uiest_estimate_runs_the_smooth_input_mhe_on_a_model_file(tmp_path, pend
     assert result.exit_code == 0, result.output
     estimates = pd.read_csv(out / "estimates_smooth.csv")
     assert rms(estimates["omega_hat"][20:] - x[20:, 1]) < 0.03  # measured 0.0107 (the Python run's)
-    refused = CliRunner().invoke(app, ["estimate", str(model), "--data", str(data), "--estimator", "smooth",
-                                       "--out", str(out)])  # fmt: skip
-    assert refused.exit_code == 2 and "--w-variance: required for smooth" in refused.output
+    # without --w-variance: the EKF's random-walk variance fitted to the record by likelihood, as its increments'
+    fitted = CliRunner().invoke(app, ["estimate", str(model), "--data", str(data), "--estimator", "smooth",
+                                      "--x0", "0.5,0", "--out", str(out)], terminal_width=400)  # fmt: skip
+    assert fitted.exit_code == 0 and "increment variance" in fitted.output, fitted.output
+    estimates = pd.read_csv(out / "estimates_smooth.csv")
+    assert rms(estimates["omega_hat"][20:] - x[20:, 1]) < 0.03
     from uiest.estimate import build_estimator
     from uiest.models import load
 

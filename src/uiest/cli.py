@@ -158,7 +158,10 @@ def estimate(
     ] = None,
     w_variance: Annotated[
         float | None,
-        typer.Option(help="EKF/UKF random-walk (smooth: increment) variance, times w's scale^2 (default: tuned)."),
+        typer.Option(
+            help="EKF/UKF random-walk (smooth: increment; MHE: disturbance) variance, times w's scale^2 (default: "
+            "the likelihood's maximum on --data)."
+        ),
     ] = None,
     x0: Annotated[str | None, typer.Option(help="Prior of x[0], comma separated (default: the model's).")] = None,
 ) -> None:
@@ -191,7 +194,7 @@ def estimate(
         for kind in kinds:
             status.update(f"building {kind}")
             built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
-                                                       w_variance=w_variance)  # fmt: skip
+                                                       w_variance=w_variance, record=record)  # fmt: skip
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)

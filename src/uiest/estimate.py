@@ -13,12 +13,16 @@ model certifies:
   model's reduction (a model without ``reduction()`` is refused), same fallback.
 - ``mhe``: the standard MHE with the weights of a delta-IOSS certificate
   (:func:`~uiest.detectability.certify_delta_ioss`) and N = ``horizon`` (20) or its ``min_horizon()`` if
-  longer (up to ``horizon``, default 60); without one, ``MHEWeights.from_scales(eta=0.8)`` and N = ``horizon``.
-- ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else tuned on
-  a simulation of the model's default setup (a model without ``setup()`` needs ``w_variance``).
+  longer (up to ``horizon``, default 60) where its guarantee is informative; otherwise (or with ``w_variance``)
+  Gaussian weights (:func:`uiest.tuning.likelihood_weights`, eta = 0.8, N = ``horizon``) whose disturbance variance
+  is ``w_variance`` (times ``w.scale^2``) or maximises the likelihood of the record
+  (:func:`uiest.tuning.fit_standard_mhe`).
+- ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else the one that
+  maximises the likelihood of the record's innovations (:meth:`EKF.fit <uiest.kalman.KalmanFilter.fit>`: the
+  prediction-error method, no true states); the note gives the choice and the profile's shape.
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
-  increments' variance ``w_variance`` (the EKF's random walk: given, or the EKF's tuned one) and
-  ``max_horizon`` as for the UISE.
+  increments' variance ``w_variance`` or the EKF's random-walk variance fitted to the record (the same
+  quantity) and ``max_horizon`` as for the UISE.
 - ``uio``: the linear UIO (linear models only).
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
@@ -69,10 +73,14 @@ def build_estimator(
     lag: int = 0,
     horizon: int | None = None,
     w_variance: float | None = None,
+    record: Trajectory | None = None,
 ) -> tuple[Any, str]:
-    """The estimator ``kind`` (module docstring) and a note on how its weights were chosen."""
+    """The estimator ``kind`` (module docstring) and a note on how its weights were chosen.
+
+    ``record``: the measurements the variances are fitted to (``ekf``, ``ukf`` and ``mhe`` without ``w_variance``).
+    """
     from uiest import estimators as est
-    from uiest.experiments.study_model import TUNING_SEED, StudyModel
+    from uiest.experiments.study_model import StudyModel
 
     if kind not in ESTIMATORS:
         raise OptionError(f"--estimator: expected one of {list(ESTIMATORS)}, got {kind!r}")
@@ -117,19 +125,18 @@ def build_estimator(
         weights = est.TwoStageWeights.from_scales(study.reduction, FALLBACK_RATE)
         return est.TwoStageUISE(study.reduction, weights=weights, N=N, x0_prior=x0, **options), note
     if kind == "mhe":
-        return _standard_mhe(system, x0, N, horizon, options)
+        return _standard_mhe(system, x0, N, horizon, options, record, w_variance)
     if kind == "uio":
         return est.LinearUIO(system, x0_prior=x0), "Chen-Patton-Zhang observer (DARE gain)"
     if w_variance is not None:
         factor, source = w_variance, "given"
-    elif entry.setup is None:
-        raise OptionError(
-            f"--w-variance: required for {kind} on {entry.name!r}, which has no default simulation to tune it on"
-        )
     else:
-        tuned = "ekf" if kind == "smooth" else kind
-        factor = study.tuned_variance(tuned)
-        source = f"the {tuned.upper()}'s, tuned on a separate simulation (seed {TUNING_SEED})"
+        u, y = _record_data(kind, system, record)
+        fitted = (est.EKF if kind in ("ekf", "smooth") else est.UKF).fit(system, u, y, x0_prior=x0)
+        assert fitted.likelihood is not None
+        if kind != "smooth":
+            return fitted, f"random walk: {fitted.likelihood.summary()} on the data"
+        factor, source = fitted.likelihood.chosen, f"the EKF's random walk: {fitted.likelihood.summary()} on the data"
     if kind == "smooth":
         return _smooth_mhe(system, x0, factor, source, horizon, options)
     cls = est.EKF if kind == "ekf" else est.UKF
@@ -159,28 +166,53 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     return mhe, f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
 
 
-def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any]) -> Any:
-    """The standard MHE with delta-IOSS certificate weights where the model certifies, else explicit ones."""
+def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],
+                  record: Trajectory | None, w_variance: float | None) -> tuple[Any, str]:  # fmt: skip
+    """The standard MHE: certificate weights where their guarantee is informative, else Gaussian weights.
+
+    The Gaussian weights' disturbance variance is ``w_variance`` or fitted to the record by likelihood
+    (:mod:`uiest.tuning`).
+    """
     from uiest.detectability import certify_delta_ioss
-    from uiest.estimators import MHEWeights, StandardMHE
+    from uiest.estimators import StandardMHE
+    from uiest.tuning import fit_standard_mhe, likelihood_weights
 
     baseline = "a baseline: the unknown input is penalised as a disturbance"
     longest = LONGEST_HORIZON if horizon is None else horizon
-    try:
-        cert = certify_delta_ioss(system)
-        reason = cert.reason
-        if cert.certified and cert.min_horizon() <= longest:
-            window = max(N, cert.min_horizon())
-            mhe = StandardMHE(system, certificate=cert, N=window, x0_prior=x0, **options)
-            return mhe, f"delta-IOSS certificate: eta={mhe.weights.eta:.3g}, N={window} ({baseline})"
-        if cert.certified:
-            reason = horizon_reason(longest, cert.min_horizon())
-    except (CertificationError, ModelError) as exc:
-        reason = str(exc)
-    weights = MHEWeights.from_scales(system, FALLBACK_RATE)
-    return StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options), (
-        f"no delta-IOSS design ({reason}); explicit weights eta={FALLBACK_RATE}, N={N} ({baseline})"
+    reason = ""
+    if w_variance is None:
+        try:
+            cert = certify_delta_ioss(system)
+            reason = cert.reason
+            if cert.certified and cert.min_horizon() <= longest:
+                window = max(N, cert.min_horizon())
+                mhe = StandardMHE(system, certificate=cert, N=window, x0_prior=x0, **options)
+                if mhe.guarantee.informative:
+                    return mhe, f"delta-IOSS certificate: eta={mhe.weights.eta:.3g}, N={window} ({baseline})"
+                reason = f"certified, but its guarantee is {mhe.guarantee.verdict.value}"
+            elif cert.certified:
+                reason = horizon_reason(longest, cert.min_horizon())
+        except (CertificationError, ModelError) as exc:
+            reason = str(exc)
+    u, y = _record_data("mhe", system, record)
+    if w_variance is not None:
+        weights = likelihood_weights(system, u, y, x0_prior=x0, eta=FALLBACK_RATE,
+                                     w_variance=w_variance * system.w.scale**2)  # fmt: skip
+        mhe = StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options)
+        return mhe, f"disturbance variance {w_variance:g} w.scale^2 (given), eta={FALLBACK_RATE}, N={N} ({baseline})"
+    mhe = fit_standard_mhe(system, u, y, x0_prior=x0, N=N, eta=FALLBACK_RATE, **options)
+    assert mhe.likelihood is not None
+    return mhe, (
+        f"no informative delta-IOSS design ({reason}); disturbance: {mhe.likelihood.summary()} on the data, "
+        f"eta={FALLBACK_RATE}, N={N} ({baseline})"
     )
+
+
+def _record_data(kind: str, system: System, record: Trajectory | None) -> tuple[FloatArray | None, FloatArray]:
+    """The record's u (None when nu = 0) and y, to fit a variance to; OptionError without one."""
+    if record is None:
+        raise OptionError(f"--w-variance: required for {kind} without measurements to fit it to (--data)")
+    return (record.u if system.nu else None), record.y
 
 
 def _delayed_weights(system: System) -> Any:

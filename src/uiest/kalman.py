@@ -23,7 +23,9 @@ that fails too is the update skipped (outcome ``UPDATE_SKIPPED``) or the last es
 An estimate outside X by more than X's width is ``DIVERGED`` (a failure).
 
 Neither has a guarantee when the unknown input is unbounded or fast: a random walk is the prior
-they assume. :meth:`KalmanFilter.tuned` picks ``w_variance`` on a separate simulated record.
+they assume. :meth:`KalmanFilter.fit` picks ``w_variance`` by the likelihood of the innovations on the record
+itself (the prediction-error method, :mod:`uiest.likelihood`); :meth:`KalmanFilter.tuned` by the state error on a
+separate simulated record with its true states.
 """
 
 from __future__ import annotations
@@ -38,11 +40,20 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_real, check_run_data, check_u_prev, check_y, real_array
+from uiest.checks import check_real, check_run_data, check_u_prev, check_y
+from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, quiet_bound_warnings
+from uiest.likelihood import (
+    LikelihoodProfile,
+    ProfileShape,
+    Score,
+    check_grid,
+    innovation_log_density,
+    maximise_likelihood,
+)
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
 
@@ -52,18 +63,6 @@ the error is flat there: the reactor's EKF is as good at 1e6 w.scale^2 as at the
 INSIDE_MARGIN = 1e-6
 """The inside-X retry evaluates the model this fraction of X's width (x's scale on a half-open axis) inside its
 finite sides (a square root or a logarithm at a side has an infinite derivative there)."""
-
-
-def _covariance(value: ArrayLike | None, n: int, default: FloatArray, name: str) -> FloatArray:
-    """A covariance (n, n) from None (``diag(default)``), variances (n,) or a matrix; OptionError if not PSD."""
-    arr = np.diag(default) if value is None else real_array(value, name, "a covariance", error=OptionError)
-    if arr.ndim < 2 and arr.size in (1, n):
-        arr = np.diag(np.broadcast_to(arr.reshape(-1), (n,)))
-    if arr.shape != (n, n) or not np.all(np.isfinite(arr)) or not np.allclose(arr, arr.T):
-        raise OptionError(f"{name}: expected variances ({n},) or a symmetric ({n}, {n}) matrix, got shape {arr.shape}")
-    if n and np.linalg.eigvalsh(arr)[0] < -1e-12 * max(float(np.abs(arr).max()), 1e-300):
-        raise OptionError(f"{name}: expected a positive semidefinite covariance")
-    return 0.5 * (arr + arr.T)
 
 
 @dataclass(frozen=True)
@@ -111,6 +110,8 @@ class KalmanFilter(StreamingEstimator):
     v_prior: FloatArray
     tuning: Tuning | None = None
     """The tuning record when built by :meth:`tuned`, else None."""
+    likelihood: LikelihoodProfile | None = None
+    """The likelihood profile when built by :meth:`fit`, else None."""
 
     def __init__(
         self,
@@ -128,15 +129,14 @@ class KalmanFilter(StreamingEstimator):
             raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
         self.system = s = system
         V = s.v.bounds
-        v_var = np.where(np.isfinite(V.width), V.width**2 / 12.0, s.v.scale**2)
         self.v_prior = np.where(np.isfinite(V.center), V.center, 0.0)
         self.Q = np.zeros((s.nx + s.nw, s.nx + s.nw))
-        self.Q[: s.nx, : s.nx] = _covariance(x_variance, s.nx, np.zeros(s.nx), "x_variance")
-        self.Q[s.nx :, s.nx :] = _covariance(w_variance, s.nw, np.zeros(s.nw), "w_variance")
-        self.Sigma_v = _covariance(v_covariance, s.nv, v_var, "v_covariance")
-        self.P0 = _covariance(P0, s.nx, s.x.scale**2 / 12.0, "P0")
+        self.Q[: s.nx, : s.nx] = as_covariance(x_variance, s.nx, np.zeros(s.nx), "x_variance")
+        self.Q[s.nx :, s.nx :] = as_covariance(w_variance, s.nw, np.zeros(s.nw), "w_variance")
+        self.Sigma_v = as_covariance(v_covariance, s.nv, noise_variance(s), "v_covariance")
+        self.P0 = as_covariance(P0, s.nx, prior_variance(s), "P0")
         self.w0 = s.nominal_w if w0 is None else as_vector(w0, s.nw, "w0")
-        self.W0 = _covariance(W0, s.nw, s.w.scale**2, "W0")
+        self.W0 = as_covariance(W0, s.nw, s.w.scale**2, "W0")
         x, u, d, v = (ca.SX.sym(n, m) for n, m in (("x", s.nx), ("u", s.nu), ("d", s.nw), ("v", s.nv)))
         fx, hx = s.f(x, u, d), s.h(x, v)
         self._f = ca.Function("f_aug", [x, u, d], [fx, ca.jacobian(fx, ca.vertcat(x, d))])
@@ -150,6 +150,24 @@ class KalmanFilter(StreamingEstimator):
         self._k = 0
         self._z: FloatArray | None = None
         self._P: FloatArray | None = None
+        self._log_likelihood = 0.0
+        self._unscored = 0
+
+    @property
+    def log_likelihood(self) -> float:
+        r"""The Gaussian log-likelihood of the innovations of the steps so far (0 before the first).
+
+        ``sum_k -1/2 (log det(2 pi S[k]) + e[k]' S[k]^-1 e[k])`` with ``e[k] = y[k] - y_pred[k]`` over the
+        observed channels of each step and ``S[k]`` the filter's own innovation covariance (from the prior at
+        k = 0). Steps without measurements add nothing; steps whose update failed are counted in
+        :attr:`unscored_steps` instead.
+        """
+        return self._log_likelihood
+
+    @property
+    def unscored_steps(self) -> int:
+        """Steps with measurements whose innovation is missing from :attr:`log_likelihood` (the update failed)."""
+        return self._unscored
 
     @property
     def covariance(self) -> FloatArray | None:
@@ -163,8 +181,11 @@ class KalmanFilter(StreamingEstimator):
 
     def _update(
         self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
-    ) -> tuple[FloatArray, FloatArray]:
-        """Posterior mean and covariance given the observed channels of y; ``inside`` as for :meth:`_predict`."""
+    ) -> tuple[FloatArray, FloatArray, float]:
+        """Posterior mean, covariance and the innovation's log-density given the observed channels of y.
+
+        The density is :func:`~uiest.likelihood.innovation_log_density`; ``inside`` as for :meth:`_predict`.
+        """
         raise NotImplementedError
 
     def _inside(self, x: FloatArray) -> FloatArray:
@@ -197,19 +218,20 @@ class KalmanFilter(StreamingEstimator):
                 inside = True
         observed = ~np.isnan(y_vec)
         outcome, reason = Outcome.UPDATED, ""
+        term = np.nan
         if not observed.any():
             outcome = Outcome.PROPAGATED
         elif _finite(z, P):
             try:
-                z_new, P_new = self._update(z, P, y_vec, observed, False)
+                z_new, P_new, term = self._update(z, P, y_vec, observed, False)
                 if not _finite(z_new, P_new):
-                    z_new, P_new = self._update(z, P, y_vec, observed, True)
+                    z_new, P_new, term = self._update(z, P, y_vec, observed, True)
                     inside = True
                 if not _finite(z_new, P_new):
                     raise np.linalg.LinAlgError("the update is not finite")
                 z, P = z_new, P_new
             except np.linalg.LinAlgError as exc:  # keep the prediction, as for a missing measurement
-                outcome, reason = Outcome.UPDATE_SKIPPED, str(exc)
+                outcome, reason, term = Outcome.UPDATE_SKIPPED, str(exc), np.nan
         if not _finite(z, P):
             if self._z is None:
                 raise DataError(f"step k={k}: the prior gives no finite estimate")
@@ -217,6 +239,11 @@ class KalmanFilter(StreamingEstimator):
         X = s.x.bounds
         if np.any(np.abs(z[: s.nx] - X.clip(z[: s.nx])) > X.width):
             outcome = Outcome.DIVERGED
+        if observed.any():
+            if outcome == Outcome.UPDATED and np.isfinite(term):
+                self._log_likelihood += term
+            else:
+                self._unscored += 1
         self._z, self._P, self._k = z, 0.5 * (P + P.T), k + 1
         return StepEstimate(
             k=k,
@@ -302,6 +329,58 @@ class KalmanFilter(StreamingEstimator):
         estimator.tuning = tuning
         return estimator
 
+    def score(self, u: ArrayLike | None, y: ArrayLike) -> Score:
+        """Run over the record from the prior given before; its :attr:`log_likelihood`, unscored and diverged steps.
+
+        A step that raised, or whose update failed, is unscored; an estimate beyond X by more than its width, or not
+        finite, counts as diverged (:class:`~uiest.likelihood.Score`).
+        """
+        u_arr, y_arr = check_run_data(self.system, u, y)
+        self.reset()
+        with quiet_bound_warnings():  # scored, not shown
+            result = collect_run(self, u_arr, y_arr)
+        errors = np.count_nonzero(result.outcome == Outcome.ERROR)
+        diverged = np.count_nonzero(result.outcome == Outcome.DIVERGED)
+        diverged += np.count_nonzero(~np.all(np.isfinite(result.x_hat), axis=1))
+        return Score(self.log_likelihood, self.unscored_steps + int(errors), int(diverged))
+
+    @classmethod
+    def fit(
+        cls,
+        system: System,
+        u: ArrayLike | None,
+        y: ArrayLike,
+        *,
+        x0_prior: ArrayLike,
+        variances: ArrayLike | None = None,
+        **keywords: Any,
+    ) -> KalmanFilter:
+        """The filter whose ``w_variance`` maximises the likelihood of its innovations on the record (u, y).
+
+        The prediction-error method (:mod:`uiest.likelihood`): no true states needed, only ``u (K, nu)`` (None when
+        nu = 0) and ``y (K+1, ny)`` (NaN: missing, dropped per step). ``variances`` (factors of ``w.scale^2``)
+        default to :data:`~uiest.likelihood.DEFAULT_GRID`, refined around the best interior point. The other
+        keywords go to the filter (``x_variance``, ``v_covariance``, ``P0``, ...) and are held fixed; the profile is
+        only as good as ``v_covariance`` (default: V's uniform variance), which sets the innovations' scale. The
+        result's :attr:`likelihood` holds the profile (:class:`~uiest.likelihood.LikelihoodProfile`: the chosen
+        factor, every log-likelihood evaluated, the 95 % interval and whether it is flat or at an end of the grid).
+        A filter that diverged or failed an update on the record is never chosen; when every one did,
+        OptionError. Warns (``UserWarning``) when the profile is flat over the whole grid (the record does not
+        determine the variance) or reaches the default grid's upper end.
+        """
+        u_arr, y_arr = check_run_data(system, u, y)
+        grid = check_grid(variances)
+
+        def score(factor: float) -> Score:
+            return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0_prior, **keywords).score(u_arr, y_arr)
+
+        profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
+        if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
+            warnings.warn(f"{cls.__name__}.fit: {profile.summary()}", UserWarning, stacklevel=2)
+        estimator = cls(system, w_variance=profile.variance, x0_prior=x0_prior, **keywords)
+        estimator.likelihood = profile
+        return estimator
+
     @property
     def guarantee(self) -> Guarantee:
         """None: no theorem bounds the error for an unbounded unknown input."""
@@ -333,7 +412,7 @@ class EKF(KalmanFilter):
 
     def _update(
         self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, float]:
         s = self.system
         if inside:  # the estimate projected into X, as for the prediction
             z = np.concatenate([self._inside(z[: s.nx]), z[s.nx :]])
@@ -345,7 +424,7 @@ class EKF(KalmanFilter):
         S = H @ P @ H.T + R
         K = np.linalg.solve(S, H @ P).T
         I_KH = np.eye(len(z)) - K @ H
-        return z + K @ innovation, I_KH @ P @ I_KH.T + K @ R @ K.T
+        return z + K @ innovation, I_KH @ P @ I_KH.T + K @ R @ K.T, innovation_log_density(innovation, S)
 
 
 class UKF(KalmanFilter):
@@ -406,7 +485,7 @@ class UKF(KalmanFilter):
 
     def _update(
         self, z: FloatArray, P: FloatArray, y: FloatArray, observed: FloatArray, inside: bool
-    ) -> tuple[FloatArray, FloatArray]:
+    ) -> tuple[FloatArray, FloatArray, float]:
         s = self.system
         chi = self._points(z, P, inside)
         m = len(chi)
@@ -417,7 +496,8 @@ class UKF(KalmanFilter):
         S = (self._wc[:, None] * dy).T @ dy + self._noise(self._inside(z[: s.nx]) if inside else z[: s.nx], observed)
         Pzy = (self._wc[:, None] * dz).T @ dy
         K = np.linalg.solve(S, Pzy.T).T
-        return z + K @ (y[observed] - y_mean), P - K @ S @ K.T
+        innovation = y[observed] - y_mean
+        return z + K @ innovation, P - K @ S @ K.T, innovation_log_density(innovation, S)
 
 
 def _finite(z: FloatArray, P: FloatArray) -> bool:

@@ -38,6 +38,7 @@ from uiest.estimators.bounds import mhe_bound
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import DeltaCertificate, MHEWeights, resolve_weights
 from uiest.guarantee import Guarantee
+from uiest.likelihood import LikelihoodProfile
 from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
@@ -91,6 +92,8 @@ class StandardMHE(WindowEstimator):
     estimator_name = "StandardMHE"
     theorem = "robust MHE theorem (Schiller et al. 2023)"
     one_step_ahead = True
+    likelihood: LikelihoodProfile | None = None
+    """The likelihood profile of its disturbance variance when built by :func:`uiest.tuning.fit_standard_mhe`."""
 
     def __init__(
         self,

@@ -25,12 +25,18 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 from numpy.typing import ArrayLike
 
-from uiest.box import FloatArray
+from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int
+from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import CertificationError, OptionError
 from uiest.reduction import ReducedModel
 from uiest.system import System
 from uiest.window.problem import WindowWeights, sqrt_psd
+
+OUTPUT_RATIO = 100.0
+""":meth:`MHEWeights.from_variances`: the output residual's weight over the noise's (mapped to y): the split of a
+measurement's misfit between the two puts 1/51 of it on the residual, so the misfit costs 98 % of its Gaussian
+weight ``2 Q_v``."""
 
 
 @runtime_checkable
@@ -322,6 +328,44 @@ class MHEWeights:
             Q_v=_diag_scaled(noise, system.v.scale, "noise"),
             R=_diag_scaled(output, system.y.scale, "output"),
         )
+
+    @classmethod
+    def from_variances(
+        cls,
+        system: System,
+        eta: float,
+        *,
+        w_variance: ArrayLike,
+        v_covariance: ArrayLike | None = None,
+        P0: ArrayLike | None = None,
+        at: ArrayLike | None = None,
+    ) -> MHEWeights:
+        r"""Weights of a Gaussian model: ``Q_w = Sigma_w^-1``, ``Q_v = Sigma_v^-1``, ``P = P0^-1``, a large R.
+
+        With these weights and ``eta -> 1`` the cost (:meth:`schedule`) is four times the negative log-posterior
+        of the window under ``w[k] ~ N(w_bar, Sigma_w)`` i.i.d., ``v[k] ~ N(v_bar, Sigma_v)``, the window's first
+        state ``~ N(x_hat, P0)``, and ``y = h(x, v)`` (the output residual weighted ``R = OUTPUT_RATIO (D Sigma_v
+        D^T)^-1`` with ``D = dh/dv`` at ``at``, default X's centre (0 on an infinite side): the output equation held to
+        a small fraction of the noise). ``w_variance`` is ``Sigma_w`` (a number, (nw,) or (nw, nw), positive
+        definite; :func:`uiest.tuning.fit_standard_mhe` chooses it by the likelihood of the record);
+        ``v_covariance`` defaults to V's uniform variance and ``P0`` to ``x.scale^2 / 12``, as for the Kalman
+        filters.
+        """
+        Sigma_w = as_covariance(w_variance, system.nw, np.zeros(system.nw), "w_variance")
+        Sigma_v = as_covariance(v_covariance, system.nv, noise_variance(system), "v_covariance")
+        P_0 = as_covariance(P0, system.nx, prior_variance(system), "P0")
+        center = system.x.bounds.center
+        x = np.where(np.isfinite(center), center, 0.0) if at is None else as_vector(at, system.nx, "at")
+        v_bar = np.where(np.isfinite(system.v.bounds.center), system.v.bounds.center, 0.0)
+        D = system.linearize(x, v=v_bar).D_v
+        inverse = {}
+        for name, matrix in (("w_variance", Sigma_w), ("v_covariance", Sigma_v), ("P0", P_0),
+                             ("v_covariance mapped to y (D Sigma_v D^T)", D @ Sigma_v @ D.T)):  # fmt: skip
+            if matrix.size and np.linalg.eigvalsh(matrix)[0] <= 0.0:
+                raise OptionError(f"{name}: expected a positive definite covariance (its inverse is a weight)")
+            inverse[name] = np.linalg.inv(matrix) if matrix.size else matrix
+        return cls(eta=eta, P=inverse["P0"], Q_w=inverse["w_variance"], Q_v=inverse["v_covariance"],
+                   R=OUTPUT_RATIO * inverse["v_covariance mapped to y (D Sigma_v D^T)"])  # fmt: skip
 
     def schedule(self) -> Schedule:
         """Schiller et al. eq. (6): prior ``2 eta^L P``; ``eta^{j-1} R``, ``2 eta^{j-1} Q_v``, ``2 eta^{j-1} Q_w``."""

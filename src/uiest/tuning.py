@@ -1,0 +1,170 @@
+r"""The standard MHE's weights from the data alone: its disturbance variance by the prediction-error method.
+
+The standard MHE (:class:`~uiest.estimators.StandardMHE`) treats the unknown input as a disturbance around its
+prior ``w_bar``; with Gaussian weights (:meth:`MHEWeights.from_variances
+<uiest.estimators.MHEWeights.from_variances>`) its cost is the negative log-posterior of the model::
+
+    x[k+1] = f(x[k], u[k], w[k]),   w[k] ~ N(w_bar, Sigma_w) independent,   y[k] = h(x[k], v[k]),  v ~ N(v_bar, Sigma_v)
+
+(a white disturbance, not the Kalman filters' random walk). :func:`fit_standard_mhe` chooses ``Sigma_w = q
+diag(w.scale^2)`` by the likelihood of that model's innovations on the record (:mod:`uiest.likelihood`), computed by
+an extended Kalman filter of the same model, and returns the MHE with those weights and the profile. The window's
+prior weight is the inverse of that filter's settled covariance (:func:`arrival_covariance`, the classical EKF arrival
+cost held fixed): with ``P0^-1``, a prior that never tightens, the window can explain a persistent unknown input by
+moving its oldest state instead.
+"""
+
+from __future__ import annotations
+
+import warnings
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from uiest.box import FloatArray
+from uiest.checks import check_run_data
+from uiest.errors import OptionError
+from uiest.estimators import MHEWeights, StandardMHE
+from uiest.health import quiet_bound_warnings
+from uiest.kalman import EKF
+from uiest.likelihood import ProfileShape, Score, check_grid, maximise_likelihood
+from uiest.system import System
+
+ARRIVAL_FLOOR = 1e-6
+"""The smallest standard deviation, in scales of x, of :func:`arrival_covariance` along any direction (a window solve
+resolves about 1e-8 of a scale)."""
+
+
+class WhiteInputEKF(EKF):
+    """The EKF of the standard MHE's model: ``w[k] ~ N(w0, w_variance)`` independent (not a random walk).
+
+    The augmented ``d[k] = w[k]`` is drawn afresh at every step: after each prediction its mean is ``w0`` and its
+    covariance ``w_variance``, uncorrelated with x (``W0`` defaults to ``w_variance``). Its ``w_hat`` is therefore the
+    prior ``w0``; it serves to score the model's likelihood (:attr:`log_likelihood`), not to estimate w.
+    """
+
+    estimator_name = "EKF (white input)"
+
+    def __init__(self, system: System, *, w_variance: ArrayLike, W0: ArrayLike | None = None, **keywords: Any) -> None:
+        super().__init__(system, w_variance=w_variance, W0=w_variance if W0 is None else W0, **keywords)
+
+    def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
+        z_next, P_next = super()._predict(z, P, u, inside)
+        n = self.system.nx
+        z_next[n:] = self.w0
+        P_next[n:, :] = 0.0
+        P_next[:, n:] = 0.0
+        P_next[n:, n:] = self.Q[n:, n:]
+        return z_next, P_next
+
+
+def fit_standard_mhe(
+    system: System,
+    u: ArrayLike | None,
+    y: ArrayLike,
+    *,
+    x0_prior: ArrayLike,
+    N: int,
+    eta: float,
+    variances: ArrayLike | None = None,
+    v_covariance: ArrayLike | None = None,
+    P0: ArrayLike | None = None,
+    **options: Any,
+) -> StandardMHE:
+    """The standard MHE whose disturbance variance maximises the likelihood of the record (u, y) (module docstring).
+
+    Parameters
+    ----------
+    system : System
+    u : array_like (K, nu) or None
+    y : array_like (K+1, ny)
+        The record (NaN: missing, dropped per step); no true states needed.
+    x0_prior : array_like (nx,)
+    N : int
+        The MHE's horizon.
+    eta : float
+        Its discount in (0, 1) (1 would make the cost the exact negative log-posterior of the window).
+    variances : array_like, optional
+        Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, refined).
+    v_covariance, P0 : array_like, optional
+        As for the Kalman filters (defaults: V's uniform variance, ``x.scale^2 / 12``); held fixed. ``P0`` is the
+        filter's prior of x[0]; the window's prior weight is ``arrival_covariance()^-1``.
+    **options
+        For :class:`~uiest.estimators.StandardMHE` (``solver``, ``lag``, ...).
+
+    Returns
+    -------
+    StandardMHE
+        With :func:`likelihood_weights` at the chosen variance (explicit weights: no guarantee) and
+        ``likelihood``, the :class:`~uiest.likelihood.LikelihoodProfile`. Warns (``UserWarning``) when the profile
+        is flat or reaches the default grid's upper end.
+
+    """
+    u_arr, y_arr = check_run_data(system, u, y)
+    grid = check_grid(variances)
+    scale2 = system.w.scale**2
+
+    def score(factor: float) -> Score:
+        return WhiteInputEKF(system, w_variance=factor * scale2, x0_prior=x0_prior, v_covariance=v_covariance,
+                             P0=P0).score(u_arr, y_arr)  # fmt: skip
+
+    profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
+    if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
+        warnings.warn(f"fit_standard_mhe: {profile.summary()}", UserWarning, stacklevel=2)
+    weights = likelihood_weights(system, u_arr, y_arr, x0_prior=x0_prior, eta=eta, w_variance=profile.variance,
+                                 v_covariance=v_covariance, P0=P0)  # fmt: skip
+    mhe = StandardMHE(system, weights=weights, N=N, x0_prior=x0_prior, **options)
+    mhe.likelihood = profile
+    return mhe
+
+
+def likelihood_weights(
+    system: System,
+    u: ArrayLike | None,
+    y: ArrayLike,
+    *,
+    x0_prior: ArrayLike,
+    eta: float,
+    w_variance: ArrayLike,
+    v_covariance: ArrayLike | None = None,
+    P0: ArrayLike | None = None,
+) -> MHEWeights:
+    """The standard MHE's Gaussian weights for a given disturbance covariance ``w_variance`` (module docstring).
+
+    :meth:`MHEWeights.from_variances <uiest.estimators.MHEWeights.from_variances>` with the window prior's covariance
+    from :func:`arrival_covariance` of the :class:`WhiteInputEKF` with ``w_variance`` run over the record (u, y).
+    """
+    u_arr, y_arr = check_run_data(system, u, y)
+    white = WhiteInputEKF(system, w_variance=w_variance, x0_prior=x0_prior, v_covariance=v_covariance, P0=P0)
+    return MHEWeights.from_variances(system, eta, w_variance=w_variance, v_covariance=v_covariance,
+                                     P0=arrival_covariance(white, u_arr, y_arr), at=x0_prior)  # fmt: skip
+
+
+def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray) -> FloatArray:
+    """The mean posterior covariance of x (nx, nx) of ``estimator``'s steps over the second half of the record.
+
+    ``u (K, nu)``, ``y (K+1, ny)`` checked; the filter starts from its prior. It is the window prior's covariance of
+    :func:`fit_standard_mhe`: the uncertainty of an estimate after the filter has settled (the first half holds the
+    transient from ``P0``). A direction the filter knows exactly (a state without process noise that the outputs
+    pin down) is given a standard deviation of ``ARRIVAL_FLOOR`` scales, so that the weight stays finite.
+    """
+    estimator.reset()
+    nx, K = estimator.system.nx, len(y) - 1
+    total, count = np.zeros((nx, nx)), 0
+    with quiet_bound_warnings():
+        for k in range(K + 1):
+            estimator.step(None if k == 0 else u[k - 1], y[k])
+            P = estimator.covariance
+            if k >= K // 2 and P is not None and np.all(np.isfinite(P)):
+                total += P[:nx, :nx]
+                count += 1
+    if not count:
+        raise OptionError("P0: the filter of the chosen variance has no finite covariance on the record's second half")
+    scale = estimator.system.x.scale
+    values, vectors = np.linalg.eigh(total / count / np.outer(scale, scale))
+    floored = (vectors * np.maximum(values, ARRIVAL_FLOOR**2)) @ vectors.T
+    return floored * np.outer(scale, scale)
+
+
+__all__ = ["WhiteInputEKF", "arrival_covariance", "fit_standard_mhe", "likelihood_weights"]
