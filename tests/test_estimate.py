@@ -108,7 +108,7 @@ def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one(
     entry = register("chain-for-estimate", lambda: system, replace=True)
     with pytest.raises(ModelError, match=r"matching fails .* use --estimator delayed"):
         build_estimator("uise", entry, system, np.zeros(3))
-    with pytest.raises(OptionError, match="has no reduction"):
+    with pytest.raises(ModelError, match="has no reduction"):
         build_estimator("two-stage", entry, system, np.zeros(3))
 
 
@@ -178,3 +178,39 @@ def test_estimate_on_a_model_whose_x_means_unbounded_takes_scales_from_the_data(
     rmse = {kind: np.sqrt(np.mean((pd.read_csv(out / f"estimates_{kind}.csv")[columns].to_numpy() - traj.x) ** 2))
             for kind in ("uise", "uio")}  # fmt: skip
     assert rmse["uise"] <= 1.2 * rmse["uio"], rmse
+
+
+def test_without_an_estimator_the_cli_runs_the_analysis_recommendation(tmp_path):
+    # the reactor certifies with an informative bound: the UISE; a pendulum sampled every 0.05 s has a sampling zero
+    # at -0.997: an estimator that assumes a smooth unknown input
+    reactor = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--out",
+                                       str(tmp_path / "reactor")], terminal_width=400)  # fmt: skip
+    assert reactor.exit_code == 0, reactor.output
+    assert reactor.output.startswith("recommended: uise: UISE: strong detectability is certified")
+    assert (tmp_path / "reactor" / "estimates_uise.csv").exists()
+    pendulum = ROOT / "examples" / "pendulum.py"
+    entry = load(pendulum)
+    setup = entry.simulation()
+    truth = simulate(entry.build(), setup.x0, 120, w=setup.w, v=setup.noise, seed=0)
+    data = tmp_path / "pendulum.csv"
+    truth.to_pandas().to_csv(data)
+    result = CliRunner().invoke(app, ["estimate", str(pendulum), "--data", str(data), "--out",
+                                      str(tmp_path / "pendulum")], terminal_width=400)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    first = result.output.split("\n")[0]
+    assert first.startswith("recommended: smooth: smooth-input MHE") and "created by sampling" in first
+    estimates = pd.read_csv(tmp_path / "pendulum" / "estimates_smooth.csv")
+    rate = truth.x[20:, 1] - estimates[f"{entry.build().x.names[1]}_hat"].to_numpy()[20:]
+    assert np.sqrt(np.mean(rate**2)) < 0.1 * entry.build().x.bounds.width[1]
+
+
+def test_estimator_all_runs_every_estimator_the_model_admits(tmp_path):
+    out = tmp_path / "all"
+    result = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "all",
+                                      "--out", str(out)], terminal_width=400)  # fmt: skip
+    assert result.exit_code == 0, result.output
+    ran = {"uise", "mhe", "smooth", "ekf", "ukf"}
+    assert {path.stem.removeprefix("estimates_") for path in out.glob("estimates_*.csv")} == ran
+    assert (out / "estimates.png").exists() and len(list(out.glob("*.png"))) == 1
+    for kind in ("delayed", "two-stage", "uio"):
+        assert f"{kind}: not applicable (" in result.output

@@ -145,7 +145,10 @@ def estimate(
     ],
     estimator: Annotated[
         list[str] | None,
-        typer.Option(help="uise, delayed, two-stage, mhe, smooth, ekf, ukf or uio; repeat for several."),
+        typer.Option(
+            help="uise, delayed, two-stage, mhe, smooth, ekf, ukf or uio; repeat for several; 'all': every one the "
+            "model admits (default: the one `uiest analyse` recommends)."
+        ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
     lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
@@ -167,11 +170,19 @@ def estimate(
 ) -> None:
     """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
     from uiest.box import as_vector
-    from uiest.estimate import build_estimator, default_prior, errors_against_truth, run_estimators, write_estimates
+    from uiest.estimate import (
+        ALL,
+        build_all,
+        build_estimator,
+        default_prior,
+        errors_against_truth,
+        recommended,
+        run_estimators,
+        write_estimates,
+    )
     from uiest.results import read_record
     from uiest.scales import data_scales
 
-    kinds = estimator or ["uise"]
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     if w_variance is not None and not w_variance > 0:
@@ -189,12 +200,22 @@ def estimate(
             raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
         prior = as_vector(values, system.nx, "--x0")
     system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
-    built, notes = {}, {}
+    built, notes, skipped = {}, {}, {}
+    options = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "record": record}
     with console.status("building estimators") as status:
-        for kind in kinds:
-            status.update(f"building {kind}")
-            built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
-                                                       w_variance=w_variance, record=record)  # fmt: skip
+        if not estimator:
+            status.update("analysing the model")
+            kind, why = recommended(system, prior, horizon)
+            console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
+                          highlight=False, soft_wrap=True)  # fmt: skip
+            estimator = [kind]
+        if ALL in estimator:
+            status.update("building every estimator the model admits")
+            built, notes, skipped = build_all(entry, system, prior, **options)
+        else:
+            for kind in estimator:
+                status.update(f"building {kind}")
+                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
@@ -207,6 +228,8 @@ def estimate(
         error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
         table.add_row(kind, notes[kind], error, str(result.guarantee))
     console.print(table)
+    for kind, why in skipped.items():
+        console.print(f"{kind}: not applicable ({why})", markup=False, highlight=False, soft_wrap=True)
     console.print(_health_table(results))
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
         if issubclass(caught_warning.category, BoundWarning):

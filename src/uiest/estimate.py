@@ -1,5 +1,7 @@
 """Estimation on one's own measurements: what ``uiest estimate MODEL --data FILE`` runs.
 
+Without ``--estimator`` the CLI runs the kind :func:`recommended` names (the analysis's recommendation);
+``--estimator all`` runs :func:`build_all`: every kind below the model admits.
 :func:`build_estimator` makes each estimator from the model alone, with a guarantee where the
 model certifies:
 
@@ -47,6 +49,8 @@ from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
 ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "smooth", "ekf", "ukf", "uio")
+ALL = "all"
+"""``--estimator all``: every estimator of :data:`ESTIMATORS` the model admits."""
 FALLBACK_RATE = 0.8
 """Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
 DEFAULT_HORIZON = 20
@@ -54,6 +58,33 @@ DEFAULT_MAX_HORIZON = 30
 """The designs' ``max_horizon`` when ``horizon`` is not given, as the library's (a window's cost grows with N)."""
 LONGEST_HORIZON = 60
 """Without ``horizon``: the longest certified window admitted where none of at most DEFAULT_MAX_HORIZON certifies."""
+
+
+def recommended(system: System, x0: FloatArray, horizon: int | None) -> tuple[str, str]:
+    """The estimator kind :func:`uiest.analysis.analyse` recommends for ``system``, and its reason (one sentence)."""
+    from uiest.analysis import Recommendation, analyse
+
+    kinds = {Recommendation.UISE: "uise", Recommendation.DELAYED_UISE: "delayed",
+             Recommendation.SMOOTH_INPUT_MHE: "smooth", Recommendation.EKF_UKF: "ekf"}  # fmt: skip
+    analysis = analyse(system, x0=x0, max_horizon=LONGEST_HORIZON if horizon is None else horizon)
+    return kinds[analysis.recommendation], analysis.reason
+
+
+def build_all(
+    entry: ModelEntry, system: System, x0: FloatArray, **options: Any
+) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
+    """Every estimator of :data:`ESTIMATORS` the model admits (:func:`build_estimator`'s options).
+
+    Returns (estimators, notes, skipped): a kind the model does not admit (matching, no reduction, not
+    linear, ...) is in ``skipped`` with the reason it was refused.
+    """
+    built, notes, skipped = {}, {}, {}
+    for kind in ESTIMATORS:
+        try:
+            built[kind], notes[kind] = build_estimator(kind, entry, system, x0, **options)
+        except (ModelError, CertificationError) as exc:
+            skipped[kind] = str(exc)
+    return built, notes, skipped
 
 
 def default_prior(entry: ModelEntry, system: System) -> FloatArray:
@@ -83,7 +114,7 @@ def build_estimator(
     from uiest.experiments.study_model import StudyModel
 
     if kind not in ESTIMATORS:
-        raise OptionError(f"--estimator: expected one of {list(ESTIMATORS)}, got {kind!r}")
+        raise OptionError(f"--estimator: expected one of {[*ESTIMATORS, ALL]}, got {kind!r}")
     N = DEFAULT_HORIZON if horizon is None else horizon
     options: dict[str, Any] = {"lag": lag} if lag else {}
     study = StudyModel(entry.name, system, entry)

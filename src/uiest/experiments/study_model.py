@@ -23,7 +23,7 @@ from uiest import models
 from uiest.augmented import augmented_system
 from uiest.checks import check_real
 from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
-from uiest.errors import CertificationError, OptionError
+from uiest.errors import CertificationError, ModelError, OptionError
 from uiest.estimators.smooth_mhe import DW_SIGMAS
 from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
@@ -79,9 +79,9 @@ class StudyModel:
 
     @functools.cached_property
     def reduction(self) -> ReducedModel:
-        """The two-stage UISE's reduced model; OptionError when the model registers none."""
+        """The two-stage UISE's reduced model; ModelError when the model registers none."""
         if self.entry.reduction is None:
-            raise OptionError(f"the two-stage UISE: the model {self.name!r} has no reduction() (T, psi)")
+            raise ModelError(f"the two-stage UISE: the model {self.name!r} has no reduction() (T, psi)")
         return self.entry.reduction()
 
     def certificate(self, kind: str, mu: float, w_variance: float = 0.0) -> Certificate:
