@@ -186,7 +186,8 @@ def test_estimate_prints_warnings_as_messages_and_the_guarantee_with_its_verdict
     truth = simulate(system, [0.1], 40, w=0.2 * np.sin(np.arange(40))[:, None], v=rng.uniform(-0.05, 0.05, (41, 1)))
     data = tmp_path / "data.csv"
     truth.to_pandas().to_csv(data)
-    result = runner.invoke(app, ["estimate", str(model), "--data", str(data), "--out", str(tmp_path / "out")],
+    result = runner.invoke(app, ["estimate", str(model), "--data", str(data), "--out", str(tmp_path / "out"),
+                                 "--estimator", "uise"],
                            terminal_width=400)  # fmt: skip
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
