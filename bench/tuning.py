@@ -1,12 +1,14 @@
 """Tuning from the data alone against tuning on the truth: the EKF, UKF and standard MHE on three models.
 
-For each model and record: the estimator fitted by the prediction-error method (``EKF.fit``, ``UKF.fit``,
-``uiest.tuning.fit_standard_mhe``: no true states), the same estimator at the best variance of the default grid
-scored on the record's true states, and (EKF, UKF) ``tuned()`` on a separate record with its states. Prints the
-state RMSE of each (after the first tenth of the record, each state divided by its scale; per state in its units),
-the ratio fit / truth-best, the chosen variance and the likelihood profile's shape. Then, on the linear model whose
-unknown input is a Gaussian random walk of known variance, where the likelihood's maximum lies against that variance
-and how often the profile's 95 % interval holds it.
+For each model and record: the estimator fitted by the prediction-error method (``EKF.fit``, ``UKF.fit``: the
+input model, its variance and the prior's factor; ``uiest.tuning.fit_standard_mhe``: the disturbance variance; no
+true states), the same estimator (EKF, UKF: a random walk with the default prior) at the best variance of the default
+grid scored on the record's true states, and (EKF, UKF) ``tuned()`` on a separate record with its states. Prints
+the state RMSE of each (after the first tenth of the record, each state divided by its scale; per state in its
+units), the ratios fit / truth-best and fit / tuned(), the choices and the likelihood profile's shape, then a table
+of the ratios' ranges over the records. Then, on the linear model whose
+unknown input is a Gaussian random walk of known variance, where the random walk's likelihood maximum lies against
+that variance, how often the profile's 95 % interval holds it and how often the fit chooses the random walk.
 
 Models: the CSTR of examples/reactor.py (its setup(): a drifting, smooth fault), a linear 3-state system with a
 random-walk input and Gaussian noise (the input enters the unmeasured x3: relative degree 2, no UISE), a damped
@@ -27,6 +29,7 @@ import numpy as np
 
 from uiest import System, simulate
 from uiest.estimators import EKF, UKF, StandardMHE
+from uiest.input_model import InputModel
 from uiest.likelihood import DEFAULT_GRID
 from uiest.models import linear, load
 from uiest.noise import UniformNoise
@@ -113,7 +116,7 @@ def mhe_at(case: Case, factor: float, u, y) -> StandardMHE:
     return StandardMHE(s, weights=weights, N=MHE_N, x0_prior=case.x0)
 
 
-def compare(case: Case, seed: int) -> None:
+def compare(case: Case, seed: int, table: dict[tuple[str, str], list[float]]) -> None:
     s, truth = case.system, case.record(seed)
     u = truth.u if s.nu else None
     training = case.record(seed + 1000)
@@ -121,20 +124,24 @@ def compare(case: Case, seed: int) -> None:
         start = time.process_time()
         fitted = cls.fit(s, u, truth.y, x0_prior=case.x0, **case.keywords)
         cpu = time.process_time() - start
+        fit = fitted.filter_fit.best
         fit_result = fitted.run(u, truth.y)
+        fit_rmse = scaled_rmse(s, fit_result, truth)
         grid = [scaled_rmse(s, cls(s, w_variance=q * s.w.scale**2, x0_prior=case.x0, **case.keywords).run(u, truth.y),
                             truth) for q in DEFAULT_GRID]  # fmt: skip
         best = int(np.argmin(grid))
         tuned = cls.tuned(s, training, x0_prior=case.x0, **case.keywords)
         tuned_rmse = scaled_rmse(s, tuned.run(u, truth.y), truth)
         best_result = cls(s, w_variance=DEFAULT_GRID[best] * s.w.scale**2, x0_prior=case.x0, **case.keywords)
-        print(f"{case.name:9s} {seed:4d} {cls.__name__:4s} fit {scaled_rmse(s, fit_result, truth):.3g} "
-              f"(q {fitted.likelihood.chosen:.3g}, {fitted.likelihood.shape.value}, {cpu:.1f} s CPU) | truth-best "
-              f"{grid[best]:.3g} (q {DEFAULT_GRID[best]:.3g}) | tuned() {tuned_rmse:.3g} (q {tuned.tuning.chosen:.3g})"
-              f" | ratio fit/best {scaled_rmse(s, fit_result, truth) / grid[best]:.2f}, fit/tuned() "
-              f"{scaled_rmse(s, fit_result, truth) / tuned_rmse:.2f} | per state fit "
-              f"{per_state(fit_result, truth)}, best "
-              f"{per_state(best_result.run(u, truth.y), truth)}")  # fmt: skip
+        maxima = ", ".join(f"{m.input_model.value} {m.maximum:.1f}" for m in fitted.filter_fit.fits)
+        print(f"{case.name:9s} {seed:4d} {cls.__name__:4s} fit {fit_rmse:.3g} ({fit.input_model.value}, q "
+              f"{fit.variance.chosen:.3g} {fit.variance.shape.value}, prior factor {fit.prior_factor:.2g}; "
+              f"log-likelihood {maxima}; {cpu:.1f} s CPU) | truth-best random walk {grid[best]:.3g} (q "
+              f"{DEFAULT_GRID[best]:.3g}) | tuned() {tuned_rmse:.3g} (q {tuned.tuning.chosen:.3g}) | ratio fit/best "
+              f"{fit_rmse / grid[best]:.2f}, fit/tuned() {fit_rmse / tuned_rmse:.2f} | per state fit "
+              f"{per_state(fit_result, truth)}, best {per_state(best_result.run(u, truth.y), truth)}")  # fmt: skip
+        table.setdefault((case.name, f"{cls.__name__} fit / best"), []).append(fit_rmse / grid[best])
+        table.setdefault((case.name, f"{cls.__name__} fit / tuned()"), []).append(fit_rmse / tuned_rmse)
     start = time.process_time()
     mhe = fit_standard_mhe(s, u, truth.y, x0_prior=case.x0, N=MHE_N, eta=MHE_ETA,
                            v_covariance=case.keywords.get("v_covariance"))  # fmt: skip
@@ -145,6 +152,22 @@ def compare(case: Case, seed: int) -> None:
     print(f"{case.name:9s} {seed:4d} MHE  fit {fit_rmse:.3g} (q {mhe.likelihood.chosen:.3g}, "
           f"{mhe.likelihood.shape.value}, {cpu:.1f} s CPU) | truth-best {grid[best]:.3g} (q {DEFAULT_GRID[best]:.3g})"
           f" | ratio fit/best {fit_rmse / grid[best]:.2f}")  # fmt: skip
+    table.setdefault((case.name, "standard MHE fit / best"), []).append(fit_rmse / grid[best])
+
+
+def print_table(table: dict[tuple[str, str], list[float]]) -> None:
+    """The ratios' ranges over the records: one row per model, one column per estimator and reference."""
+    models = list(dict.fromkeys(name for name, _ in table))
+    columns = list(dict.fromkeys(column for _, column in table))
+    print("\n| model | " + " | ".join(columns) + " |")
+    print("|---" * (len(columns) + 1) + "|")
+    for name in models:
+        cells = []
+        for column in columns:
+            values = table.get((name, column), [])
+            lo, hi = (min(values), max(values)) if values else (np.nan, np.nan)
+            cells.append(f"{lo:.2f}" if f"{lo:.2f}" == f"{hi:.2f}" else f"{lo:.2f}-{hi:.2f}")
+        print(f"| {name} | " + " | ".join(cells) + " |")
 
 
 def coverage(records: int) -> None:
@@ -152,10 +175,12 @@ def coverage(records: int) -> None:
     case = linear_random_walk()
     s = case.system
     true_factor = LINEAR_STEP**2 / float(s.w.scale[0]) ** 2
-    ratios, covered, widths = [], 0, []
+    ratios, covered, widths, chosen = [], 0, [], 0
     for seed in range(records):
         truth = case.record(10_000 + seed)
-        profile = EKF.fit(s, truth.u, truth.y, x0_prior=case.x0, **case.keywords).likelihood
+        found = EKF.fit(s, truth.u, truth.y, x0_prior=case.x0, **case.keywords).filter_fit
+        chosen += found.best.input_model is InputModel.RANDOM_WALK
+        profile = next(fit.variance for fit in found.fits if fit.input_model is InputModel.RANDOM_WALK)
         lo, hi = profile.interval
         ratios.append(profile.chosen / true_factor)
         covered += lo <= true_factor <= hi
@@ -164,7 +189,8 @@ def coverage(records: int) -> None:
     print(
         f"linear random walk, K = 400, {records} records: chosen / true variance median "
         f"{np.median(ratios_arr):.3g}, range {ratios_arr.min():.3g} .. {ratios_arr.max():.3g}; the 95 % interval "
-        f"holds the true variance in {covered} of {records} (its width hi/lo median {np.median(widths):.3g})"
+        f"holds the true variance in {covered} of {records} (its width hi/lo median {np.median(widths):.3g}); the "
+        f"random walk chosen over the integrated random walk in {chosen} of {records}"
     )
 
 
@@ -175,10 +201,12 @@ def main() -> None:
     parser.add_argument("--only", default=",".join(CASES), help="models, comma separated")
     args = parser.parse_args()
     warnings.simplefilter("ignore")
+    table: dict[tuple[str, str], list[float]] = {}
     for name in args.only.split(","):
         case = CASES[name]()
         for seed in range(args.records):
-            compare(case, 7 + seed)
+            compare(case, 7 + seed, table)
+    print_table(table)
     if args.coverage:
         coverage(args.coverage)
 

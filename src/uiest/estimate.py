@@ -19,12 +19,14 @@ model certifies:
   Gaussian weights (:func:`uiest.tuning.likelihood_weights`, eta = 0.8, N = ``horizon``) whose disturbance variance
   is ``w_variance`` (times ``w.scale^2``) or maximises the likelihood of the record
   (:func:`uiest.tuning.fit_standard_mhe`).
-- ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else the one that
-  maximises the likelihood of the record's innovations (:meth:`EKF.fit <uiest.kalman.KalmanFilter.fit>`: the
-  prediction-error method, no true states); the note gives the choice and the profile's shape.
+- ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else the input model
+  (random walk or integrated random walk), its variance and the prior's factor that maximise the likelihood of
+  the record's innovations (:meth:`EKF.fit <uiest.kalman.KalmanFilter.fit>`: the prediction-error method, no true
+  states); the note gives the choices, the profiles' shapes and each model's log-likelihood.
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
-  increments' variance ``w_variance`` or the EKF's random-walk variance fitted to the record (the same
-  quantity) and ``max_horizon`` as for the UISE.
+  increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
+  dw[k]``) fitted to the record with the EKF's default prior (the MHE's window prior), and ``max_horizon`` as for
+  the UISE.
 - ``uio``: the linear UIO (linear models only).
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
@@ -44,6 +46,7 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.delay import matching_ranks
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
+from uiest.input_model import InputModel
 from uiest.models import ModelEntry
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
@@ -163,10 +166,13 @@ def build_estimator(
         factor, source = w_variance, "given"
     else:
         u, y = _record_data(kind, system, record)
-        fitted = (est.EKF if kind in ("ekf", "smooth") else est.UKF).fit(system, u, y, x0_prior=x0)
-        assert fitted.likelihood is not None
         if kind != "smooth":
-            return fitted, f"random walk: {fitted.likelihood.summary()} on the data"
+            fitted = (est.EKF if kind == "ekf" else est.UKF).fit(system, u, y, x0_prior=x0)
+            assert fitted.filter_fit is not None
+            return fitted, f"{fitted.filter_fit.summary()} on the data"
+        # the smooth-input MHE's model is the random walk, its prior the EKF's default: the EKF's fit of that model
+        fitted = est.EKF.fit(system, u, y, x0_prior=x0, input_models=InputModel.RANDOM_WALK, prior_factors=[1.0])
+        assert fitted.likelihood is not None
         factor, source = fitted.likelihood.chosen, f"the EKF's random walk: {fitted.likelihood.summary()} on the data"
     if kind == "smooth":
         return _smooth_mhe(system, x0, factor, source, horizon, options)

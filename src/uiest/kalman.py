@@ -1,4 +1,4 @@
-r"""The practitioner's baselines: an EKF and a UKF with the unknown input as a random walk.
+r"""The practitioner's baselines: an EKF and a UKF with the unknown input as a random walk or an integrated one.
 
 The state is augmented with the unknown input ``d`` (time-first, the UISE's index convention)::
 
@@ -6,11 +6,16 @@ The state is augmented with the unknown input ``d`` (time-first, the UISE's inde
     Cov(e_x) = Q_x (``x_variance``),  Cov(e_d) = Q_w (``w_variance``, the random walk's step variance),
     Cov(v) = Sigma_v (``v_covariance``; default: V's uniform variance width^2/12, or v's scale^2)
 
-Each step predicts ``z = (x, d)`` with ``u[k-1]`` and updates it with ``y[k]`` (missing channels
-dropped), so ``x_hat[k]`` uses ``y[0..k]`` as the UISE does. The measurement noise enters as
-``R = D Sigma_v D^T`` with ``D = dh/dv`` at ``(x_hat, v_bar)``. ``w_hat[k-1]`` is the posterior
-mean of d at k: the random walk's step after k-1 is independent of ``y[..k]``, so that is also
-the smoothed estimate of ``d[k-1]``, the input that moved ``x[k-1]`` to ``x[k]``.
+or, with ``input_model="integrated random walk"`` (:mod:`uiest.input_model`), with d and its rate r::
+
+    d[k+1] = d[k] + r[k],   r[k+1] = r[k] + e_r[k],   Cov(e_r) = Q_w (``w_variance``)
+
+Each step predicts ``z = (x, d)`` (or ``(x, d, r)``) with ``u[k-1]`` and updates it with ``y[k]``
+(missing channels dropped), so ``x_hat[k]`` uses ``y[0..k]`` as the UISE does. The measurement noise
+enters as ``R = D Sigma_v D^T`` with ``D = dh/dv`` at ``(x_hat, v_bar)``. ``w_hat[k-1]`` is the estimate
+of ``d[k-1]``, the input that moved ``x[k-1]`` to ``x[k]``, from ``y[0..k]``: the noise of the input's step
+after k-1 is independent of ``y[..k]``, so it is the input state's posterior mean at k carried back one step
+(d's posterior mean for a random walk, ``d - r`` for an integrated one).
 
 - :class:`EKF`: Jacobians from CasADi; ``P+ = F P F^T + Q``, Kalman update in Joseph form.
 - :class:`UKF`: the unscented transform (Wan and van der Merwe's scaled sigma points, ``alpha``,
@@ -22,16 +27,18 @@ parts projected onto X (the filter's "inside X" retry, ``StepEstimate.evaluated_
 that fails too is the update skipped (outcome ``UPDATE_SKIPPED``) or the last estimate kept (``KEPT``).
 An estimate outside X by more than X's width is ``DIVERGED`` (a failure).
 
-Neither has a guarantee when the unknown input is unbounded or fast: a random walk is the prior
-they assume. :meth:`KalmanFilter.fit` picks ``w_variance`` by the likelihood of the innovations on the record
-itself (the prediction-error method, :mod:`uiest.likelihood`); :meth:`KalmanFilter.tuned` by the state error on a
-separate simulated record with its true states.
+Neither has a guarantee when the unknown input is unbounded or fast: a random walk (or an integrated one) is
+the prior they assume. :meth:`KalmanFilter.fit` picks the input model, ``w_variance`` and a factor on the prior's
+covariances by the likelihood of the innovations on the record itself (the prediction-error method,
+:mod:`uiest.likelihood`, :mod:`uiest.filter_fit`); :meth:`KalmanFilter.tuned` picks ``w_variance`` by the state
+error on a separate simulated record with its true states.
 """
 
 from __future__ import annotations
 
 import time
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -44,16 +51,11 @@ from uiest.checks import check_real, check_run_data, check_u_prev, check_y
 from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
+from uiest.filter_fit import FilterFit, check_models, check_prior_factors, fit_filter
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, quiet_bound_warnings
-from uiest.likelihood import (
-    LikelihoodProfile,
-    ProfileShape,
-    Score,
-    check_grid,
-    innovation_log_density,
-    maximise_likelihood,
-)
+from uiest.input_model import InputModel
+from uiest.likelihood import LikelihoodProfile, ProfileShape, Score, check_grid, innovation_log_density
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.system import System
 
@@ -102,6 +104,12 @@ class KalmanFilter(StreamingEstimator):
         Covariance of x[0] (default ``diag(x.scale^2 / 12)``: uniform over a box one scale wide).
     w0, W0 : array_like, optional
         Mean and covariance of d[0] (default: the nominal w and ``diag(w.scale^2)``).
+    input_model : InputModel or str, optional
+        The unknown input's model (:class:`~uiest.input_model.InputModel`): ``"random walk"`` (default) or
+        ``"integrated random walk"`` (the state then carries d and its rate r; ``w_variance`` is the rate's step
+        variance).
+    W0_rate : array_like, optional
+        Covariance of r[0], whose mean is 0 (integrated random walk only; default ``W0``).
 
     """
 
@@ -111,7 +119,9 @@ class KalmanFilter(StreamingEstimator):
     tuning: Tuning | None = None
     """The tuning record when built by :meth:`tuned`, else None."""
     likelihood: LikelihoodProfile | None = None
-    """The likelihood profile when built by :meth:`fit`, else None."""
+    """The chosen model's variance profile when built by :meth:`fit`, else None."""
+    filter_fit: FilterFit | None = None
+    """Every input model's likelihood profiles when built by :meth:`fit`, else None."""
 
     def __init__(
         self,
@@ -124,19 +134,26 @@ class KalmanFilter(StreamingEstimator):
         P0: ArrayLike | None = None,
         w0: ArrayLike | None = None,
         W0: ArrayLike | None = None,
+        input_model: InputModel | str = InputModel.RANDOM_WALK,
+        W0_rate: ArrayLike | None = None,
     ) -> None:
         if not isinstance(system, System):
             raise OptionError(f"system: expected a uiest.System, got {type(system).__name__}")
         self.system = s = system
         V = s.v.bounds
         self.v_prior = np.where(np.isfinite(V.center), V.center, 0.0)
-        self.Q = np.zeros((s.nx + s.nw, s.nx + s.nw))
+        self.input_model = _input_model(input_model)
+        n = s.nx + self.input_model.order * s.nw
+        self._A_in = self.input_model.transition(s.nw)
+        self._back = np.linalg.inv(self._A_in)[: s.nw]  # the input state at k -> the estimate of d[k-1]
+        self.Q = np.zeros((n, n))
         self.Q[: s.nx, : s.nx] = as_covariance(x_variance, s.nx, np.zeros(s.nx), "x_variance")
-        self.Q[s.nx :, s.nx :] = as_covariance(w_variance, s.nw, np.zeros(s.nw), "w_variance")
+        self.Q[s.nx :, s.nx :] = self.input_model.noise(as_covariance(w_variance, s.nw, np.zeros(s.nw), "w_variance"))
         self.Sigma_v = as_covariance(v_covariance, s.nv, noise_variance(s), "v_covariance")
         self.P0 = as_covariance(P0, s.nx, prior_variance(s), "P0")
         self.w0 = s.nominal_w if w0 is None else as_vector(w0, s.nw, "w0")
         self.W0 = as_covariance(W0, s.nw, s.w.scale**2, "W0")
+        self.W0_rate = self.W0 if W0_rate is None else as_covariance(W0_rate, s.nw, s.w.scale**2, "W0_rate")
         x, u, d, v = (ca.SX.sym(n, m) for n, m in (("x", s.nx), ("u", s.nu), ("d", s.nw), ("v", s.nv)))
         fx, hx = s.f(x, u, d), s.h(x, v)
         self._f = ca.Function("f_aug", [x, u, d], [fx, ca.jacobian(fx, ca.vertcat(x, d))])
@@ -188,6 +205,20 @@ class KalmanFilter(StreamingEstimator):
         """
         raise NotImplementedError
 
+    def _prior(self, x0: FloatArray) -> FloatArray:
+        """The mean of z at k = 0: ``(x0, w0)`` and a zero rate for an integrated random walk."""
+        n = self.system.nw * (self.input_model.order - 1)
+        return np.concatenate([x0, self.w0, np.zeros(n)])
+
+    def _prior_covariance(self) -> FloatArray:
+        """The covariance of z at k = 0: ``P0``, ``W0`` and (integrated random walk) ``W0_rate`` on the diagonal."""
+        s, n = self.system, len(self.Q)
+        P = np.zeros((n, n))
+        P[: s.nx, : s.nx], P[s.nx : s.nx + s.nw, s.nx : s.nx + s.nw] = self.P0, self.W0
+        if self.input_model is InputModel.INTEGRATED_RANDOM_WALK:
+            P[s.nx + s.nw :, s.nx + s.nw :] = self.W0_rate
+        return P
+
     def _inside(self, x: FloatArray) -> FloatArray:
         """States (..., nx) projected into X, ``INSIDE_MARGIN`` of its width (x's scale if infinite) from its sides."""
         X = self.system.x.bounds
@@ -208,9 +239,8 @@ class KalmanFilter(StreamingEstimator):
         y_vec = check_y(s, y)
         inside = False
         if k == 0 or self._z is None or self._P is None:
-            z = np.concatenate([x0, self.w0])
-            P = np.zeros((s.nx + s.nw, s.nx + s.nw))
-            P[: s.nx, : s.nx], P[s.nx :, s.nx :] = self.P0, self.W0
+            z = self._prior(x0)
+            P = self._prior_covariance()
         else:
             z, P = self._predict(self._z, self._P, u_vec, False)
             if not _finite(z, P):
@@ -248,7 +278,7 @@ class KalmanFilter(StreamingEstimator):
         return StepEstimate(
             k=k,
             x_hat=z[: s.nx].copy(),
-            w_hat=z[s.nx :].copy() if k > 0 else None,
+            w_hat=self._back @ z[s.nx :] if k > 0 else None,
             w_index=k - 1 if k > 0 else None,
             outcome=outcome,
             iterations=0,
@@ -353,32 +383,65 @@ class KalmanFilter(StreamingEstimator):
         *,
         x0_prior: ArrayLike,
         variances: ArrayLike | None = None,
+        input_models: Sequence[InputModel | str] | InputModel | str | None = None,
+        prior_factors: ArrayLike | None = None,
         **keywords: Any,
     ) -> KalmanFilter:
-        """The filter whose ``w_variance`` maximises the likelihood of its innovations on the record (u, y).
+        """The filter whose input model, variance and prior factor maximise the likelihood of its innovations.
 
-        The prediction-error method (:mod:`uiest.likelihood`): no true states needed, only ``u (K, nu)`` (None when
-        nu = 0) and ``y (K+1, ny)`` (NaN: missing, dropped per step). ``variances`` (factors of ``w.scale^2``)
-        default to :data:`~uiest.likelihood.DEFAULT_GRID`, refined around the best interior point. The other
-        keywords go to the filter (``x_variance``, ``v_covariance``, ``P0``, ...) and are held fixed; the profile is
-        only as good as ``v_covariance`` (default: V's uniform variance), which sets the innovations' scale. The
-        result's :attr:`likelihood` holds the profile (:class:`~uiest.likelihood.LikelihoodProfile`: the chosen
-        factor, every log-likelihood evaluated, the 95 % interval and whether it is flat or at an end of the grid).
-        A filter that diverged or failed an update on the record is never chosen; when every one did,
-        OptionError. Warns (``UserWarning``) when the profile is flat over the whole grid (the record does not
-        determine the variance) or reaches the default grid's upper end.
+        The prediction-error method (:mod:`uiest.likelihood`, :mod:`uiest.filter_fit`): no true states needed,
+        only ``u (K, nu)`` (None when nu = 0) and ``y (K+1, ny)`` (NaN: missing, dropped per step).
+
+        Parameters
+        ----------
+        system : System
+        u : array_like (K, nu) or None
+        y : array_like (K+1, ny)
+        x0_prior : array_like (nx,)
+        variances : array_like, optional
+            Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, refined around
+            the best interior point).
+        input_models : InputModel or str, or a sequence of them, optional
+            The unknown input's models to compare (default: every :class:`~uiest.input_model.InputModel`).
+        prior_factors : array_like, optional
+            Factors on the prior's covariances ``P0``, ``W0`` and ``W0_rate`` (given or default) to try
+            (default :data:`~uiest.filter_fit.PRIOR_GRID`); ``[1]`` holds them as given.
+        **keywords
+            For the filter (``x_variance``, ``v_covariance``, ``P0``, ...; not ``input_model``), held fixed. The
+            profile is only as good as ``v_covariance`` (default: V's uniform variance), which sets the
+            innovations' scale.
+
+        Returns
+        -------
+        KalmanFilter
+            At the chosen model, variance and prior; its :attr:`likelihood` is the chosen model's variance profile
+            (:class:`~uiest.likelihood.LikelihoodProfile`: every log-likelihood evaluated, the 95 % interval, its
+            shape) and :attr:`filter_fit` every model's profiles (:class:`~uiest.filter_fit.FilterFit`). A filter
+            that diverged or failed an update on the record is never chosen; when every one of a search did,
+            OptionError. Warns (``UserWarning``) when the chosen variance's profile is flat over the whole grid
+            (the record does not determine it) or reaches the default grid's upper end.
+
         """
+        if "input_model" in keywords:
+            raise OptionError("input_model: fit compares input models; give input_models= to choose among them")
         u_arr, y_arr = check_run_data(system, u, y)
-        grid = check_grid(variances)
+        grid, factors, models = check_grid(variances), check_prior_factors(prior_factors), check_models(input_models)
+        priors = {m: cls(system, w_variance=0.0, input_model=m, **keywords) for m in models}
 
-        def score(factor: float) -> Score:
-            return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0_prior, **keywords).score(u_arr, y_arr)
+        def build(model: InputModel, q: float, c: float) -> KalmanFilter:
+            base = priors[model]
+            options = {**keywords, "P0": c * base.P0, "W0": c * base.W0, "W0_rate": c * base.W0_rate}
+            return cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, input_model=model, **options)
 
-        profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
+        found = fit_filter(lambda m, q, c: build(m, q, c).score(u_arr, y_arr), models=models, variances=grid,
+                           prior_factors=factors, scale=system.w.scale)  # fmt: skip
+        best = found.best
+        profile = best.variance
         if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
             warnings.warn(f"{cls.__name__}.fit: {profile.summary()}", UserWarning, stacklevel=2)
-        estimator = cls(system, w_variance=profile.variance, x0_prior=x0_prior, **keywords)
+        estimator = build(best.input_model, profile.chosen, best.prior_factor)
         estimator.likelihood = profile
+        estimator.filter_fit = found
         return estimator
 
     @property
@@ -392,7 +455,8 @@ class KalmanFilter(StreamingEstimator):
 
     def __repr__(self) -> str:
         return (
-            f"{self.estimator_name}(system={self.system.name!r}, w_variance={np.diag(self.Q)[self.system.nx :]}, "
+            f"{self.estimator_name}(system={self.system.name!r}, input_model={self.input_model.value!r}, "
+            f"w_variance={np.diag(self.Q)[len(self.Q) - self.system.nw :]}, "
             f"guarantee={str(self.guarantee)!r})"
         )
 
@@ -404,10 +468,11 @@ class EKF(KalmanFilter):
 
     def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
         s = self.system
-        x_next, J = self._f(self._inside(z[: s.nx]) if inside else z[: s.nx], u, z[s.nx :])
-        F = np.eye(s.nx + s.nw)
-        F[: s.nx] = np.asarray(J, dtype=float).reshape(s.nx, s.nx + s.nw)
-        z_next = np.concatenate([np.asarray(x_next, dtype=float).reshape(-1), z[s.nx :]])
+        x_next, J = self._f(self._inside(z[: s.nx]) if inside else z[: s.nx], u, z[s.nx : s.nx + s.nw])
+        F = np.zeros_like(P)
+        F[: s.nx, : s.nx + s.nw] = np.asarray(J, dtype=float).reshape(s.nx, s.nx + s.nw)
+        F[s.nx :, s.nx :] = self._A_in
+        z_next = np.concatenate([np.asarray(x_next, dtype=float).reshape(-1), self._A_in @ z[s.nx :]])
         return z_next, F @ P @ F.T + self.Q
 
     def _update(
@@ -417,7 +482,7 @@ class EKF(KalmanFilter):
         if inside:  # the estimate projected into X, as for the prediction
             z = np.concatenate([self._inside(z[: s.nx]), z[s.nx :]])
         y_pred, C, _ = self._h(z[: s.nx], self.v_prior)
-        H = np.zeros((int(observed.sum()), s.nx + s.nw))
+        H = np.zeros((int(observed.sum()), len(z)))
         H[:, : s.nx] = np.asarray(C, dtype=float).reshape(s.ny, s.nx)[observed]
         innovation = y[observed] - np.asarray(y_pred, dtype=float).reshape(-1)[observed]
         R = self._noise(z[: s.nx], observed)
@@ -441,7 +506,7 @@ class UKF(KalmanFilter):
         self, system: System, *, alpha: float = 1.0, beta: float = 2.0, kappa: float = 0.0, **keywords: Any
     ) -> None:
         super().__init__(system, **keywords)
-        n = system.nx + system.nw
+        n = len(self.Q)
         alpha = check_real(alpha, "alpha", "a number in (0, 1]")
         if not 0.0 < alpha <= 1.0:
             raise OptionError(f"alpha: expected a number in (0, 1], got {alpha}")
@@ -479,8 +544,9 @@ class UKF(KalmanFilter):
         s = self.system
         chi = self._points(z, P, inside)
         m = len(chi)
-        x_next = np.asarray(self._f_map(chi[:, : s.nx].T, np.tile(u, (m, 1)).T, chi[:, s.nx :].T), dtype=float)
-        mean, cov = self._moments(np.hstack([x_next.reshape(s.nx, m).T, chi[:, s.nx :]]))
+        d = chi[:, s.nx : s.nx + s.nw]
+        x_next = np.asarray(self._f_map(chi[:, : s.nx].T, np.tile(u, (m, 1)).T, d.T), dtype=float)
+        mean, cov = self._moments(np.hstack([x_next.reshape(s.nx, m).T, chi[:, s.nx :] @ self._A_in.T]))
         return mean, cov + self.Q
 
     def _update(
@@ -498,6 +564,13 @@ class UKF(KalmanFilter):
         K = np.linalg.solve(S, Pzy.T).T
         innovation = y[observed] - y_mean
         return z + K @ innovation, P - K @ S @ K.T, innovation_log_density(innovation, S)
+
+
+def _input_model(value: InputModel | str) -> InputModel:
+    try:
+        return InputModel(value)
+    except ValueError:
+        raise OptionError(f"input_model: expected one of {[m.value for m in InputModel]}, got {value!r}") from None
 
 
 def _finite(z: FloatArray, P: FloatArray) -> bool:

@@ -209,16 +209,19 @@ class LikelihoodProfile:
         }
 
 
-def check_grid(variances: object | None) -> FloatArray:
-    """The grid of factors: :data:`DEFAULT_GRID` for None, else positive finite numbers (sorted, unique)."""
+def check_grid(variances: object | None, name: str = "variances") -> FloatArray:
+    """The grid of factors: :data:`DEFAULT_GRID` for None, else positive finite numbers (sorted, unique).
+
+    ``name``: the argument's name in the OptionError.
+    """
     if variances is None:
         return DEFAULT_GRID.copy()
     try:
         grid = np.asarray(variances, dtype=float).reshape(-1)
     except (TypeError, ValueError):
-        raise OptionError(f"variances: expected positive numbers, got {variances!r}") from None
+        raise OptionError(f"{name}: expected positive numbers, got {variances!r}") from None
     if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
-        raise OptionError(f"variances: expected positive numbers, got {grid.tolist()}")
+        raise OptionError(f"{name}: expected positive numbers, got {grid.tolist()}")
     return np.unique(grid)
 
 

@@ -47,6 +47,8 @@ class WhiteInputEKF(EKF):
     estimator_name = "EKF (white input)"
 
     def __init__(self, system: System, *, w_variance: ArrayLike, W0: ArrayLike | None = None, **keywords: Any) -> None:
+        if "input_model" in keywords or "W0_rate" in keywords:
+            raise OptionError("input_model, W0_rate: the white-input EKF's input is drawn afresh at every step")
         super().__init__(system, w_variance=w_variance, W0=w_variance if W0 is None else W0, **keywords)
 
     def _predict(self, z: FloatArray, P: FloatArray, u: FloatArray, inside: bool) -> tuple[FloatArray, FloatArray]:
