@@ -15,18 +15,23 @@ def _system():
     return linear.linear_system(A, B, C, B_u=B_U, x_bounds=(-50, 50), v_bounds=(-0.05, 0.05), u_bounds=(-2, 2))
 
 
-def _kalman(system, u, y, x0, P0, w0, W0, Q, R):
-    """The textbook Kalman filter of the augmented model z = (x, d), d+ = d + e_d."""
-    Aa = np.block([[A, B], [np.zeros((1, 3)), np.eye(1)]])
-    Ba, Ca = np.vstack([B_U, np.zeros((1, 1))]), np.hstack([C, np.zeros((2, 1))])
-    z, P = np.concatenate([x0, w0]), np.block([[P0, np.zeros((3, 1))], [np.zeros((1, 3)), W0]])
+def _kalman(system, u, y, x0, P0, w0, W0, Q, R, integrated=False):
+    """The textbook Kalman filter of the augmented model z = (x, d), d+ = d + e_d, or z = (x, d, r), d+ = d + r,
+    r+ = r + e_r (``integrated``, r[0] = 0 with covariance W0)."""
+    A_in = np.array([[1.0, 1.0], [0.0, 1.0]]) if integrated else np.eye(1)
+    m = len(A_in)
+    B_in = np.hstack([B, np.zeros((3, m - 1))])
+    Aa = np.block([[A, B_in], [np.zeros((m, 3)), A_in]])
+    Ba, Ca = np.vstack([B_U, np.zeros((m, 1))]), np.hstack([C, np.zeros((2, m))])
+    z = np.concatenate([x0, w0, np.zeros(m - 1)])
+    P = np.block([[P0, np.zeros((3, m))], [np.zeros((m, 3)), np.kron(np.eye(m), W0)]])
     out = []
     for k in range(len(y)):
         if k:
             z, P = Aa @ z + Ba @ u[k - 1], Aa @ P @ Aa.T + Q
         S = Ca @ P @ Ca.T + R
         K = P @ Ca.T @ np.linalg.inv(S)
-        z, P = z + K @ (y[k] - Ca @ z), (np.eye(4) - K @ Ca) @ P
+        z, P = z + K @ (y[k] - Ca @ z), (np.eye(3 + m) - K @ Ca) @ P
         out.append(z.copy())
     return np.array(out)
 
@@ -55,6 +60,13 @@ def test_ekf_and_ukf_equal_the_kalman_filter_on_a_linear_gaussian_model():
     y[5, 1] = np.nan
     ekf_missing = EKF(system, **options).run(u, y)
     assert ekf_missing.missing[5, 1] and np.all(np.isfinite(ekf_missing.x_hat))
+    # the integrated random walk: z = (x, d, r), w_variance the rate's step; w_hat[k-1] = d - r at k
+    Q_int = np.diag([1e-4, 2e-4, 3e-4, 0.0, 0.09])
+    reference = _kalman(system, u, truth.y, x0, P0, w0, W0, Q_int, R, integrated=True)
+    for cls, atol in ((EKF, 1e-10), (UKF, 1e-6)):
+        integrated = cls(system, **options, input_model="integrated random walk").run(u, truth.y)
+        np.testing.assert_allclose(integrated.x_hat, reference[:, :3], rtol=0, atol=atol)
+        np.testing.assert_allclose(integrated.w_hat[:, 0], reference[1:, 3] - reference[1:, 4], rtol=0, atol=atol)
 
 
 def test_tuned_ekf_beats_the_uise_on_a_smooth_input_and_loses_on_a_ramp():
@@ -93,6 +105,8 @@ def test_bad_kalman_options_are_refused():
         EKF(system, w_variance=1.0, v_covariance=[[1.0, 0.0], [0.0, -1.0]])
     with pytest.raises(OptionError, match="alpha"):
         UKF(system, w_variance=1.0, alpha=0.0)
+    with pytest.raises(OptionError, match="input_model: expected one of"):
+        EKF(system, w_variance=1.0, input_model="autoregressive")
     with pytest.raises(DataError, match="training: expected a simulated Trajectory"):
         EKF.tuned(system, "data.csv", x0_prior=np.zeros(3))
     with pytest.raises(OptionError, match="x0_prior: required"):

@@ -5,6 +5,8 @@ import pytest
 
 from uiest import OptionError, simulate
 from uiest.estimators import EKF, UKF, StandardMHE
+from uiest.filter_fit import check_models
+from uiest.input_model import InputModel
 from uiest.likelihood import (
     DEFAULT_GRID,
     LIKELIHOOD_INTERVAL,
@@ -84,7 +86,7 @@ def test_the_likelihood_maximum_of_a_gaussian_random_walk_lies_near_its_true_var
     true_factor = STEP**2 / system.w.scale[0] ** 2
     for seed in (1, 2):
         truth = _record(system, seed)
-        ekf = EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2)
+        ekf = EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2, prior_factors=[1.0])
         profile = ekf.likelihood
         lo, hi = profile.interval
         assert profile.shape is ProfileShape.INTERIOR and lo < profile.chosen < hi
@@ -94,9 +96,51 @@ def test_the_likelihood_maximum_of_a_gaussian_random_walk_lies_near_its_true_var
         assert profile.maximum == pytest.approx(ekf.score(truth.u, truth.y).log_likelihood)
         assert np.all(profile.log_likelihood[np.isin(profile.factors, DEFAULT_GRID)] <= profile.maximum)
         assert ekf.Q[3, 3] == pytest.approx(profile.chosen * system.w.scale[0] ** 2)
+        assert ekf.input_model is InputModel.RANDOM_WALK and ekf.filter_fit.margin > LIKELIHOOD_INTERVAL
     # the UKF is exact on a linear model: the same profile
-    ukf = UKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2)
+    ukf = UKF.fit(
+        system,
+        truth.u,
+        truth.y,
+        x0_prior=np.zeros(3),
+        v_covariance=NOISE**2,
+        prior_factors=[1.0],
+        input_models="random walk",
+    )
     assert ukf.likelihood.chosen == pytest.approx(profile.chosen, rel=1e-3)
+
+
+def test_the_fit_chooses_the_integrated_random_walk_for_an_input_that_drifts_smoothly():
+    # the input's rate is a Gaussian random walk (step 0.002): its increments are far from independent
+    system = _system()
+    rng = np.random.default_rng(6)
+    K = 300
+    u = rng.uniform(-1, 1, (K, 1))
+    w = np.cumsum(np.cumsum(0.002 * rng.standard_normal(K)))[:, None]
+    truth = simulate(system, [1.0, -1.0, 2.0], K, u=u, w=w, v=NOISE * rng.standard_normal((K + 1, 2)))
+    ekf = EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2, prior_factors=[1.0])
+    found = ekf.filter_fit
+    assert ekf.input_model is InputModel.INTEGRATED_RANDOM_WALK and found.best is found.fits[1]
+    assert found.margin > LIKELIHOOD_INTERVAL and "integrated random walk" in found.summary()
+    assert found.to_dict()["chosen"] == "integrated random walk" and found.best.prior is None
+    # the rate's step variance: the chosen factor times w.scale^2 lies within a factor 3 of 0.002^2 (measured 1.3)
+    assert 1 / 3 < ekf.likelihood.chosen * system.w.scale[0] ** 2 / 0.002**2 < 3
+    # the model of the record beats the random walk on the states too
+    rw = EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2, prior_factors=[1.0],
+                 input_models="random walk")  # fmt: skip
+    assert rw.input_model is InputModel.RANDOM_WALK and len(rw.filter_fit.fits) == 1
+
+    def rmse(estimator):
+        return float(np.sqrt(np.mean(estimator.run(truth.u, truth.y).error(truth.x)[40:] ** 2)))
+
+    assert rmse(ekf) < rmse(rw)
+    for bad in ("autoregressive", [], 3):
+        with pytest.raises(OptionError, match="input_models: expected some of"):
+            check_models(bad)
+    with pytest.raises(OptionError, match="input_model: fit compares input models"):
+        EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), input_model="random walk")
+    with pytest.raises(OptionError, match="prior_factors: expected positive numbers"):
+        EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), prior_factors=[-1.0])
 
 
 def test_filters_fitted_without_the_truth_are_as_accurate_as_the_best_tuned_on_it():
