@@ -297,3 +297,18 @@ def test_the_reactors_standard_mhe_fitted_by_likelihood_and_its_arrival_cost():
     assert rmse(fitted) < 1.5 * best
     weak = MHEWeights.from_variances(system, 0.8, w_variance=fitted.likelihood.variance, at=x0)  # P = P0^-1
     assert rmse(StandardMHE(system, weights=weak, N=20, x0_prior=x0)) > 5 * rmse(fitted)
+
+
+def test_arrival_covariance_with_the_input_extends_that_of_x():
+    from uiest.checks import check_run_data
+    from uiest.tuning import arrival_covariance
+
+    system = _system()
+    record = _record(system, 4, K=120)
+    u, y = check_run_data(system, record.u, record.y)
+    ekf = EKF(system, w_variance=STEP**2, v_covariance=NOISE**2, x0_prior=np.zeros(3))
+    x_only, joint = arrival_covariance(ekf, u, y), arrival_covariance(ekf, u, y, with_input=True)
+    assert joint.shape == (4, 4) and np.all(np.linalg.eigvalsh(joint) > 0)
+    np.testing.assert_allclose(joint[:3, :3], x_only, rtol=1e-9, atol=1e-12)
+    # the unmeasured input's uncertainty settles at the random walk's scale, not at its prior W0 = w.scale^2
+    assert STEP**2 / 10 < joint[3, 3] < 10 * STEP**2

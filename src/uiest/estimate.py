@@ -25,8 +25,9 @@ model certifies:
   states); the note gives the choices, the profiles' shapes and each model's log-likelihood.
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
   increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
-  dw[k]``) fitted to the record with the EKF's default prior (the MHE's window prior), and ``max_horizon`` as for
-  the UISE.
+  dw[k]``) fitted to the record with the EKF's default prior, and ``max_horizon`` as for the UISE; its
+  certificate's weights where their guarantee is informative, otherwise (with a record) the window prior from the
+  EKF's settled covariance on the record (:func:`uiest.tuning.arrival_covariance`), as for ``mhe``.
 - ``uio``: the linear UIO (linear models only).
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
@@ -38,6 +39,7 @@ truth where the record has it).
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -175,7 +177,7 @@ def build_estimator(
         assert fitted.likelihood is not None
         factor, source = fitted.likelihood.chosen, f"the EKF's random walk: {fitted.likelihood.summary()} on the data"
     if kind == "smooth":
-        return _smooth_mhe(system, x0, factor, source, horizon, options)
+        return _smooth_mhe(system, x0, factor, source, horizon, options, record)
     cls = est.EKF if kind == "ekf" else est.UKF
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
         f"random-walk variance {factor:g} w.scale^2 ({source})"
@@ -191,16 +193,39 @@ def horizon_reason(limit: int, shortest: int) -> str:
 
 
 def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, horizon: int | None,
-                options: dict[str, Any]) -> tuple[Any, str]:  # fmt: skip
-    """The smooth-input MHE with increments of variance ``factor * w.scale^2`` (:meth:`SmoothInputMHE.design`)."""
-    from uiest.estimators import SmoothInputMHE
+                options: dict[str, Any], record: Trajectory | None) -> tuple[Any, str]:  # fmt: skip
+    """The smooth-input MHE with increments of variance ``factor * w.scale^2`` (:meth:`SmoothInputMHE.design`).
 
-    mhe = SmoothInputMHE.design(system, dw_variance=factor * system.w.scale**2, x0_prior=x0,
+    Its certificate's weights are kept where their guarantee is informative; otherwise, given a record, the window's
+    prior weight is the inverse of the random-walk EKF's settled covariance of ``(x, w)`` on it
+    (:func:`uiest.tuning.arrival_covariance`), with the design's eta and N and no guarantee: the certificate's prior
+    (or the EKF's ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the
+    window explain the data by moving its oldest states.
+    """
+    from uiest.checks import check_run_data
+    from uiest.estimators import EKF, SmoothInputMHE
+    from uiest.tuning import arrival_covariance
+
+    variance = factor * system.w.scale**2
+    mhe = SmoothInputMHE.design(system, dw_variance=variance, x0_prior=x0,
                                 max_horizon=DEFAULT_MAX_HORIZON if horizon is None else horizon, **options)  # fmt: skip
     increments = f"increment variance {factor:g} w.scale^2 ({source})"
-    if mhe.certificate is None:
-        return mhe, f"{mhe.why_uncertified}; explicit weights eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
-    return mhe, f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
+    certified = f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
+    if mhe.certificate is not None and mhe.guarantee.informative:
+        return mhe, certified
+    why = mhe.why_uncertified or f"the certified smooth-input MHE's guarantee {mhe.guarantee.text}"
+    if record is None:
+        if mhe.certificate is None:
+            return mhe, f"{why}; explicit weights eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
+        return mhe, certified
+    u, y = check_run_data(system, record.u if system.nu else None, record.y)
+    prior = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
+    weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
+    data_prior = SmoothInputMHE(system, weights=weights, dw_variance=variance, dw_bound=mhe.dw_bound, N=mhe.N,
+                                x0_prior=x0, **options)  # fmt: skip
+    data_prior.why_uncertified = f"{why}; its window prior replaced by the EKF's settled covariance on the data"
+    return data_prior, (f"{why}; window prior: the EKF's settled covariance of (x, w) on the data, "
+                        f"eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}")  # fmt: skip
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],

@@ -143,27 +143,30 @@ def likelihood_weights(
                                      P0=arrival_covariance(white, u_arr, y_arr), at=x0_prior)  # fmt: skip
 
 
-def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray) -> FloatArray:
+def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray, *, with_input: bool = False) -> FloatArray:
     """The mean posterior covariance of x (nx, nx) of ``estimator``'s steps over the second half of the record.
 
     ``u (K, nu)``, ``y (K+1, ny)`` checked; the filter starts from its prior. It is the window prior's covariance of
     :func:`fit_standard_mhe`: the uncertainty of an estimate after the filter has settled (the first half holds the
     transient from ``P0``). A direction the filter knows exactly (a state without process noise that the outputs
     pin down) is given a standard deviation of ``ARRIVAL_FLOOR`` scales, so that the weight stays finite.
+    ``with_input``: the covariance of ``(x, w)`` (nx + nw, nx + nw) instead, the filter's random-walk input included
+    (the smooth-input MHE's window prior; w in scales of w).
     """
     estimator.reset()
-    nx, K = estimator.system.nx, len(y) - 1
-    total, count = np.zeros((nx, nx)), 0
+    system = estimator.system
+    n, K = system.nx + (system.nw if with_input else 0), len(y) - 1
+    total, count = np.zeros((n, n)), 0
     with quiet_bound_warnings():
         for k in range(K + 1):
             estimator.step(None if k == 0 else u[k - 1], y[k])
             P = estimator.covariance
             if k >= K // 2 and P is not None and np.all(np.isfinite(P)):
-                total += P[:nx, :nx]
+                total += P[:n, :n]
                 count += 1
     if not count:
         raise OptionError("P0: the filter of the chosen variance has no finite covariance on the record's second half")
-    scale = estimator.system.x.scale
+    scale = np.concatenate([system.x.scale, system.w.scale]) if with_input else system.x.scale
     values, vectors = np.linalg.eigh(total / count / np.outer(scale, scale))
     floored = (vectors * np.maximum(values, ARRIVAL_FLOOR**2)) @ vectors.T
     return floored * np.outer(scale, scale)
