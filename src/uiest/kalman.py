@@ -449,8 +449,9 @@ class KalmanFilter(StreamingEstimator):
         """None: no theorem bounds the error for an unbounded unknown input."""
         return self._no_guarantee(
             self.theorem,
-            f"the {self.estimator_name} assumes the unknown input is a random walk (its error grows with how far w "
-            "departs from one); no bound holds for an unbounded unknown input",
+            f"the {self.estimator_name} assumes the unknown input is {_article(self.input_model)} "
+            f"{self.input_model.value} (its error grows with how far w departs from one); no bound holds for an "
+            "unbounded unknown input",
         )
 
     def __repr__(self) -> str:
@@ -564,6 +565,10 @@ class UKF(KalmanFilter):
         K = np.linalg.solve(S, Pzy.T).T
         innovation = y[observed] - y_mean
         return z + K @ innovation, P - K @ S @ K.T, innovation_log_density(innovation, S)
+
+
+def _article(model: InputModel) -> str:
+    return "an" if model.value[0] in "aeiou" else "a"
 
 
 def _input_model(value: InputModel | str) -> InputModel:
