@@ -47,6 +47,7 @@ from uiest.experiments import EstimatorSpec, Scenario, run_study, write_report
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
 from uiest.plotting import plot_estimates, plot_trajectory, save_figure
+from uiest.results import read_record
 
 UNWRITABLE = Path("/proc/uiest-cannot-write-here")
 
@@ -703,6 +704,14 @@ def api_cases(tmp: Path) -> list[Case]:
             "x0",
         ),
         Case("an unknown model", lambda: run_study(scenario(model="no-such-model")), OptionError, "model"),
+        Case("run_study: workers a string", lambda: run_study(scenario(), workers="2"), OptionError, "workers"),
+        Case("run_study: workers = 0", lambda: run_study(scenario(), workers=0), OptionError, "workers"),
+        Case("run_study: workers = -5", lambda: run_study(scenario(), workers=-5), OptionError, "workers"),
+        Case("run_study: workers = True", lambda: run_study(scenario(), workers=True), OptionError, "workers"),
+        Case("run_study: progress a string", lambda: run_study(scenario(), progress="yes"), OptionError, "progress"),
+        Case("run_study: scenario a name", lambda: run_study("settle-2"), OptionError, "scenario"),
+        Case("read_record: a number as path", lambda: read_record(12345, system()), DataError, "path"),
+        Case("read_record: None as path", lambda: read_record(None, system()), DataError, "path"),
         # sweeps
         Case("grid N = 2.7", lambda: Sweep(scenario(), grid={"N": (2.7,)}), OptionError, "N"),
         Case("grid N = []", lambda: Sweep(scenario(), grid={"N": ()}), OptionError, "non-empty"),

@@ -563,8 +563,11 @@ class EstimationResult(_PicklableNames):
 
 def read_record(path: Any, system: Any) -> Trajectory:
     """:meth:`Trajectory.from_pandas` of a CSV or Parquet file (a ``k`` column, from ``to_pandas``, is the index)."""
+    from os import PathLike
     from pathlib import Path
 
+    if not isinstance(path, str | PathLike):
+        raise DataError(f"path: expected a file path (str or os.PathLike), got {type(path).__name__} {path!r:.60}")
     file = Path(path)
     if not file.is_file():
         raise DataError(f"data: no file at {file}")
