@@ -1181,6 +1181,48 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         ),
         CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
         CliCase("analyse an unknown model", ("analyse", "no-such"), 2, "unknown name"),
+        CliCase(
+            "estimate --horizon 5 --lag 1000",
+            (
+                "estimate",
+                "closed-form",
+                "--data",
+                str(_record_file(tmp)),
+                "--estimator",
+                "uise",
+                "--horizon",
+                "5",
+                "--lag",
+                "1000",
+                "--out",
+                out,
+            ),
+            2,
+            "--lag: expected an integer below the horizon (--horizon = 5)",
+        ),
+        CliCase(
+            "estimate --lag 5 --horizon 5",
+            ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--horizon", "5", "--lag", "5", "--out", out),
+            2,
+            "--lag",
+        ),
+        CliCase(
+            "estimate --lag 1000 without --horizon",
+            (
+                "estimate",
+                "closed-form",
+                "--data",
+                str(_record_file(tmp)),
+                "--estimator",
+                "uise",
+                "--lag",
+                "1000",
+                "--out",
+                out,
+            ),
+            2,
+            "--lag",
+        ),
         CliCase("analyse --max-horizon 0", ("analyse", "closed-form", "--max-horizon", "0"), 2, "--max-horizon"),
         CliCase("analyse --json unwritable", ("analyse", "closed-form", "--json", f"{bad}/a.json"), 2, "cannot write"),
         CliCase(
@@ -1208,3 +1250,10 @@ def _failing_sweep_file(tmp: Path) -> Path:
         "[[scenario.estimators]]\nname = '2s'\nkind = 'two-stage'\nN = 3\n[sweep]\ngrid = {N = [2, 3]}\n"
     )
     return _file(tmp, "failing-sweep.toml", text)
+
+
+def _record_file(tmp: Path) -> Path:
+    """A short closed-form record (8 steps) as uiest writes it."""
+    path = tmp / "closed-form-record.csv"
+    trajectory().to_pandas().to_csv(path)
+    return path

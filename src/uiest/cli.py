@@ -174,6 +174,7 @@ def estimate(
         ALL,
         build_all,
         build_estimator,
+        check_lag,
         default_prior,
         errors_against_truth,
         recommended,
@@ -185,6 +186,7 @@ def estimate(
 
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
+    check_lag(lag, horizon)
     if w_variance is not None and not w_variance > 0:
         raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
     writable_folder(out, "--out")
