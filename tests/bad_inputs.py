@@ -704,6 +704,22 @@ def api_cases(tmp: Path) -> list[Case]:
             "x0",
         ),
         Case("an unknown model", lambda: run_study(scenario(model="no-such-model")), OptionError, "model"),
+        Case("UISE weights mu = 1e-300", lambda: uise(weights=_weights_with(mu=1e-300)), OptionError, "weights.mu"),
+        Case("UISE weights P = 1e300 I", lambda: uise(weights=_weights_with(P=1e300 * np.eye(2))), OptionError, "P"),
+        Case("UISE weights P = 0", lambda: uise(weights=_weights_with(P=np.zeros((2, 2)))), OptionError, "P"),
+        Case(
+            "StandardMHE eta = 1e-300",
+            lambda: StandardMHE(system(), weights=_mhe_weights_with(eta=1e-300), N=3, x0_prior=[0.5, 1.0]),
+            OptionError,
+            "weights.eta",
+        ),
+        Case("a boolean y", lambda: uise().run(trajectory().u, trajectory().y > 0.5), DataError, "y"),
+        Case(
+            "x_bounds per-state pairs for nx = 2",
+            lambda: closed_form.system(x_bounds=((0, 10), (5, 20))),
+            ModelError,
+            "ambiguous",
+        ),
         Case("run_study: workers a string", lambda: run_study(scenario(), workers="2"), OptionError, "workers"),
         Case("run_study: workers = 0", lambda: run_study(scenario(), workers=0), OptionError, "workers"),
         Case("run_study: workers = -5", lambda: run_study(scenario(), workers=-5), OptionError, "workers"),
@@ -1257,3 +1273,13 @@ def _record_file(tmp: Path) -> Path:
     path = tmp / "closed-form-record.csv"
     trajectory().to_pandas().to_csv(path)
     return path
+
+
+def _weights_with(**changes: Any) -> UISEWeights:
+    base = weights()
+    return UISEWeights(**{"mu": base.mu, "P": base.P, "R_y": base.R_y, "R_v": base.R_v, **changes})
+
+
+def _mhe_weights_with(**changes: Any) -> MHEWeights:
+    base = MHEWeights.from_scales(system(), 0.9)
+    return MHEWeights(**{"eta": base.eta, "P": base.P, "Q_w": base.Q_w, "Q_v": base.Q_v, "R": base.R, **changes})
