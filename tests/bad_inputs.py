@@ -44,6 +44,7 @@ from uiest.estimators import (
     UISEWeights,
 )
 from uiest.experiments import EstimatorSpec, Scenario, run_study, write_report
+from uiest.experiments.solver_bench import bench_window_solvers
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
 from uiest.plotting import plot_estimates, plot_trajectory, save_figure
@@ -720,6 +721,19 @@ def api_cases(tmp: Path) -> list[Case]:
             ModelError,
             "ambiguous",
         ),
+        Case("UISE N = 10**6", lambda: uise(N=10**6), OptionError, r"N: expected a horizon <= [\d_]+ for this model"),
+        Case(
+            "UISE.design max_horizon = 10**6",
+            lambda: UISE.design(system(), x0_prior=[0.5, 1.0], max_horizon=10**6),
+            OptionError,
+            "max_horizon: expected a horizon <=",
+        ),
+        Case(
+            "bench_window_solvers horizons = (100000,)",
+            lambda: bench_window_solvers(horizons=(100_000,)),
+            OptionError,
+            "horizons",
+        ),
         Case("run_study: workers a string", lambda: run_study(scenario(), workers="2"), OptionError, "workers"),
         Case("run_study: workers = 0", lambda: run_study(scenario(), workers=0), OptionError, "workers"),
         Case("run_study: workers = -5", lambda: run_study(scenario(), workers=-5), OptionError, "workers"),
@@ -1197,6 +1211,13 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         ),
         CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
         CliCase("analyse an unknown model", ("analyse", "no-such"), 2, "unknown name"),
+        CliCase("bench -N 100000", ("bench", "-N", "100000"), 2, "expected a horizon <= 16_383"),
+        CliCase(
+            "estimate --horizon 1000000",
+            ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--horizon", "1000000", "--out", out),
+            2,
+            "--horizon: expected a horizon <=",
+        ),
         CliCase(
             "estimate --horizon 5 --lag 1000",
             (

@@ -183,6 +183,7 @@ def estimate(
     )
     from uiest.results import read_record
     from uiest.scales import data_scales
+    from uiest.window.size import check_horizon
 
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
@@ -192,6 +193,8 @@ def estimate(
     writable_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
+    if horizon is not None:
+        check_horizon(horizon, "--horizon", system)
     record = read_record(data, system)
     if x0 is None:
         prior = default_prior(entry, system)
