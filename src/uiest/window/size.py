@@ -19,7 +19,8 @@ from uiest.checks import check_int
 from uiest.errors import OptionError
 
 STAGE_BYTES_PER_SIZE2 = 4 * 1024
-"""Estimated bytes per stage and per squared stage size: 2 KiB measured to build, x2 to solve."""
+"""Estimated bytes per stage and per squared stage size: about 1.3 KB measured to build (DEVELOPING.md), rounded
+up to 2 KiB and doubled for the solver's factorisation."""
 
 MEMORY_BUDGET = 4 * 1024**3
 """Largest estimated memory of one window problem: 4 GiB."""
