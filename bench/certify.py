@@ -16,7 +16,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from uiest import System
+from uiest import Box, System
 from uiest.detectability import (
     Certificate,
     certify_delta_ioss,
@@ -44,7 +44,8 @@ def cstr() -> System:
         return [1.0 - x[0] - rate, 2.0 - 2.0 * x[1] + 0.5 * rate + w[0]]
 
     return System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.05,
-                           x_bounds=((0.0, 0.8), (1.0, 2.5)), v_bounds=(-1e-3, 1e-3), name="cstr")  # fmt: skip
+                           x_bounds=Box(lower=(0.0, 0.8), upper=(1.0, 2.5)), v_bounds=(-1e-3, 1e-3),
+                           name="cstr")  # fmt: skip
 
 
 def pendulum() -> System:

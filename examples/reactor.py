@@ -11,7 +11,7 @@ Use it with ``uiest estimate examples/reactor.py --data examples/data/reactor.cs
 
 import numpy as np
 
-from uiest import System
+from uiest import Box, System
 from uiest.models import SimulationSetup
 from uiest.noise import UniformNoise
 
@@ -32,7 +32,7 @@ system = System.from_ode(
     nw=1,
     nv=1,
     dt=0.05,
-    x_bounds=((0.0, 0.8), (1.0, 2.5)),
+    x_bounds=Box(lower=(0.0, 0.8), upper=(1.0, 2.5)),
     u_bounds=(-0.5, 0.5),
     v_bounds=(-2e-3, 2e-3),
     x_names=("c_A", "T"),

@@ -44,9 +44,11 @@ from uiest.estimators import (
     UISEWeights,
 )
 from uiest.experiments import EstimatorSpec, Scenario, run_study, write_report
+from uiest.experiments.solver_bench import bench_window_solvers
 from uiest.experiments.sweep import Sweep, sweep
 from uiest.models import closed_form, linear
 from uiest.plotting import plot_estimates, plot_trajectory, save_figure
+from uiest.results import read_record
 
 UNWRITABLE = Path("/proc/uiest-cannot-write-here")
 
@@ -703,6 +705,43 @@ def api_cases(tmp: Path) -> list[Case]:
             "x0",
         ),
         Case("an unknown model", lambda: run_study(scenario(model="no-such-model")), OptionError, "model"),
+        Case("UISE weights mu = 1e-300", lambda: uise(weights=_weights_with(mu=1e-300)), OptionError, "weights.mu"),
+        Case("UISE weights P = 1e300 I", lambda: uise(weights=_weights_with(P=1e300 * np.eye(2))), OptionError, "P"),
+        Case("UISE weights P = 0", lambda: uise(weights=_weights_with(P=np.zeros((2, 2)))), OptionError, "P"),
+        Case(
+            "StandardMHE eta = 1e-300",
+            lambda: StandardMHE(system(), weights=_mhe_weights_with(eta=1e-300), N=3, x0_prior=[0.5, 1.0]),
+            OptionError,
+            "weights.eta",
+        ),
+        Case("a boolean y", lambda: uise().run(trajectory().u, trajectory().y > 0.5), DataError, "y"),
+        Case(
+            "x_bounds per-state pairs for nx = 2",
+            lambda: closed_form.system(x_bounds=((0, 10), (5, 20))),
+            ModelError,
+            "ambiguous",
+        ),
+        Case("UISE N = 10**6", lambda: uise(N=10**6), OptionError, r"N: expected a horizon <= [\d_]+ for this model"),
+        Case(
+            "UISE.design max_horizon = 10**6",
+            lambda: UISE.design(system(), x0_prior=[0.5, 1.0], max_horizon=10**6),
+            OptionError,
+            "max_horizon: expected a horizon <=",
+        ),
+        Case(
+            "bench_window_solvers horizons = (100000,)",
+            lambda: bench_window_solvers(horizons=(100_000,)),
+            OptionError,
+            "horizons",
+        ),
+        Case("run_study: workers a string", lambda: run_study(scenario(), workers="2"), OptionError, "workers"),
+        Case("run_study: workers = 0", lambda: run_study(scenario(), workers=0), OptionError, "workers"),
+        Case("run_study: workers = -5", lambda: run_study(scenario(), workers=-5), OptionError, "workers"),
+        Case("run_study: workers = True", lambda: run_study(scenario(), workers=True), OptionError, "workers"),
+        Case("run_study: progress a string", lambda: run_study(scenario(), progress="yes"), OptionError, "progress"),
+        Case("run_study: scenario a name", lambda: run_study("settle-2"), OptionError, "scenario"),
+        Case("read_record: a number as path", lambda: read_record(12345, system()), DataError, "path"),
+        Case("read_record: None as path", lambda: read_record(None, system()), DataError, "path"),
         # sweeps
         Case("grid N = 2.7", lambda: Sweep(scenario(), grid={"N": (2.7,)}), OptionError, "N"),
         Case("grid N = []", lambda: Sweep(scenario(), grid={"N": ()}), OptionError, "non-empty"),
@@ -1172,6 +1211,55 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         ),
         CliCase("certify --verify 10**12", ("certify", "closed-form", "--verify", str(10**12)), 2, "--verify"),
         CliCase("analyse an unknown model", ("analyse", "no-such"), 2, "unknown name"),
+        CliCase("bench -N 100000", ("bench", "-N", "100000"), 2, "expected a horizon <= 16_383"),
+        CliCase(
+            "estimate --horizon 1000000",
+            ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--horizon", "1000000", "--out", out),
+            2,
+            "--horizon: expected a horizon <=",
+        ),
+        CliCase(
+            "estimate --horizon 5 --lag 1000",
+            (
+                "estimate",
+                "closed-form",
+                "--data",
+                str(_record_file(tmp)),
+                "--estimator",
+                "uise",
+                "--horizon",
+                "5",
+                "--lag",
+                "1000",
+                "--out",
+                out,
+            ),
+            2,
+            "--lag: expected an integer below the horizon (--horizon = 5)",
+        ),
+        CliCase(
+            "estimate --lag 5 --horizon 5",
+            ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--horizon", "5", "--lag", "5", "--out", out),
+            2,
+            "--lag",
+        ),
+        CliCase(
+            "estimate --lag 1000 without --horizon",
+            (
+                "estimate",
+                "closed-form",
+                "--data",
+                str(_record_file(tmp)),
+                "--estimator",
+                "uise",
+                "--lag",
+                "1000",
+                "--out",
+                out,
+            ),
+            2,
+            "--lag",
+        ),
         CliCase("analyse --max-horizon 0", ("analyse", "closed-form", "--max-horizon", "0"), 2, "--max-horizon"),
         CliCase("analyse --json unwritable", ("analyse", "closed-form", "--json", f"{bad}/a.json"), 2, "cannot write"),
         CliCase(
@@ -1199,3 +1287,20 @@ def _failing_sweep_file(tmp: Path) -> Path:
         "[[scenario.estimators]]\nname = '2s'\nkind = 'two-stage'\nN = 3\n[sweep]\ngrid = {N = [2, 3]}\n"
     )
     return _file(tmp, "failing-sweep.toml", text)
+
+
+def _record_file(tmp: Path) -> Path:
+    """A short closed-form record (8 steps) as uiest writes it."""
+    path = tmp / "closed-form-record.csv"
+    trajectory().to_pandas().to_csv(path)
+    return path
+
+
+def _weights_with(**changes: Any) -> UISEWeights:
+    base = weights()
+    return UISEWeights(**{"mu": base.mu, "P": base.P, "R_y": base.R_y, "R_v": base.R_v, **changes})
+
+
+def _mhe_weights_with(**changes: Any) -> MHEWeights:
+    base = MHEWeights.from_scales(system(), 0.9)
+    return MHEWeights(**{"eta": base.eta, "P": base.P, "Q_w": base.Q_w, "Q_v": base.Q_v, "R": base.R, **changes})

@@ -29,3 +29,26 @@ def test_corners_and_sampling():
     assert box.contains(pts).all()
     with pytest.raises(ModelError):
         Box.unbounded(2).corners()
+
+
+def test_bounds_for_two_states_are_lower_and_upper_vectors_and_per_state_pairs_that_read_both_ways_are_refused():
+    from uiest import System
+
+    def build(x_bounds):
+        return System.from_callables(lambda x, u, w: [x[1], w[0]], lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1,
+                                     x_bounds=x_bounds, v_bounds=(-0.1, 0.1))  # fmt: skip
+
+    # per-state pairs as a user writes them: 0 <= x0 <= 10, 5 <= x1 <= 20; also a valid (lower, upper) pair
+    with pytest.raises(ModelError, match=r"x_bounds: \(\(0, 10\), \(5, 20\)\) is ambiguous for 2 states.*Box\("):
+        build(((0, 10), (5, 20)))
+    explicit = build(Box(lower=(0, 10), upper=(5, 20))).x.bounds
+    np.testing.assert_array_equal(explicit.lower, [0, 10])
+    np.testing.assert_array_equal(explicit.upper, [5, 20])
+    # (lower, upper) pairs that no per-state reading admits are read as the convention says
+    signed = build(((-20.0, -10.0), (20.0, 10.0))).x.bounds
+    np.testing.assert_array_equal(signed.lower, [-20, -10])
+    np.testing.assert_array_equal(signed.upper, [20, 10])
+    positive = build(((0.0, 0.0), (10.0, 10.0))).x.bounds  # per state: two points, no domain
+    np.testing.assert_array_equal(positive.upper, [10, 10])
+    with pytest.raises(ModelError, match=r"expected lower <= upper"):
+        build(((0, 20), (10, 5)))  # per-state pairs read as (lower, upper): lower > upper, refused already

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from exact_rates import contraction_rate
 
-from uiest import CertificationError, ModelError, OptionError, System
+from uiest import Box, CertificationError, ModelError, OptionError, System
 from uiest.detectability import certify_strong_detectability, linear_strong_detectability
 from uiest.estimators import UISE, UISEWeights
 from uiest.models import closed_form, crop_growth, linear
@@ -103,7 +103,8 @@ def _cstr(**kwargs):
         return [1.0 - x[0] - rate, 2.0 - 2.0 * x[1] + beta * rate + w[0]]
 
     return System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.05,
-                           x_bounds=((0.0, 0.8), (1.0, 2.5)), v_bounds=(-1e-3, 1e-3), **kwargs)  # fmt: skip
+                           x_bounds=Box(lower=(0.0, 0.8), upper=(1.0, 2.5)), v_bounds=(-1e-3, 1e-3),
+                           **kwargs)  # fmt: skip
 
 
 def test_continuous_time_model_with_a_constant_input_channel_certifies():

@@ -29,6 +29,18 @@ def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] 
     return arr
 
 
+def _read_both_ways(lower: FloatArray, upper: FloatArray) -> bool:
+    """Whether the 2x2 pair ``(lower, upper)`` is also a box read as per-state pairs, and another one.
+
+    Read per state, the rows ``(lower[0], lower[1])`` and ``(upper[0], upper[1])`` are the intervals
+    of z_0 and z_1; the reading is plausible when both have positive width (a state pinned to a
+    point is no domain a user writes), and different when ``lower[1] != upper[0]``.
+    """
+    valid = bool(np.all(lower <= upper))
+    per_state = bool(lower[0] < lower[1] and upper[0] < upper[1])
+    return valid and per_state and bool(lower[1] != upper[0])
+
+
 @dataclass(frozen=True, eq=False)
 class Box:
     """The box ``lower <= z <= upper`` in R^n; entries may be ``-inf``/``+inf``.
@@ -76,7 +88,12 @@ class Box:
     def coerce(cls, value: Box | tuple[Any, Any] | None, n: int, name: str) -> Box:
         """Build a box of dimension ``n`` from a Box, a ``(lower, upper)`` pair or None (= R^n).
 
-        Scalars in the pair are broadcast to length ``n``.
+        The pair is ``(lower vector, upper vector)``: ``((0, -5), (10, 5))`` for n = 2 is
+        ``0 <= z_0 <= 10, -5 <= z_1 <= 5``. Scalars in the pair are broadcast to length ``n``.
+        Per-state pairs ``((lo_0, hi_0), (lo_1, hi_1))`` are not a form of this argument; for n = 2
+        they cannot be told from a ``(lower, upper)`` pair by their shape, so a pair that is a valid
+        box under both readings, with different boxes, is refused (ModelError): write
+        ``Box(lower=..., upper=...)`` then.
         """
         if value is None:
             return cls.unbounded(n)
@@ -91,6 +108,13 @@ class Box:
             lo_arr, hi_arr = (np.full(n, float(b)) if b.ndim == 0 else b for b in (lo_arr, hi_arr))
             if lo_arr.shape != (n,) or hi_arr.shape != (n,):
                 raise ModelError(f"{name}: expected scalars or bounds of length {n}, got {lo!r} and {hi!r}")
+            if n == 2 and lo_arr.ndim == 1 and _read_both_ways(lo_arr, hi_arr):
+                raise ModelError(
+                    f"{name}: {value!r} is ambiguous for 2 states: as (lower, upper) it is {lo_arr[0]:g} <= z_0 <= "
+                    f"{hi_arr[0]:g}, {lo_arr[1]:g} <= z_1 <= {hi_arr[1]:g}; as per-state pairs it would be "
+                    f"{lo_arr[0]:g} <= z_0 <= {lo_arr[1]:g}, {hi_arr[0]:g} <= z_1 <= {hi_arr[1]:g}. {name} is "
+                    f"(lower vector, upper vector): write {name}=Box(lower=..., upper=...) to say which"
+                )
             try:
                 box = cls(lo_arr, hi_arr)
             except ModelError as exc:

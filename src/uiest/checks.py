@@ -76,14 +76,23 @@ def check_callable(value: Any, name: str, *, error: type[Exception] = OptionErro
 
 
 def real_array(value: Any, name: str, expected: str, *, error: type[Exception] = DataError) -> NDArray[np.float64]:
-    """``value`` as a float array; complex numbers, strings and objects that are not real numbers are refused."""
+    """``value`` as a float array; the masked entries of a numpy masked array are NaN (missing).
+
+    Booleans (0/1 read as numbers would be data no sensor gave), complex numbers, strings and
+    objects that are not real numbers are refused.
+    """
     try:
-        arr = np.asarray(value)
-        if arr.dtype.kind not in "biufO":
+        arr = np.ma.getdata(value) if isinstance(value, np.ma.MaskedArray) else np.asarray(value)
+        if arr.dtype.kind not in "iufO":
             raise TypeError(arr.dtype)
-        return np.array(arr, dtype=float)
+        if arr.dtype.kind == "O" and any(isinstance(item, bool | np.bool_) for item in arr.flat):
+            raise TypeError("bool")
+        out = np.array(arr, dtype=float)
     except (TypeError, ValueError) as exc:
         raise error(f"{name}: expected {expected}, got {shown(value)}") from exc
+    if isinstance(value, np.ma.MaskedArray):
+        out[np.ma.getmaskarray(value)] = np.nan
+    return out
 
 
 # ---------------------------------------------------------------------- records of a system's u and y

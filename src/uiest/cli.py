@@ -174,6 +174,7 @@ def estimate(
         ALL,
         build_all,
         build_estimator,
+        check_lag,
         default_prior,
         errors_against_truth,
         recommended,
@@ -182,14 +183,18 @@ def estimate(
     )
     from uiest.results import read_record
     from uiest.scales import data_scales
+    from uiest.window.size import check_horizon
 
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
+    check_lag(lag, horizon)
     if w_variance is not None and not w_variance > 0:
         raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
     writable_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
+    if horizon is not None:
+        check_horizon(horizon, "--horizon", system)
     record = read_record(data, system)
     if x0 is None:
         prior = default_prior(entry, system)

@@ -48,6 +48,7 @@ from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
 from uiest.scales import data_scales
 from uiest.system import System
+from uiest.window.size import check_horizon
 
 CONDITION_MARGIN = 0.99
 """A design for ``max_horizon`` bounds cond(P) this fraction below :func:`horizon_condition`: the LMI solver keeps
@@ -304,7 +305,7 @@ def _design(
     variants: Callable[[Any], list[Any]] = lambda cert: [],
 ) -> Design:
     """The design loop of the module docstring; ``rank(certificate, N)`` orders the horizons of a rate."""
-    max_horizon = check_int(max_horizon, "max_horizon", low=1)
+    max_horizon = check_horizon(max_horizon, "max_horizon", system)
     trials, steps = check_int(trials, "trials", low=1), check_int(steps, "steps", low=1)
     prior = as_vector(x0, system.nx, "x0")
     try:

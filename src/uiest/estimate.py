@@ -100,6 +100,24 @@ def default_prior(entry: ModelEntry, system: System) -> FloatArray:
     return np.where(np.isfinite(center), center, 0.0)
 
 
+def check_lag(lag: int, horizon: int | None) -> int:
+    """``lag`` if it is below the horizon, else OptionError naming ``--lag`` (before anything is built).
+
+    The horizon is ``horizon``, else :data:`LONGEST_HORIZON` (the longest window designed without it).
+    A window of N transitions holds ``x[k-N] .. x[k]``, so it has no estimate of ``x[k-lag]`` for
+    ``lag > N``, and the delayed UISE needs ``lag < N``; the lag never lengthens the window.
+    """
+    limit = LONGEST_HORIZON if horizon is None else horizon
+    if lag >= limit:
+        source = (
+            f"--horizon = {horizon}"
+            if horizon is not None
+            else f"the longest horizon designed without --horizon, {limit}"
+        )
+        raise OptionError(f"--lag: expected an integer below the horizon ({source}), got {lag}")
+    return lag
+
+
 def build_estimator(
     kind: str,
     entry: ModelEntry,
@@ -121,6 +139,7 @@ def build_estimator(
     if kind not in ESTIMATORS:
         raise OptionError(f"--estimator: expected one of {[*ESTIMATORS, ALL]}, got {kind!r}")
     N = DEFAULT_HORIZON if horizon is None else horizon
+    check_lag(lag, horizon)
     options: dict[str, Any] = {"lag": lag} if lag else {}
     study = StudyModel(entry.name, system, entry)
     if kind == "two-stage":
@@ -134,7 +153,10 @@ def build_estimator(
             )
     if kind in ("uise", "delayed", "two-stage"):
         for longest in (DEFAULT_MAX_HORIZON, LONGEST_HORIZON) if horizon is None else (horizon,):
-            design_kw: dict[str, Any] = {"max_horizon": max(longest, lag + 2), **options}
+            design_kw: dict[str, Any] = {
+                "max_horizon": longest if horizon is not None else max(longest, lag + 1),
+                **options,
+            }
             try:
                 if kind == "uise":
                     built = est.UISE.design(system, x0_prior=x0, **design_kw)
@@ -155,7 +177,7 @@ def build_estimator(
             return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
                             **options), note  # fmt: skip
         if kind == "delayed":
-            delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 2),
+            delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 1),
                                       x0_prior=x0, lag=max(lag, 1))  # fmt: skip
             return delayed, note
         weights = est.TwoStageWeights.from_scales(study.reduction, FALLBACK_RATE)

@@ -21,6 +21,7 @@ from uiest.checks import real_array
 from uiest.errors import DataError
 from uiest.guarantee import Guarantee
 from uiest.health import FAILURES, Outcome, status_text
+from uiest.sampling import on_time_grid
 
 if TYPE_CHECKING:
     from uiest.window.problem import WindowTrajectory
@@ -124,16 +125,20 @@ class Trajectory(_PicklableNames):
         writes them). Required: every output (NaN = missing) and, when ``nu > 0``, every known
         input in rows 0..K-1 (the last row's u is not used). Optional: ``t`` (numbers in the
         model's time unit, spaced by dt; default ``k dt``), the states, unknown inputs and noise
-        (NaN when absent: measured data has no truth). A time column under another name
-        (``time``, ``timestamp``, ...) is refused when ``t`` is absent, since without times a
-        dropped row would shift every later sample; other columns are ignored with a warning.
+        (NaN when absent: measured data has no truth). Rows are placed by ``t``, else by an index
+        named ``k``: samples absent from either are kept as missing (rows of NaN, with a warning;
+        :func:`uiest.sampling.on_time_grid`), and a table with neither is taken as contiguous, with
+        a warning. A time column under another name (``time``, ``timestamp``, ...) is refused when
+        ``t`` is absent, since without times a dropped row would shift every later sample; other
+        columns are ignored with a warning.
         """
         if not isinstance(frame, pd.DataFrame):
             raise DataError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
-        rows = len(frame)
-        if rows < 1:
+        if len(frame) < 1:
             raise DataError("frame: expected at least one row (time index k = 0)")
         _check_columns(frame, system)
+        frame, filled = on_time_grid(frame, system)
+        rows = len(frame)
         arrays: dict[str, FloatArray] = {}
         for sig in system.signals:
             present = [n for n in sig.names if n in frame.columns]
@@ -150,23 +155,9 @@ class Trajectory(_PicklableNames):
             arrays[sig.kind] = data[:-1] if sig.kind in ("u", "w") else data
         if not np.all(np.isfinite(arrays["u"])):
             bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
-            raise DataError(f"frame: the known input u must be given at every k < K; row {bad} has {arrays['u'][bad]}")
-        has_t = "t" in frame.columns
-        if has_t and not pd.api.types.is_numeric_dtype(frame["t"]):
-            raise DataError(
-                f"frame[t]: expected numbers in the model's time unit ({system.time_unit!r}) spaced by dt = "
-                f"{system.dt}, got {frame['t'].dtype} values such as {frame['t'].iloc[0]!r}; convert timestamps to "
-                "elapsed time"
-            )
-        t = real_array(frame["t"].to_numpy(), "frame[t]", "times") if has_t else np.arange(rows) * system.dt
-        if has_t and rows > 1:
-            steps = np.diff(t)
-            if not (np.all(np.isfinite(t)) and np.allclose(steps, system.dt, rtol=1e-6, atol=1e-9 * abs(system.dt))):
-                raise DataError(
-                    f"frame[t]: expected finite times spaced by the model's dt = {system.dt}, got steps from "
-                    f"{np.nanmin(steps):.6g} to {np.nanmax(steps):.6g} (resample the data, or build the model with "
-                    "its sampling time)"
-                )
+            why = "is absent from the record (a gap in k or t)" if bad in filled else f"has {arrays['u'][bad]}"
+            raise DataError(f"frame: the known input u must be given at every k < K; row {bad} {why}")
+        t = frame["t"].to_numpy(dtype=float) if "t" in frame.columns else np.arange(rows) * system.dt
         names = {sig.kind: sig.names for sig in system.signals}
         return cls(t=t, names=names, system_name=system.name, time_unit=system.time_unit, **arrays)
 
@@ -562,9 +553,15 @@ class EstimationResult(_PicklableNames):
 
 
 def read_record(path: Any, system: Any) -> Trajectory:
-    """:meth:`Trajectory.from_pandas` of a CSV or Parquet file (a ``k`` column, from ``to_pandas``, is the index)."""
+    """:meth:`Trajectory.from_pandas` of a CSV or Parquet file (a ``k`` column, from ``to_pandas``, is the index).
+
+    Gaps in ``k`` or ``t`` are missing samples (rows of NaN); a file with neither is taken as contiguous (a warning).
+    """
+    from os import PathLike
     from pathlib import Path
 
+    if not isinstance(path, str | PathLike):
+        raise DataError(f"path: expected a file path (str or os.PathLike), got {type(path).__name__} {path!r:.60}")
     file = Path(path)
     if not file.is_file():
         raise DataError(f"data: no file at {file}")
@@ -581,6 +578,4 @@ def read_record(path: Any, system: Any) -> Trajectory:
         raise DataError(f"data: could not read {file} ({type(exc).__name__}: {exc})") from exc
     if "k" in frame.columns:
         frame = frame.set_index("k").sort_index()
-        if not np.array_equal(frame.index.to_numpy(), np.arange(len(frame))):
-            raise DataError(f"data: the k column must be 0, 1, ..., K without gaps or repeats ({file})")
     return Trajectory.from_pandas(frame, system)

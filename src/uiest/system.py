@@ -260,7 +260,8 @@ class System:
         """Build a system from CasADi Functions ``f(x, u, w)`` and ``h(x, v)``.
 
         Sizes are read from the Functions. Bounds are a :class:`~uiest.box.Box` or a
-        ``(lower, upper)`` pair (scalars broadcast, ``±inf`` allowed, None = unbounded).
+        ``(lower, upper)`` pair of vectors (scalars broadcast, ``±inf`` allowed, None = unbounded);
+        for two states, a pair that reads as per-state pairs too is refused (:meth:`Box.coerce`).
         Scales default to the finite domain widths; for y, where Y is unbounded, to the output
         change caused by moving x and v by their scales (first order, at the domain centre);
         for w to the width of ``w_range`` when given; else 1.

@@ -53,6 +53,7 @@ from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
+from uiest.window.size import check_horizon
 from uiest.window.solvers import BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
@@ -232,6 +233,8 @@ class WindowEstimator(StreamingEstimator):
         w_box: Box | None = None,
         w_prior: FloatArray | None = None,
     ) -> None:
+        if N is not None:
+            N = check_horizon(N, "N", model)
         self.system, self.model, self.schedule, self.N = system, model, schedule, N
         self.w_box = w_box
         self.w_prior = model.nominal_w if w_prior is None else w_prior

@@ -29,6 +29,7 @@ from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int
 from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import CertificationError, OptionError
+from uiest.estimators.weight_range import check_weight_range
 from uiest.reduction import ReducedModel
 from uiest.system import System
 from uiest.window.problem import WindowWeights, sqrt_psd
@@ -266,8 +267,13 @@ class UISEWeights:
         return Schedule(self.mu, 4.0 * self.P, 2.0 * self.R_y, 8.0 * self.R_v, shift=1)
 
     def check(self, system: System) -> None:
-        """Raise OptionError unless the shapes fit ``system``."""
+        """Raise OptionError unless the shapes fit ``system`` and the weights are in range (:mod:`.weight_range`)."""
         _check_shapes(self, (("P", system.nx), ("R_y", system.ny), ("R_v", system.nv)))
+        check_weight_range(self.mu, "weights.mu", [
+            ("weights.P", self.P, system.x.scale, True),
+            ("weights.R_y", self.R_y, system.y.scale, False),
+            ("weights.R_v", self.R_v, system.v.scale, False),
+        ])  # fmt: skip
 
 
 @dataclass(frozen=True)
@@ -372,8 +378,14 @@ class MHEWeights:
         return Schedule(self.eta, 2.0 * self.P, self.R, 2.0 * self.Q_v, 2.0 * self.Q_w, shift=1)
 
     def check(self, system: System) -> None:
-        """Raise OptionError unless the shapes fit ``system``."""
+        """Raise OptionError unless the shapes fit ``system`` and the weights are in range (:mod:`.weight_range`)."""
         _check_shapes(self, (("P", system.nx), ("Q_w", system.nw), ("Q_v", system.nv), ("R", system.ny)))
+        check_weight_range(self.eta, "weights.eta", [
+            ("weights.P", self.P, system.x.scale, True),
+            ("weights.Q_w", self.Q_w, system.w.scale, False),
+            ("weights.Q_v", self.Q_v, system.v.scale, False),
+            ("weights.R", self.R, system.y.scale, False),
+        ])  # fmt: skip
 
 
 @runtime_checkable
@@ -484,3 +496,8 @@ class TwoStageWeights:
     def check(self, system: System, n_sharp: int) -> None:
         """Raise OptionError unless the shapes fit ``system`` and the reduced state's size."""
         _check_shapes(self, (("prior", n_sharp), ("R_y", system.ny), ("R_v", system.nv)))
+        # the prior is on the reduced state, whose scales the estimator sets: R_y and R_v are checked here
+        check_weight_range(self.mu, "weights.mu", [
+            ("weights.R_y", self.R_y, system.y.scale, False),
+            ("weights.R_v", self.R_v, system.v.scale, False),
+        ])  # fmt: skip

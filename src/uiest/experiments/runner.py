@@ -8,6 +8,7 @@ the study goes on.
 from __future__ import annotations
 
 import contextlib
+import numbers
 import os
 import time
 from collections.abc import Callable, Iterator
@@ -22,6 +23,7 @@ import pandas as pd
 from uiest import models
 from uiest.augmented import augmented_system
 from uiest.box import FloatArray
+from uiest.checks import check_callable, shown
 from uiest.errors import OptionError, UiestError
 from uiest.estimators import (
     FIE,
@@ -254,8 +256,13 @@ def run_study(
     timings do, through the load).
     ``progress(label)`` is called for each estimator run as its (case, run) completes.
     """
+    if not isinstance(scenario, Scenario):
+        raise OptionError(f"scenario: expected a Scenario, got {shown(scenario)}")
     if solver not in BACKENDS:
         raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1):
+        raise OptionError(f"workers: expected an integer >= 1 or None (all cores), got {shown(workers)}")
+    check_callable(progress, "progress")
     for spec in scenario.estimators:
         if spec.kind not in BUILDERS:
             raise OptionError(f"estimators: kind {spec.kind!r} is not available; available: {sorted(BUILDERS)}")

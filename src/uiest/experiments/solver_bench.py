@@ -44,6 +44,7 @@ from uiest.errors import OptionError
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
 from uiest.window import IpoptSolver, WindowSolution, WindowSolver
+from uiest.window.size import check_horizon
 
 SOLVERS = ("ipopt", "gn", "rti")
 
@@ -290,6 +291,8 @@ def bench_window_solvers(
     if not all(isinstance(N, int | np.integer) and N >= 1 for N in horizons):
         raise OptionError(f"horizons: expected window lengths N >= 1, got {list(horizons)}")
     system = crop_growth.system()
+    for N in horizons:
+        check_horizon(N, "horizons (--horizon, -N)", system)
     reduced = crop_growth.reduction()
     scenario = crop_growth.DEFAULT_SCENARIO
     lengths = {N: 100 if quick else (300 if N <= 30 else N + 50) for N in horizons}
