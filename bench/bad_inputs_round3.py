@@ -61,7 +61,7 @@ def classify(case) -> tuple[str, str]:  # type: ignore[no-untyped-def]
             if re.search(case.names, str(exc), flags=re.IGNORECASE):
                 return "good", text
             return "handled", f"does not name {case.names!r}: {text}"
-        except Exception as exc:  # noqa: BLE001 - any other exception is what this harness counts
+        except Exception as exc:  # any other exception is what this harness counts
             frame = traceback.extract_tb(exc.__traceback__)[-1]
             where = f"{Path(frame.filename).name}:{frame.lineno}"
             return "traceback", f"{type(exc).__name__}: {str(exc)[:200]} (at {where})".replace("\n", " ")
@@ -72,7 +72,7 @@ def classify(case) -> tuple[str, str]:  # type: ignore[no-untyped-def]
         return "silent", f"returned {_short(result)} without an error"
     try:
         why = case.check(result)
-    except Exception as exc:  # noqa: BLE001 - a result the check cannot even read is meaningless
+    except Exception as exc:  # a result the check cannot even read is meaningless
         why = f"the result could not be checked ({type(exc).__name__}: {exc})"
     if why is None:
         return "good", f"returned {_short(result)} (checked)"
@@ -102,7 +102,7 @@ def _classify_cli(case, res) -> tuple[str, str]:  # type: ignore[no-untyped-def]
         return "silent", f"exit 0 without an error: {text.strip()[-200:]!r}"
     try:
         why = case.check(res)
-    except Exception as exc:  # noqa: BLE001
+    except Exception as exc:
         why = f"the output could not be checked ({type(exc).__name__}: {exc})"
     if why is None:
         return "good", "exit 0 (checked)"
