@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 
-SCRATCH = Path(os.environ.get("UIEST_R3_SCRATCH") or tempfile.mkdtemp(prefix="uiest-bad-inputs-r3-"))
 REFERENCE_RMSE = 0.05  # a correct estimate of the 40-step closed-form record: RMSE after k = 10 about 0.004-0.01
 
 
@@ -56,7 +55,9 @@ _current: dict[str, Path] = {}
 @contextlib.contextmanager
 def scratch_for(case_id: str) -> Iterator[Path]:
     """A fresh folder for the case, the working directory while it runs."""
-    folder = SCRATCH / case_id.replace("/", "_")
+    root = os.environ.get("UIEST_R3_SCRATCH") or tempfile.mkdtemp(prefix="uiest-bad-inputs-r3-")
+    os.environ["UIEST_R3_SCRATCH"] = root  # the harness sets it and removes the folder at the end
+    folder = Path(root) / case_id.replace("/", "_")
     shutil.rmtree(folder, ignore_errors=True)
     folder.mkdir(parents=True)
     previous = Path.cwd()
