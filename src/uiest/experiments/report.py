@@ -12,13 +12,14 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from uiest.atomic import staged_folder
 from uiest.experiments import provenance
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
-from uiest.paths import writable_folder
+from uiest.lock import holds_folder
 
 PAPER_T_MAX_MS = {
     "noise-free": {"standard MHE": 51.9, "UISE": 59.4, "two-stage UISE": 26.0},
@@ -322,9 +323,19 @@ def outcome_lines(study: StudyResult) -> list[str]:
     return [*lines, ""] if lines else []
 
 
+@holds_folder("out")
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
-    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created)."""
-    out = writable_folder(Path(out), "out")
+    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created).
+
+    The files replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`: a
+    failed write raises StorageError and leaves ``out`` as it was); ``out`` is held against other
+    runs meanwhile (:mod:`uiest.lock`).
+    """
+    with staged_folder(Path(out)) as stage:
+        return _write_files(study, stage, wall_time=wall_time)
+
+
+def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     scenario = study.scenario
     written: list[Path] = []
     steps_path = out / "steps.parquet"
