@@ -61,14 +61,19 @@ def write_bytes(path: Path | str, data: bytes) -> Path:
     return write_file(path, lambda tmp: tmp.write_bytes(data))
 
 
+def _final(path: Path, stage: Path, folder: Path) -> Path:
+    """Where ``path`` (a file in ``stage``, or any path) goes once the stage is moved into ``folder``."""
+    return folder / path.name if path.parent == stage else path
+
+
 @contextlib.contextmanager
 def staged_folder(folder: Path | str) -> Iterator[Path]:
     """A temporary folder inside ``folder``; its files replace those of the same names when the block succeeds.
 
     Files (not sub-folders) written into the yielded folder are renamed into ``folder`` once the
     block ends without an exception; on an exception none is, and the temporary folder is removed.
-    An OSError becomes a StorageError naming the file (the final name) where the system gave one,
-    else ``folder``.
+    An OSError becomes a StorageError naming the file by its final name where it is known (a
+    :func:`write_file` into the stage, or an OSError with a file name), else ``folder``.
     """
     folder = Path(folder)
     try:
@@ -79,11 +84,11 @@ def staged_folder(folder: Path | str) -> Iterator[Path]:
         yield stage
         for item in sorted(stage.iterdir()):
             os.replace(item, folder / item.name)
+    except StorageError as exc:  # a write_file into the stage: named by its final path
+        final = _final(Path(exc.path), stage, folder)
+        raise StorageError(str(exc).replace(exc.path, str(final)), str(final)) from None
     except OSError as exc:
-        if isinstance(exc, StorageError):
-            raise
-        written = Path(exc.filename) if isinstance(exc.filename, str | os.PathLike) else None
-        target = folder / written.name if written is not None and written.parent == stage else (written or folder)
-        raise storage_error(exc, target) from None
+        written = Path(exc.filename) if isinstance(exc.filename, str | os.PathLike) else folder
+        raise storage_error(exc, _final(written, stage, folder)) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)

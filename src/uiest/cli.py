@@ -17,7 +17,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from uiest import models
-from uiest.atomic import staged_folder, write_text
+from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_samples
 from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
 from uiest.lock import folder_lock
@@ -155,7 +155,7 @@ def simulate(
     units = {s.kind: s.units for s in system.signals}
     figure = plot_trajectory(traj, units)
     with staged_folder(out) as stage:
-        traj.to_pandas().to_csv(stage / csv_path.name)
+        write_file(stage / csv_path.name, traj.to_pandas().to_csv)
         save_figure(figure, stage / png_path.name)
     console.print(f"{system!r}: {traj.steps} steps, seed {seed}")
     console.print(f"wrote {csv_path} and {png_path}")

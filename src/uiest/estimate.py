@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from uiest.atomic import staged_folder
+from uiest.atomic import staged_folder, write_file
 from uiest.box import FloatArray
 from uiest.delay import matching_ranks
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
@@ -307,7 +307,7 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
         for label, result in results.items():
             frame = result.to_pandas()
             frame["t"] = record.t  # the data's own times
-            frame.to_csv(stage / f"estimates_{label}.csv")
+            write_file(stage / f"estimates_{label}.csv", frame.to_csv)
         save_figure(figure, stage / "estimates.png")
     return [*(out / f"estimates_{label}.csv" for label in results), out / "estimates.png"]
 
