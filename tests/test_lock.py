@@ -74,14 +74,16 @@ def test_a_lock_left_by_a_killed_run_is_taken_over_with_a_note(tmp_path):
     assert holder.stdout.readline().strip() == "held"
     os.kill(holder.pid, signal.SIGKILL)
     holder.wait()
-    assert (folder / LOCK_NAME).exists()  # a killed run cannot remove its lock file
+    assert (folder / LOCK_NAME).exists()  # a killed run cannot remove its lock file ...
+    (folder / ".staged-abc.tmp").mkdir()  # ... nor the report it was writing
+    (folder / ".staged-abc.tmp" / "report.md").write_text("half a rep")
     data = chain_record(tmp_path)
     args = ["estimate", str(tmp_path / "chain.py"), "--data", str(data), "--estimator", "ekf", "--out", str(folder)]
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     note = [line for line in result.output.splitlines() if line.startswith("warning: --out: took over the lock")]
-    assert len(note) == 1 and f"pid {holder.pid} on host" in note[0]
-    assert (folder / "estimates_ekf.csv").exists() and not (folder / LOCK_NAME).exists()
+    assert len(note) == 1 and f"pid {holder.pid} on host" in note[0] and "removed the 1 unfinished write" in note[0]
+    assert sorted(p.name for p in folder.iterdir()) == ["estimates.png", "estimates_ekf.csv"]
 
 
 def test_the_lock_is_reentrant_in_one_process_and_released_on_errors(tmp_path):

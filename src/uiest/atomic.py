@@ -19,6 +19,9 @@ from pathlib import Path
 
 from uiest.errors import StorageError
 
+STAGED_PREFIX, STAGED_SUFFIX = ".staged-", ".tmp"
+"""How the temporary folders of :func:`staged_folder` are named (a run killed while writing leaves one)."""
+
 
 def storage_error(exc: OSError, path: Path | str) -> StorageError:
     """The one-line :class:`StorageError` of a failed write of ``path``: the path and the system's cause."""
@@ -77,7 +80,7 @@ def staged_folder(folder: Path | str) -> Iterator[Path]:
     """
     folder = Path(folder)
     try:
-        stage = Path(tempfile.mkdtemp(prefix=".staged-", suffix=".tmp", dir=folder))
+        stage = Path(tempfile.mkdtemp(prefix=STAGED_PREFIX, suffix=STAGED_SUFFIX, dir=folder))
     except OSError as exc:
         raise storage_error(exc, folder) from None
     try:

@@ -4,7 +4,8 @@
 and takes an exclusive ``flock`` on it. Another process asking for the same folder is refused
 with a :class:`~uiest.errors.StorageError` naming the folder and the owner. The kernel releases
 the ``flock`` when its owner ends in any way, so a lock file left by a run that was killed is
-taken over, with a warning naming the run that left it. Within one process the lock is
+taken over, with a warning naming the run that left it (the staged folders it left unfinished,
+:func:`uiest.atomic.staged_folder`, are removed). Within one process the lock is
 re-entrant (a command holding it may call a function that asks for it again).
 """
 
@@ -17,12 +18,14 @@ import functools
 import inspect
 import json
 import os
+import shutil
 import socket
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any, TypeVar
 
+from uiest.atomic import STAGED_PREFIX, STAGED_SUFFIX
 from uiest.errors import StorageError
 
 LOCK_NAME = ".uiest.lock"
@@ -76,9 +79,13 @@ def _acquire(folder: Path, name: str) -> int:
     try:
         previous = _read(fd)
         if previous:
+            leftovers = sorted(folder.glob(f"{STAGED_PREFIX}*{STAGED_SUFFIX}"))
+            for stage in leftovers:  # what that run was writing when it ended: never moved into the folder
+                shutil.rmtree(stage, ignore_errors=True)
+            removed = f"; removed the {len(leftovers)} unfinished write(s) it left" if leftovers else ""
             warnings.warn(
                 f"{name}: took over the lock of {folder} left by a run that ended without releasing it "
-                f"({_owner(previous)})",
+                f"({_owner(previous)}){removed}",
                 stacklevel=4,
             )
         record = {"pid": os.getpid(), "host": socket.gethostname(),
