@@ -65,13 +65,13 @@ def test_a_file_keeps_its_short_name_and_never_replaces_another_file_or_registra
 def test_a_model_file_that_exits_at_import_is_a_typed_error_naming_it(tmp_path, registry, body, raised):
     path = tmp_path / "quits.py"
     path.write_text(body)
-    with pytest.raises(ModelError, match=f"model: {path} raised {raised} at import"):
+    with pytest.raises(ModelError, match=f"model: importing {path} raised {raised}"):
         models.load(path)
     out = tmp_path / "out"
     result = runner.invoke(app, ["simulate", str(path), "--out", str(out)])
     assert result.exit_code == 2, result.output
     lines = result.output.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith(f"error: model: {path} raised {raised} at import")
+    assert len(lines) == 1 and lines[0].startswith(f"error: model: importing {path} raised {raised}")
 
 
 def test_a_model_files_build_that_exits_is_a_typed_error_and_an_interrupt_passes(tmp_path, registry):

@@ -217,7 +217,7 @@ def load(spec: str | Path) -> ModelEntry:
     except KeyboardInterrupt:
         raise
     except BaseException as exc:  # SystemExit too: a model file does not end the program
-        raise ModelError(f"model: {path} raised {type(exc).__name__} at import: {exc}") from exc
+        raise ModelError(f"model: importing {path} raised {_raised(exc)}") from exc
     if isinstance(getattr(module, "system", None), System):
         system = module.system
         build: Callable[[], System] = lambda: system  # noqa: E731
@@ -255,7 +255,12 @@ def _user_call(fun: Callable[[], Any], label: str, path: Path) -> Any:
     except (UiestError, KeyboardInterrupt):
         raise
     except BaseException as exc:  # SystemExit too: a model file does not end the program
-        raise ModelError(f"model: {label} in {path} raised {type(exc).__name__}: {exc}") from exc
+        raise ModelError(f"model: {label} in {path} raised {_raised(exc)}") from exc
+
+
+def _raised(exc: BaseException) -> str:
+    """``Type: message``, or ``Type`` alone for an exception without a message (``sys.exit()``)."""
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 def _checked_setup(setup: Callable[[], Any] | None, path: Path) -> Callable[[], SimulationSetup] | None:
