@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import contextvars
 import functools
 import warnings
 from collections.abc import Callable
@@ -15,8 +17,10 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from uiest import models
+from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_samples
 from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
+from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
 
 app = typer.Typer(
@@ -31,6 +35,8 @@ console = Console(markup=False)  # paths and messages may hold brackets
 error_console = Console(stderr=True, markup=False)
 
 F = TypeVar("F", bound=Callable[..., Any])
+_COMMAND_EXITS: contextvars.ContextVar[contextlib.ExitStack] = contextvars.ContextVar("command_exits")
+"""What the running command releases when it ends (the output folder it holds)."""
 
 
 def _choice(value: str, allowed: Any, option: str) -> str:
@@ -47,19 +53,39 @@ def _positive(value: int | None, option: str, *, allow_zero: bool = False) -> in
 
 
 def _user_errors(command: F) -> F:
-    """Turn uiest's typed errors into a one-line message and exit code 2, and warnings into plain message lines."""
+    """Turn uiest's typed errors into a one-line message and exit code 2, and warnings into plain message lines.
+
+    Any other OSError (a file that could not be read or written) becomes one line naming the file and the
+    cause, with exit code 1. The output folder the command holds (:func:`_output_folder`) is released at its end.
+    """
 
     @functools.wraps(command)
     def wrapper(*args: Any, **kwargs: Any) -> Any:
-        with warnings.catch_warnings():  # restores the filters and showwarning afterwards
+        with warnings.catch_warnings(), contextlib.ExitStack() as exits:  # restores the filters and showwarning
             warnings.showwarning = _show_warning
+            token = _COMMAND_EXITS.set(exits)
             try:
                 return command(*args, **kwargs)
             except UiestError as exc:
-                error_console.print(f"error: {exc}", style="bold red", highlight=False, soft_wrap=True, markup=False)
+                _error_line(str(exc))
                 raise typer.Exit(code=2) from None
+            except OSError as exc:
+                _error_line(f"{exc.filename}: {exc.strerror or exc}" if exc.filename else str(exc))
+                raise typer.Exit(code=1) from None
+            finally:
+                _COMMAND_EXITS.reset(token)
 
     return wrapper  # type: ignore[return-value]
+
+
+def _error_line(text: str) -> None:
+    error_console.print(f"error: {text}", style="bold red", highlight=False, soft_wrap=True, markup=False)
+
+
+def _output_folder(folder: Path, option: str) -> Path:
+    """Create ``folder``, check it is writable, and hold it against other runs until the command ends."""
+    writable_folder(folder, option)
+    return _COMMAND_EXITS.get().enter_context(folder_lock(folder, option))
 
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
@@ -101,7 +127,7 @@ def simulate(
     from uiest.simulate import simulate as run_simulation
 
     _positive(steps, "--steps", allow_zero=True)
-    writable_folder(out, "--out")
+    _output_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
     setup = entry.simulation()
@@ -125,11 +151,12 @@ def simulate(
             seed=seed,
             progress=lambda k: bar.update(task, completed=k),
         )
-    out.mkdir(parents=True, exist_ok=True)
-    csv_path = out / "trajectory.csv"
-    traj.to_pandas().to_csv(csv_path)
+    csv_path, png_path = out / "trajectory.csv", out / "trajectory.png"
     units = {s.kind: s.units for s in system.signals}
-    png_path = save_figure(plot_trajectory(traj, units), out / "trajectory.png")
+    figure = plot_trajectory(traj, units)
+    with staged_folder(out) as stage:
+        write_file(stage / csv_path.name, traj.to_pandas().to_csv)
+        save_figure(figure, stage / png_path.name)
     console.print(f"{system!r}: {traj.steps} steps, seed {seed}")
     console.print(f"wrote {csv_path} and {png_path}")
 
@@ -190,7 +217,7 @@ def estimate(
     check_lag(lag, horizon)
     if w_variance is not None and not w_variance > 0:
         raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
-    writable_folder(out, "--out")
+    _output_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
     if horizon is not None:
@@ -331,8 +358,7 @@ def certify(
         if guarantee is not None:  # None: the certificate does not hold, so no estimator is built from it
             line = f"  {guarantee['estimator']} with N = min horizon, {guarantee['theorem']}: {guarantee['text']}"
             console.print(line, highlight=False, soft_wrap=True, markup=False)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"model": model, "certificates": records}, indent=2, default=float))
+    write_text(out, json.dumps({"model": model, "certificates": records}, indent=2, default=float))
     console.print(f"wrote {out}")
 
 
@@ -356,8 +382,7 @@ def analyse(
         analysis = analyse_model(system, max_horizon=max_horizon)
     console.print(analysis.text(), highlight=False, soft_wrap=True, markup=False)
     if json_file is not None:
-        json_file.parent.mkdir(parents=True, exist_ok=True)
-        json_file.write_text(json.dumps({"model": model, **analysis.to_dict()}, indent=2, default=float))
+        write_text(json_file, json.dumps({"model": model, **analysis.to_dict()}, indent=2, default=float))
         console.print(f"wrote {json_file}")
 
 
@@ -466,7 +491,7 @@ def reproduce(
         )
         raise OptionError(f"{given}: {exc}" if given else str(exc)) from None
     folder = out if out is not None else Path("out") / setting.name
-    writable_folder(folder, "--out")
+    _output_folder(folder, "--out")
     total = setting.runs * len(setting.cases) * len(setting.estimators)
     start = time.perf_counter()
     with Progress(
@@ -513,7 +538,7 @@ def sweep(
 
     _choice(solver, BACKENDS, "--solver")
     _positive(workers, "--workers")
-    writable_folder(out, "--out")
+    _output_folder(out, "--out")
     plan = Sweep.from_toml(design)
     total = len(plan.tasks(solver))
     last = SweepProgress(0, 0, 0, 0)
@@ -582,8 +607,7 @@ def bench(
         report=report,
     )
     if json_file is not None:
-        json_file.parent.mkdir(parents=True, exist_ok=True)
-        json_file.write_text(json.dumps(records, indent=2))
+        write_text(json_file, json.dumps(records, indent=2))
         console.print(f"wrote {json_file}")
 
 

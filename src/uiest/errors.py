@@ -51,6 +51,27 @@ class SolverError(UiestError, RuntimeError):
     """A numerical solver failed and the caller asked for failures to be raised."""
 
 
+class StorageError(UiestError, OSError):
+    """A file or folder could not be written or locked (disk full, permission, file-size limit, in use).
+
+    Attributes
+    ----------
+    path : str
+        The file or folder concerned.
+
+    """
+
+    def __init__(self, message: str, path: str) -> None:
+        super().__init__(message)
+        self.path = str(path)
+
+    def __str__(self) -> str:
+        return str(self.args[0])
+
+    def __reduce__(self) -> tuple[type, tuple[str, str]]:
+        return (type(self), (str(self), self.path))
+
+
 class DomainWarning(UserWarning):
     """Data left its declared domain (the true state outside X, noise outside V); it is recorded."""
 

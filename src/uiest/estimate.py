@@ -45,10 +45,12 @@ from typing import Any
 
 import numpy as np
 
+from uiest.atomic import staged_folder, write_file
 from uiest.box import FloatArray
 from uiest.delay import matching_ranks
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
 from uiest.input_model import InputModel
+from uiest.lock import holds_folder
 from uiest.models import ModelEntry
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
@@ -312,20 +314,24 @@ def run_estimators(estimators: dict[str, Any], record: Trajectory, x0: FloatArra
     return {label: estimator.run(u, record.y, x0_prior=x0) for label, estimator in estimators.items()}
 
 
+@holds_folder("out")
 def write_estimates(out: Path, system: System, record: Trajectory, results: dict[str, EstimationResult]) -> list[Path]:
-    """``estimates_<label>.csv`` per estimator and ``estimates.png`` (module docstring); returns the paths."""
+    """``estimates_<label>.csv`` per estimator and ``estimates.png`` (module docstring); returns the paths.
+
+    The files replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`); the
+    folder is held against other runs while they are written (:mod:`uiest.lock`).
+    """
     from uiest.plotting import plot_record, save_figure
 
-    out.mkdir(parents=True, exist_ok=True)
-    written = []
-    for label, result in results.items():
-        frame = result.to_pandas()
-        frame["t"] = record.t  # the data's own times
-        path = out / f"estimates_{label}.csv"
-        frame.to_csv(path)
-        written.append(path)
-    written.append(save_figure(plot_record(system, record, results), out / "estimates.png"))
-    return written
+    out = Path(out)
+    figure = plot_record(system, record, results)
+    with staged_folder(out) as stage:
+        for label, result in results.items():
+            frame = result.to_pandas()
+            frame["t"] = record.t  # the data's own times
+            write_file(stage / f"estimates_{label}.csv", frame.to_csv)
+        save_figure(figure, stage / "estimates.png")
+    return [*(out / f"estimates_{label}.csv" for label in results), out / "estimates.png"]
 
 
 def errors_against_truth(record: Trajectory, results: dict[str, EstimationResult]) -> dict[str, float]:

@@ -13,6 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
+from uiest.atomic import write_file
 from uiest.checks import shown
 from uiest.errors import DataError, OptionError
 from uiest.paths import writable_file
@@ -177,12 +178,14 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
 
 
 def save_figure(fig: Figure, path: Path | str) -> Path:
-    """Write ``fig`` to ``path`` (a Path or str; format from the suffix) and close it."""
+    """Write ``fig`` to ``path`` (a Path or str; format from the suffix) whole or not at all, and close it."""
     path = Path(path)
     formats = sorted(fig.canvas.get_supported_filetypes())
     if path.suffix.lstrip(".").lower() not in formats:
         raise OptionError(f"path: expected a file name ending in one of {formats}, got {str(path)!r}")
     writable_file(path, "path")
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
+    try:
+        write_file(path, lambda tmp: fig.savefig(tmp, dpi=130, format=path.suffix.lstrip(".").lower()))
+    finally:
+        plt.close(fig)
     return path

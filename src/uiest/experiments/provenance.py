@@ -34,8 +34,8 @@ def git_revision() -> str:
         subprocess.run(["git", "ls-files", "--error-unmatch", "__init__.py"], capture_output=True, check=True,
                        cwd=PACKAGE)  # fmt: skip
         head = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True, check=True, cwd=PACKAGE)
-        dirty = subprocess.run(["git", "status", "--porcelain", "--", "."], capture_output=True, text=True,
-                               check=True, cwd=PACKAGE)  # fmt: skip
+        dirty = subprocess.run(["git", "--no-optional-locks", "status", "--porcelain", "--", "."],  # index unwritten
+                               capture_output=True, text=True, check=True, cwd=PACKAGE)  # fmt: skip
     except (OSError, subprocess.CalledProcessError):
         return "unknown (not a git checkout)"
     return head.stdout.strip() + ("-dirty" if dirty.stdout.strip() else "")

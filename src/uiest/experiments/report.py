@@ -12,13 +12,14 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from uiest.atomic import staged_folder, write_file, write_text
 from uiest.experiments import provenance
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
-from uiest.paths import writable_folder
+from uiest.lock import holds_folder
 
 PAPER_T_MAX_MS = {
     "noise-free": {"standard MHE": 51.9, "UISE": 59.4, "two-stage UISE": 26.0},
@@ -48,10 +49,14 @@ SOLVERS = {
 """How each window backend is described in report.md."""
 
 
+def _csv(frame: pd.DataFrame, path: Path) -> None:
+    write_file(path, lambda tmp: frame.to_csv(tmp, index=False))
+
+
 def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
     paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
     for path in paths:
-        fig.savefig(path, dpi=140)
+        write_file(path, lambda tmp, path=path: fig.savefig(tmp, dpi=140, format=path.suffix.lstrip(".")))
     plt.close(fig)
     return paths
 
@@ -322,25 +327,35 @@ def outcome_lines(study: StudyResult) -> list[str]:
     return [*lines, ""] if lines else []
 
 
+@holds_folder("out")
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
-    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created)."""
-    out = writable_folder(Path(out), "out")
+    """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created).
+
+    The files replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`: a
+    failed write raises StorageError and leaves ``out`` as it was); ``out`` is held against other
+    runs meanwhile (:mod:`uiest.lock`).
+    """
+    with staged_folder(Path(out)) as stage:
+        return _write_files(study, stage, wall_time=wall_time)
+
+
+def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     scenario = study.scenario
     written: list[Path] = []
     steps_path = out / "steps.parquet"
-    study.steps.to_parquet(steps_path, index=False)
+    write_file(steps_path, lambda tmp: study.steps.to_parquet(tmp, index=False))
     runs_path = out / "runs.csv"
-    study.runs.to_csv(runs_path, index=False)
+    _csv(study.runs, runs_path)
     acc, times = accuracy(study), timing(study)
-    acc.to_csv(out / "accuracy.csv", index=False)
-    times.to_csv(out / "timing.csv", index=False)
+    _csv(acc, out / "accuracy.csv")
+    _csv(times, out / "timing.csv")
     step_health = health(study)
-    step_health.to_csv(out / "health.csv", index=False)
+    _csv(step_health, out / "health.csv")
     written.append(out / "health.csv")
     table = timing_table(study)
-    table.to_csv(out / "table1.csv", index=False)
+    _csv(table, out / "table1.csv")
     load = f"load average {os.getloadavg()[0]:.2f} at the end" if hasattr(os, "getloadavg") else "load unknown"
-    (out / "table1.md").write_text(_markdown(table) + f"\n\nMeasured on: {provenance.machine()}, {load}\n")
+    write_text(out / "table1.md", _markdown(table) + f"\n\nMeasured on: {provenance.machine()}, {load}\n")
     written += [steps_path, runs_path, out / "accuracy.csv", out / "timing.csv", out / "table1.csv", out / "table1.md"]
     written += figures(study, out)
     scenario.to_toml(out / "scenario.toml")
@@ -351,7 +366,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         info = information_table(study)
     except Exception as exc:  # an optional section: its failure is reported, the rest is written
         info = pd.DataFrame([{"information table unavailable": f"{type(exc).__name__}: {exc}"}])
-    info.to_csv(out / "information.csv", index=False)
+    _csv(info, out / "information.csv")
     written.append(out / "information.csv")
     info_section = (
         [
@@ -373,7 +388,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     from uiest.experiments.certificates import describe
 
     guarantees = guarantee_table(study, acc)
-    guarantees.to_csv(out / "guarantees.csv", index=False)
+    _csv(guarantees, out / "guarantees.csv")
     written.append(out / "guarantees.csv")
     checked = paper_claims(study)
     report = [
@@ -455,7 +470,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "noise. `window_at_bound`: steps whose window solution touched a side of its box.",
         "",
     ]
-    (out / "report.md").write_text("\n".join(report))
+    write_text(out / "report.md", "\n".join(report))
     written.append(out / "report.md")
     manifest = {
         "scenario": scenario.to_dict(),
@@ -470,5 +485,5 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "files": sorted(str(p.relative_to(out)) for p in written),
     }
-    (out / "manifest.json").write_text(json.dumps(manifest, indent=2))
+    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
     return manifest

@@ -15,6 +15,7 @@ from typing import Any
 
 import tomli_w
 
+from uiest.atomic import write_bytes
 from uiest.errors import OptionError
 from uiest.paths import writable_file
 
@@ -264,10 +265,9 @@ class Scenario:
         return data
 
     def to_toml(self, path: Path | str) -> Path:
-        """Write the scenario as TOML (the folder is created; OptionError naming ``path`` if it cannot be written)."""
+        """Write the scenario as TOML, whole or not at all (OptionError or StorageError naming ``path``)."""
         path = writable_file(Path(path), "path")
-        path.write_bytes(tomli_w.dumps(self.to_dict()).encode())
-        return path
+        return write_bytes(path, tomli_w.dumps(self.to_dict()).encode())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Scenario:

@@ -33,6 +33,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from uiest import models
+from uiest.atomic import storage_error, write_file, write_text
 from uiest.checks import check_callable, shown
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
@@ -41,6 +42,7 @@ from uiest.experiments.scenario import Scenario
 from uiest.experiments.study_model import study_model
 from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
 from uiest.health import quiet_bound_warnings
+from uiest.lock import holds_folder
 from uiest.paths import writable_file, writable_folder
 from uiest.window import DEFAULT_BACKEND
 
@@ -94,9 +96,7 @@ def run_task(task: Task) -> pd.DataFrame:
 
 
 def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
-    tmp = folder / f".{key}.parquet.tmp"
-    frame.to_parquet(tmp, index=False)
-    os.replace(tmp, folder / f"{key}.parquet")
+    write_file(folder / f"{key}.parquet", lambda tmp: frame.to_parquet(tmp, index=False))
 
 
 def _set_aside(path: Path) -> None:
@@ -145,6 +145,7 @@ class SweepProgress:
     """Tasks not computed (a cluster failure, other code on a worker): not stored, left for the next run."""
 
 
+@holds_folder("out")
 def sweep(
     design: Sweep,
     out: Path,
@@ -225,9 +226,13 @@ def sweep(
 
 
 def _log_lost(out: Path, task: Task, why: str) -> None:
-    with (out / "lost_tasks.log").open("a") as log:
-        log.write(f"{dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} {task.key} {task.case} run {task.run} "
-                  f"{dict(task.params)}: {why}\n")  # fmt: skip
+    path = out / "lost_tasks.log"
+    try:
+        with path.open("a") as log:
+            log.write(f"{dt.datetime.now(dt.UTC).isoformat(timespec='seconds')} {task.key} {task.case} run "
+                      f"{task.run} {dict(task.params)}: {why}\n")  # fmt: skip
+    except OSError as exc:
+        raise storage_error(exc, path) from None
 
 
 def _write_manifest(
@@ -253,9 +258,10 @@ def _write_manifest(
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "calls": calls,
     }
-    path.write_text(json.dumps(manifest, indent=2, default=str))
+    write_text(path, json.dumps(manifest, indent=2, default=str))
 
 
+@holds_folder("out")
 def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame:
     """Union of the stored tasks of ``design`` (in task order), written to results.parquet with a summary.
 
@@ -284,13 +290,13 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
             )
         return pd.DataFrame()
     results = pd.concat(frames, ignore_index=True)
-    results.to_parquet(out / "results.parquet", index=False)
+    write_file(out / "results.parquet", lambda tmp: results.to_parquet(tmp, index=False))
     swept = [k for k in SWEEPABLE if (k in design.grid or k in design.ranges) and k != "estimator"]
     metrics = [c for c in results.columns if c.startswith(("rmse_", "max_abs_", "final_abs_")) or c.endswith("_ms")]
     ok = results[results["error"] == ""]
     if not ok.empty and metrics:
         summary = ok.groupby([*swept, "case", "estimator"], dropna=False)[metrics].mean().reset_index()
-        summary.to_csv(out / "summary.csv", index=False)
+        write_file(out / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
         _plots(summary, swept, design.scenario, out)
     return results
 
@@ -318,5 +324,7 @@ def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Pat
             ax.grid(alpha=0.3)
         axes[0].legend(fontsize=7)
         fig.tight_layout()
-        fig.savefig(out / f"sweep_{param}.png", dpi=130)
-        plt.close(fig)
+        try:
+            write_file(out / f"sweep_{param}.png", lambda tmp, fig=fig: fig.savefig(tmp, dpi=130, format="png"))
+        finally:
+            plt.close(fig)

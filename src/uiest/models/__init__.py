@@ -149,6 +149,9 @@ def get(name: str) -> ModelEntry:
 BUILT_IN = frozenset(_REGISTRY)
 """The models every process knows (a spawned worker too)."""
 
+_FILES: dict[str, Path] = {}
+"""Registered names of the models loaded from files -> the file (resolved)."""
+
 
 def loadable_elsewhere(spec: str | Path) -> bool:
     """Whether another process can load ``spec``: a built-in name or a model file (not a run-time registration)."""
@@ -184,6 +187,7 @@ def register(
             raise OptionError(f"{label}: expected a function or None, got {fun!r}")
     entry = ModelEntry(name, summary, build, setup, reduction, jacobian_parameters, study)
     _REGISTRY[name] = entry
+    _FILES.pop(name, None)
     return entry
 
 
@@ -191,7 +195,11 @@ def load(spec: str | Path) -> ModelEntry:
     """A registered model by name, or the model defined in a Python file (module docstring).
 
     A file's model is named after the file (``reactor.py`` -> ``reactor``) and registered under
-    that name, so studies and sweeps run in this process find it.
+    that name, so studies and sweeps run in this process find it. Where that name belongs to
+    another model (a built-in, a registration, or another file of the same name), the file's
+    model is registered under its path instead: loading a file never replaces another model.
+    Anything the file raises at import, ``SystemExit`` included (``KeyboardInterrupt`` is passed
+    on), becomes a ModelError naming the file.
     """
     text = str(spec)
     if not text.endswith(".py"):
@@ -206,8 +214,10 @@ def load(spec: str | Path) -> ModelEntry:
     sys.modules[module_name] = module
     try:
         module_spec.loader.exec_module(module)
-    except Exception as exc:
-        raise ModelError(f"model: {path} raised {type(exc).__name__}: {exc}") from exc
+    except KeyboardInterrupt:
+        raise
+    except BaseException as exc:  # SystemExit too: a model file does not end the program
+        raise ModelError(f"model: importing {path} raised {_raised(exc)}") from exc
     if isinstance(getattr(module, "system", None), System):
         system = module.system
         build: Callable[[], System] = lambda: system  # noqa: E731
@@ -216,12 +226,14 @@ def load(spec: str | Path) -> ModelEntry:
     else:
         raise ModelError(f"model: {path} defines neither `system` (a uiest.System) nor `build()` returning one")
     summary = (module.__doc__ or "").strip().splitlines()[0] if module.__doc__ else f"model file {path}"
-    keywords = {"summary": summary, "setup": _checked_setup(getattr(module, "setup", None), path), "replace": True,
-                "reduction": _checked_call(getattr(module, "reduction", None), "reduction()", path),
-                "jacobian_parameters": _checked_call(getattr(module, "jacobian_parameters", None),
-                                                     "jacobian_parameters()", path),
-                "study": _checked_call(getattr(module, "study", None), "study()", path)}  # fmt: skip
-    return register(path.stem, build, **keywords)
+    resolved = path.resolve()
+    name = path.stem if path.stem not in _REGISTRY or _FILES.get(path.stem) == resolved else str(path)
+    entry = ModelEntry(name, summary, build, _checked_setup(getattr(module, "setup", None), path),
+                       _checked_call(getattr(module, "reduction", None), "reduction()", path),
+                       _checked_call(getattr(module, "jacobian_parameters", None), "jacobian_parameters()", path),
+                       _checked_call(getattr(module, "study", None), "study()", path))  # fmt: skip
+    _REGISTRY[name], _FILES[name] = entry, resolved
+    return entry
 
 
 def _checked_build(build: Callable[[], Any], path: Path) -> Callable[[], System]:
@@ -240,10 +252,15 @@ def _user_call(fun: Callable[[], Any], label: str, path: Path) -> Any:
 
     try:
         return fun()
-    except UiestError:
+    except (UiestError, KeyboardInterrupt):
         raise
-    except Exception as exc:
-        raise ModelError(f"model: {label} in {path} raised {type(exc).__name__}: {exc}") from exc
+    except BaseException as exc:  # SystemExit too: a model file does not end the program
+        raise ModelError(f"model: {label} in {path} raised {_raised(exc)}") from exc
+
+
+def _raised(exc: BaseException) -> str:
+    """``Type: message``, or ``Type`` alone for an exception without a message (``sys.exit()``)."""
+    return f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
 
 
 def _checked_setup(setup: Callable[[], Any] | None, path: Path) -> Callable[[], SimulationSetup] | None:
