@@ -268,3 +268,46 @@ def test_a_changed_model_file_is_read_again(tmp_path):
     later = path.stat().st_mtime_ns + 10**9  # a distinct version even on a coarse clock
     os.utime(path, ns=(later, later))
     assert study_model(path).system.x.names == ("conc", "temp")
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "/tmp/abs", "a\\b", "..", ".", ""])
+def test_a_study_name_that_would_leave_the_output_folder_is_refused(name):
+    with pytest.raises(OptionError, match=r"^name: expected "):
+        dataclasses.replace(tiny(), name=name)
+
+
+def test_reproduce_refuses_a_scenario_file_whose_name_leaves_out(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "escape.toml"
+    path.write_text(tiny().to_toml(tmp_path / "ok.toml").read_text().replace('name = "tiny"', 'name = "../escaped"'))
+    result = CliRunner().invoke(app, ["reproduce", "--scenario", str(path)])
+    assert result.exit_code == 2 and result.output.strip().splitlines() == [
+        "error: name: expected a plain name without path separators, '.' or '..' (it names a path inside the output "
+        "folder), got '../escaped'"
+    ]
+    assert not (tmp_path / "escaped").exists() and not (tmp_path / "out").exists()
+
+
+def test_a_model_file_in_a_scenario_or_sweep_file_is_found_beside_it(tmp_path, monkeypatch):
+    from uiest.experiments.sweep import Sweep
+
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "gain.py").write_text((Path(__file__).parent / "gain_model.py").read_text())
+    text = dataclasses.replace(tiny(), model="gain.py", prior=(), prior_from_output=(), x0_lower=(), x0_upper=(),
+                               focus_state=0).to_dict()  # fmt: skip
+    import tomli_w
+
+    (folder / "scenario.toml").write_text(tomli_w.dumps(text))
+    (folder / "sweep.toml").write_text(tomli_w.dumps({"scenario": text, "sweep": {"grid": {"N": [3, 4]}}}))
+    monkeypatch.chdir(tmp_path)  # not the files' folder
+    scenario = Scenario.from_toml(Path("study/scenario.toml"))
+    assert Path(scenario.model).resolve() == (folder / "gain.py").resolve()
+    assert study_model(scenario.model).system.nx == 2
+    assert Path(Sweep.from_toml(Path("study/sweep.toml")).scenario.model).resolve() == (folder / "gain.py").resolve()
+    copy = scenario.to_toml(tmp_path / "elsewhere" / "deeper" / "scenario.toml")  # written relative to its folder
+    assert Path(Scenario.from_toml(copy).model).resolve() == (folder / "gain.py").resolve()

@@ -50,6 +50,7 @@ from uiest.delay import matching_ranks
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
 from uiest.input_model import InputModel
 from uiest.models import ModelEntry
+from uiest.paths import plain_name
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
@@ -299,7 +300,7 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
     for label, result in results.items():
         frame = result.to_pandas()
         frame["t"] = record.t  # the data's own times
-        path = out / f"estimates_{label}.csv"
+        path = out / f"estimates_{plain_name(label, 'results')}.csv"
         frame.to_csv(path)
         written.append(path)
     written.append(save_figure(plot_record(system, record, results), out / "estimates.png"))

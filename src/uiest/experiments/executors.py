@@ -103,9 +103,14 @@ def _plain_warnings() -> None:
 
 
 def _worker_init(parent: int) -> None:
-    """Worker initializer: :func:`_exit_with_parent` and :func:`_plain_warnings`."""
+    """Worker initializer: :func:`_exit_with_parent`, :func:`_plain_warnings`, and Ctrl-C left to the parent.
+
+    A Ctrl-C reaches the whole process group; the parent ends its workers (:func:`stop_pool`), so a worker
+    ignores SIGINT instead of printing a KeyboardInterrupt traceback for the task it was running.
+    """
     _exit_with_parent(parent)
     _plain_warnings()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def spawn_pool(width: int) -> ProcessPoolExecutor:

@@ -7,6 +7,8 @@ A model file is a Python file whose module has ``system`` (a :class:`~uiest.syst
 ``build()`` returning one, and optionally ``setup()`` returning a :class:`SimulationSetup` (its
 default simulation, needed by ``uiest simulate``), ``reduction()``, ``jacobian_parameters()`` and
 ``study()`` returning a :class:`~uiest.experiments.Scenario` (run by ``uiest reproduce MODEL``).
+Loading a model file runs it: it is Python code that runs with the user's rights, like a ``setup.py``
+(a scenario or sweep naming it runs it in this process and in every worker). Load only files you trust.
 """
 
 from __future__ import annotations
@@ -191,7 +193,8 @@ def load(spec: str | Path) -> ModelEntry:
     """A registered model by name, or the model defined in a Python file (module docstring).
 
     A file's model is named after the file (``reactor.py`` -> ``reactor``) and registered under
-    that name, so studies and sweeps run in this process find it.
+    that name, so studies and sweeps run in this process find it. The file is executed as Python
+    code with this process's rights (like a ``setup.py``): load only files you trust.
     """
     text = str(spec)
     if not text.endswith(".py"):
