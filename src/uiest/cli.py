@@ -488,8 +488,9 @@ def reproduce(
             result = run_study(setting, solver=solver, workers=workers, progress=progress, store=store.folder)
         manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
     except KeyboardInterrupt:
-        error_console.print(f"interrupted: {len(store.stored())} of {runs_total} runs are stored in {store.folder}; "
-                            "the same command with the same --out computes only the others", markup=False)  # fmt: skip
+        message = (f"interrupted: {len(store.stored())} of {runs_total} runs are stored in {store.folder}; the same "
+                   "command with the same --out computes only the others")  # fmt: skip
+        error_console.print(message, markup=False, soft_wrap=True)
         raise typer.Exit(code=130) from None
     console.print((folder / "table1.md").read_text(), highlight=False, markup=False)
     console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})", markup=False)
