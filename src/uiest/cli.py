@@ -424,7 +424,13 @@ def reproduce(
         ),
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
-    out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Output folder (default out/<study>); finished runs are kept in OUT/runs, and a rerun "
+            "with the same folder computes only the others."
+        ),
+    ] = None,
     workers: Annotated[int | None, typer.Option(help="Processes running the runs (default: all cores).")] = None,
 ) -> None:
     """Run a model's study (default: the paper's crop-growth study): figures, Table 1, report.md; or a scenario file."""
