@@ -264,3 +264,19 @@ def test_reproduce_interrupted_by_ctrl_c_keeps_its_finished_runs_and_the_rerun_c
     assert f"4 of 4 runs done ({len(stored)} stored before), 0 left" in again.stderr  # progress lines: no terminal
     assert {path: path.stat().st_mtime_ns for path in stored} == stored  # read back, not computed again
     assert len(list((out / "runs").glob("*.pickle"))) == 4 and (out / "report.md").exists()
+
+
+def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored_runs_back(tmp_path):
+    from test_experiments import tiny
+
+    path = tiny().with_overrides(runs=2, cases=("noise-free",)).to_toml(tmp_path / "tiny.toml")
+    args = ["reproduce", "--scenario", str(path), "--out", str(tmp_path / "out")]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0 and "tiny: 1 of 2 runs done, 1 left, about " in first.output
+    assert "tiny: 2 of 2 runs done, 0 left" in first.output
+    files = sorted((tmp_path / "out" / "runs").glob("*.pickle"))
+    assert len(files) == 2
+    files[0].write_bytes(b"damaged")
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0 and again.output.count(" runs done") == 1
+    assert "tiny: 2 of 2 runs done (1 stored before), 0 left" in again.output  # the damaged one computed again

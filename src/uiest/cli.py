@@ -473,7 +473,8 @@ def reproduce(
     folder = out if out is not None else Path("out") / setting.name
     writable_folder(folder, "--out")
     store = StudyStore(folder / "runs", setting, solver)  # each finished run, kept for a rerun with this --out
-    runs_total, stored = setting.runs * len(setting.cases), len(store.stored())
+    runs_total = setting.runs * len(setting.cases)
+    stored = sum(store.load(*task) is not None for task in store.stored())  # a damaged file is set aside now
     start = time.perf_counter()
     try:
         with contextlib.ExitStack() as stack:
