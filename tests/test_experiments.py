@@ -363,6 +363,10 @@ def test_a_stored_study_of_an_edited_model_file_is_computed_again(tmp_path):
     with pytest.warns(DomainWarning, match="x left X"):
         again = run_study(scenario, store=tmp_path / "runs", progress=labels.append)
     assert len(labels) == 1 and again.runs["x_outside"].gt(0).all()  # computed on the edited file, not read back
+    import hashlib
+
+    manifest = write_report(again, tmp_path / "report", wall_time=1.0)
+    assert manifest["model"] == {"name": str(model), "sha256": hashlib.sha256(model.read_bytes()).hexdigest()}
 
 
 def test_a_store_needs_the_model_by_name_or_file(tmp_path):

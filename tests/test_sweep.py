@@ -155,3 +155,23 @@ def test_an_edited_model_file_is_computed_again_and_the_manifest_records_its_has
     digest = hashlib.sha256(model.read_bytes()).hexdigest()
     assert manifest["model"] == {"name": str(model), "sha256": digest}
     assert manifest["calls"][-1]["model_sha256"] == digest != manifest["calls"][0]["model_sha256"]
+
+
+def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_path):
+    from pathlib import Path
+
+    model = tmp_path / "gain.py"
+    text = (Path(__file__).parent / "gain_model.py").read_text()
+    model.write_text(text)
+    design = Sweep(gain_sweep(model).scenario, grid={"w_gain": (1.0, 2.0)})
+
+    def edit(state):
+        if state.done == 1:  # after the first task: the second would run another model than its key says
+            model.write_text(text.replace("GAIN = 0.5", "GAIN = 0.25"))
+
+    with pytest.warns(UserWarning, match="none of this design .* and this model file content"):
+        results = sweep(design, tmp_path / "out", workers=1, progress=edit)
+    assert results.empty  # the one stored task belongs to the file before the edit
+    assert len(list((tmp_path / "out" / "runs").glob("*.parquet"))) == 1
+    log = (tmp_path / "out" / "lost_tasks.log").read_text()
+    assert "CodeMismatchError: the model file" in log and "changed after the sweep started" in log

@@ -51,9 +51,14 @@ def died_rows(task: Task) -> pd.DataFrame:
 
 
 def serial(tasks: list[Task], run: Callable[[Task], pd.DataFrame]) -> Iterator[Outcome]:
-    """One task after the other in this process."""
+    """One task after the other in this process; a task that raises is not computed (as in a worker)."""
     for task in tasks:
-        yield task, run(task), ""
+        try:
+            rows = run(task)
+        except Exception as exc:  # nothing stored: the task is left for the next run
+            yield task, None, f"{type(exc).__name__}: {exc}"
+        else:
+            yield task, rows, ""
 
 
 @contextlib.contextmanager

@@ -283,8 +283,8 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
     if not frames:
         if runs_dir.exists() and any(runs_dir.glob("*.parquet")):
             warnings.warn(
-                f"{runs_dir} holds results, but none of this design with solver {solver!r} and this code version "
-                f"({provenance.code_version()})",
+                f"{runs_dir} holds results, but none of this design with solver {solver!r}, this code version "
+                f"({provenance.code_version()}) and this model file content",
                 stacklevel=2,
             )
         return pd.DataFrame()
