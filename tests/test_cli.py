@@ -213,3 +213,70 @@ def test_certify_prints_a_certificate_that_does_not_hold_beside_the_others(tmp_p
     strong = json.loads(out.read_text())["certificates"][0]
     assert not strong["certified"] and strong["guarantee"] is None
     assert f"strong detectability: {strong['reason']}" in result.output.replace("\n", "")
+
+
+def live_processes(group):
+    """Pids of the processes of a process group that still run (zombies, already dead, are not counted)."""
+    import os
+    from pathlib import Path
+
+    found = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[2]) == group and fields[0] != "Z" and int(entry.name) != os.getpid():
+                found.append(int(entry.name))
+    return found
+
+
+@pytest.mark.slow
+def test_reproduce_interrupted_by_ctrl_c_keeps_its_finished_runs_and_the_rerun_computes_only_the_others(tmp_path):
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    out = tmp_path / "out"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
+    args = [sys.executable, "-m", "uiest", "reproduce", "crop-growth", "--quick", "--steps", "35", "--solver", "gn",
+            "--workers", "2", "--out", str(out)]  # fmt: skip
+    job = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                           start_new_session=True)  # fmt: skip
+    while job.poll() is None and not list((out / "runs").glob("*.pickle")):
+        time.sleep(0.1)
+    os.killpg(job.pid, signal.SIGINT)  # Ctrl-C: to the job's process group, its workers included
+    _, err = job.communicate(timeout=120)
+    assert job.returncode == 130, err
+    for _ in range(100):  # the workers end with the job (a dead worker may wait a moment to be reaped by init)
+        if not live_processes(job.pid):
+            break
+        time.sleep(0.1)
+    assert live_processes(job.pid) == []
+    stored = {path: path.stat().st_mtime_ns for path in (out / "runs").glob("*.pickle")}
+    assert 1 <= len(stored) < 4 and f"interrupted: {len(stored)} of 4 runs are stored in {out / 'runs'}" in err
+    again = subprocess.run(args, env=env, capture_output=True, text=True, timeout=600)
+    assert again.returncode == 0, again.stderr
+    assert f"4 of 4 runs done ({len(stored)} stored before), 0 left" in again.stderr  # progress lines: no terminal
+    assert {path: path.stat().st_mtime_ns for path in stored} == stored  # read back, not computed again
+    assert len(list((out / "runs").glob("*.pickle"))) == 4 and (out / "report.md").exists()
+
+
+def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored_runs_back(tmp_path):
+    from test_experiments import tiny
+
+    path = tiny().with_overrides(runs=2, cases=("noise-free",)).to_toml(tmp_path / "tiny.toml")
+    args = ["reproduce", "--scenario", str(path), "--out", str(tmp_path / "out")]
+    first = runner.invoke(app, args)
+    assert first.exit_code == 0 and "tiny: 1 of 2 runs done, 1 left, about " in first.output
+    assert "tiny: 2 of 2 runs done, 0 left" in first.output
+    files = sorted((tmp_path / "out" / "runs").glob("*.pickle"))
+    assert len(files) == 2
+    files[0].write_bytes(b"damaged")
+    again = runner.invoke(app, args)
+    assert again.exit_code == 0 and again.output.count(" runs done") == 1
+    assert "tiny: 2 of 2 runs done (1 stored before), 0 left" in again.output  # the damaged one computed again

@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from uiest import OptionError
+from uiest.errors import DomainWarning
 from uiest.experiments import (
     EstimatorSpec,
     Scenario,
@@ -268,3 +269,112 @@ def test_a_changed_model_file_is_read_again(tmp_path):
     later = path.stat().st_mtime_ns + 10**9  # a distinct version even on a coarse clock
     os.utime(path, ns=(later, later))
     assert study_model(path).system.x.names == ("conc", "temp")
+
+
+@pytest.mark.parametrize("name", ["../x", "a/b", "/tmp/abs", "a\\b", "..", ".", ""])
+def test_a_study_name_that_would_leave_the_output_folder_is_refused(name):
+    with pytest.raises(OptionError, match=r"^name: expected "):
+        dataclasses.replace(tiny(), name=name)
+
+
+def test_reproduce_refuses_a_scenario_file_whose_name_leaves_out(tmp_path, monkeypatch):
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+
+    monkeypatch.chdir(tmp_path)
+    path = tmp_path / "escape.toml"
+    path.write_text(tiny().to_toml(tmp_path / "ok.toml").read_text().replace('name = "tiny"', 'name = "../escaped"'))
+    result = CliRunner().invoke(app, ["reproduce", "--scenario", str(path)])
+    assert result.exit_code == 2 and result.output.strip().splitlines() == [
+        "error: name: expected a plain name without path separators, '.' or '..' (it names a path inside the output "
+        "folder), got '../escaped'"
+    ]
+    assert not (tmp_path / "escaped").exists() and not (tmp_path / "out").exists()
+
+
+def test_a_model_file_in_a_scenario_or_sweep_file_is_found_beside_it(tmp_path, monkeypatch):
+    from uiest.experiments.sweep import Sweep
+
+    folder = tmp_path / "study"
+    folder.mkdir()
+    (folder / "gain.py").write_text((Path(__file__).parent / "gain_model.py").read_text())
+    text = dataclasses.replace(tiny(), model="gain.py", prior=(), prior_from_output=(), x0_lower=(), x0_upper=(),
+                               focus_state=0).to_dict()  # fmt: skip
+    import tomli_w
+
+    (folder / "scenario.toml").write_text(tomli_w.dumps(text))
+    (folder / "sweep.toml").write_text(tomli_w.dumps({"scenario": text, "sweep": {"grid": {"N": [3, 4]}}}))
+    monkeypatch.chdir(tmp_path)  # not the files' folder
+    scenario = Scenario.from_toml(Path("study/scenario.toml"))
+    assert Path(scenario.model).resolve() == (folder / "gain.py").resolve()
+    assert study_model(scenario.model).system.nx == 2
+    assert Path(Sweep.from_toml(Path("study/sweep.toml")).scenario.model).resolve() == (folder / "gain.py").resolve()
+    copy = scenario.to_toml(tmp_path / "elsewhere" / "deeper" / "scenario.toml")  # written relative to its folder
+    assert Path(Scenario.from_toml(copy).model).resolve() == (folder / "gain.py").resolve()
+
+
+def numbers_of(study):
+    """The study's step and run tables without timings."""
+    timings = {"solve_time", "cpu_time", "wall_time_s"}
+    steps = study.steps.drop(columns=[c for c in study.steps.columns if c in timings])
+    runs = study.runs.drop(columns=[c for c in study.runs.columns if c in timings])
+    return steps, runs.reset_index(drop=True)
+
+
+def test_a_stored_study_reads_its_finished_runs_back_and_computes_only_the_others(tmp_path):
+    store = tmp_path / "runs"
+    first = run_study(tiny(), store=store)
+    files = sorted(store.glob("*.pickle"))
+    assert len(files) == 2 * 2  # one per (case, run), written as each finished
+    files[0].unlink()  # a run the interruption lost
+    files[1].write_bytes(b"not a run")  # a damaged file: set aside, computed again
+    kept = {path: path.stat().st_mtime_ns for path in files[2:]}
+    labels = []
+    again = run_study(tiny(), store=store, progress=labels.append)
+    assert len(labels) == 2 * 2  # two (case, run)s of two estimators computed; the others read back
+    assert len(list((store / "corrupt").iterdir())) == 1 and len(list(store.glob("*.pickle"))) == 4
+    assert {path: path.stat().st_mtime_ns for path in files[2:]} == kept
+    for mine, theirs in zip(numbers_of(first), numbers_of(again), strict=True):
+        pd.testing.assert_frame_equal(mine, theirs)
+    assert again.results.keys() == first.results.keys() and again.truths.keys() == first.truths.keys()
+    labels.clear()
+    more = run_study(dataclasses.replace(tiny(), runs=3), store=store, progress=labels.append)
+    assert len(labels) == 2 * 2 and len(more.runs) == 3 * 2 * 2  # run 2 of each case is new; runs 0 and 1 stored
+    labels.clear()
+    run_study(tiny(), store=store, solver="gn", progress=labels.append)
+    assert len(labels) == 2 * 2 * 2  # another backend: nothing taken from the store
+
+
+def test_a_stored_study_of_an_edited_model_file_is_computed_again(tmp_path):
+    model = tmp_path / "gain.py"
+    text = (Path(__file__).parent / "gain_model.py").read_text()
+    model.write_text(text)
+    scenario = Scenario(name="gain", model=str(model), steps=20, runs=1, cases=("noise-free",), settle=2,
+                        estimators=(EstimatorSpec("EKF", "ekf", w_variance=1.0),))  # fmt: skip
+    first = run_study(scenario, store=tmp_path / "runs")
+    assert first.runs["x_outside"].eq(0).all()
+    model.write_text(text.replace("GAIN = 0.5", "GAIN = 1.5"))
+    later = model.stat().st_mtime_ns + 10**9  # a distinct version for the per-process model cache too
+    import os
+
+    os.utime(model, ns=(later, later))
+    labels = []
+    with pytest.warns(DomainWarning, match="x left X"):
+        again = run_study(scenario, store=tmp_path / "runs", progress=labels.append)
+    assert len(labels) == 1 and again.runs["x_outside"].gt(0).all()  # computed on the edited file, not read back
+    import hashlib
+
+    manifest = write_report(again, tmp_path / "report", wall_time=1.0)
+    assert manifest["model"] == {"name": str(model), "sha256": hashlib.sha256(model.read_bytes()).hexdigest()}
+
+
+def test_a_store_needs_the_model_by_name_or_file(tmp_path):
+    from uiest import models
+
+    entry = models.get("closed-form")
+    with pytest.raises(OptionError, match=r"^store: "):
+        run_study(tiny(), model=entry, store=tmp_path)
+    models.register("registered-here", entry.build, setup=entry.setup, replace=True)
+    with pytest.raises(OptionError, match=r"^store: .*registered at run time"):
+        run_study(dataclasses.replace(tiny(), model="registered-here"), store=tmp_path)

@@ -6,6 +6,7 @@ import pandas as pd
 import pytest
 
 from uiest import OptionError
+from uiest.errors import DomainWarning
 from uiest.experiments import EstimatorSpec, Scenario
 from uiest.experiments import runner as runner_module
 from uiest.experiments.sweep import Sweep, collect, sweep
@@ -123,3 +124,54 @@ def test_help_texts_keep_their_brackets():
 
     text = CliRunner().invoke(app, ["sweep", "--help"], terminal_width=200).output
     assert "[scenario] and [sweep]" in text
+
+
+def gain_sweep(model):
+    scenario = Scenario(name="gain", model=str(model), steps=20, runs=1, cases=("noise-free",), settle=2,
+                        estimators=(EstimatorSpec("EKF", "ekf", w_variance=1.0),))  # fmt: skip
+    return Sweep(scenario)
+
+
+def test_an_edited_model_file_is_computed_again_and_the_manifest_records_its_hash(tmp_path):
+    import hashlib
+    import json
+    import os
+    from pathlib import Path
+
+    model = tmp_path / "gain.py"
+    text = (Path(__file__).parent / "gain_model.py").read_text()
+    model.write_text(text)
+    first = sweep(gain_sweep(model), tmp_path / "out", workers=1)
+    assert (first["x_outside"] == 0).all() and (first["error"] == "").all()
+    model.write_text(text.replace("GAIN = 0.5", "GAIN = 1.5"))
+    later = model.stat().st_mtime_ns + 10**9  # a distinct version for the per-process model cache too
+    os.utime(model, ns=(later, later))
+    seen = []
+    with pytest.warns(DomainWarning, match="x left X"):
+        second = sweep(gain_sweep(model), tmp_path / "out", workers=1, progress=seen.append)
+    assert seen[0].skipped == 0 and seen[-1].done == 1
+    assert (second["x_outside"] > 0).all()  # the edited model's state leaves X: computed, not the stored rows
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    digest = hashlib.sha256(model.read_bytes()).hexdigest()
+    assert manifest["model"] == {"name": str(model), "sha256": digest}
+    assert manifest["calls"][-1]["model_sha256"] == digest != manifest["calls"][0]["model_sha256"]
+
+
+def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_path):
+    from pathlib import Path
+
+    model = tmp_path / "gain.py"
+    text = (Path(__file__).parent / "gain_model.py").read_text()
+    model.write_text(text)
+    design = Sweep(gain_sweep(model).scenario, grid={"w_gain": (1.0, 2.0)})
+
+    def edit(state):
+        if state.done == 1:  # after the first task: the second would run another model than its key says
+            model.write_text(text.replace("GAIN = 0.5", "GAIN = 0.25"))
+
+    with pytest.warns(UserWarning, match="none of this design .* and this model file content"):
+        results = sweep(design, tmp_path / "out", workers=1, progress=edit)
+    assert results.empty  # the one stored task belongs to the file before the edit
+    assert len(list((tmp_path / "out" / "runs").glob("*.parquet"))) == 1
+    log = (tmp_path / "out" / "lost_tasks.log").read_text()
+    assert "CodeMismatchError: the model file" in log and "changed after the sweep started" in log

@@ -454,15 +454,25 @@ def reproduce(
         ),
     ] = "ipopt",
     scenario: Annotated[Path | None, typer.Option(help="A scenario TOML file (any registered model).")] = None,
-    out: Annotated[Path | None, typer.Option(help="Output folder (default out/<study>).")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            help="Output folder (default out/<study>); finished runs are kept in OUT/runs, and a rerun "
+            "with the same folder computes only the others."
+        ),
+    ] = None,
     workers: Annotated[int | None, typer.Option(help="Processes running the runs (default: all cores).")] = None,
 ) -> None:
     """Run a model's study (default: the paper's crop-growth study): figures, Table 1, report.md; or a scenario file."""
+    import contextlib
+    import itertools
     import time
 
     from rich.progress import SpinnerColumn
 
     from uiest.experiments import Scenario, run_study, write_report
+    from uiest.experiments.study_store import StudyStore
+    from uiest.progress_lines import ProgressLines
     from uiest.window.solvers import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
@@ -492,24 +502,33 @@ def reproduce(
         raise OptionError(f"{given}: {exc}" if given else str(exc)) from None
     folder = out if out is not None else Path("out") / setting.name
     _output_folder(folder, "--out")
-    total = setting.runs * len(setting.cases) * len(setting.estimators)
+    store = StudyStore(folder / "runs", setting, solver)  # each finished run, kept for a rerun with this --out
+    runs_total = setting.runs * len(setting.cases)
+    stored = sum(store.load(*task) is not None for task in store.stored())  # a damaged file is set aside now
     start = time.perf_counter()
-    with Progress(
-        SpinnerColumn(),
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        console=console,
-    ) as bar:
-        task = bar.add_task(f"{setting.name}", total=total)
-        result = run_study(
-            setting,
-            solver=solver,
-            workers=workers,
-            progress=lambda label: bar.update(task, advance=1, description=label),
-        )
-    manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
+    try:
+        with contextlib.ExitStack() as stack:
+            if console.is_terminal:
+                columns = (SpinnerColumn(), TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                           TimeRemainingColumn())  # fmt: skip
+                bar = stack.enter_context(Progress(*columns, console=console))
+                task = bar.add_task(setting.name, total=runs_total * len(setting.estimators),
+                                    completed=stored * len(setting.estimators))  # fmt: skip
+                progress = lambda label: bar.update(task, advance=1, description=label)  # noqa: E731
+            else:  # a log or a pipe: periodic lines on stderr, one count per (case, run) with all its estimators
+                lines, calls = ProgressLines(setting.name, runs_total, done=stored), itertools.count(1)
+
+                def progress(label: str) -> None:
+                    if next(calls) % len(setting.estimators) == 0:
+                        lines.advance()
+
+            result = run_study(setting, solver=solver, workers=workers, progress=progress, store=store.folder)
+        manifest = write_report(result, folder, wall_time=time.perf_counter() - start)
+    except KeyboardInterrupt:
+        message = (f"interrupted: {len(store.stored())} of {runs_total} runs are stored in {store.folder}; the same "
+                   "command with the same --out computes only the others")  # fmt: skip
+        error_console.print(message, markup=False, soft_wrap=True)
+        raise typer.Exit(code=130) from None
     console.print((folder / "table1.md").read_text(), highlight=False, markup=False)
     console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})", markup=False)
     if (result.runs["error"] != "").all():

@@ -52,6 +52,7 @@ from uiest.errors import CertificationError, HorizonError, ModelError, OptionErr
 from uiest.input_model import InputModel
 from uiest.lock import holds_folder
 from uiest.models import ModelEntry
+from uiest.paths import plain_name
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
@@ -324,14 +325,15 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
     from uiest.plotting import plot_record, save_figure
 
     out = Path(out)
+    names = {label: plain_name(label, "results") for label in results}
     figure = plot_record(system, record, results)
     with staged_folder(out) as stage:
         for label, result in results.items():
             frame = result.to_pandas()
             frame["t"] = record.t  # the data's own times
-            write_file(stage / f"estimates_{label}.csv", frame.to_csv)
+            write_file(stage / f"estimates_{names[label]}.csv", frame.to_csv)
         save_figure(figure, stage / "estimates.png")
-    return [*(out / f"estimates_{label}.csv" for label in results), out / "estimates.png"]
+    return [*(out / f"estimates_{names[label]}.csv" for label in results), out / "estimates.png"]
 
 
 def errors_against_truth(record: Trajectory, results: dict[str, EstimationResult]) -> dict[str, float]:

@@ -28,3 +28,18 @@ def writable_file(path: Path, name: str) -> Path:
         raise OptionError(f"{name}: {path} is a folder; expected a file name")
     writable_folder(path.parent, name)
     return path
+
+
+def plain_name(name: str, argument: str) -> str:
+    r"""``name`` if it is one plain file or folder name (it will name a path inside an output folder), else OptionError.
+
+    Refused: an empty name, an absolute path, a path separator (``/``, ``\``), ``.``, ``..`` and NUL,
+    so a path built as ``folder / name`` stays inside ``folder``.
+    """
+    bad = not name or name in (".", "..") or any(sep in name for sep in ("/", "\\", "\0")) or Path(name).is_absolute()
+    if bad:
+        raise OptionError(
+            f"{argument}: expected a plain name without path separators, '.' or '..' (it names a path inside the "
+            f"output folder), got {name!r}"
+        )
+    return name

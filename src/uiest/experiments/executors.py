@@ -51,9 +51,14 @@ def died_rows(task: Task) -> pd.DataFrame:
 
 
 def serial(tasks: list[Task], run: Callable[[Task], pd.DataFrame]) -> Iterator[Outcome]:
-    """One task after the other in this process."""
+    """One task after the other in this process; a task that raises is not computed (as in a worker)."""
     for task in tasks:
-        yield task, run(task), ""
+        try:
+            rows = run(task)
+        except Exception as exc:  # nothing stored: the task is left for the next run
+            yield task, None, f"{type(exc).__name__}: {exc}"
+        else:
+            yield task, rows, ""
 
 
 @contextlib.contextmanager
@@ -103,9 +108,14 @@ def _plain_warnings() -> None:
 
 
 def _worker_init(parent: int) -> None:
-    """Worker initializer: :func:`_exit_with_parent` and :func:`_plain_warnings`."""
+    """Worker initializer: :func:`_exit_with_parent`, :func:`_plain_warnings`, and Ctrl-C left to the parent.
+
+    A Ctrl-C reaches the whole process group; the parent ends its workers (:func:`stop_pool`), so a worker
+    ignores SIGINT instead of printing a KeyboardInterrupt traceback for the task it was running.
+    """
     _exit_with_parent(parent)
     _plain_warnings()
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
 def spawn_pool(width: int) -> ProcessPoolExecutor:

@@ -54,7 +54,8 @@ def versions() -> dict[str, str]:
 
 PRESENTATION = frozenset(
     {"cli.py", "plotting.py", "paths.py", "experiments/report.py", "experiments/provenance.py",
-     "experiments/executors.py", "experiments/solver_bench.py", "experiments/dompc_peer.py"}
+     "experiments/executors.py", "experiments/solver_bench.py", "experiments/dompc_peer.py",
+     "experiments/study_store.py", "progress_lines.py"}
 )  # fmt: skip
 """Modules that do not change computed numbers (how results are shown, stored or run): not hashed."""
 
@@ -76,3 +77,17 @@ def code_version() -> str:
     for package in ("casadi", "numpy", "scipy", "cvxpy", "clarabel"):
         digest.update(versions().get(package, "").encode())
     return digest.hexdigest()[:16]
+
+
+def model_digest(model: str) -> str:
+    """The SHA-256 (hex) of a model file's bytes; ``""`` for a registered name (built-ins: in :func:`code_version`).
+
+    Keys of stored runs include it, so an edited model file is computed again, never taken from the store.
+    A file that cannot be read gives ``"unreadable: <reason>"`` (loading it then fails with the reason).
+    """
+    if not model.endswith(".py"):
+        return ""
+    try:
+        return hashlib.sha256(Path(model).read_bytes()).hexdigest()
+    except OSError as exc:
+        return f"unreadable: {exc.strerror or exc}"

@@ -480,6 +480,7 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "versions": provenance.versions(),
         "git_revision": provenance.git_revision(),
         "code_version": provenance.code_version(),
+        "model": {"name": scenario.model, "sha256": provenance.model_digest(scenario.model)},
         "wall_time_s": wall_time,
         "certificates": list(study.certificates),
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},

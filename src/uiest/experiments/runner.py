@@ -15,6 +15,7 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -41,6 +42,7 @@ from uiest.experiments import executors
 from uiest.experiments.certificates import summary
 from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
+from uiest.experiments.study_store import StudyStore
 from uiest.health import quiet_bound_warnings
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
@@ -244,6 +246,7 @@ def run_study(
     solver: str = "ipopt",
     progress: Callable[[str], None] | None = None,
     workers: int | None = 1,
+    store: Path | str | None = None,
 ) -> StudyResult:
     """Simulate every (case, run) and run every estimator on it, the runs spread over ``workers`` processes.
 
@@ -255,6 +258,10 @@ def run_study(
     Seeds depend only on (case, run), so the numbers do not depend on the number of workers (the
     timings do, through the load).
     ``progress(label)`` is called for each estimator run as its (case, run) completes.
+    ``store``: a folder (:mod:`uiest.experiments.study_store`) where each (case, run) is written as it
+    completes and from which a later call with the same study reads it back instead of computing it, so
+    an interrupted or killed study resumes; runs read back are not reported to ``progress``. It needs the
+    model by name or file (``scenario.model``), not as an object: the model file's bytes key the runs.
     """
     if not isinstance(scenario, Scenario):
         raise OptionError(f"scenario: expected a Scenario, got {shown(scenario)}")
@@ -269,6 +276,13 @@ def run_study(
     if model is not None and not isinstance(model, ModelEntry | StudyModel):
         raise OptionError(f"model: expected a ModelEntry or a StudyModel (a name: scenario.model), got {model!r}")
     given = model is not None
+    saved = None
+    if store is not None:
+        if given:
+            raise OptionError("store: runs are stored only for scenario.model (a name or a model file), not for a "
+                              "model given as an object (its content cannot key the stored runs)")  # fmt: skip
+        saved = StudyStore(Path(store), scenario, solver)
+        saved.prepare()
     study = model if isinstance(model, StudyModel) else StudyModel.of(scenario.model if model is None else model)
     system = study.system
     scenario.check_model(system.nx, system.ny, system.x.bounds)
@@ -284,13 +298,24 @@ def run_study(
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    with contextlib.closing(_outcomes(scenario, study, given, tasks, solver, workers)) as outcomes:
+    kept = {task: saved.load(*task) for task in tasks} if saved is not None else {}
+    kept = {task: outcome for task, outcome in kept.items() if isinstance(outcome, RunOutcome)}
+
+    def add(outcome: RunOutcome) -> None:
+        truths[(outcome.case, outcome.run)] = outcome.truth
+        for name, result in outcome.results.items():
+            results[(outcome.case, outcome.run, name)] = result
+        step_frames.extend(outcome.frames)
+        run_rows.extend(outcome.rows)
+
+    for outcome in kept.values():
+        add(outcome)
+    todo = [task for task in tasks if task not in kept]
+    with contextlib.closing(_outcomes(scenario, study, given, todo, solver, workers)) as outcomes:
         for outcome in outcomes:
-            truths[(outcome.case, outcome.run)] = outcome.truth
-            for name, result in outcome.results.items():
-                results[(outcome.case, outcome.run, name)] = result
-            step_frames.extend(outcome.frames)
-            run_rows.extend(outcome.rows)
+            if saved is not None:
+                saved.save(outcome.case, outcome.run, outcome)
+            add(outcome)
             if progress is not None:
                 for spec in scenario.estimators:
                     progress(f"{outcome.case} run {outcome.run + 1}/{scenario.runs}: {spec.name}")

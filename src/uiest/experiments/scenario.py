@@ -8,6 +8,7 @@ and re-run (``uiest reproduce --scenario FILE.toml``).
 from __future__ import annotations
 
 import math
+import os
 import tomllib
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
@@ -17,7 +18,7 @@ import tomli_w
 
 from uiest.atomic import write_bytes
 from uiest.errors import OptionError
-from uiest.paths import writable_file
+from uiest.paths import plain_name, writable_file
 
 ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "smooth-mhe", "fie", "ekf", "ukf")
 CASES = ("noise-free", "noisy")
@@ -126,11 +127,13 @@ class Scenario:
     Attributes
     ----------
     name : str
-        Name of the study (used in file names and titles).
+        Name of the study (used in titles and as the default output folder ``out/<name>``): a plain name,
+        without path separators, ``.`` or ``..``.
     model : str
         Registered model (``uiest.models.names()``) or the path of a model file (``.py``, see
-        :func:`uiest.models.load`); its default inputs, unknown-input law and
-        noise model are used.
+        :func:`uiest.models.load`; in a TOML file, relative to that file's folder); its default inputs,
+        unknown-input law and noise model are used. A model file is Python code that runs with your
+        rights (like a ``setup.py``) wherever the study runs: in this process and in every worker.
     steps : int
         Length K of each run.
     runs : int
@@ -186,6 +189,7 @@ class Scenario:
         for label in ("name", "model"):
             if not isinstance(getattr(self, label), str) or not getattr(self, label):
                 raise OptionError(f"{label}: expected a non-empty string, got {getattr(self, label)!r}")
+        plain_name(self.name, "name")  # it names the study's output folder (uiest reproduce: out/<name>)
         for label in ("steps", "runs"):
             value = getattr(self, label)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
@@ -265,9 +269,15 @@ class Scenario:
         return data
 
     def to_toml(self, path: Path | str) -> Path:
-        """Write the scenario as TOML, whole or not at all (OptionError or StorageError naming ``path``)."""
+        """Write the scenario as TOML, whole or not at all (OptionError or StorageError naming ``path``).
+
+        A model file's path is written relative to ``path``'s folder (:meth:`from_toml` reads it from there).
+        """
         path = writable_file(Path(path), "path")
-        return write_bytes(path, tomli_w.dumps(self.to_dict()).encode())
+        data = self.to_dict()
+        if is_model_file(self.model):
+            data["model"] = os.path.relpath(os.path.abspath(self.model), os.path.abspath(path.parent))
+        return write_bytes(path, tomli_w.dumps(data).encode())
 
     @classmethod
     def from_dict(cls, data: dict[str, Any]) -> Scenario:
@@ -300,8 +310,24 @@ class Scenario:
 
     @classmethod
     def from_toml(cls, path: Path) -> Scenario:
-        """Read a scenario written by :meth:`to_toml` (or by hand)."""
-        return cls.from_dict(read_toml(path, "scenario"))
+        """Read a scenario written by :meth:`to_toml` (or by hand); a relative model file path is taken from its folder.
+
+        A model file is Python code: loading the scenario's model runs it, with your rights (like a
+        ``setup.py``), in this process and in every worker. Run scenarios whose model files you trust.
+        """
+        return cls.from_dict(model_beside(read_toml(path, "scenario"), Path(path)))
+
+
+def is_model_file(model: object) -> bool:
+    """Whether a scenario's ``model`` names a model file (``.py``) rather than a registered model."""
+    return isinstance(model, str) and model.endswith(".py")
+
+
+def model_beside(data: Any, path: Path) -> Any:
+    """``data`` (a scenario table read from ``path``) with a relative model file path taken from ``path``'s folder."""
+    if isinstance(data, dict) and is_model_file(data.get("model")) and not Path(data["model"]).is_absolute():
+        data = {**data, "model": str(Path(path).parent / data["model"])}
+    return data
 
 
 def read_toml(path: Path, what: str) -> dict[str, Any]:

@@ -13,7 +13,8 @@ stored file that cannot be read in full, or holds another task's rows, is moved 
 error in its row (``retry_failed`` computes such tasks again); a task that kills its worker is
 recorded too (:mod:`uiest.experiments.executors`); a task computed by other code (a cluster
 worker with another uiest) is not stored. ``OUT/manifest.json`` records the design, seeds and,
-per call, versions, git revision and code version.
+per call, versions, git revision, code version and the model file's SHA-256 (task keys include it: an edited
+model file is computed again).
 """
 
 from __future__ import annotations
@@ -63,6 +64,8 @@ def run_task(task: Task) -> pd.DataFrame:
     """
     if provenance.code_version() != task.code:
         raise CodeMismatchError(f"this worker runs code {provenance.code_version()}, the sweep {task.code}")
+    if provenance.model_digest(task.scenario.model) != task.model_sha256:
+        raise CodeMismatchError(f"the model file {task.scenario.model} changed after the sweep started")
     scenario = task.scenario
     base = {"key": task.key, **dict(task.params), "case": task.case, "run": task.run, "solver": task.solver}
     try:
@@ -250,9 +253,11 @@ def _write_manifest(
         "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
         "stored_for_other_designs_or_code": other, "code_version": provenance.code_version(),
         "git_revision": provenance.git_revision(), "versions": provenance.versions(), "machine": provenance.machine(),
+        "model_sha256": provenance.model_digest(scenario.model),
     })  # fmt: skip
     manifest = {
         "design": design.to_dict(),
+        "model": {"name": scenario.model, "sha256": provenance.model_digest(scenario.model)},
         "solver": solver,
         "tasks": len(design.tasks(solver)),
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
@@ -284,8 +289,8 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
     if not frames:
         if runs_dir.exists() and any(runs_dir.glob("*.parquet")):
             warnings.warn(
-                f"{runs_dir} holds results, but none of this design with solver {solver!r} and this code version "
-                f"({provenance.code_version()})",
+                f"{runs_dir} holds results, but none of this design with solver {solver!r}, this code version "
+                f"({provenance.code_version()}) and this model file content",
                 stacklevel=2,
             )
         return pd.DataFrame()

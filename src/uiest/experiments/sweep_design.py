@@ -22,8 +22,8 @@ import numpy as np
 
 from uiest.checks import shown
 from uiest.errors import OptionError
-from uiest.experiments.provenance import code_version
-from uiest.experiments.scenario import Scenario, read_toml
+from uiest.experiments.provenance import code_version, model_digest
+from uiest.experiments.scenario import Scenario, model_beside, read_toml
 from uiest.window import DEFAULT_BACKEND
 from uiest.window.solvers import BACKENDS
 
@@ -172,13 +172,14 @@ class Sweep:
         """
         if solver not in BACKENDS:
             raise OptionError(f"solver: expected one of {list(BACKENDS)}, got {solver!r}")
-        code = code_version()
+        code, model = code_version(), model_digest(self.scenario.model)
         tasks: dict[str, Task] = {}
         for point in self.points():
             scenario = apply(self.scenario, point)
             for case in scenario.cases:
                 for run in range(scenario.runs):
-                    task = Task(scenario, tuple(sorted(point.items())), case, run, point.get("solver", solver), code)
+                    params = tuple(sorted(point.items()))
+                    task = Task(scenario, params, case, run, point.get("solver", solver), code, model)
                     tasks.setdefault(task.key, task)
         return list(tasks.values())
 
@@ -195,7 +196,11 @@ class Sweep:
 
     @classmethod
     def from_toml(cls, path: Path) -> Sweep:
-        """Read ``[scenario]`` (as in Scenario TOML) and ``[sweep]`` (``grid``, ``random``, ``ranges``)."""
+        """Read ``[scenario]`` (as in Scenario TOML) and ``[sweep]`` (``grid``, ``random``, ``ranges``).
+
+        A relative model file path is taken from the sweep file's folder; the model file is Python code
+        that runs with your rights (like a ``setup.py``) in this process and in every worker.
+        """
         data = read_toml(path, "sweep")
         unknown = set(data) - {"scenario", "sweep"}
         if unknown or "scenario" not in data:
@@ -210,7 +215,7 @@ class Sweep:
             if not isinstance(design.get(key, {}), dict):
                 raise OptionError(f"sweep.{key}: expected a table of parameters, got {design[key]!r}")
         return cls(
-            Scenario.from_dict(data["scenario"]),
+            Scenario.from_dict(model_beside(data["scenario"], Path(path))),
             grid=dict(design.get("grid", {})),
             random=design.get("random", 0),
             ranges=dict(design.get("ranges", {})),
@@ -240,12 +245,15 @@ class Task:
     solver: str
     code: str
     """The code version (:func:`~uiest.experiments.provenance.code_version`) the task is meant for."""
+    model_sha256: str = ""
+    """The SHA-256 of the scenario's model file (:func:`~uiest.experiments.provenance.model_digest`; "" for a name)."""
 
     @property
     def key(self) -> str:
-        """Stable identifier: a hash of the scenario, the point, the case, the run, the backend and the code."""
+        """Stable identifier: a hash of the scenario, point, case, run, backend, code and the model file's content."""
+        identity = [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, self.code]
         payload = json.dumps(
-            [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, self.code],
+            [*identity, self.model_sha256],
             sort_keys=True,
             default=str,
         )

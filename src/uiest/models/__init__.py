@@ -7,6 +7,8 @@ A model file is a Python file whose module has ``system`` (a :class:`~uiest.syst
 ``build()`` returning one, and optionally ``setup()`` returning a :class:`SimulationSetup` (its
 default simulation, needed by ``uiest simulate``), ``reduction()``, ``jacobian_parameters()`` and
 ``study()`` returning a :class:`~uiest.experiments.Scenario` (run by ``uiest reproduce MODEL``).
+Loading a model file runs it: it is Python code that runs with the user's rights, like a ``setup.py``
+(a scenario or sweep naming it runs it in this process and in every worker). Load only files you trust.
 """
 
 from __future__ import annotations
@@ -199,7 +201,8 @@ def load(spec: str | Path) -> ModelEntry:
     another model (a built-in, a registration, or another file of the same name), the file's
     model is registered under its path instead: loading a file never replaces another model.
     Anything the file raises at import, ``SystemExit`` included (``KeyboardInterrupt`` is passed
-    on), becomes a ModelError naming the file.
+    on), becomes a ModelError naming the file. The file is executed as Python code with this
+    process's rights (like a ``setup.py``): load only files you trust.
     """
     text = str(spec)
     if not text.endswith(".py"):

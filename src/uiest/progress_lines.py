@@ -1,0 +1,70 @@
+"""Progress as plain text lines, for a log or a pipe where no progress bar shows."""
+
+from __future__ import annotations
+
+import sys
+import time
+from collections.abc import Callable
+from typing import TextIO
+
+LINE_INTERVAL = 30.0
+"""Seconds between two progress lines (the first and the last are always written)."""
+
+
+def duration(seconds: float) -> str:
+    """``seconds`` as ``"42 s"``, ``"7 min 5 s"`` or ``"2 h 13 min"``."""
+    seconds = max(0, round(seconds))
+    if seconds < 60:
+        return f"{seconds} s"
+    if seconds < 3600:
+        return f"{seconds // 60} min {seconds % 60} s"
+    return f"{seconds // 3600} h {seconds % 3600 // 60} min"
+
+
+class ProgressLines:
+    """Writes ``"<what>: D of T runs done, L left, about E left"`` lines as runs finish.
+
+    Parameters
+    ----------
+    what : str
+        The job's name, at the start of each line.
+    total : int
+        Runs in the whole job.
+    done : int
+        Runs already done before this process started (read back from a store); the time left is
+        estimated from the runs this process completes: elapsed time / runs completed x runs left.
+    interval : float
+        Least seconds between two lines; the first completed run and the last always give a line.
+    stream : text stream
+        Where the lines go (default: stderr).
+    clock : callable
+        Seconds, monotonic (``time.monotonic``).
+
+    """
+
+    def __init__(self, what: str, total: int, *, done: int = 0, interval: float = LINE_INTERVAL,
+                 stream: TextIO | None = None, clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
+        self.what, self.total, self.done, self.before = what, total, done, done
+        self.interval, self.stream, self.clock = interval, stream, clock
+        self.start = clock()
+        self.last: float | None = None
+
+    def line(self) -> str:
+        """The current line (no newline)."""
+        left = self.total - self.done
+        stored = f" ({self.before} stored before)" if self.before else ""
+        text = f"{self.what}: {self.done} of {self.total} runs done{stored}, {left} left"
+        computed = self.done - self.before
+        if left and computed:
+            text += f", about {duration((self.clock() - self.start) / computed * left)} left"
+        return text
+
+    def advance(self, runs: int = 1) -> None:
+        """Count ``runs`` more finished runs; write a line if the interval has passed (or at the first or last)."""
+        self.done += runs
+        now = self.clock()
+        if self.last is None or now - self.last >= self.interval or self.done >= self.total:
+            self.last = now
+            stream = self.stream if self.stream is not None else sys.stderr
+            stream.write(self.line() + "\n")
+            stream.flush()
