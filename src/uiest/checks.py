@@ -102,8 +102,10 @@ def check_name(value: Any, name: str, *, error: type[Exception] = OptionError) -
     return value
 
 
-def check_keywords(given: Mapping[str, Any], known: Iterable[str], name: str, *, error: type[Exception] = OptionError) -> None:
-    """``error`` naming each keyword of ``given`` not among ``known`` (with the closest known ones), ``name`` the caller."""
+def check_keywords(
+    given: Mapping[str, Any], known: Iterable[str], name: str, *, error: type[Exception] = OptionError
+) -> None:
+    """``error`` naming each keyword of ``given`` not among ``known`` (with close matches); ``name``: the caller."""
     known = sorted(known)
     unknown = [key for key in given if key not in known]
     if unknown:

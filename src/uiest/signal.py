@@ -104,7 +104,10 @@ class Signal:
         names_t = (
             tuple(f"{kind}[{i}]" for i in range(n))
             if names is None
-            else tuple(check_name(s, f"{kind}_names[{i}]", error=ModelError) for i, s in enumerate(_entries(names, kind)))
+            else tuple(
+                check_name(entry, f"{kind}_names[{i}]", error=ModelError)
+                for i, entry in enumerate(_entries(names, kind))
+            )
         )
         units_t = ("",) * n if units is None else tuple(str(s) for s in units)
         if scale is not None:

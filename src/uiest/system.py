@@ -27,7 +27,8 @@ from uiest.checks import (
     MEMORY_BUDGET,
     STAGE_BYTES_PER_SIZE2,
     check_int,
-    check_keywords, check_name,
+    check_keywords,
+    check_name,
     check_real,
     real_array,
 )
