@@ -546,7 +546,7 @@ def sweep(
 @app.command()
 @_user_errors
 def bench(
-    quick: Annotated[bool, typer.Option(help="N = 30 only, 100 samples (under a minute).")] = False,
+    quick: Annotated[bool, typer.Option(help="100 samples, N = 30 unless -N is given (under a minute).")] = False,
     json_file: Annotated[Path | None, typer.Option("--json", help="Write the records as JSON.")] = None,
     horizon: Annotated[
         list[int] | None,

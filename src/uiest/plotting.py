@@ -13,7 +13,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.figure import Figure
 
-from uiest.checks import shown
+from uiest.checks import check_flag, shown
 from uiest.errors import DataError, OptionError
 from uiest.paths import writable_file
 from uiest.results import Trajectory
@@ -84,6 +84,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     from uiest.results import EstimationResult
 
     _check_trajectory(traj)
+    log_error = check_flag(log_error, "log_error")
     if not isinstance(results, Mapping) or not all(isinstance(r, EstimationResult) for r in results.values()):
         raise DataError(f"results: expected a mapping from a label to an EstimationResult, got {shown(results)}")
     for label, result in results.items():

@@ -33,7 +33,7 @@ import pandas as pd
 import pyarrow.parquet as pq
 
 from uiest import models
-from uiest.checks import check_callable, shown
+from uiest.checks import check_callable, check_flag, shown
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
@@ -192,6 +192,7 @@ def sweep(
     check_callable(progress, "progress")
     if not isinstance(design, Sweep):
         raise OptionError(f"design: expected a Sweep, got {shown(design)}")
+    retry_failed = check_flag(retry_failed, "retry_failed")
     tasks = design.tasks(solver)
     out = Path(out)
     runs_dir = out / "runs"
