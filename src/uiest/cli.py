@@ -98,6 +98,7 @@ def simulate(
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
     from uiest.plotting import plot_trajectory, save_figure
+    from uiest.simulate import check_steps
     from uiest.simulate import simulate as run_simulation
 
     _positive(steps, "--steps", allow_zero=True)
@@ -105,7 +106,7 @@ def simulate(
     entry = models.load(model)
     system = entry.build()
     setup = entry.simulation()
-    length = setup.steps if steps is None else steps
+    length = setup.steps if steps is None else check_steps(steps, system, "--steps", error=OptionError)
     with Progress(
         TextColumn(f"simulating {model}"),
         BarColumn(),
