@@ -348,11 +348,13 @@ def analyse(
     import json
 
     from uiest.analysis import analyse as analyse_model
+    from uiest.window.size import check_horizon
 
     _positive(max_horizon, "--max-horizon")
     if json_file is not None:
         writable_file(json_file, "--json")
     system = models.load(model).build()
+    check_horizon(max_horizon, "--max-horizon", system)
     with console.status(f"analysing {system.name}"):
         analysis = analyse_model(system, max_horizon=max_horizon)
     console.print(analysis.text(), highlight=False, soft_wrap=True, markup=False)
