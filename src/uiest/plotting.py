@@ -17,6 +17,7 @@ from uiest.checks import check_flag, shown
 from uiest.errors import DataError, OptionError
 from uiest.paths import writable_file
 from uiest.results import Trajectory
+from uiest.system import System
 
 if TYPE_CHECKING:
     from uiest.results import EstimationResult
@@ -146,6 +147,8 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
     Axis limits are robust (1st-99th percentiles of what is drawn), so a start-up transient does
     not flatten the rest; axes carry the signals' units.
     """
+    if not isinstance(system, System):
+        raise DataError(f"system: expected a uiest.System, got {shown(system)}")
     _check_trajectory(record)
     units = {sig.kind: sig.units for sig in system.signals}
     panels = [("y", i) for i in range(system.ny)] + [("x", i) for i in range(system.nx)]
@@ -179,6 +182,8 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
 
 def save_figure(fig: Figure, path: Path | str) -> Path:
     """Write ``fig`` to ``path`` (a Path or str; format from the suffix) and close it."""
+    if not isinstance(fig, Figure):
+        raise DataError(f"fig: expected a matplotlib Figure, got {shown(fig)}")
     path = Path(path)
     formats = sorted(fig.canvas.get_supported_filetypes())
     if path.suffix.lstrip(".").lower() not in formats:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import math
 import os
 from pathlib import Path
 
@@ -12,6 +13,8 @@ import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
 
+from uiest.checks import check_real, shown
+from uiest.errors import OptionError
 from uiest.experiments import provenance
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
@@ -324,6 +327,11 @@ def outcome_lines(study: StudyResult) -> list[str]:
 
 def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     """Write data, metrics, figures, Table 1, report.md and manifest.json into ``out`` (a folder, created)."""
+    if not isinstance(study, StudyResult):
+        raise OptionError(f"study: expected a StudyResult (from run_study), got {shown(study)}")
+    wall_time = check_real(wall_time, "wall_time", "seconds: a finite number >= 0")
+    if not (math.isfinite(wall_time) and wall_time >= 0):
+        raise OptionError(f"wall_time: expected seconds: a finite number >= 0, got {wall_time!r}")
     out = writable_folder(Path(out), "out")
     scenario = study.scenario
     written: list[Path] = []
