@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -189,8 +190,8 @@ def estimate(
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     check_lag(lag, horizon)
-    if w_variance is not None and not w_variance > 0:
-        raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
+    if w_variance is not None and not 0 < w_variance < math.inf:
+        raise OptionError(f"--w-variance: expected a positive finite number, got {w_variance}")
     writable_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
