@@ -807,6 +807,88 @@ def api_cases(tmp: Path) -> list[Case]:
         Case("analyse: max_horizon = 0", lambda: analyse(s(), max_horizon=0), OptionError, "max_horizon"),
         Case("analyse: points = 0", lambda: analyse(s(), points=0), OptionError, "points"),
         Case("analyse: x0 of the wrong length", lambda: analyse(s(), x0=[1.0, 2.0, 3.0]), DataError, "x0"),
+        # issue 35, round 3: bounds before work, flags, names, objects of the wrong kind
+        Case("nx = 10**8 (beyond the window memory)", lambda: callables(nx=10**8), ModelError, "nx.*GiB"),
+        Case("h returns no output", lambda: callables(h=lambda x, v: []), ModelError, r"\bh\b.*ny = 0"),
+        Case("x_bound (a typo)", lambda: callables(x_bound=(0, 1)), OptionError, "did you mean x_bounds"),
+        Case("X a dict", lambda: callables(**{X: {"lower": 0, "upper": 1}}), ModelError, "x_bounds"),
+        Case("X (False, True)", lambda: callables(**{X: (False, True)}), ModelError, "x_bounds"),
+        Case("V = (inf, inf)", lambda: callables(v_bounds=(math.inf, math.inf)), ModelError, "v_bounds.*inf"),
+        Case("an empty state name", lambda: callables(x_names=("", "b")), ModelError, r"x_names\[0\]"),
+        Case("name = 123", lambda: callables(name=123), ModelError, "name"),
+        Case(
+            "X lower side masked",
+            lambda: callables(**{X: (np.ma.masked_array([-5.0, 5.0], mask=[False, True]), (6.0, 6.0))}),
+            ok=lambda sys_: sys_.x.bounds.lower[1] == -math.inf and sys_.x.bounds.lower[0] == -5.0,
+        ),
+        Case("simulate 10**7 steps", lambda: simulate(s(), [0.5, 1.0], 10**7, u=[0.0]), DataError, "steps.*at most"),
+        Case(
+            "simulate: w raises",
+            lambda: simulate(s(), [0.5, 1.0], 3, u=[0.0], w=lambda k, x: 1 / 0),
+            DataError,
+            r"\bw\b.*ZeroDivisionError.*k=0",
+        ),
+        Case("UISE force = 'yes'", lambda: uise(force="yes"), OptionError, "force: expected True or False"),
+        Case(
+            "two-stage state_constraints = 'no'",
+            lambda: two_stage(state_constraints="no"),
+            OptionError,
+            "state_constraints",
+        ),
+        Case(
+            "plot_estimates log_error = 'no'",
+            lambda: plot_estimates(traj(), {}, log_error="no"),
+            OptionError,
+            "log_error",
+        ),
+        Case(
+            "sweep retry_failed = 'yes'",
+            lambda: sweep(_tiny_sweep(), tmp / "r3-sweep", retry_failed="yes"),
+            OptionError,
+            "retry_failed",
+        ),
+        Case(
+            "bench: horizons (0,) with quick",
+            lambda: bench_window_solvers(quick=True, horizons=(0,)),
+            OptionError,
+            "horizons",
+        ),
+        Case("analyse max_horizon = 10**7", lambda: analyse(s(), max_horizon=10**7), OptionError, "max_horizon.*GiB"),
+        Case(
+            "EKF.fit: 10**4 variances",
+            lambda: EKF.fit(s(), traj().u, traj().y, x0_prior=[0.5, 1.0], variances=np.logspace(-6, 2, 10**4)),
+            OptionError,
+            "variances.*at most",
+        ),
+        Case(
+            "EKF.fit: a one-sample record",
+            lambda: EKF.fit(s(), np.zeros((0, 1)), traj().y[:1], x0_prior=[0.5, 1.0]),
+            DataError,
+            r"\by\b.*after k = 0",
+        ),
+        Case("design budget = -1", lambda: UISE.design(s(), x0_prior=[0.5, 1.0], budget=-1.0), OptionError, "budget"),
+        Case("design steps = 2", lambda: UISE.design(s(), x0_prior=[0.5, 1.0], steps=2), OptionError, "steps"),
+        Case(
+            "design certify_options typo",
+            lambda: UISE.design(s(), x0_prior=[0.5, 1.0], certify_options={"sample": 10}),
+            OptionError,
+            "certify_options.*sample",
+        ),
+        Case(
+            "read_record(path, 'closed-form')",
+            lambda: read_record(_file(tmp, "r3.csv", "u,y\n0,1\n"), "closed-form"),
+            DataError,
+            "system",
+        ),
+        Case(
+            "a CSV with two y columns",
+            lambda: read_record(_file(tmp, "r3-dup.csv", "u,y,y\n0,1,2\n0,1,2\n"), s()),
+            DataError,
+            "y.1",
+        ),
+        Case("save_figure(None)", lambda: save_figure(None, tmp / "r3.png"), DataError, "fig"),
+        Case("write_report(None)", lambda: write_report(None, tmp / "r3-report", wall_time=1.0), OptionError, "study"),
+        Case("Scenario runs = 10**8", lambda: scenario(runs=10**8), OptionError, "runs"),
     ]
     return cases
 
@@ -1127,6 +1209,16 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         CliCase("simulate --seed -1", ("simulate", "closed-form", "--seed", "-1", "--out", out), 2, "seed"),
         CliCase("simulate --steps -1", ("simulate", "closed-form", "--steps", "-1", "--out", out), 2, "--steps"),
         CliCase("simulate --steps abc", ("simulate", "closed-form", "--steps", "abc"), 2, "steps"),
+        CliCase(
+            "simulate --steps 10**9",
+            ("simulate", "closed-form", "--steps", "1000000000", "--out", out),
+            2,
+            "--steps: expected at most",
+        ),
+        CliCase(
+            "analyse --max-horizon 10**7", ("analyse", "closed-form", "--max-horizon", "10000000"), 2, "--max-horizon"
+        ),
+        CliCase("bench --quick -N 0", ("bench", "--quick", "-N", "0"), 2, "-N"),
         CliCase("simulate to an unwritable folder", ("simulate", "closed-form", "--out", bad), 2, "cannot write"),
         CliCase("certify --verify 0", ("certify", "closed-form", "--verify", "0"), 2, "--verify"),
         CliCase(

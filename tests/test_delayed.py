@@ -54,7 +54,7 @@ def test_a_system_without_matching_is_refused_unless_forced():
     weights = UISEWeights.from_scales(system, 0.5)
     with pytest.raises(ModelError, match=r"matching fails \(rank\(C B\) = 0 < rank\(B\) = 1.*DelayedUISE"):
         UISE(system, weights=weights, N=5)
-    with pytest.raises(OptionError, match="lag: expected >= 1, got 0"):
+    with pytest.raises(OptionError, match="lag: expected an integer >= 1, got 0"):
         DelayedUISE(system, weights=UISEWeights.from_scales(delayed_system(system).system, 0.5), N=5, lag=0)
     forced = UISE(system, weights=weights, N=5, force=True, x0_prior=np.zeros(3))
     truth = simulate(system, [2.0, -1.0, 3.0], 20, u=np.zeros((20, 1)), w=np.ones((20, 1)))

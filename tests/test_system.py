@@ -3,6 +3,7 @@ import numpy as np
 import pytest
 
 from uiest import DataError, ModelError, System
+from uiest.errors import OptionError
 
 
 def pendulum(**spec):
@@ -95,7 +96,7 @@ def test_construction_rejects_inconsistent_models():
 
 
 def test_unknown_keywords_raise():
-    with pytest.raises(TypeError, match="x_bound"):
+    with pytest.raises(OptionError, match=r"x_bound.*did you mean x_bounds"):
         pendulum(x_bound=(0, 1))
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -66,6 +67,11 @@ class Box:
             raise ModelError(f"Box: bounds must not be NaN, got lower={lower.tolist()}, upper={upper.tolist()}")
         if (lower > upper).any():
             raise ModelError(f"Box: expected lower <= upper, got lower={lower.tolist()}, upper={upper.tolist()}")
+        if (lower == np.inf).any() or (upper == -np.inf).any():
+            raise ModelError(
+                f"Box: expected lower < +inf and upper > -inf (a side at the wrong infinity holds no point), got "
+                f"lower={lower.tolist()}, upper={upper.tolist()}"
+            )
         lower.setflags(write=False)
         upper.setflags(write=False)
         object.__setattr__(self, "lower", lower)
@@ -89,7 +95,8 @@ class Box:
         """Build a box of dimension ``n`` from a Box, a ``(lower, upper)`` pair or None (= R^n).
 
         The pair is ``(lower vector, upper vector)``: ``((0, -5), (10, 5))`` for n = 2 is
-        ``0 <= z_0 <= 10, -5 <= z_1 <= 5``. Scalars in the pair are broadcast to length ``n``.
+        ``0 <= z_0 <= 10, -5 <= z_1 <= 5``. Scalars in the pair are broadcast to length ``n``. Masked entries
+        of a numpy masked array are unbounded sides; booleans, strings and mappings are refused.
         Per-state pairs ``((lo_0, hi_0), (lo_1, hi_1))`` are not a form of this argument; for n = 2
         they cannot be told from a ``(lower, upper)`` pair by their shape, so a pair that is a valid
         box under both readings, with different boxes, is refused (ModelError): write
@@ -101,10 +108,18 @@ class Box:
             box = value
         else:
             try:
+                if isinstance(value, Mapping | str):  # unpacking would take its keys (characters) as the bounds
+                    raise TypeError(type(value).__name__)
                 lo, hi = value
             except (TypeError, ValueError) as exc:
                 raise ModelError(f"{name}: expected a Box or a (lower, upper) pair, got {value!r}") from exc
-            lo_arr, hi_arr = (np.asarray(b, dtype=float) for b in (lo, hi))
+            wanted = f"a (lower, upper) pair of numbers or vectors of length {n} (+-inf allowed)"
+            lo_arr, hi_arr = (
+                np.where(np.ma.getmaskarray(b), side, real_array(b, name, wanted, error=ModelError))
+                if isinstance(b, np.ma.MaskedArray)
+                else real_array(b, name, wanted, error=ModelError)
+                for b, side in ((lo, -np.inf), (hi, np.inf))
+            )
             lo_arr, hi_arr = (np.full(n, float(b)) if b.ndim == 0 else b for b in (lo_arr, hi_arr))
             if lo_arr.shape != (n,) or hi_arr.shape != (n,):
                 raise ModelError(f"{name}: expected scalars or bounds of length {n}, got {lo!r} and {hi!r}")

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import difflib
+import math
 import numbers
 import sys
+from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
@@ -23,6 +26,17 @@ MAX_SAMPLES = 1_000_000
 
 Ten times the default verification; a larger count is refused before anything is allocated
 (10**6 verification pairs take about 7 s and 0.3 GB on the closed-form model)."""
+
+STAGE_BYTES_PER_SIZE2 = 4 * 1024
+"""Estimated bytes of a window problem per stage and per squared stage size ``(nx + nw + nv + ny)^2``: about 1.3 KB
+measured to build (DEVELOPING.md), rounded up to 2 KiB and doubled for the solver's factorisation
+(:mod:`uiest.window.size`)."""
+
+MEMORY_BUDGET = 4 * 1024**3
+"""Largest estimated memory of one window problem, or of one record's arrays: 4 GiB."""
+
+MAX_STAGE_SIZE = math.isqrt(MEMORY_BUDGET // (2 * STAGE_BYTES_PER_SIZE2))
+"""Largest stage size ``nx + nw + nv + ny`` of a system: a window of one transition (two stages) fits the budget."""
 
 DOMAIN_TOL = 1e-12
 """Known inputs may leave U by this fraction of its width (rounding) before they are refused."""
@@ -66,6 +80,38 @@ def check_real(value: Any, name: str, expected: str, *, error: type[Exception] =
     if isinstance(value, bool) or not isinstance(value, numbers.Real):
         raise error(f"{name}: expected {expected}, got {shown(value)}")
     return float(value)
+
+
+def check_flag(value: Any, name: str, *, optional: bool = False, error: type[Exception] = OptionError) -> Any:
+    """``value`` as a bool when it is one (``numpy.bool_`` too; None as well when ``optional``), else ``error``.
+
+    Truthy stand-ins are refused: ``"no"`` is a true string and ``1`` a number, neither says which was meant.
+    """
+    if optional and value is None:
+        return None
+    if not isinstance(value, bool | np.bool_):
+        wanted = "True, False or None" if optional else "True or False"
+        raise error(f"{name}: expected {wanted}, got {shown(value)}")
+    return bool(value)
+
+
+def check_name(value: Any, name: str, *, error: type[Exception] = OptionError) -> str:
+    """``value`` if it is a non-empty string without control characters and not only spaces, else ``error``."""
+    if not isinstance(value, str) or not value.strip() or not value.isprintable():
+        raise error(f"{name}: expected a non-empty printable string, got {shown(value)}")
+    return value
+
+
+def check_keywords(
+    given: Mapping[str, Any], known: Iterable[str], name: str, *, error: type[Exception] = OptionError
+) -> None:
+    """``error`` naming each keyword of ``given`` not among ``known`` (with close matches); ``name``: the caller."""
+    known = sorted(known)
+    unknown = [key for key in given if key not in known]
+    if unknown:
+        close = sorted({m for key in unknown for m in difflib.get_close_matches(str(key), known, n=2)})
+        hint = f" (did you mean {', '.join(close)}?)" if close else ""
+        raise error(f"{name}: unknown keywords {unknown}{hint}; expected some of {known}")
 
 
 def check_callable(value: Any, name: str, *, error: type[Exception] = OptionError) -> Any:

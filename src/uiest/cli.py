@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
+import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -124,6 +125,7 @@ def simulate(
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
     from uiest.plotting import plot_trajectory, save_figure
+    from uiest.simulate import check_steps
     from uiest.simulate import simulate as run_simulation
 
     _positive(steps, "--steps", allow_zero=True)
@@ -131,7 +133,7 @@ def simulate(
     entry = models.load(model)
     system = entry.build()
     setup = entry.simulation()
-    length = setup.steps if steps is None else steps
+    length = setup.steps if steps is None else check_steps(steps, system, "--steps", error=OptionError)
     with Progress(
         TextColumn(f"simulating {model}"),
         BarColumn(),
@@ -215,8 +217,8 @@ def estimate(
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     check_lag(lag, horizon)
-    if w_variance is not None and not w_variance > 0:
-        raise OptionError(f"--w-variance: expected a positive number, got {w_variance}")
+    if w_variance is not None and not 0 < w_variance < math.inf:
+        raise OptionError(f"--w-variance: expected a positive finite number, got {w_variance}")
     _output_folder(out, "--out")
     entry = models.load(model)
     system = entry.build()
@@ -373,11 +375,13 @@ def analyse(
     import json
 
     from uiest.analysis import analyse as analyse_model
+    from uiest.window.size import check_horizon
 
     _positive(max_horizon, "--max-horizon")
     if json_file is not None:
         writable_file(json_file, "--json")
     system = models.load(model).build()
+    check_horizon(max_horizon, "--max-horizon", system)
     with console.status(f"analysing {system.name}"):
         analysis = analyse_model(system, max_horizon=max_horizon)
     console.print(analysis.text(), highlight=False, soft_wrap=True, markup=False)
@@ -590,7 +594,7 @@ def sweep(
 @app.command()
 @_user_errors
 def bench(
-    quick: Annotated[bool, typer.Option(help="N = 30 only, 100 samples (under a minute).")] = False,
+    quick: Annotated[bool, typer.Option(help="100 samples, N = 30 unless -N is given (under a minute).")] = False,
     json_file: Annotated[Path | None, typer.Option("--json", help="Write the records as JSON.")] = None,
     horizon: Annotated[
         list[int] | None,

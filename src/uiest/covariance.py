@@ -21,8 +21,12 @@ def as_covariance(value: ArrayLike | None, n: int, default: FloatArray, name: st
     arr = np.diag(default) if value is None else real_array(value, name, "a covariance", error=OptionError)
     if arr.ndim < 2 and arr.size in (1, n):
         arr = np.diag(np.broadcast_to(arr.reshape(-1), (n,)))
-    if arr.shape != (n, n) or not np.all(np.isfinite(arr)) or not np.allclose(arr, arr.T):
+    if arr.shape != (n, n):
         raise OptionError(f"{name}: expected variances ({n},) or a symmetric ({n}, {n}) matrix, got shape {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        raise OptionError(f"{name}: expected finite values, got {arr.tolist()}")
+    if not np.allclose(arr, arr.T):
+        raise OptionError(f"{name}: expected a symmetric ({n}, {n}) matrix, got {arr.tolist()}")
     if n and np.linalg.eigvalsh(arr)[0] < -1e-12 * max(float(np.abs(arr).max()), 1e-300):
         raise OptionError(f"{name}: expected a positive semidefinite covariance")
     return 0.5 * (arr + arr.T)

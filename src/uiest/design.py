@@ -31,6 +31,7 @@ guarantee is not informative (its bound not below X's width in every state).
 
 from __future__ import annotations
 
+import inspect
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
@@ -41,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_int, user_stacklevel
+from uiest.checks import check_int, check_keywords, check_real, shown, user_stacklevel
 from uiest.errors import CertificationError, DataError, HorizonError, OptionError
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
 from uiest.guarantee import Guarantee
@@ -160,6 +161,9 @@ class Design:
         return "\n".join(rows)
 
 
+DEFAULT_STEPS = 80
+"""Length of a design's noise trials unless ``max_horizon`` asks for longer ones."""
+
 DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "certify_options", "records")
 """Keywords of :func:`design_uise` / :func:`design_two_stage`; the others go to the estimators."""
 
@@ -177,7 +181,7 @@ def design_uise(
     rates: tuple[float, ...] = DEFAULT_RATES,
     budget: float = 60.0,
     trials: int = 2,
-    steps: int = 80,
+    steps: int | None = None,
     seed: int = 0,
     certify_options: Mapping[str, Any] | None = None,
     records: Sequence[Any] | None = None,
@@ -197,7 +201,9 @@ def design_uise(
     budget : float
         CPU seconds for the certifications; the grid stops when it is spent.
     trials, steps, seed : int
-        Noise records per candidate, their length (the first quarter is not scored), the seed.
+        Noise records per candidate, their length (the first quarter is not scored; default
+        :data:`DEFAULT_STEPS`, or longer to hold a window of ``max_horizon`` in the rest, the least
+        allowed), the seed.
     certify_options : mapping, optional
         Passed to :func:`~uiest.detectability.certify_strong_detectability`.
     records : sequence of Trajectory, optional
@@ -218,8 +224,8 @@ def design_uise(
     from uiest.detectability.certificate import horizon_condition
     from uiest.estimators import UISE
 
+    certify = _certify_options(certify_options, certify_strong_detectability)
     system = data_scales(system, as_vector(x0, system.nx, "x0"))
-    certify = dict(certify_options or {})
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
     v_bar = _v_prior(system, options)
 
@@ -254,7 +260,7 @@ def design_two_stage(
     rates: tuple[float, ...] = DEFAULT_RATES,
     budget: float = 60.0,
     trials: int = 2,
-    steps: int = 80,
+    steps: int | None = None,
     seed: int = 0,
     certify_options: Mapping[str, Any] | None = None,
     records: Sequence[Any] | None = None,
@@ -299,14 +305,22 @@ def _design(
     rates: tuple[float, ...],
     budget: float,
     trials: int,
-    steps: int,
+    steps: int | None,
     seed: int,
     records: Sequence[Any] | None,
     variants: Callable[[Any], list[Any]] = lambda cert: [],
 ) -> Design:
     """The design loop of the module docstring; ``rank(certificate, N)`` orders the horizons of a rate."""
     max_horizon = check_horizon(max_horizon, "max_horizon", system)
-    trials, steps = check_int(trials, "trials", low=1), check_int(steps, "steps", low=1)
+    trials = check_int(trials, "trials", low=1)
+    # a trial scores from steps // 4 on: its scored part holds at least one full window of the longest horizon
+    shortest = -(-4 * max_horizon // 3)
+    steps = max(DEFAULT_STEPS, shortest) if steps is None else steps
+    steps = check_int(steps, f"steps (at least {shortest}: a full window of max_horizon = {max_horizon} in the "
+                             "scored three quarters of a trial)", low=shortest)  # fmt: skip
+    budget = check_real(budget, "budget", "CPU seconds >= 0")
+    if not budget >= 0:
+        raise OptionError(f"budget: expected CPU seconds >= 0 (inf: no limit), got {budget!r}")
     prior = as_vector(x0, system.nx, "x0")
     try:
         grid = sorted({float(r) for r in rates})
@@ -434,3 +448,14 @@ def _noise_records(
         traj = simulate(system, x0, steps, u=u, w=system.nominal_w, v=V.sample(rng, steps + 1))
         records.append((u, traj.y, traj.x, traj.w))
     return records
+
+
+def _certify_options(options: Any, certify: Callable[..., Any]) -> dict[str, Any]:
+    """``certify_options`` as a dict of keywords ``certify`` takes (besides the system and mu), else OptionError."""
+    if options is None:
+        return {}
+    if not isinstance(options, Mapping):
+        raise OptionError(f"certify_options: expected a mapping of keywords, got {shown(options)}")
+    known = [name for name in inspect.signature(certify).parameters if name not in ("system", "mu")]
+    check_keywords(options, known, "certify_options")
+    return dict(options)

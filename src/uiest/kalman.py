@@ -322,9 +322,7 @@ class KalmanFilter(StreamingEstimator):
                 "training: expected a simulated Trajectory with its states, got "
                 + (type(training).__name__ if not isinstance(training, Trajectory) else "a record without them")
             )
-        grid = np.logspace(-8, 2, 21) if variances is None else np.asarray(variances, dtype=float).reshape(-1)
-        if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
-            raise OptionError(f"variances: expected positive numbers, got {np.asarray(variances).tolist()}")
+        grid = np.logspace(-8, 2, 21) if variances is None else check_grid(variances)
         rms, failed = np.full(grid.shape, np.inf), np.zeros(grid.shape, dtype=int)
         diverged = np.zeros(grid.shape, dtype=int)
         for i, q in enumerate(grid):
@@ -425,6 +423,11 @@ class KalmanFilter(StreamingEstimator):
         if "input_model" in keywords:
             raise OptionError("input_model: fit compares input models; give input_models= to choose among them")
         u_arr, y_arr = check_run_data(system, u, y)
+        if not np.any(np.isfinite(y_arr[1:])):
+            raise DataError(
+                f"y: expected a measurement after k = 0 (the input's variance acts from one sample to the next), got "
+                f"a record of K = {len(y_arr) - 1} transitions with none"
+            )
         grid, factors, models = check_grid(variances), check_prior_factors(prior_factors), check_models(input_models)
         priors = {m: cls(system, w_variance=0.0, input_model=m, **keywords) for m in models}
 

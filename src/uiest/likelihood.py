@@ -25,6 +25,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
+from uiest.checks import shown
 from uiest.errors import OptionError
 
 LIKELIHOOD_INTERVAL = 1.92
@@ -209,8 +210,16 @@ class LikelihoodProfile:
         }
 
 
+MAX_GRID = 1000
+"""Most values a grid may hold: 1000 over the default grid's ten decades are 2.3 % apart, closer than the 3 %
+bracket the golden-section refinement leaves around the best one, so a longer grid adds filter runs, not
+information (each value is one filter run over the whole record)."""
+
+
 def check_grid(variances: object | None, name: str = "variances") -> FloatArray:
     """The grid of factors: :data:`DEFAULT_GRID` for None, else positive finite numbers (sorted, unique).
+
+    At most :data:`MAX_GRID` of them.
 
     ``name``: the argument's name in the OptionError.
     """
@@ -221,7 +230,12 @@ def check_grid(variances: object | None, name: str = "variances") -> FloatArray:
     except (TypeError, ValueError):
         raise OptionError(f"{name}: expected positive numbers, got {variances!r}") from None
     if not grid.size or not np.all(np.isfinite(grid) & (grid > 0)):
-        raise OptionError(f"{name}: expected positive numbers, got {grid.tolist()}")
+        raise OptionError(f"{name}: expected positive numbers, got {shown(grid)}")
+    if grid.size > MAX_GRID:
+        raise OptionError(
+            f"{name}: expected at most {MAX_GRID} values (one filter run each; the refinement resolves 3 % around "
+            f"the best), got {grid.size:_}"
+        )
     return np.unique(grid)
 
 

@@ -14,10 +14,11 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from uiest.atomic import write_file
-from uiest.checks import shown
+from uiest.checks import check_flag, shown
 from uiest.errors import DataError, OptionError
 from uiest.paths import writable_file
 from uiest.results import Trajectory
+from uiest.system import System
 
 if TYPE_CHECKING:
     from uiest.results import EstimationResult
@@ -85,6 +86,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     from uiest.results import EstimationResult
 
     _check_trajectory(traj)
+    log_error = check_flag(log_error, "log_error")
     if not isinstance(results, Mapping) or not all(isinstance(r, EstimationResult) for r in results.values()):
         raise DataError(f"results: expected a mapping from a label to an EstimationResult, got {shown(results)}")
     for label, result in results.items():
@@ -146,6 +148,8 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
     Axis limits are robust (1st-99th percentiles of what is drawn), so a start-up transient does
     not flatten the rest; axes carry the signals' units.
     """
+    if not isinstance(system, System):
+        raise DataError(f"system: expected a uiest.System, got {shown(system)}")
     _check_trajectory(record)
     units = {sig.kind: sig.units for sig in system.signals}
     panels = [("y", i) for i in range(system.ny)] + [("x", i) for i in range(system.nx)]
@@ -179,6 +183,8 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
 
 def save_figure(fig: Figure, path: Path | str) -> Path:
     """Write ``fig`` to ``path`` (a Path or str; format from the suffix) whole or not at all, and close it."""
+    if not isinstance(fig, Figure):
+        raise DataError(f"fig: expected a matplotlib Figure, got {shown(fig)}")
     path = Path(path)
     formats = sorted(fig.canvas.get_supported_filetypes())
     if path.suffix.lstrip(".").lower() not in formats:

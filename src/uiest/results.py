@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import re
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
@@ -17,11 +18,12 @@ import pandas as pd
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
-from uiest.checks import real_array
+from uiest.checks import real_array, shown
 from uiest.errors import DataError
 from uiest.guarantee import Guarantee
 from uiest.health import FAILURES, Outcome, status_text
 from uiest.sampling import on_time_grid
+from uiest.system import System
 
 if TYPE_CHECKING:
     from uiest.window.problem import WindowTrajectory
@@ -132,6 +134,9 @@ class Trajectory(_PicklableNames):
         ``t`` is absent, since without times a dropped row would shift every later sample; other
         columns are ignored with a warning.
         """
+        if not isinstance(system, System):
+            raise DataError(f"system: expected a uiest.System (uiest.models.get(name).build() for a name), got "
+                            f"{shown(system)}")  # fmt: skip
         if not isinstance(frame, pd.DataFrame):
             raise DataError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
         if len(frame) < 1:
@@ -187,6 +192,15 @@ TIME_NAMES = ("time", "timestamp", "datetime", "date", "time_s", "t_s", "seconds
 def _check_columns(frame: pd.DataFrame, system: Any) -> None:
     """Refuse a time column not named ``t`` (when ``t`` is absent); warn about columns that are no signal."""
     known = {name for sig in system.signals for name in sig.names} | {"t", *FLAG_COLUMNS}
+    repeated = sorted({str(c) for c in frame.columns[frame.columns.duplicated()]})
+    repeated += [
+        str(c) for c in frame.columns if re.fullmatch(r"(.+)\.\d+", str(c)) and str(c).rsplit(".", 1)[0] in known
+    ]
+    if repeated:
+        raise DataError(
+            f"frame: columns {repeated} repeat a signal's column (a CSV reader renames a repeated y to y.1); "
+            "expected one column per signal"
+        )
     ignored = [column for column in frame.columns if column not in known]
     if "t" not in frame.columns:
         timelike = [column for column in ignored if str(column).strip().lower() in TIME_NAMES]

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray
+from uiest.checks import check_name, shown
 from uiest.errors import ModelError
 
 SIGNAL_KINDS = ("x", "u", "w", "v", "y")
@@ -100,7 +101,14 @@ class Signal:
         positive and finite (its source ``fallback_source``), else 1; :attr:`scale_source` says which.
         """
         box = Box.coerce(bounds, n, f"{kind}_bounds")
-        names_t = tuple(f"{kind}[{i}]" for i in range(n)) if names is None else tuple(str(s) for s in names)
+        names_t = (
+            tuple(f"{kind}[{i}]" for i in range(n))
+            if names is None
+            else tuple(
+                check_name(entry, f"{kind}_names[{i}]", error=ModelError)
+                for i, entry in enumerate(_entries(names, kind))
+            )
+        )
         units_t = ("",) * n if units is None else tuple(str(s) for s in units)
         if scale is not None:
             try:
@@ -119,3 +127,10 @@ class Signal:
                 for wide, known in zip(usable, has_fallback, strict=True)
             )
         return cls(kind=kind, names=names_t, units=units_t, bounds=box, scale=scale_arr, scale_source=sources)
+
+
+def _entries(names: object, kind: str) -> list[object]:
+    """The entries of a names argument: a sequence that is not a string itself."""
+    if isinstance(names, str) or not isinstance(names, Sequence):
+        raise ModelError(f"{kind}_names: expected a sequence of strings, got {shown(names)}")
+    return list(names)

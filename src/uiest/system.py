@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import inspect
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -21,7 +22,16 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_int, check_real, real_array
+from uiest.checks import (
+    MAX_STAGE_SIZE,
+    MEMORY_BUDGET,
+    STAGE_BYTES_PER_SIZE2,
+    check_int,
+    check_keywords,
+    check_name,
+    check_real,
+    real_array,
+)
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.signal import ScaleSource, Signal
 
@@ -195,6 +205,9 @@ class System:
         if self.w_range is not None and self.w_range.size != self.nw:
             raise ModelError(f"w_range: expected dimension {self.nw}, got {self.w_range.size}")
         object.__setattr__(self, "dt", _check_dt(self.dt))
+        check_name(self.name, "name", error=ModelError)
+        if self.ny == 0:
+            raise ModelError("h: returns no output (ny = 0); expected at least one measured output to estimate from")
         if not self.w.bounds == Box.unbounded(self.nw):
             raise ModelError("w: the unknown input's domain is the whole space; give a known range as w_range")
         names = [n for s in self.signals for n in s.names]
@@ -304,6 +317,7 @@ class System:
         ``u`` may be an empty symbol (``ca.SX.sym("u", 0)``). Further keywords as in
         :meth:`from_functions`.
         """
+        _check_spec(spec, "System.from_expressions")
         f = _expression_function("f", [x, u, w], x_next, ["x", "u", "w"], "x_next")
         h = _expression_function("h", [x, v], y, ["x", "v"], "y")
         return cls.from_functions(f, h, **spec)
@@ -329,6 +343,7 @@ class System:
         keywords as in :meth:`from_functions`.
         """
         nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
+        _check_spec(spec, "System.from_callables")
         (xs, xa), (us, ua), (ws, wa), (vs, va) = (
             _symbol_array(s, n) for s, n in (("x", nx), ("u", nu), ("w", nw), ("v", nv))
         )
@@ -375,6 +390,7 @@ class System:
         from uiest import ode
 
         nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
+        _check_spec(spec, "System.from_ode")
         rhs_f = as_function(rhs, "rhs", [("x", nx), ("u", nu), ("w", nw)], nx)
         h_f = as_function(h, "h", [("x", nx), ("v", nv)])
         w_range = spec.get("w_range")
@@ -563,9 +579,28 @@ def _peak_magnitude(trajectory: Any, kind: str, n: int) -> FloatArray:
 
 
 def _check_sizes(nx: Any, nu: Any, nw: Any, nv: Any) -> tuple[int, int, int, int]:
-    """The dimensions given to from_callables / from_ode: integers, nx >= 1, the others >= 0."""
-    nu, nw, nv = (check_int(n, label, error=ModelError) for label, n in (("nu", nu), ("nw", nw), ("nv", nv)))
-    return check_int(nx, "nx", low=1, error=ModelError), nu, nw, nv
+    """The dimensions given to from_callables / from_ode: integers, nx >= 1, the others >= 0.
+
+    ``nx + nw + nv`` (with at least one output, the stage size) is at most :data:`~uiest.checks.MAX_STAGE_SIZE`,
+    checked before any symbol is made.
+    """
+    sizes = [check_int(n, label, low=int(label == "nx"), error=ModelError)
+             for label, n in (("nx", nx), ("nu", nu), ("nw", nw), ("nv", nv))]  # fmt: skip
+    nx, nu, nw, nv = sizes
+    if nx + nw + nv + 1 > MAX_STAGE_SIZE or nu > MAX_STAGE_SIZE:
+        raise ModelError(
+            f"nx, nu, nw, nv: expected nx + nw + nv + ny <= {MAX_STAGE_SIZE} and nu <= {MAX_STAGE_SIZE}, got nx={nx}, "
+            f"nu={nu}, nw={nw}, nv={nv}: a window of one transition would need more than "
+            f"{MEMORY_BUDGET / 1024**3:.3g} GiB (about {STAGE_BYTES_PER_SIZE2 // 1024} KiB x (nx + nw + nv + ny)^2 "
+            "per stage)"
+        )
+    return nx, nu, nw, nv
+
+
+def _check_spec(spec: dict[str, Any], caller: str) -> None:
+    """OptionError naming the keywords of ``spec`` that :meth:`System.from_functions` does not take."""
+    known = [p for p in inspect.signature(System.from_functions).parameters if p not in ("f", "h")]
+    check_keywords(spec, known, caller)
 
 
 def _check_dt(dt: Any) -> float:

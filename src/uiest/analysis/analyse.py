@@ -15,10 +15,11 @@ from uiest.analysis.recommend import decide
 from uiest.analysis.report import ModelAnalysis
 from uiest.analysis.zeros import find_zeros
 from uiest.box import as_vector
-from uiest.checks import check_int, shown
+from uiest.checks import shown
 from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
 from uiest.system import System
+from uiest.window.size import check_horizon
 
 DEFAULT_MAX_HORIZON = 60
 """The longest estimator window :func:`analyse` considers by default."""
@@ -69,7 +70,7 @@ def analyse(
     start = time.thread_time()
     if not isinstance(system, System):
         raise OptionError(f"system: expected a uiest.System, got {shown(system)}")
-    max_horizon = check_int(max_horizon, "max_horizon", low=1)
+    max_horizon = check_horizon(max_horizon, "max_horizon", system)
     if system.ny == 0:
         raise ModelError("h: the analysis needs at least one output")
     reference = None if x0 is None else as_vector(x0, system.nx, "x0")

@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_run_data, check_u_prev, check_y, user_stacklevel
+from uiest.checks import check_flag, check_run_data, check_u_prev, check_y, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
@@ -96,8 +96,7 @@ class WindowOptions:
             raise OptionError(f"solver_options: expected a mapping of backend options, got {self.solver_options!r}")
         object.__setattr__(self, "solver_options", MappingProxyType(dict(self.solver_options)))
         for name in ("warm_start", "strict", "polish"):
-            if not isinstance(getattr(self, name), bool | np.bool_):
-                raise OptionError(f"{name}: expected True or False, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, check_flag(getattr(self, name), name))
         if isinstance(self.lag, bool) or not isinstance(self.lag, int | np.integer) or self.lag < 0:
             raise OptionError(f"lag: expected an integer >= 0, got {self.lag!r}")
 

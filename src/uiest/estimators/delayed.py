@@ -21,6 +21,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
+from uiest.checks import check_int
 from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowOptions
@@ -31,6 +32,7 @@ from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowTrajectory
+from uiest.window.size import check_horizon
 
 
 class DelayedUISE(UISE):
@@ -58,6 +60,7 @@ class DelayedUISE(UISE):
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
         system = data_scales(check_system(system), keywords.get("x0_prior"))
         self.delayed = delayed_system(system)
+        _check_lag(lag, self.delayed.system)
         certificate = keywords.get("certificate")
         if keywords.get("N") is None and getattr(certificate, "certified", False) and isinstance(lag, int | np.integer):
             keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)  # type: ignore[union-attr]
@@ -74,6 +77,7 @@ class DelayedUISE(UISE):
             raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")
         system = data_scales(check_system(system), x0_prior)
         delayed = delayed_system(system)
+        _check_lag(lag, delayed.system)
         design = design_uise(delayed.system, delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior"), **design_options)
         est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
@@ -172,3 +176,9 @@ class DelayedUISE(UISE):
             f"DelayedUISE(system={self.system.name!r}, N={self.N}, lag={self.options.lag}, mu={self.weights.mu:.4g}, "
             f"guarantee={str(self.guarantee)!r})"
         )
+
+
+def _check_lag(lag: Any, window_system: System) -> None:
+    """OptionError naming ``lag`` unless it is an integer >= 1 whose window (lag + 1 transitions) fits in memory."""
+    lag = check_int(lag, "lag", low=1)
+    check_horizon(lag + 1, "lag + 1 (the shortest window of this lag)", window_system)

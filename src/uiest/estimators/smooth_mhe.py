@@ -45,7 +45,7 @@ from numpy.typing import ArrayLike
 
 from uiest.augmented import augmented_system, increment_bound
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_int
+from uiest.checks import check_flag, check_int
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, DataError, ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
@@ -215,9 +215,8 @@ class SmoothInputMHE(WindowEstimator):
         if certificate is None:
             self.augmented = augmented_system(system, self.dw_bound, w_bounds)
         aug = self.augmented
-        if not isinstance(constrain_increments, bool):
-            raise OptionError(f"constrain_increments: expected True or False, got {constrain_increments!r}")
-        self.constrain_increments = constrain_increments
+        self.constrain_increments = check_flag(constrain_increments, "constrain_increments")
+        normalise = check_flag(normalise, "normalise", optional=True)
         self.why_uncertified = ""
         """Why :meth:`design` fell back to explicit weights (the certificate's reason); empty otherwise."""
         self.weights, self.certificate, N = resolve_weights(MHEWeights, certificate, weights, N,

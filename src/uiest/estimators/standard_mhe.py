@@ -32,6 +32,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import as_vector
+from uiest.checks import check_flag
 from uiest.errors import DataError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import mhe_bound
@@ -109,6 +110,8 @@ class StandardMHE(WindowEstimator):
         normalise: bool | None = None,
         **options: Any,
     ) -> None:
+        use_w_range = check_flag(use_w_range, "use_w_range")
+        normalise = check_flag(normalise, "normalise", optional=True)
         system = data_scales(check_system(system), x0_prior)
         self.weights, self.certificate, N = resolve_weights(
             MHEWeights, certificate, weights, N, lambda w: w.check(system)

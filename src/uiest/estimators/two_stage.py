@@ -74,7 +74,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
-from uiest.checks import check_int
+from uiest.checks import check_flag, check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import noise_quadratic, reduction_bound, two_stage_rate, two_stage_z_bound
@@ -169,7 +169,7 @@ class TwoStageUISE(WindowEstimator):
             self.weights, self.certificate, N = resolve_weights(
                 TwoStageWeights, certificate, weights, N, lambda w: w.check(system, reduced.n_sharp)
             )
-        self.state_constraints = bool(state_constraints)
+        self.state_constraints = check_flag(state_constraints, "state_constraints")
         self.projection = Projection(reduced, projection)
         self._fit = InputFit(system)
         x = ca.SX.sym("x", system.nx)

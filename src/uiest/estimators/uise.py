@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
+from uiest.checks import check_flag
 from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
@@ -101,6 +102,7 @@ class UISE(WindowEstimator):
         force: bool = False,
         **options: Any,
     ) -> None:
+        force = check_flag(force, "force")
         system = data_scales(check_system(system), x0_prior)
         window_system = self._window_system(system, force)
         self.design_report: Any = None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import datetime as dt
 import json
+import math
 import os
 from pathlib import Path
 
@@ -13,6 +14,8 @@ import pandas as pd
 from matplotlib.figure import Figure
 
 from uiest.atomic import staged_folder, write_file, write_text
+from uiest.checks import check_real, shown
+from uiest.errors import OptionError
 from uiest.experiments import provenance
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
@@ -335,6 +338,11 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     failed write raises StorageError and leaves ``out`` as it was); ``out`` is held against other
     runs meanwhile (:mod:`uiest.lock`).
     """
+    if not isinstance(study, StudyResult):
+        raise OptionError(f"study: expected a StudyResult (from run_study), got {shown(study)}")
+    wall_time = check_real(wall_time, "wall_time", "seconds: a finite number >= 0")
+    if not (math.isfinite(wall_time) and wall_time >= 0):
+        raise OptionError(f"wall_time: expected seconds: a finite number >= 0, got {wall_time!r}")
     with staged_folder(Path(out)) as stage:
         return _write_files(study, stage, wall_time=wall_time)
 

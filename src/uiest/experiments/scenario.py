@@ -17,6 +17,7 @@ from typing import Any
 import tomli_w
 
 from uiest.atomic import write_bytes
+from uiest.checks import MAX_SAMPLES, check_int
 from uiest.errors import OptionError
 from uiest.paths import plain_name, writable_file
 
@@ -190,10 +191,8 @@ class Scenario:
             if not isinstance(getattr(self, label), str) or not getattr(self, label):
                 raise OptionError(f"{label}: expected a non-empty string, got {getattr(self, label)!r}")
         plain_name(self.name, "name")  # it names the study's output folder (uiest reproduce: out/<name>)
-        for label in ("steps", "runs"):
-            value = getattr(self, label)
-            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
-                raise OptionError(f"{label}: expected an integer >= 1, got {value!r}")
+        for label in ("steps", "runs"):  # at most MAX_SAMPLES: a run's samples, a study's runs are stepped in Python
+            object.__setattr__(self, label, check_int(getattr(self, label), label, low=1, high=MAX_SAMPLES))
         cases = (self.cases,) if isinstance(self.cases, str) else self.cases
         if not isinstance(cases, list | tuple):
             raise OptionError(f"cases: expected a list of {CASES}, got {self.cases!r}")

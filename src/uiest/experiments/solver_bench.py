@@ -40,6 +40,7 @@ import numpy as np
 
 from uiest import simulate
 from uiest.box import FloatArray
+from uiest.checks import check_flag
 from uiest.errors import OptionError
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
@@ -278,8 +279,8 @@ def bench_window_solvers(
     windows_compared, windows_dev_above_1e-6, max_cost_excess_vs_ipopt, windows_cost_above_1e-8 and
     closed_loop_dev_vs_ipopt (see the module docstring), and ``load`` (the 1-minute load
     average when the record was taken).
-    ``quick``: N = 30 only, 100 samples (else ``horizons``, default N in {10, 30, 100, 300}: 300
-    samples for N <= 30, N + 50 for N >= 100). Horizons from ``long_horizon`` on use the
+    ``quick``: 100 samples, and N = 30 unless ``horizons`` are given (else ``horizons``, default N in
+    {10, 30, 100, 300}: 300 samples for N <= 30, N + 50 for N >= 100). Horizons from ``long_horizon`` on use the
     long-horizon protocol. ``estimators``: names from :data:`ESTIMATORS` (default all).
     ``report(record)`` is called as records appear.
     """
@@ -287,12 +288,15 @@ def bench_window_solvers(
     unknown = [name for name in chosen if name not in ESTIMATORS]
     if unknown or not chosen:
         raise OptionError(f"estimators: expected names from {', '.join(ESTIMATORS)}, got {list(chosen)}")
-    horizons = (30,) if quick else (horizons or (10, 30, 100, 300))
-    if not all(isinstance(N, int | np.integer) and N >= 1 for N in horizons):
-        raise OptionError(f"horizons: expected window lengths N >= 1, got {list(horizons)}")
+    quick = check_flag(quick, "quick")
     system = crop_growth.system()
-    for N in horizons:
-        check_horizon(N, "horizons (--horizon, -N)", system)
+    if horizons is not None:
+        horizons = tuple(horizons)
+        if not horizons:
+            raise OptionError("horizons (--horizon, -N): expected at least one window length N >= 1, got none")
+        for N in horizons:
+            check_horizon(N, "horizons (--horizon, -N)", system)
+    horizons = horizons or ((30,) if quick else (10, 30, 100, 300))
     reduced = crop_growth.reduction()
     scenario = crop_growth.DEFAULT_SCENARIO
     lengths = {N: 100 if quick else (300 if N <= 30 else N + 50) for N in horizons}

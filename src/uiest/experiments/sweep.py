@@ -35,7 +35,7 @@ import pyarrow.parquet as pq
 
 from uiest import models
 from uiest.atomic import storage_error, write_file, write_text
-from uiest.checks import check_callable, shown
+from uiest.checks import check_callable, check_flag, shown
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
@@ -196,6 +196,7 @@ def sweep(
     check_callable(progress, "progress")
     if not isinstance(design, Sweep):
         raise OptionError(f"design: expected a Sweep, got {shown(design)}")
+    retry_failed = check_flag(retry_failed, "retry_failed")
     tasks = design.tasks(solver)
     out = Path(out)
     runs_dir = out / "runs"

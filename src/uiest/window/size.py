@@ -15,15 +15,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from uiest.checks import check_int
+from uiest.checks import MEMORY_BUDGET, STAGE_BYTES_PER_SIZE2, check_int
 from uiest.errors import OptionError
 
-STAGE_BYTES_PER_SIZE2 = 4 * 1024
-"""Estimated bytes per stage and per squared stage size: about 1.3 KB measured to build (DEVELOPING.md), rounded
-up to 2 KiB and doubled for the solver's factorisation."""
-
-MEMORY_BUDGET = 4 * 1024**3
-"""Largest estimated memory of one window problem: 4 GiB."""
+__all__ = ["MEMORY_BUDGET", "STAGE_BYTES_PER_SIZE2", "check_horizon", "max_horizon", "window_bytes"]
 
 
 def window_bytes(N: int, model: Any) -> int:
