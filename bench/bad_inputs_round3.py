@@ -77,7 +77,10 @@ def classify(case) -> tuple[str, str]:  # type: ignore[no-untyped-def]
     if why is None:
         return "good", f"returned {_short(result)} (checked)"
     if user_warnings:
-        return "handled", f"{why}; warned: {str(user_warnings[0].message)[:150]}"
+        message = str(user_warnings[0].message)
+        if case.warning_suffices and re.search(case.names, message, flags=re.IGNORECASE):
+            return "good", f"{why}; warned as specified: {message[:150]}"
+        return "handled", f"{why}; warned: {message[:150]}"
     return "silent", why
 
 
