@@ -82,6 +82,26 @@ def test_a_staged_folder_replaces_its_files_all_together_or_not_at_all(tmp_path)
         (stage / "a.csv").write_text("new a")
         (stage / "c.csv").write_text("new c")
     assert contents(tmp_path) == {"a.csv": b"new a", "b.csv": b"old b", "c.csv": b"new c"}
+    # a rename that fails part-way (the third file's rename): the files already renamed are put back
+    real_replace = os.replace
+
+    def failing_replace(source, target):
+        if Path(source).name == "c.csv" and Path(source).parent.name.startswith(".staged-"):
+            raise OSError(errno.EIO, os.strerror(errno.EIO), str(target))
+        real_replace(source, target)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(os, "replace", failing_replace)
+        with pytest.raises(StorageError, match=f"cannot write {tmp_path / 'c.csv'}"), staged_folder(tmp_path) as stage:
+            for name in ("a.csv", "b.csv", "c.csv"):
+                (stage / name).write_text(f"newer {name[0]}")
+    assert contents(tmp_path) == {"a.csv": b"new a", "b.csv": b"old b", "c.csv": b"new c"}
+    # a folder where a file goes is refused before any rename
+    (tmp_path / "d.csv").mkdir()
+    with pytest.raises(StorageError, match=r"d\.csv"), staged_folder(tmp_path) as stage:
+        (stage / "a.csv").write_text("newer a")
+        (stage / "d.csv").write_text("new d")
+    assert contents(tmp_path) == {"a.csv": b"new a", "b.csv": b"old b", "c.csv": b"new c"}
 
 
 def test_estimate_on_a_full_disk_ends_in_one_line_and_keeps_the_earlier_estimates(tmp_path, monkeypatch):

@@ -214,3 +214,20 @@ def test_estimator_all_runs_every_estimator_the_model_admits(tmp_path):
     assert (out / "estimates.png").exists() and len(list(out.glob("*.png"))) == 1
     for kind in ("delayed", "two-stage", "uio"):
         assert f"{kind}: not applicable (" in result.output
+
+
+@pytest.mark.parametrize("estimator", ["mhe", "smooth"])
+def test_a_lag_longer_than_the_default_window_lengthens_it_without_a_horizon(tmp_path, estimator):
+    # without --horizon the windows hold x[k - lag] (the check allows lags below 60); a given horizon is kept
+    entry = get("closed-form")
+    setup = entry.simulation()
+    truth = simulate(entry.build(), setup.x0, 60, u=setup.u, w=setup.w, v=setup.noise, seed=1)
+    data = tmp_path / "data.csv"
+    truth.to_pandas().to_csv(data)
+    base = ["estimate", "closed-form", "--data", str(data), "--estimator", estimator, "--w-variance", "0.01"]
+    result = CliRunner().invoke(app, [*base, "--lag", "35", "--out", str(tmp_path / "out")], terminal_width=300)
+    assert result.exit_code == 0, result.output
+    lagged = pd.read_csv(tmp_path / "out" / f"estimates_{estimator}.csv")
+    assert np.isfinite(lagged["x1_lag"].to_numpy()[:25]).all()  # row j: x[j] from the window at j + 35
+    refused = CliRunner().invoke(app, [*base, "--lag", "35", "--horizon", "20", "--out", str(tmp_path / "out2")])
+    assert refused.exit_code == 2 and "--lag: expected an integer below the horizon (--horizon = 20)" in refused.output

@@ -5,7 +5,7 @@ import pytest
 
 from uiest import OptionError, simulate
 from uiest.estimators import EKF, UKF, StandardMHE
-from uiest.filter_fit import check_models
+from uiest.filter_fit import check_models, fit_filter
 from uiest.input_model import InputModel
 from uiest.likelihood import (
     DEFAULT_GRID,
@@ -228,6 +228,25 @@ def test_runs_that_diverged_or_failed_are_never_chosen():
     assert profile.unscored[profile.factors > 1.0].min() == 3
     with pytest.raises(OptionError, match=r"w_variance: every filter of the grid .* diverged or failed"):
         maximise_likelihood(lambda q: Score(np.nan), DEFAULT_GRID, name="w_variance", unit="-", scale=np.ones(1))
+
+
+def test_a_model_whose_filters_all_fail_is_set_aside_and_the_ascent_never_loses_a_point_it_scored():
+    def score(model, q, c):
+        if model is InputModel.INTEGRATED_RANDOM_WALK:
+            return Score(1e9, diverged=2)  # every filter of this model diverged: not comparable, whatever its value
+        # a ridge: the best q depends on c, so the second search of q runs at another optimum
+        return Score(-((np.log10(q) + 3.0 + 0.5 * np.log10(c)) ** 2) - 0.01 * (np.log10(c) + 4.0) ** 2)
+
+    grids = {"variances": DEFAULT_GRID, "prior_factors": np.logspace(-8, 2, 11), "scale": np.ones(1)}
+    found = fit_filter(score, models=tuple(InputModel), **grids)
+    assert found.best.input_model is InputModel.RANDOM_WALK and len(found.fits) == 1
+    assert [model for model, _ in found.failed] == [InputModel.INTEGRATED_RANDOM_WALK]
+    assert "integrated random walk: every filter diverged or failed" in found.summary()
+    assert found.to_dict()["failed"]["integrated random walk"].startswith("w_variance: every filter")
+    best = found.best
+    assert best.maximum >= best.prior.maximum and best.prior_factor != 1.0
+    with pytest.raises(OptionError, match="integrated random walk: w_variance: every filter"):
+        fit_filter(score, models=(InputModel.INTEGRATED_RANDOM_WALK,), **grids)
 
 
 def test_a_flat_profile_warns_and_bad_grids_are_refused():

@@ -10,6 +10,7 @@ naming the path and the cause.
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
 import shutil
 import tempfile
@@ -73,10 +74,12 @@ def _final(path: Path, stage: Path, folder: Path) -> Path:
 def staged_folder(folder: Path | str) -> Iterator[Path]:
     """A temporary folder inside ``folder``; its files replace those of the same names when the block succeeds.
 
-    Files (not sub-folders) written into the yielded folder are renamed into ``folder`` once the
-    block ends without an exception; on an exception none is, and the temporary folder is removed.
-    An OSError becomes a StorageError naming the file by its final name where it is known (a
-    :func:`write_file` into the stage, or an OSError with a file name), else ``folder``.
+    The files written into the yielded folder (it must hold files only) are renamed into ``folder``
+    once the block ends without an exception, all of them or none: the files they replace are first
+    moved aside, and put back if a rename fails (the new files are then removed). On an exception in
+    the block nothing is renamed. The temporary folder is removed in every case. An OSError becomes a
+    StorageError naming the file by its final name where it is known (a :func:`write_file` into the
+    stage, or an OSError with a file name), else ``folder``.
     """
     folder = Path(folder)
     try:
@@ -85,8 +88,7 @@ def staged_folder(folder: Path | str) -> Iterator[Path]:
         raise storage_error(exc, folder) from None
     try:
         yield stage
-        for item in sorted(stage.iterdir()):
-            os.replace(item, folder / item.name)
+        _move_all(stage, folder)
     except StorageError as exc:  # a write_file into the stage: named by its final path
         final = _final(Path(exc.path), stage, folder)
         raise StorageError(str(exc).replace(exc.path, str(final)), str(final)) from None
@@ -95,3 +97,37 @@ def staged_folder(folder: Path | str) -> Iterator[Path]:
         raise storage_error(exc, _final(written, stage, folder)) from None
     finally:
         shutil.rmtree(stage, ignore_errors=True)
+
+
+def _move_all(stage: Path, folder: Path) -> None:
+    """Rename every file of ``stage`` into ``folder``, all or none (:func:`staged_folder`); OSError otherwise."""
+    items = sorted(item for item in stage.iterdir() if item.name != _ASIDE)
+    for item in items:
+        target = folder / item.name
+        if item.is_dir() or (target.is_dir() and not target.is_symlink()):
+            wrong = item if item.is_dir() else target
+            raise IsADirectoryError(errno.EISDIR, "a folder where a file is written", str(wrong))
+    aside = stage / _ASIDE
+    aside.mkdir()
+    replaced: list[str] = []
+    placed: list[str] = []
+    try:
+        for item in items:
+            target = folder / item.name
+            if target.exists() or target.is_symlink():
+                os.replace(target, aside / item.name)
+                replaced.append(item.name)
+            os.replace(item, target)
+            placed.append(item.name)
+    except OSError:
+        for name in placed:
+            with contextlib.suppress(OSError):
+                os.remove(folder / name)
+        for name in replaced:
+            with contextlib.suppress(OSError):
+                os.replace(aside / name, folder / name)
+        raise
+
+
+_ASIDE = ".replaced"
+"""The stage's sub-folder that holds the files being replaced until every new file is in place."""

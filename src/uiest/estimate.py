@@ -108,7 +108,8 @@ def check_lag(lag: int, horizon: int | None) -> int:
 
     The horizon is ``horizon``, else :data:`LONGEST_HORIZON` (the longest window designed without it).
     A window of N transitions holds ``x[k-N] .. x[k]``, so it has no estimate of ``x[k-lag]`` for
-    ``lag > N``, and the delayed UISE needs ``lag < N``; the lag never lengthens the window.
+    ``lag > N``, and the delayed UISE needs ``lag < N``. A given horizon is never lengthened by the
+    lag; without one, the windows are at least ``lag + 1`` long.
     """
     limit = LONGEST_HORIZON if horizon is None else horizon
     if lag >= limit:
@@ -141,8 +142,8 @@ def build_estimator(
 
     if kind not in ESTIMATORS:
         raise OptionError(f"--estimator: expected one of {[*ESTIMATORS, ALL]}, got {kind!r}")
-    N = DEFAULT_HORIZON if horizon is None else horizon
     check_lag(lag, horizon)
+    N = max(DEFAULT_HORIZON, lag + 1) if horizon is None else horizon  # a window that holds x[k - lag]
     options: dict[str, Any] = {"lag": lag} if lag else {}
     study = StudyModel(entry.name, system, entry)
     if kind == "two-stage":
@@ -228,12 +229,14 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     window explain the data by moving its oldest states.
     """
     from uiest.checks import check_run_data
-    from uiest.estimators import EKF, SmoothInputMHE
+    from uiest.estimators import EKF, SmoothInputMHE, smooth_mhe
     from uiest.tuning import arrival_covariance
 
     variance = factor * system.w.scale**2
-    mhe = SmoothInputMHE.design(system, dw_variance=variance, x0_prior=x0,
-                                max_horizon=DEFAULT_MAX_HORIZON if horizon is None else horizon, **options)  # fmt: skip
+    lag = options.get("lag", 0)
+    longest = max(DEFAULT_MAX_HORIZON, lag + 1) if horizon is None else horizon
+    window = max(min(smooth_mhe.DEFAULT_HORIZON, longest), lag + 1)  # the design's default N, holding x[k - lag]
+    mhe = SmoothInputMHE.design(system, dw_variance=variance, x0_prior=x0, N=window, max_horizon=longest, **options)
     increments = f"increment variance {factor:g} w.scale^2 ({source})"
     certified = f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
     if mhe.certificate is not None and mhe.guarantee.informative:

@@ -78,9 +78,13 @@ class ModelFit:
 
 @dataclass(frozen=True)
 class FilterFit:
-    """What :func:`fit_filter` found: every input model's :class:`ModelFit`, in the order tried."""
+    """What :func:`fit_filter` found: every input model's :class:`ModelFit`, in the order tried.
+
+    ``failed`` holds the models none of whose filters ran through the record (each with the reason).
+    """
 
     fits: tuple[ModelFit, ...]
+    failed: tuple[tuple[InputModel, str], ...] = ()
 
     @property
     def best(self) -> ModelFit:
@@ -97,6 +101,8 @@ class FilterFit:
         """One line: the chosen model and its choices, its log-likelihood and the other models'."""
         best = self.best
         text = f"{best.summary()}; log-likelihood {best.maximum:.1f}"
+        if self.failed:
+            text += "; " + ", ".join(f"{model.value}: every filter diverged or failed" for model, _ in self.failed)
         if len(self.fits) == 1:
             return text
         others = ", ".join(f"{fit.maximum:.1f} ({fit.input_model.value})" for fit in self.fits if fit is not best)
@@ -110,6 +116,7 @@ class FilterFit:
             "chosen": self.best.input_model.value,
             "margin": self.margin,
             "fits": [fit.to_dict() for fit in self.fits],
+            "failed": {model.value: reason for model, reason in self.failed},
         }
 
 
@@ -138,9 +145,18 @@ def fit_filter(
     """Maximise ``score(model, q, c)`` for each model (module docstring); ``prior_factors`` None holds c = 1.
 
     ``variances`` and ``prior_factors`` are grids (:func:`~uiest.likelihood.check_grid`); ``scale`` is w's (nw,).
-    Raises OptionError when every run of a search diverged or failed (:func:`~uiest.likelihood.maximise_likelihood`).
+    A model every run of whose search diverged or failed is kept in :attr:`FilterFit.failed`; OptionError when
+    every model's did (:func:`~uiest.likelihood.maximise_likelihood`).
     """
-    return FilterFit(tuple(_fit_model(score, model, variances, prior_factors, scale) for model in models))
+    fits, failed = [], []
+    for model in models:
+        try:
+            fits.append(_fit_model(score, model, variances, prior_factors, scale))
+        except OptionError as exc:
+            failed.append((model, str(exc)))
+    if not fits:
+        raise OptionError("; ".join(f"{model.value}: {reason}" for model, reason in failed))
+    return FilterFit(tuple(fits), tuple(failed))
 
 
 def _fit_model(
@@ -161,8 +177,9 @@ def _fit_model(
     q = variance.chosen
     prior = maximise_likelihood(lambda c: score(model, q, c), prior_factors, name="prior_factor",
                                 unit="x (P0, W0, W0_rate)", scale=np.ones(1))  # fmt: skip
-    if prior.chosen != 1.0:
-        variance = maximise_likelihood(of_q(prior.chosen), variances, name="w_variance", unit="w.scale^2", scale=scale)
+    if prior.chosen != 1.0:  # q searched again at the chosen c, its grid holding the q already scored there
+        again = np.union1d(variances, [q])
+        variance = maximise_likelihood(of_q(prior.chosen), again, name="w_variance", unit="w.scale^2", scale=scale)
     return ModelFit(model, variance, prior)
 
 
