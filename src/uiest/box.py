@@ -133,7 +133,8 @@ class Box:
             try:
                 box = cls(lo_arr, hi_arr)
             except ModelError as exc:
-                raise ModelError(f"{name}: {exc}") from exc
+                convention = f"{name} is (lower vector, upper vector), not per-state pairs"
+                raise ModelError(f"{name}: {exc} ({convention})") from exc
         if box.size != n:
             raise ModelError(f"{name}: expected a box of dimension {n}, got dimension {box.size}")
         return box
