@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import pickle
 import traceback
 from pathlib import Path
 
@@ -329,12 +330,13 @@ def test_a_stored_study_reads_its_finished_runs_back_and_computes_only_the_other
     assert len(files) == 2 * 2  # one per (case, run), written as each finished
     files[0].unlink()  # a run the interruption lost
     files[1].write_bytes(b"not a run")  # a damaged file: set aside, computed again
-    kept = {path: path.stat().st_mtime_ns for path in files[2:]}
+    files[2].write_bytes(pickle.dumps({"key": files[2].stem, "outcome": "not a run"}))  # its key, not a run: the same
+    kept = {path: path.stat().st_mtime_ns for path in files[3:]}
     labels = []
     again = run_study(tiny(), store=store, progress=labels.append)
-    assert len(labels) == 2 * 2  # two (case, run)s of two estimators computed; the others read back
-    assert len(list((store / "corrupt").iterdir())) == 1 and len(list(store.glob("*.pickle"))) == 4
-    assert {path: path.stat().st_mtime_ns for path in files[2:]} == kept
+    assert len(labels) == 3 * 2  # three (case, run)s of two estimators computed; the other read back
+    assert len(list((store / "corrupt").iterdir())) == 2 and len(list(store.glob("*.pickle"))) == 4
+    assert {path: path.stat().st_mtime_ns for path in files[3:]} == kept
     for mine, theirs in zip(numbers_of(first), numbers_of(again), strict=True):
         pd.testing.assert_frame_equal(mine, theirs)
     assert again.results.keys() == first.results.keys() and again.truths.keys() == first.truths.keys()

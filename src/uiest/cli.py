@@ -557,6 +557,7 @@ def sweep(
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
     from uiest.experiments.sweep import Sweep, SweepProgress
     from uiest.experiments.sweep import sweep as run_sweep
+    from uiest.progress_lines import ProgressLines
     from uiest.window.solvers import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
@@ -565,15 +566,23 @@ def sweep(
     plan = Sweep.from_toml(design)
     total = len(plan.tasks(solver))
     last = SweepProgress(0, 0, 0, 0)
-    with Progress(
-        TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(), console=console
-    ) as bar:
-        task = bar.add_task("sweep", total=total)
+    lines: ProgressLines | None = None  # without a terminal: periodic lines on stderr
+    with contextlib.ExitStack() as stack:
+        if console.is_terminal:
+            columns = (TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn())
+            bar = stack.enter_context(Progress(*columns, console=console))
+            task = bar.add_task("sweep", total=total)
 
         def update(state: SweepProgress) -> None:
-            nonlocal last
+            nonlocal last, lines
             last = state
-            bar.update(task, completed=state.skipped + state.done + state.lost,
+            finished = state.skipped + state.done + state.lost
+            if not console.is_terminal:
+                if lines is None:
+                    lines = ProgressLines("sweep", total, done=state.skipped, unit="tasks")
+                lines.advance(finished - lines.done)
+                return
+            bar.update(task, completed=finished,
                        description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
                        f"lost {state.lost}, remaining {state.remaining}")  # fmt: skip
 

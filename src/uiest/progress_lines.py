@@ -22,7 +22,7 @@ def duration(seconds: float) -> str:
 
 
 class ProgressLines:
-    """Writes ``"<what>: D of T runs done, L left, about E left"`` lines as runs finish.
+    """Writes ``"<what>: D of T runs done, L left, about E left"`` lines as runs (or other units) finish.
 
     Parameters
     ----------
@@ -39,12 +39,15 @@ class ProgressLines:
         Where the lines go (default: stderr).
     clock : callable
         Seconds, monotonic (``time.monotonic``).
+    unit : str
+        What is counted, plural (``"runs"``; a sweep counts ``"tasks"``).
 
     """
 
     def __init__(self, what: str, total: int, *, done: int = 0, interval: float = LINE_INTERVAL,
-                 stream: TextIO | None = None, clock: Callable[[], float] = time.monotonic) -> None:  # fmt: skip
-        self.what, self.total, self.done, self.before = what, total, done, done
+                 stream: TextIO | None = None, clock: Callable[[], float] = time.monotonic,
+                 unit: str = "runs") -> None:  # fmt: skip
+        self.what, self.total, self.done, self.before, self.unit = what, total, done, done, unit
         self.interval, self.stream, self.clock = interval, stream, clock
         self.start = clock()
         self.last: float | None = None
@@ -53,7 +56,7 @@ class ProgressLines:
         """The current line (no newline)."""
         left = self.total - self.done
         stored = f" ({self.before} stored before)" if self.before else ""
-        text = f"{self.what}: {self.done} of {self.total} runs done{stored}, {left} left"
+        text = f"{self.what}: {self.done} of {self.total} {self.unit} done{stored}, {left} left"
         computed = self.done - self.before
         if left and computed:
             text += f", about {duration((self.clock() - self.start) / computed * left)} left"

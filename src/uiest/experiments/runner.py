@@ -298,8 +298,8 @@ def run_study(
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    kept = {task: saved.load(*task) for task in tasks} if saved is not None else {}
-    kept = {task: outcome for task, outcome in kept.items() if isinstance(outcome, RunOutcome)}
+    kept = {task: saved.load(*task, expected=RunOutcome) for task in tasks} if saved is not None else {}
+    kept = {task: outcome for task, outcome in kept.items() if outcome is not None}
 
     def add(outcome: RunOutcome) -> None:
         truths[(outcome.case, outcome.run)] = outcome.truth

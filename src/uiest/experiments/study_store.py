@@ -91,8 +91,11 @@ class StudyStore:
             if self.path(case, run).is_file()
         ]
 
-    def load(self, case: str, run: int) -> Any | None:
-        """The stored outcome of (case, run), or None (no file, or a damaged one, which is set aside)."""
+    def load(self, case: str, run: int, expected: type | None = None) -> Any | None:
+        """The stored outcome of (case, run), or None (no file, or a damaged one, which is set aside).
+
+        ``expected``: the outcome's type; a file holding anything else is damaged too.
+        """
         path = self.path(case, run)
         if not path.is_file():
             return None
@@ -101,6 +104,8 @@ class StudyStore:
                 record = pickle.load(file)  # the user's own output folder (module docstring)
             if not isinstance(record, dict) or record.get("key") != path.stem:
                 raise ValueError("the file holds another run")
+            if expected is not None and not isinstance(record["outcome"], expected):
+                raise TypeError(f"the file holds a {type(record['outcome']).__name__}")
         except Exception:  # any damage: set it aside, the run is computed again
             aside = self.folder / "corrupt"
             aside.mkdir(exist_ok=True)
