@@ -49,6 +49,7 @@ from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
 from uiest.scales import data_scales
 from uiest.system import System
+from uiest.theory import cite
 from uiest.window.size import check_horizon
 
 CONDITION_MARGIN = 0.99
@@ -287,7 +288,7 @@ def design_two_stage(
     return _design(
         system, x0, lambda mu: reduced.certify(mu=mu, **certify), rank,
         lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
-        what="reduced e-IOSS (ass:e-ioss)", max_horizon=max_horizon, rates=rates, budget=budget,
+        what=cite("ass:e-ioss"), max_horizon=max_horizon, rates=rates, budget=budget,
         trials=trials, steps=steps, seed=seed, records=records,
     )  # fmt: skip
 

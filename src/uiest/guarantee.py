@@ -7,7 +7,7 @@ it and :attr:`Guarantee.text` is derived from the numbers for display::
 
     holds, bound x1 0.0031 kg/m^2, x2 0.002 kg/m^2 after 12 steps (informative)
     holds but vacuous: bound 31015 cm > X's width 24 cm for h1
-    none: N=2 < min_horizon()=18 (eq:MHE_full_horizon)
+    none: N=2 < min_horizon()=18, too short for the full-order UISE horizon condition (Eq. (13) of Guo et al.)
 
 The numbers come from :mod:`uiest.estimators.bounds` (each estimator's theorem);
 :class:`~uiest.results.EstimationResult` holds the guarantee of the estimator that produced it.
@@ -46,7 +46,8 @@ class Guarantee:
     Attributes
     ----------
     theorem : str
-        A user-facing name, e.g. ``"UISE theorem (theo:MHE_full)"``.
+        A user-facing name in words (:mod:`uiest.theory`), e.g.
+        ``"the full-order UISE guarantee (Theorem 3.6 of Guo et al.)"``.
     applies : bool
         The theorem's assumptions are met (a certified certificate gave the weights, the horizon
         is long enough, matching holds, ...).

@@ -29,6 +29,7 @@ from uiest.detectability.certificate import NOT_PROVED
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
+from uiest.theory import cite
 
 ASSUMPTION_TOL = 1e-8
 """Largest relative violation of eq:ass_1, eq:ass_2 and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
@@ -197,9 +198,9 @@ class ReducedModel:
         dz_dw = ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(z_next, w)])
         report = _assumption_report(system, T_fun, T_inv_fun, psi_fun, dz_dw, n_flat, check_points, seed)
         for label, value, condition in (
-            ("T: the reduced dynamics T_sharp(f(x, u, w)) depend on w", report.w_sensitivity, "eq:ass_2"),
+            ("T: the reduced dynamics T_sharp(f(x, u, w)) depend on w", report.w_sensitivity, cite("eq:ass_2")),
             ("T_inv: T_inv(T(x)) differs from x", report.inverse_error, "T_inv o T = id"),
-            ("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x)", report.psi_error, "eq:ass_1"),
+            ("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x)", report.psi_error, cite("eq:ass_1")),
         ):
             if value > ASSUMPTION_TOL:
                 raise ModelError(
@@ -392,8 +393,8 @@ def reduce_quasi_state_affine(
     rank_CB = _rank(C @ B, rtol)
     if rank_CB != rank_B:
         raise ModelError(
-            f"rank(C B) = {rank_CB} != rank(B) = {rank_B}: prop:special_case needs the unknown input to reach "
-            "the output within one step (matching condition); no reduction of this form exists"
+            f"rank(C B) = {rank_CB} != rank(B) = {rank_B}: {cite('prop:special_case')} needs the unknown "
+            "input to reach the output within one step (matching condition); no reduction of this form exists"
         )
     r = rank_B
     S_flat = np.eye(system.ny)[_independent_rows(C @ B, r, rtol)]

@@ -51,6 +51,7 @@ from uiest.detectability.structure import InputStructure, input_structure
 from uiest.detectability.tradeoff import check_condition
 from uiest.errors import ModelError, OptionError
 from uiest.system import System, as_function
+from uiest.theory import cite
 
 
 @dataclass(frozen=True, eq=False)
@@ -474,5 +475,5 @@ def worst_case_ratio(
         float((value[used] / rhs[used]).max(initial=-np.inf)),
         int(used.sum()),
         n_pairs,
-        "ratio = LHS / RHS of eq:Lyapunov_2 with the worst unknown-input increment (closed form)",
+        f"ratio = LHS / RHS of {cite('eq:Lyapunov_2')} with the worst unknown-input increment (closed form)",
     )

@@ -293,7 +293,7 @@ class WindowEstimator(StreamingEstimator):
             return f"explicit weights without a {certificate_kind} certificate"
         n_min = certificate.min_horizon()
         if self.N is not None and n_min > self.N:
-            return f"N={self.N} < min_horizon()={n_min} ({horizon_eq})"
+            return f"N={self.N} < min_horizon()={n_min}, too short for {horizon_eq}"
         return ""
 
     # ------------------------------------------------------------------ state

@@ -31,6 +31,7 @@ from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
 from uiest.system import System
+from uiest.theory import cite
 from uiest.window import WindowTrajectory
 from uiest.window.size import check_horizon
 
@@ -54,7 +55,7 @@ class DelayedUISE(UISE):
     """
 
     estimator_name = "DelayedUISE"
-    theorem = "UISE theorem for the delayed system (theo:MHE_full)"
+    theorem = f"{cite('theo:MHE_full')} for the delayed system"
     free_input = False  # its nodes are the delayed system's; its newest input is found from later outputs
 
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
@@ -161,7 +162,7 @@ class DelayedUISE(UISE):
         which it does not bound, so only the states with ``M_a``'s row zero (to 1e-12 of the row)
         have a bound; the others are NaN. The lagged estimates are not covered.
         """
-        missing = self._horizon_missing("delayed system's strong-detectability", "eq:MHE_full_horizon")
+        missing = self._horizon_missing("delayed system's strong-detectability", cite("eq:MHE_full_horizon"))
         if missing:
             return self._no_guarantee(self.theorem, missing)
         d = self.delayed

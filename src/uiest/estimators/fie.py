@@ -43,6 +43,7 @@ from uiest.guarantee import Guarantee
 from uiest.results import EstimationResult, StepEstimate
 from uiest.scales import data_scales
 from uiest.system import System
+from uiest.theory import cite
 from uiest.window import WindowModel
 
 
@@ -60,7 +61,7 @@ class FIE(WindowEstimator):
     """
 
     estimator_name = "FIE"
-    theorem = "FIE lemma (lem:FIE)"
+    theorem = cite("lem:FIE")
     free_input = True
 
     def __init__(

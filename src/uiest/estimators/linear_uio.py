@@ -47,6 +47,7 @@ from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
 from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
+from uiest.theory import cite
 
 
 def _dare_gain(E: FloatArray, C: FloatArray) -> FloatArray:
@@ -90,7 +91,7 @@ class LinearUIO(StreamingEstimator):
     """
 
     estimator_name = "LinearUIO"
-    theorem = "linear UIO error dynamics (lem:UIO_LTI, Chen-Patton-Zhang)"
+    theorem = f"linear UIO error dynamics (Chen-Patton-Zhang), with {cite('lem:UIO_LTI')}"
     N = None
 
     def __init__(

@@ -84,6 +84,7 @@ from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certif
 from uiest.guarantee import Guarantee
 from uiest.reduction import ReducedModel
 from uiest.scales import data_scales
+from uiest.theory import ALGEBRAIC_TWO_STAGE, cite
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
 
@@ -133,7 +134,7 @@ class TwoStageUISE(WindowEstimator):
     """
 
     estimator_name = "TwoStageUISE"
-    theorem = "two-stage UISE theorem (theo:stab)"
+    theorem = cite("theo:stab")
     one_step_ahead = True
 
     def __init__(
@@ -161,7 +162,7 @@ class TwoStageUISE(WindowEstimator):
         if reduced.n_sharp == 0:
             if certificate is not None or weights is not None:
                 raise OptionError(
-                    "certificate, weights: n_sharp = 0, the estimate is algebraic (remark after theo:stab) and has "
+                    f"certificate, weights: n_sharp = 0, the estimate is algebraic ({ALGEBRAIC_TWO_STAGE}) and has "
                     "no cost to weight; pass neither"
                 )
             N = check_int(1 if N is None else N, "N", low=1)  # no window: N only bounds the (empty) history
@@ -265,11 +266,11 @@ class TwoStageUISE(WindowEstimator):
         """
         red, system = self.reduced, self.system
         if red.n_sharp == 0:
-            theorem, c_x, rate, z_settled = "two-stage UISE, remark after theo:stab (n_sharp = 0)", 1.0, 0.0, 0.0
+            theorem, c_x, rate, z_settled = ALGEBRAIC_TWO_STAGE, 1.0, 0.0, 0.0
             z_scale = np.zeros(0)
         else:
             theorem = self.theorem
-            missing = self._horizon_missing("reduced i-IOSS (ass:e-ioss)", "eq:N_cond")
+            missing = self._horizon_missing("reduced i-IOSS", cite("eq:N_cond"))
             if missing:
                 return self._no_guarantee(theorem, missing)
             assert self.weights is not None and self.N is not None

@@ -42,6 +42,7 @@ from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_wei
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
 from uiest.system import System
+from uiest.theory import cite
 from uiest.window import WindowModel
 
 
@@ -87,7 +88,7 @@ class UISE(WindowEstimator):
     """
 
     estimator_name = "UISE"
-    theorem = "UISE theorem (theo:MHE_full)"
+    theorem = cite("theo:MHE_full")
     free_input = True
 
     def __init__(
@@ -157,7 +158,7 @@ class UISE(WindowEstimator):
         if not self.matching:
             return self._no_guarantee(self.theorem, f"matching fails ({self.status_note.strip(' []')}), x[k] is not "
                                       "determined by y[..k]")  # fmt: skip
-        missing = self._horizon_missing("strong-detectability", "eq:MHE_full_horizon")
+        missing = self._horizon_missing("strong-detectability", cite("eq:MHE_full_horizon"))
         if missing:
             return self._no_guarantee(self.theorem, missing)
         bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, self.N, self.system.v.bounds,

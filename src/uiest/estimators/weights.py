@@ -32,6 +32,7 @@ from uiest.errors import CertificationError, OptionError
 from uiest.estimators.weight_range import check_weight_range
 from uiest.reduction import ReducedModel
 from uiest.system import System
+from uiest.theory import cite
 from uiest.window.problem import WindowWeights, sqrt_psd
 
 OUTPUT_RATIO = 100.0
@@ -455,8 +456,7 @@ class TwoStageWeights:
             certificate,
             ("certified", "mu", "c_x", "R_y", "R_v", "min_horizon"),
             "ReducedIOSS",
-            "the reduced model's i-IOSS (ass:e-ioss) is not certified ({reason}); pass weights= to run the "
-            "two-stage UISE without the guarantee of theo:stab",
+            f"{cite('ass:e-ioss')} is not certified ({{reason}}); pass weights= to run without {cite('theo:stab')}",
         )
         z_scale = certificate_z_scale(certificate)
         if z_scale is None:

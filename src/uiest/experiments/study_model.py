@@ -29,11 +29,12 @@ from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
 from uiest.system import System
+from uiest.theory import cite
 
 KIND_CERTIFICATE = {
-    "uise": "strong detectability (theo:Lyapunov)",
-    "fie": "strong detectability (theo:Lyapunov)",
-    "two-stage": "reduced model's e-IOSS (ass:e-ioss)",
+    "uise": f"strong detectability, {cite('theo:Lyapunov')}",
+    "fie": f"strong detectability, {cite('theo:Lyapunov')}",
+    "two-stage": cite("ass:e-ioss"),
     "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
     "smooth-mhe": "delta-IOSS of the model with w as a state (Schiller et al. 2023)",
 }
