@@ -32,8 +32,8 @@ from uiest.system import System
 from uiest.theory import cite
 
 KIND_CERTIFICATE = {
-    "uise": f"strong detectability, {cite('theo:Lyapunov')}",
-    "fie": f"strong detectability, {cite('theo:Lyapunov')}",
+    "uise": cite("theo:Lyapunov"),
+    "fie": cite("theo:Lyapunov"),
     "two-stage": cite("ass:e-ioss"),
     "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
     "smooth-mhe": "delta-IOSS of the model with w as a state (Schiller et al. 2023)",

@@ -1,0 +1,114 @@
+"""The paper's labels: every label in src/ has words (uiest.theory) and a row in docs/theory-map.md, and none
+reaches the strings users read (guarantees, reasons, errors, `uiest analyse` and `uiest estimate`)."""
+
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from uiest import simulate
+from uiest.cli import app
+from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+from uiest.errors import ModelError, OptionError
+from uiest.estimators import UISE, StandardMHE, TwoStageUISE
+from uiest.models import get, linear
+from uiest.reduction import reduce_quasi_state_affine
+from uiest.theory import PAPER, cite
+
+ROOT = Path(__file__).resolve().parents[1]
+LABEL = re.compile(r"\b(?:theo|eq|ass|lem|prop|def|sec|rem|cor):[A-Za-z_][A-Za-z0-9_-]*")
+"""A LaTeX label of the paper as it is written in the sources."""
+USER_LABEL = re.compile(r"\b(theo|eq|ass|lem|prop|def|sec|rem|cor):[A-Za-z_]")
+"""What must not appear in a string a user reads."""
+
+
+def _labels_in_src() -> set[str]:
+    return {label.rstrip("-") for path in (ROOT / "src").rglob("*.py") for label in LABEL.findall(path.read_text())}
+
+
+def _theory_map_rows() -> dict[str, str]:
+    """Each label of docs/theory-map.md's tables with its row (the label cell is `` `label` ``)."""
+    rows = {}
+    for line in (ROOT / "docs" / "theory-map.md").read_text().splitlines():
+        found = re.match(r"\|\s*`([^`]+)`\s*\|", line)
+        if found:
+            rows[found.group(1)] = line
+    return rows
+
+
+def test_every_label_in_src_has_words_and_a_row_in_the_theory_map():
+    used = _labels_in_src()
+    assert {"theo:MHE_full", "theo:stab", "eq:fullest_new", "ass:e-ioss"} <= used  # the scan finds labels
+    assert sorted(used - set(PAPER)) == []
+    rows = _theory_map_rows()
+    assert sorted(set(PAPER) - set(rows)) == []
+    for label, words in PAPER.items():  # the number in the words is the number in the map
+        number = re.search(r"\((\w+\.? [^ ]+) of Guo et al\.\)$", words)
+        assert number and number.group(1) in rows[label], (label, words, rows[label])
+        assert USER_LABEL.search(words) is None
+
+
+def test_cite_names_the_result_and_refuses_an_unknown_label():
+    assert cite("theo:MHE_full") == "the full-order UISE guarantee (Theorem 3.6 of Guo et al.)"
+    assert cite("eq:N_cond").endswith("(Eq. (31) of Guo et al.)")
+    with pytest.raises(OptionError, match="label"):
+        cite("theo:no_such")
+
+
+@pytest.fixture(scope="module")
+def linear_model():
+    """x+ = A x + B w, y = C x + v with matching (rank C B = rank B = 1) and its zero 0.5."""
+    A, B, C = np.array([[0.6, 0.2], [0.0, 0.5]]), [[1.0], [0.0]], [[1.0, 0.0]]
+    return linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-0.01, 0.01), w_range=(-0.5, 0.5))
+
+
+def _guarantee_strings(estimator) -> list[str]:
+    g = estimator.guarantee
+    return [g.theorem, g.reason, str(g)]
+
+
+def test_guarantees_reasons_and_errors_name_results_in_words(linear_model):
+    strong = certify_strong_detectability(linear_model)
+    reduced = reduce_quasi_state_affine(linear_model)
+    reduced_cert = reduced.certify()
+    estimators = {
+        "uise": UISE(linear_model, certificate=strong),
+        "uise, short": UISE(linear_model, certificate=strong, N=1),
+        "standard mhe": StandardMHE(linear_model, certificate=certify_delta_ioss(linear_model), N=10),
+        "two-stage": TwoStageUISE(reduced, certificate=reduced_cert),
+        "two-stage, short": TwoStageUISE(reduced, certificate=reduced_cert, N=1),
+    }
+    assert estimators["uise"].guaranteed and estimators["two-stage"].guaranteed
+    assert not estimators["uise, short"].guaranteed and not estimators["two-stage, short"].guaranteed
+    texts = {name: _guarantee_strings(est) for name, est in estimators.items()}
+    assert "too short for the full-order UISE horizon condition (Eq. (13)" in texts["uise, short"][1]
+    assert "too short for the two-stage UISE horizon condition" in texts["two-stage, short"][1]
+    with pytest.raises(ModelError) as refused:  # no matching: the unknown input skips the output
+        reduce_quasi_state_affine(linear.linear_system(np.diag([0.5, 0.5]), [[0.0], [1.0]], [[1.0, 0.0]]))
+    texts["reduction refused"] = [str(refused.value)]
+    for name, strings in texts.items():
+        for text in strings:
+            assert USER_LABEL.search(text) is None, (name, text)
+
+
+def test_the_cli_analyse_and_estimate_print_no_label(tmp_path):
+    runner = CliRunner()
+    analysed = runner.invoke(app, ["analyse", "closed-form"], terminal_width=300)
+    assert analysed.exit_code == 0, analysed.output
+    entry = get("closed-form")
+    setup = entry.simulation()
+    truth = simulate(entry.build(), setup.x0, 30, u=setup.u, w=setup.w, v=setup.noise, seed=3)
+    data = tmp_path / "data.csv"
+    truth.to_pandas().to_csv(data)
+    env = {**os.environ, "COLUMNS": "200", "PYTHONPATH": str(ROOT / "src")}
+    estimated = subprocess.run([sys.executable, "-m", "uiest", "estimate", "closed-form", "--data", str(data), "--out",
+                                str(tmp_path / "out"), "--estimator", "uise"],
+                               capture_output=True, text=True, env=env, check=True)  # fmt: skip
+    assert "holds, bound x1" in estimated.stdout  # the table with the guarantee is in what was read
+    for output in (analysed.output, estimated.stdout + estimated.stderr):
+        assert USER_LABEL.search(output) is None, output
