@@ -60,7 +60,7 @@ def test_certify_prints_the_table_and_writes_json(tmp_path):
     # the closed-form model's certified UISE: a bound below X's width in every state, in the table and the JSON
     strong = data["certificates"][0]["guarantee"]
     assert strong["estimator"] == "UISE" and strong["applies"] and strong["informative"]
-    assert "UISE: informative" in result.output and "UISE theorem (theo:MHE_full): holds, bound x1 " in result.output
+    assert "UISE: informative" in result.output and "(Theorem 3.6 of Guo et al.): holds, bound x1 " in result.output
     assert strong["text"].endswith("(informative)") and strong["text"] in result.output.replace("\n", "")
     assert all(c["falsification"]["worst_ratio"] <= 1.0 + 1e-6 for c in data["certificates"])
     assert "search: max ratio" in result.output

@@ -189,7 +189,7 @@ def test_window_weights_are_the_papers_formulas():
 def test_certificate_gives_weights_horizon_and_guarantee(linear_case):
     system, cert, delta = linear_case
     est = UISE(system, certificate=cert)
-    assert cert.min_horizon() == est.N and est.guaranteed and "theo:MHE_full" in est.guarantee.theorem
+    assert cert.min_horizon() == est.N and est.guaranteed and "Theorem 3.6 of Guo et al." in est.guarantee.theorem
     assert str(est.guarantee).startswith("holds, bound") and est.guarantee.error_bound.shape == (system.nx,)
     assert est.weights.mu == cert.mu
     np.testing.assert_allclose(est.weights.P, cert.P)

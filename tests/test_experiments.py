@@ -114,7 +114,7 @@ def test_certificate_weights_reach_the_study_and_its_report(tmp_path):
     assert row["status"] == "certified" and row["rate"] == pytest.approx(0.9)
     assert row["N"] == row["min_horizon"] >= 1 and len(row["noise_gain"]) == 2
     result = study.results[("noisy", 0, "UISE (certified)")]
-    assert result.guarantee.applies and "theo:MHE_full" in result.guarantee.theorem
+    assert result.guarantee.applies and "Theorem 3.6 of Guo et al." in result.guarantee.theorem
     write_report(study, tmp_path, wall_time=1.0)
     report = (tmp_path / "report.md").read_text()
     assert "## Certificates and guarantees" in report and f"guarantee: {result.guarantee.text}." in report

@@ -147,7 +147,7 @@ def test_the_fie_the_standard_mhe_and_the_filters():
     A, B, C = np.array([[0.6, 0.2], [0.0, 0.5]]), [[1.0], [0.5]], [[1.0, 0.0]]
     system = linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-0.01, 0.01), w_range=(-0.5, 0.5))
     fie = FIE(system, certificate=certify_strong_detectability(system), x0_prior=np.zeros(2))
-    assert fie.guarantee.informative and "lem:FIE" in fie.guarantee.theorem
+    assert fie.guarantee.informative and "Lemma 3.3 of Guo et al." in fie.guarantee.theorem
     delta = certify_delta_ioss(system)
     mhe = StandardMHE(system, certificate=delta, N=10, x0_prior=np.zeros(2))
     g = mhe.guarantee

@@ -33,7 +33,7 @@ def test_error_follows_F_exactly_despite_huge_unknown_input(w_name):
     np.testing.assert_allclose(result.w_hat[30:], traj.w[30:], atol=1e-14 * scale * 100)
     assert result.estimator == "LinearUIO" and result.horizon is None and set(result.outcome) == {Outcome.UPDATED}
     assert result.failures == 0 and np.all(result.iterations == 0)
-    assert "lem:UIO_LTI" in result.guarantee.theorem and uio.guaranteed and result.guarantee.applies
+    assert "Lemma 3.5 of Guo et al." in result.guarantee.theorem and uio.guaranteed and result.guarantee.applies
 
 
 def test_noise_gives_a_bounded_error():

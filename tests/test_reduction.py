@@ -29,7 +29,7 @@ def test_crop_reduction_recovers_the_state_and_matches_the_model():
 def test_reduction_rejects_maps_that_violate_the_assumption():
     system = crop_growth.system()
     identity = (lambda x: x, lambda z: z)
-    with pytest.raises(ModelError, match="eq:ass_2"):  # x^{d,2} sees w
+    with pytest.raises(ModelError, match=r"Eq\. \(18\) of Guo et al\."):  # x^{d,2} sees w
         ReducedModel.from_maps(system, *identity, lambda y, z, v: [y[0] - v[0]], n_flat=1)
     ratio = 0.8 * 4.1
     T = lambda x: [x[0], x[1], ratio * x[0] + x[2]]  # noqa: E731

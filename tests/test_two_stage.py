@@ -21,6 +21,7 @@ from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
 from uiest.models import closed_form, crop_growth, get, linear
 from uiest.reduction import ReducedModel, reduce_quasi_state_affine
+from uiest.theory import ALGEBRAIC_TWO_STAGE
 from uiest.window import WindowModel, WindowProblem, WindowWeights, make_solver
 from uiest.window.polish import refine
 
@@ -68,7 +69,7 @@ def test_closed_form_error_is_the_closed_form_despite_unbounded_input(closed_for
     assert np.abs(traj.x[:, 0]).max() > 1e7
     prior = np.array([traj.y[0, 0], 0.0])  # x2 off by 1
     est = TwoStageUISE(reduced, certificate=certificate, N=10, x0_prior=prior)
-    assert est.guaranteed and "theo:stab" in est.guarantee.theorem and certificate.min_horizon() <= est.N
+    assert est.guaranteed and "Theorem 4.8 " in est.guarantee.theorem and certificate.min_horizon() <= est.N
     result = est.run(traj.u, traj.y)
     e1, e2 = (traj.x - result.x_hat).T
     assert result.failures == 0 and result.estimator == "TwoStageUISE"
@@ -144,7 +145,7 @@ def test_n_sharp_zero_is_algebraic_and_exact():
     reduced = ReducedModel.from_maps(system, lambda x: x, lambda z: z, lambda y, z, v: C_inv @ (y - v), n_flat=2)
     traj = simulate(system, [1.0, 2.0], 20, w=(1e5 * np.arange(20.0))[:, None])
     est = TwoStageUISE(reduced, x0_prior=[0.0, 0.0])  # no certificate, no weights: nothing to optimise
-    assert est.guaranteed and est.guarantee.theorem.endswith("remark after theo:stab (n_sharp = 0)")
+    assert est.guaranteed and est.guarantee.theorem == ALGEBRAIC_TWO_STAGE
     # x = C^-1 (y - v): the error is C^-1 (v_bar - v), at most sum_j |C^-1_ij| 1e-3 per state, at every step
     np.testing.assert_allclose(est.guarantee.error_bound, 1.1 * np.abs(C_inv).sum(axis=1) * 1e-3, rtol=1e-12)
     assert est.guarantee.settling_steps == 0 and est.guarantee.informative
@@ -195,9 +196,9 @@ def test_window_weights_are_the_papers_formulas(linear_case):
 def test_certificate_gives_horizon_and_guarantee(linear_case):
     _, reduced, certificate = linear_case
     est = TwoStageUISE(reduced, certificate=certificate)
-    assert certificate.min_horizon() == est.N and est.guaranteed and "theo:stab" in est.guarantee.theorem
+    assert certificate.min_horizon() == est.N and est.guaranteed and "Theorem 4.8 " in est.guarantee.theorem
     short = TwoStageUISE(reduced, certificate=certificate, N=1)
-    assert certificate.min_horizon() > 1 and not short.guaranteed and "eq:N_cond" in short.guarantee.reason
+    assert certificate.min_horizon() > 1 and not short.guaranteed and "(Eq. (31) of" in short.guarantee.reason
     explicit = TwoStageUISE(reduced, weights=est.weights, N=5)
     assert not explicit.guaranteed and str(explicit.guarantee).startswith("none: explicit weights")
     assert "TwoStageUISE(" in repr(explicit) and "guarantee='none: explicit weights" in repr(explicit)
