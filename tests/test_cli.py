@@ -103,8 +103,10 @@ def test_sweep_command_runs_and_resumes(tmp_path):
     result = runner.invoke(app, args)
     assert result.exit_code == 0, result.output
     assert "2 of 2 tasks stored (0 with an error), 0 lost" in result.output
+    assert "sweep: 2 of 2 tasks done, 0 left" in result.output  # progress lines: no terminal
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and "2 of 2 tasks stored" in again.output
+    assert "sweep: 2 of 2 tasks done (2 stored before), 0 left" in again.output
 
 
 def test_bench_runs_only_the_chosen_estimator_and_window_length(tmp_path):
@@ -280,18 +282,3 @@ def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and again.output.count(" runs done") == 1
     assert "tiny: 2 of 2 runs done (1 stored before), 0 left" in again.output  # the damaged one computed again
-
-
-def test_sweep_without_a_terminal_writes_progress_lines(tmp_path):
-    design = tmp_path / "sweep.toml"
-    design.write_text(
-        "[scenario]\nname = 'lines'\nmodel = 'closed-form'\nsteps = 8\nruns = 1\ncases = ['noise-free']\n"
-        "settle = 2\n[[scenario.estimators]]\nname = 'UISE'\nkind = 'uise'\nN = 3\nmu = 0.64\n"
-        "[sweep]\ngrid = { N = [2, 3] }\n"
-    )
-    args = ["sweep", str(design), "--out", str(tmp_path / "out"), "--workers", "1"]
-    first = runner.invoke(app, args)
-    assert first.exit_code == 0, first.output
-    assert "sweep: 2 of 2 tasks done, 0 left" in first.output
-    again = runner.invoke(app, args)
-    assert again.exit_code == 0 and "sweep: 2 of 2 tasks done (2 stored before), 0 left" in again.output
