@@ -221,6 +221,22 @@ def design_uise(
         When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
         certified rate has an admissible N within ``max_horizon``.
 
+    Returns
+    -------
+    Design
+        The chosen certificate and horizon, the guarantee's bound per state (states' units) and every candidate.
+
+    Examples
+    --------
+    >>> from uiest.design import design_uise
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> design = design_uise(system, [0.0, 0.0], rates=(0.8,), max_horizon=10, trials=1)
+    >>> round(design.certificate.mu, 2), design.N, design.certificate.certified
+    (0.8, 10, True)
+    >>> design.bound.shape
+    (2,)
+
     """
     from uiest.detectability import certify_strong_detectability
     from uiest.detectability.certificate import horizon_condition

@@ -231,6 +231,23 @@ def certify_strong_detectability(
     OptionError
         ``mu`` outside (0, 1), bad ``cover``, ``samples``, ``tol`` or ``max_condition``.
 
+    Returns
+    -------
+    StrongDetectability
+        The certificate: its status (certified, holds at the samples, refuted, not certified), rate ``mu``,
+        storage matrix ``P``, noise and output weights, and :meth:`~StrongDetectability.min_horizon`.
+
+    Examples
+    --------
+    >>> from uiest.detectability import certify_strong_detectability
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> certificate = certify_strong_detectability(system)
+    >>> certificate.status.value, certificate.certified, round(certificate.mu, 2)
+    ('certified', True, 0.65)
+    >>> certificate.min_horizon()  # the UISE's horizon condition (Eq. (13) of Guo et al.)
+    30
+
     """
     start = time.perf_counter()
     if not isinstance(system, System):

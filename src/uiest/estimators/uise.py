@@ -87,6 +87,36 @@ class UISE(WindowEstimator):
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
         ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``.
 
+    Raises
+    ------
+    ModelError
+        Matching fails and ``force`` is False.
+    OptionError
+        Neither or both of ``certificate`` and ``weights``, ``weights`` without ``N``, or a bad ``N`` or option.
+
+    Examples
+    --------
+    Estimate the closed-form model's states under an unknown input that grows without bound:
+
+    >>> import numpy as np
+    >>> from uiest import UniformNoise, simulate
+    >>> from uiest.detectability import certify_strong_detectability
+    >>> from uiest.estimators import UISE
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> truth = simulate(system, x0=[0.5, 1.0], steps=30, u=np.zeros(1), w=lambda k, x: [-0.5 * x[0] + 0.002 * k**2],
+    ...                  v=UniformNoise.symmetric(1e-3), seed=0)
+    >>> uise = UISE(system, certificate=certify_strong_detectability(system), x0_prior=[0.0, 0.0])
+    >>> uise.N, uise.guaranteed
+    (30, True)
+    >>> print(uise.guarantee)  # doctest: +ELLIPSIS
+    holds, bound x1 ..., x2 ... after ... steps (informative)
+    >>> result = uise.run(truth.u, truth.y)  # u[k] and w[k] act from k to k+1; y[k] measures x[k]
+    >>> result.x_hat.shape, result.w_hat.shape
+    ((31, 2), (30, 1))
+    >>> bool(np.abs(result.error(truth.x))[10:].max() < 0.05), result.counts()["failures"]
+    (True, 0)
+
     """
 
     estimator_name = "UISE"
