@@ -130,8 +130,8 @@ class TwoStageUISE(WindowEstimator):
     state_constraints : bool
         Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (Eq. (30)).
     **options
-        As for :class:`~uiest.estimators.UISE`. ``polish=True`` takes the crop model's noise-free
-        x^{d,1} error from ~5e-8 (ipopt) or ~2e-6 (gn) to ~2e-11, for ~2-4 ms per step.
+        As for :class:`~uiest.estimators.UISE`. ``polish=True`` refines each window solution where the data
+        barely determine a direction (design notes: window solvers).
 
     """
 

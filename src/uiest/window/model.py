@@ -174,7 +174,7 @@ class WindowModel:
 
     @cached_property
     def _f_buffered(self) -> BufferedFunction:
-        """``f`` through CasADi's buffer interface (a plain call builds DMs: ~0.2 ms of a 1.6 ms crop step)."""
+        """``f`` through CasADi's buffer interface (a plain call builds DMs, which costs more than evaluating ``f``)."""
         return BufferedFunction(self.f)
 
     def __getstate__(self) -> dict[str, object]:
