@@ -18,8 +18,7 @@ the UISE's cost Eq. (11) with the window reaching back to time 0. The FIE and th
 therefore solve the same problem while ``k <= N``, which makes the FIE a cross-check of the
 moving-horizon machinery (and an offline estimator). Its problems grow with k: one is built per
 length (k+1 of them) and all data are kept, so building takes time that grows with the square
-of the record's length (measured on the closed-form model, 2 cores: 50 steps 1 s, 100 steps
-4 s, 200 steps 18 s with either backend, nearly all of it building) and memory grows with k.
+of the record's length (design notes: input checks) and memory grows with k.
 ``max_steps`` (default 500) bounds it: a longer record raises :class:`OptionError` before any
 work, pointing to the UISE, whose window stays N long. For large k the prior weight ``mu^k``
 vanishes, and directions the data do not determine become flat: use it offline and for short
