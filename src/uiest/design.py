@@ -215,16 +215,16 @@ def design_uise(
     **options
         Window options of the candidate UISEs (``solver``, ...).
 
+    Returns
+    -------
+    Design
+        The chosen certificate and horizon, the guarantee's bound per state (states' units) and every candidate.
+
     Raises
     ------
     CertificationError
         When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
         certified rate has an admissible N within ``max_horizon``.
-
-    Returns
-    -------
-    Design
-        The chosen certificate and horizon, the guarantee's bound per state (states' units) and every candidate.
 
     Examples
     --------

@@ -186,6 +186,10 @@ def certify_strong_detectability(
 ) -> StrongDetectability:
     """Certify strong nonlinear detectability of ``system`` (Theorem 3.2 of Guo et al.) by LMIs.
 
+    Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
+    of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
+    makes it "refuted". The search's size and worst ratio are in ``falsification``.
+
     Parameters
     ----------
     system : System
@@ -216,9 +220,12 @@ def certify_strong_detectability(
         faster rate at the price of larger weights; :meth:`StrongDetectability.tradeoff` tabulates it.
         The estimator's horizon grows with cond(P): ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``.
 
-    Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
-    of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
-    makes it "refuted". The search's size and worst ratio are in ``falsification``.
+    Returns
+    -------
+    StrongDetectability
+        The certificate: its ``status`` (a :class:`~uiest.detectability.certificate.CertificateStatus`;
+        ``certified`` only when proved on the whole domain), rate ``mu``, storage matrix ``P``, noise and
+        output weights, and :meth:`~StrongDetectability.min_horizon`.
 
     Raises
     ------
@@ -230,12 +237,6 @@ def certify_strong_detectability(
         to do).
     OptionError
         ``mu`` outside (0, 1), bad ``cover``, ``samples``, ``tol`` or ``max_condition``.
-
-    Returns
-    -------
-    StrongDetectability
-        The certificate: its status (certified, holds at the samples, refuted, not certified), rate ``mu``,
-        storage matrix ``P``, noise and output weights, and :meth:`~StrongDetectability.min_horizon`.
 
     Examples
     --------
