@@ -2,8 +2,10 @@
 
 The paper is Y. Guo, J. A. Moreno, S. Streif, "Strong nonlinear detectability and moving horizon
 estimation for nonlinear systems with unknown inputs". Strings that users read (guarantees,
-reasons, errors, CLI output, reports) name a result through :data:`PAPER` (:func:`cite`), never by
-its label; ``docs/theory-map.md`` gives each label's statement and the uiest names that use it.
+reasons, errors, CLI output, reports) name a result through the constants below (e.g.
+:data:`FULL_ORDER_GUARANTEE`) or :data:`PAPER` (:func:`cite`), never by its label; this module is the one
+place in the sources that holds the labels, and the theory map (``docs/theory-map.md``) gives each label's
+statement and the uiest names that use it.
 
 Numbers follow the manuscript's counters: theorems, lemmas, propositions, definitions,
 assumptions and remarks share one counter per section ("Theorem 3.6" is the sixth numbered
