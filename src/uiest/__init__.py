@@ -4,6 +4,7 @@ The public entry points are :class:`System`, :func:`simulate`, :func:`analyse` (
 a model admits, and why) and the result containers; models live in :mod:`uiest.models`.
 """
 
+from importlib import metadata as _metadata
 from typing import Any
 
 from uiest.box import Box
@@ -24,7 +25,10 @@ from uiest.signal import ScaleSource, Signal
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
-__version__ = "0.1.0"
+try:  # the installed distribution's version, from its package metadata (``uiest --version`` prints it)
+    __version__ = _metadata.version("uiest")
+except _metadata.PackageNotFoundError:  # a source tree on sys.path that was never installed
+    __version__ = "0+unknown"
 
 
 def __getattr__(name: str) -> Any:
