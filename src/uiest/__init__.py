@@ -25,10 +25,17 @@ from uiest.signal import ScaleSource, Signal
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
-try:  # the installed distribution's version, from its package metadata (``uiest --version`` prints it)
-    __version__ = _metadata.version("uiest")
-except _metadata.PackageNotFoundError:  # a source tree on sys.path that was never installed
-    __version__ = "0+unknown"
+
+def _installed_version() -> str:
+    """The installed distribution's version (package metadata); ``0+unknown`` for a source tree never installed."""
+    try:
+        return _metadata.version("uiest")
+    except _metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+__version__ = _installed_version()
+"""uiest's version (``uiest --version`` prints it)."""
 
 
 def __getattr__(name: str) -> Any:
