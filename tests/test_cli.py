@@ -282,3 +282,35 @@ def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored
     again = runner.invoke(app, args)
     assert again.exit_code == 0 and again.output.count(" runs done") == 1
     assert "tiny: 2 of 2 runs done (1 stored before), 0 left" in again.output  # the damaged one computed again
+
+
+def test_version_prints_the_installed_package_metadata():
+    from importlib.metadata import version
+
+    import uiest
+
+    result = runner.invoke(app, ["--version"])
+    assert result.exit_code == 0, result.output
+    assert result.output == f"uiest {version('uiest')}\n"
+    assert uiest.__version__ == version("uiest")
+
+
+def test_estimate_help_names_the_units_of_its_options():
+    result = runner.invoke(app, ["estimate", "--help"], terminal_width=100)
+    assert result.exit_code == 0, result.output
+    text = " ".join(result.output.split())
+    assert "--w-variance" in text and "Variance of one step of the unknown input's random walk" in text
+    assert "as a multiple of (w's scale)^2" in text and "in w's unit^2 per step" in text
+    assert "lag in samples" in text and "Largest window N of a design, in samples" in text
+    assert "Prior of x[0] in the states' units" in text
+
+
+def test_a_given_variance_is_printed_in_the_unknown_inputs_unit():
+    from uiest import System
+    from uiest.estimate import variance_text
+
+    system = System.from_callables(
+        lambda x, u, w: [x[0] + w[0]], lambda x, v: [x[0] + v[0]], nx=1, nw=1, nv=1, x_bounds=(-1, 1),
+        v_bounds=(-0.1, 0.1), w_names=["force"], w_units=["m/s^2"], w_scale=[0.2],
+    )  # fmt: skip
+    assert variance_text(system, 0.5) == "0.5 w.scale^2 = force 0.02 (m/s^2)^2 per step"

@@ -385,7 +385,9 @@ def test_uiest_estimate_runs_the_smooth_input_mhe_on_a_model_file(tmp_path, pend
     entry = load(model)
     mhe, note = build_estimator("smooth", entry, entry.build(), np.array([0.5, 0.0]), w_variance=0.01)
     assert note.startswith("delta-IOSS certificate of the augmented model: eta=") and mhe.guarantee.applies
-    assert note.endswith("increment variance 0.01 w.scale^2 (given)") and mhe.certificate.min_horizon() <= mhe.N
+    per_step = f"torque {0.01 * mhe.system.w.scale[0] ** 2:.3g} per step"
+    assert note.endswith(f"increment variance 0.01 w.scale^2 = {per_step} (given)")
+    assert mhe.certificate.min_horizon() <= mhe.N
 
 
 def test_a_study_runs_the_smooth_input_mhe_kind():

@@ -273,7 +273,8 @@ def test_estimate_fits_the_filters_and_the_mhe_to_the_data_it_is_given():
     assert note.startswith("random walk: w_variance") and "the likelihood's maximum (interior" in note
     assert ekf.likelihood is not None
     given, note = build_estimator("ukf", entry, system, np.zeros(3), w_variance=0.5, record=truth)
-    assert note == "random-walk variance 0.5 w.scale^2 (given)" and given.likelihood is None
+    per_step = f"{system.w.names[0]} {0.5 * system.w.scale[0] ** 2:.3g}"
+    assert note == f"random-walk variance 0.5 w.scale^2 = {per_step} per step (given)" and given.likelihood is None
     with pytest.raises(OptionError, match="--w-variance: required for ekf without measurements"):
         build_estimator("ekf", entry, system, np.zeros(3))
     mhe, note = build_estimator("mhe", entry, system, np.zeros(3), record=truth)

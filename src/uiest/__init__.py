@@ -4,6 +4,7 @@ The public entry points are :class:`System`, :func:`simulate`, :func:`analyse` (
 a model admits, and why) and the result containers; models live in :mod:`uiest.models`.
 """
 
+from importlib import metadata as _metadata
 from typing import Any
 
 from uiest.box import Box
@@ -24,7 +25,17 @@ from uiest.signal import ScaleSource, Signal
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
-__version__ = "0.1.0"
+
+def _installed_version() -> str:
+    """The installed distribution's version (package metadata); ``0+unknown`` for a source tree never installed."""
+    try:
+        return _metadata.version("uiest")
+    except _metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+__version__ = _installed_version()
+"""uiest's version (``uiest --version`` prints it)."""
 
 
 def __getattr__(name: str) -> Any:

@@ -24,6 +24,8 @@ from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
 from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
 
+__all__ = ["app", "main"]
+
 app = typer.Typer(
     name="uiest",
     help="State estimation for nonlinear systems with unbounded unknown inputs.",
@@ -95,6 +97,25 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     error_console.print(f"warning: {message}", style="yellow", highlight=False, soft_wrap=True, markup=False)
 
 
+def _print_version(value: bool) -> None:
+    """``--version``: print ``uiest <version>`` (the installed package's metadata) and exit."""
+    if value:
+        from uiest import __version__
+
+        console.print(f"uiest {__version__}", highlight=False)
+        raise typer.Exit()
+
+
+@app.callback()
+def root_options(
+    version: Annotated[
+        bool,
+        typer.Option("--version", callback=_print_version, is_eager=True, help="Print uiest's version and exit."),
+    ] = False,
+) -> None:
+    """State estimation for nonlinear systems with unbounded unknown inputs."""
+
+
 @app.command("models")
 @_user_errors
 def list_models() -> None:
@@ -118,7 +139,7 @@ def list_models() -> None:
 @_user_errors
 def simulate(
     model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`) or a model file (.py).")],
-    steps: Annotated[int | None, typer.Option(help="Number of steps K (default: the model's).")] = None,
+    steps: Annotated[int | None, typer.Option(help="Number of steps K, in samples (default: the model's).")] = None,
     seed: Annotated[int, typer.Option(help="Seed of the measurement noise.")] = 0,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/simulate"),
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
@@ -180,22 +201,30 @@ def estimate(
         ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
-    lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window (0: none).")] = 0,
+    lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window; lag in samples (0: none).")] = 0,
     horizon: Annotated[
         int | None,
         typer.Option(
-            help="Largest N of a design (default 30, or up to 60 where only a longer window certifies); "
-            "N when the model does not certify (20)."
+            help="Largest window N of a design, in samples (default 30, or up to 60 where only a longer window "
+            "certifies); N when the model does not certify (20)."
         ),
     ] = None,
     w_variance: Annotated[
         float | None,
         typer.Option(
-            help="EKF/UKF random-walk (smooth: increment; MHE: disturbance) variance, times w's scale^2 (default: "
-            "the likelihood's maximum on --data)."
+            help="Variance of one step of the unknown input's random walk, w[k+1] - w[k] (ekf, ukf; smooth: of its "
+            "increments; mhe: of its disturbance w[k]), as a multiple of (w's scale)^2, the square of the model's "
+            "nominal size of each unknown input: 1 is a step whose standard deviation is one scale; the run prints "
+            "it in w's unit^2 per step (default: the likelihood's maximum on --data)."
         ),
     ] = None,
-    x0: Annotated[str | None, typer.Option(help="Prior of x[0], comma separated (default: the model's).")] = None,
+    x0: Annotated[
+        str | None,
+        typer.Option(
+            help="Prior of x[0] in the states' units, comma separated in the model's state order "
+            "(default: the model's)."
+        ),
+    ] = None,
 ) -> None:
     """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
     from uiest.box import as_vector
@@ -368,7 +397,7 @@ def certify(
 @_user_errors
 def analyse(
     model: Annotated[str, typer.Argument(help="Registered model name (see `uiest models`) or a model file (.py).")],
-    max_horizon: Annotated[int, typer.Option(help="Longest estimator window N considered.")] = 60,
+    max_horizon: Annotated[int, typer.Option(help="Longest estimator window N considered, in samples.")] = 60,
     json_file: Annotated[Path | None, typer.Option("--json", help="Also write the analysis as JSON.")] = None,
 ) -> None:
     """Which estimator suits a model, and why: structure, zeros, near-zeros, certificates, recommendation."""
@@ -450,7 +479,7 @@ def reproduce(
     ] = "crop-growth",
     quick: Annotated[bool, typer.Option(help="2 runs instead of 20 (a check in under 2 minutes).")] = False,
     runs: Annotated[int | None, typer.Option(help="Monte Carlo runs per case.")] = None,
-    steps: Annotated[int | None, typer.Option(help="Steps K per run.")] = None,
+    steps: Annotated[int | None, typer.Option(help="Steps K per run, in samples.")] = None,
     solver: Annotated[
         str,
         typer.Option(
@@ -607,7 +636,7 @@ def bench(
     json_file: Annotated[Path | None, typer.Option("--json", help="Write the records as JSON.")] = None,
     horizon: Annotated[
         list[int] | None,
-        typer.Option("--horizon", "-N", help="Window length (repeat for several; default 10 30 100 300)."),
+        typer.Option("--horizon", "-N", help="Window length in samples (repeat for several; default 10 30 100 300)."),
     ] = None,
     estimator: Annotated[
         list[str] | None,

@@ -76,6 +76,20 @@ from uiest.paths import plain_name
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
+__all__ = [
+    "ALL",
+    "DEFAULT_MAX_HORIZON",
+    "LONGEST_HORIZON",
+    "build_all",
+    "build_estimator",
+    "check_lag",
+    "default_prior",
+    "errors_against_truth",
+    "recommended",
+    "run_estimators",
+    "write_estimates",
+]
+
 ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "smooth", "ekf", "ukf", "uio")
 ALL = "all"
 """``--estimator all``: every estimator of :data:`ESTIMATORS` the model admits."""
@@ -226,8 +240,21 @@ def build_estimator(
         return _smooth_mhe(system, x0, factor, source, horizon, options, record)
     cls = est.EKF if kind == "ekf" else est.UKF
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
-        f"random-walk variance {factor:g} w.scale^2 ({source})"
+        f"random-walk variance {variance_text(system, factor)} ({source})"
     )
+
+
+def variance_text(system: System, factor: float) -> str:
+    """A step variance given as ``factor`` times ``w.scale^2``, and in each unknown input's own unit squared.
+
+    For example ``"0.01 w.scale^2 = torque 0.04 (N m)^2 per step"``: the factor, then per input
+    ``factor * scale_i^2`` with the input's unit (none for a unitless input).
+    """
+    parts = [
+        f"{name} {factor * scale**2:.3g}{f' ({unit})^2' if unit else ''}"
+        for name, unit, scale in zip(system.w.names, system.w.units, system.w.scale, strict=True)
+    ]
+    return f"{factor:g} w.scale^2 = {', '.join(parts)} per step"
 
 
 def horizon_reason(limit: int, shortest: int) -> str:
@@ -257,7 +284,7 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     longest = max(DEFAULT_MAX_HORIZON, lag + 1) if horizon is None else horizon
     window = max(min(smooth_mhe.DEFAULT_HORIZON, longest), lag + 1)  # the design's default N, holding x[k - lag]
     mhe = SmoothInputMHE.design(system, dw_variance=variance, x0_prior=x0, N=window, max_horizon=longest, **options)
-    increments = f"increment variance {factor:g} w.scale^2 ({source})"
+    increments = f"increment variance {variance_text(system, factor)} ({source})"
     certified = f"delta-IOSS certificate of the augmented model: eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
     if mhe.certificate is not None and mhe.guarantee.informative:
         return mhe, certified
@@ -309,7 +336,8 @@ def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, o
         weights = likelihood_weights(system, u, y, x0_prior=x0, eta=FALLBACK_RATE,
                                      w_variance=w_variance * system.w.scale**2)  # fmt: skip
         mhe = StandardMHE(system, weights=weights, N=N, x0_prior=x0, **options)
-        return mhe, f"disturbance variance {w_variance:g} w.scale^2 (given), eta={FALLBACK_RATE}, N={N} ({baseline})"
+        variance = variance_text(system, w_variance)
+        return mhe, f"disturbance variance {variance} (given), eta={FALLBACK_RATE}, N={N} ({baseline})"
     mhe = fit_standard_mhe(system, u, y, x0_prior=x0, N=N, eta=FALLBACK_RATE, **options)
     assert mhe.likelihood is not None
     return mhe, (

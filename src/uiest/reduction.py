@@ -33,6 +33,8 @@ from uiest.errors import ModelError
 from uiest.system import System, as_function
 from uiest.theory import PSI_RECOVERY, QUASI_STATE_AFFINE_REDUCTION, W_FREE_REDUCED_DYNAMICS
 
+__all__ = ["ASSUMPTION_TOL", "AssumptionReport", "ReducedModel", "reduce_quasi_state_affine"]
+
 ASSUMPTION_TOL = 1e-8
 """Largest relative violation of Eq. (17), Eq. (18) and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
 

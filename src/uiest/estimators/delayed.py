@@ -36,6 +36,8 @@ from uiest.theory import FULL_ORDER_GUARANTEE, FULL_ORDER_HORIZON
 from uiest.window import WindowTrajectory
 from uiest.window.size import check_horizon
 
+__all__ = ["DelayedUISE"]
+
 
 class DelayedUISE(UISE):
     r"""UISE of the delayed system (module docstring): estimates ``x[k-lag]``, ``lag >= 1``.

@@ -45,6 +45,8 @@ from uiest.system import System
 from uiest.theory import FIE_GUARANTEE
 from uiest.window import WindowModel
 
+__all__ = ["FIE"]
+
 
 class FIE(WindowEstimator):
     r"""Full information estimator (Lemma 3.3 of Guo et al.): growing window from time 0, cost Eq. (7).

@@ -90,6 +90,8 @@ from uiest.theory import ALGEBRAIC_TWO_STAGE, TWO_STAGE_GUARANTEE, TWO_STAGE_HOR
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
 
+__all__ = ["TwoStageUISE", "reduced_data_scales"]
+
 
 def reduced_data_scales(reduced: ReducedModel, x0_prior: ArrayLike | None) -> ReducedModel:
     """``reduced`` with its system's scales from data (:func:`~uiest.scales.data_scales`); itself where none change."""

@@ -47,6 +47,8 @@ from uiest.system import System
 from uiest.theory import FULL_ORDER_GUARANTEE, FULL_ORDER_HORIZON
 from uiest.window import WindowModel
 
+__all__ = ["UISE", "check_system"]
+
 
 def check_system(system: Any) -> System:
     """``system`` if it is a :class:`~uiest.system.System`, else OptionError."""

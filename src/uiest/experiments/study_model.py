@@ -31,6 +31,8 @@ from uiest.simulate import simulate
 from uiest.system import System
 from uiest.theory import LYAPUNOV_CHARACTERISATION, REDUCED_IOSS
 
+__all__ = ["KIND_CERTIFICATE", "StudyModel", "study_model"]
+
 KIND_CERTIFICATE = {
     "uise": LYAPUNOV_CHARACTERISATION,
     "fie": LYAPUNOV_CHARACTERISATION,
