@@ -20,6 +20,8 @@ from pathlib import Path
 
 from uiest.errors import StorageError
 
+__all__ = ["staged_folder", "storage_error", "write_bytes", "write_file", "write_text"]
+
 STAGED_PREFIX, STAGED_SUFFIX = ".staged-", ".tmp"
 """How the temporary folders of :func:`staged_folder` are named (a run killed while writing leaves one)."""
 

@@ -12,6 +12,8 @@ from numpy.typing import ArrayLike, NDArray
 from uiest.checks import real_array
 from uiest.errors import DataError, ModelError
 
+__all__ = ["Box", "as_vector"]
+
 FloatArray = NDArray[np.float64]
 
 

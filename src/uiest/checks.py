@@ -19,6 +19,28 @@ if TYPE_CHECKING:
 
     from uiest.system import System
 
+__all__ = [
+    "DOMAIN_TOL",
+    "MAX_SAMPLES",
+    "MAX_STAGE_SIZE",
+    "MEMORY_BUDGET",
+    "STAGE_BYTES_PER_SIZE2",
+    "check_callable",
+    "check_flag",
+    "check_int",
+    "check_keywords",
+    "check_name",
+    "check_real",
+    "check_run_data",
+    "check_samples",
+    "check_seed",
+    "check_u_prev",
+    "check_y",
+    "real_array",
+    "shown",
+    "user_stacklevel",
+]
+
 FloatArray = NDArray[np.float64]
 
 MAX_SAMPLES = 1_000_000

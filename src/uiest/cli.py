@@ -24,6 +24,8 @@ from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
 from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
 
+__all__ = ["app", "main"]
+
 app = typer.Typer(
     name="uiest",
     help="State estimation for nonlinear systems with unbounded unknown inputs.",

@@ -43,6 +43,8 @@ from uiest.detectability.structure import RANK_RTOL, input_structure
 from uiest.errors import ModelError
 from uiest.system import System
 
+__all__ = ["DelayedSystem", "delayed_system", "matching_ranks"]
+
 MATCHING_SAMPLES = 32
 """Points of X x U (and w around its nominal value) at which :func:`matching_ranks` compares ranks."""
 

@@ -52,6 +52,17 @@ from uiest.system import System
 from uiest.theory import cite
 from uiest.window.size import check_horizon
 
+__all__ = [
+    "CONDITION_MARGIN",
+    "ERROR_TOLERANCE",
+    "Candidate",
+    "Design",
+    "design_two_stage",
+    "design_uise",
+    "estimator_options",
+    "regret",
+]
+
 CONDITION_MARGIN = 0.99
 """A design for ``max_horizon`` bounds cond(P) this fraction below :func:`horizon_condition`: the LMI solver keeps
 ``P << c I`` only to its tolerance, and the horizon's logarithm is floored."""

@@ -6,6 +6,19 @@ what was expected and what came. The CLI turns them into a one-line message and 
 
 from __future__ import annotations
 
+__all__ = [
+    "BoundWarning",
+    "CertificationError",
+    "DataError",
+    "DomainWarning",
+    "HorizonError",
+    "ModelError",
+    "OptionError",
+    "SolverError",
+    "StorageError",
+    "UiestError",
+]
+
 
 class UiestError(Exception):
     """Base class of every error raised by uiest on purpose."""

@@ -56,6 +56,20 @@ from uiest.paths import plain_name
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
+__all__ = [
+    "ALL",
+    "DEFAULT_MAX_HORIZON",
+    "LONGEST_HORIZON",
+    "build_all",
+    "build_estimator",
+    "check_lag",
+    "default_prior",
+    "errors_against_truth",
+    "recommended",
+    "run_estimators",
+    "write_estimates",
+]
+
 ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "smooth", "ekf", "ukf", "uio")
 ALL = "all"
 """``--estimator all``: every estimator of :data:`ESTIMATORS` the model admits."""

@@ -23,6 +23,8 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.errors import OptionError
 
+__all__ = ["Guarantee", "Verdict"]
+
 
 class Verdict(enum.Enum):
     """What a guarantee says, derived from its numbers (:attr:`Guarantee.verdict`)."""

@@ -28,6 +28,8 @@ from typing import Any, TypeVar
 from uiest.atomic import STAGED_PREFIX, STAGED_SUFFIX
 from uiest.errors import StorageError
 
+__all__ = ["LOCK_NAME", "folder_lock", "holds_folder"]
+
 LOCK_NAME = ".uiest.lock"
 """Name of the lock file inside a locked folder."""
 

@@ -16,6 +16,8 @@ from uiest.box import Box, FloatArray
 from uiest.checks import real_array
 from uiest.errors import DataError, ModelError
 
+__all__ = ["GaussianNoise", "NoiseModel", "UniformNoise"]
+
 
 @runtime_checkable
 class NoiseModel(Protocol):

@@ -40,6 +40,8 @@ from uiest.box import Box
 from uiest.checks import check_int
 from uiest.errors import ModelError, OptionError
 
+__all__ = ["ContinuousModel", "discretise", "input_integral", "rk4_instability"]
+
 INPUT_CHANNELS = ("integral", "rk4")
 METHODS = ("rk4", "collocation")
 NEWTON_ITERATIONS = 6

@@ -7,6 +7,8 @@ from pathlib import Path
 
 from uiest.errors import OptionError
 
+__all__ = ["plain_name", "writable_file", "writable_folder"]
+
 
 def writable_folder(folder: Path, name: str) -> Path:
     """Create ``folder`` and check a file can be written there, else OptionError naming ``name``."""

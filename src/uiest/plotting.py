@@ -8,6 +8,8 @@ from typing import TYPE_CHECKING, Any
 
 import matplotlib
 
+__all__ = ["plot_estimates", "plot_record", "plot_trajectory", "robust_limits", "save_figure"]
+
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np

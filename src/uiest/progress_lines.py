@@ -7,6 +7,8 @@ import time
 from collections.abc import Callable
 from typing import TextIO
 
+__all__ = ["ProgressLines", "duration"]
+
 LINE_INTERVAL = 30.0
 """Seconds between two progress lines (the first and the last are always written)."""
 

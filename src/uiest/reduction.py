@@ -31,6 +31,8 @@ from uiest.errors import ModelError
 from uiest.system import System, as_function
 from uiest.theory import cite
 
+__all__ = ["ASSUMPTION_TOL", "AssumptionReport", "ReducedModel", "reduce_quasi_state_affine"]
+
 ASSUMPTION_TOL = 1e-8
 """Largest relative violation of eq:ass_1, eq:ass_2 and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
 

@@ -28,6 +28,8 @@ from uiest.system import System
 if TYPE_CHECKING:
     from uiest.window.problem import WindowTrajectory
 
+__all__ = ["HEALTH_FIELDS", "EstimationResult", "StepEstimate", "Trajectory", "count_names", "read_record"]
+
 
 def _freeze(array: FloatArray, name: str) -> FloatArray:
     out = real_array(array, name, "an array of real numbers")

@@ -18,6 +18,8 @@ import pandas as pd
 from uiest.checks import real_array, user_stacklevel
 from uiest.errors import DataError
 
+__all__ = ["on_time_grid"]
+
 FILLED_BYTES_LIMIT = 2**30
 """Largest table (rows x columns x 8 bytes) that gaps may be filled to: 1 GiB.
 

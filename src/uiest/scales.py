@@ -36,6 +36,8 @@ from uiest.box import FloatArray, as_vector
 from uiest.signal import ScaleSource, Signal
 from uiest.system import System, output_spread
 
+__all__ = ["ROUNDING", "WIDE_DOMAIN", "data_scales", "state_peaks"]
+
 WIDE_DOMAIN = 1e4
 """A domain width above this many times the signal's magnitude is not a scale."""
 

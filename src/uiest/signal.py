@@ -13,6 +13,8 @@ from uiest.box import Box, FloatArray
 from uiest.checks import check_name, shown
 from uiest.errors import ModelError
 
+__all__ = ["ScaleSource", "Signal"]
+
 SIGNAL_KINDS = ("x", "u", "w", "v", "y")
 """The five signals of ``x+ = f(x, u, w), y = h(x, v)``, in this order everywhere."""
 

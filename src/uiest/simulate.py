@@ -15,6 +15,8 @@ from uiest.noise import NoiseModel
 from uiest.results import Trajectory
 from uiest.system import System
 
+__all__ = ["check_steps", "simulate"]
+
 InputLike = ArrayLike | Callable[[int, FloatArray], ArrayLike] | None
 
 

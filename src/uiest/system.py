@@ -38,6 +38,8 @@ from uiest.signal import ScaleSource, Signal
 if TYPE_CHECKING:
     from uiest.ode import ContinuousModel
 
+__all__ = ["Linearization", "System", "as_function", "output_spread"]
+
 BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
 
 

@@ -17,6 +17,8 @@ from types import MappingProxyType
 
 from uiest.errors import OptionError
 
+__all__ = ["ALGEBRAIC_TWO_STAGE", "PAPER", "cite"]
+
 CITATION = "Guo et al."
 """How user-facing text names the paper."""
 

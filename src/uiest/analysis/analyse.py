@@ -21,6 +21,8 @@ from uiest.errors import ModelError, OptionError
 from uiest.system import System
 from uiest.window.size import check_horizon
 
+__all__ = ["DEFAULT_MAX_HORIZON", "analyse"]
+
 DEFAULT_MAX_HORIZON = 60
 """The longest estimator window :func:`analyse` considers by default."""
 

@@ -27,6 +27,8 @@ from uiest.estimators import UISE, DelayedUISE
 from uiest.guarantee import Guarantee
 from uiest.system import System
 
+__all__ = ["EstimatorDesign", "delayed_design", "strong_design"]
+
 
 @dataclass(frozen=True, eq=False)
 class EstimatorDesign:

@@ -32,6 +32,8 @@ from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
 from uiest.system import System
 
+__all__ = ["FrequencyMinimum", "NearZeros", "find_near_zeros"]
+
 ANGLES = 721
 """Frequencies on the upper half of the unit circle (conjugates give the same values), ``0 .. pi``."""
 RADII = 6

@@ -26,6 +26,8 @@ from uiest.detectability.structure import RANK_RTOL
 from uiest.errors import ModelError
 from uiest.system import System
 
+__all__ = ["POINTS", "Linearisations", "euler_frobenius_roots", "input_degrees", "linearise", "relative_degrees"]
+
 POINTS = 32
 """Points of X x U at which the model is linearised (the reference point included)."""
 

@@ -23,6 +23,8 @@ from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
 from uiest.detectability.structure import RANK_RTOL
 
+__all__ = ["RandomWalkDetectability", "random_walk_detectability"]
+
 UNIT_TOL = 1e-9
 """Eigenvalues of A with modulus above ``1 - UNIT_TOL`` are tested."""
 

@@ -34,6 +34,18 @@ from uiest.guarantee import Guarantee
 if TYPE_CHECKING:
     from uiest.analysis.report import ModelAnalysis
 
+__all__ = [
+    "Cause",
+    "Recommendation",
+    "amount",
+    "complex_number",
+    "decide",
+    "frequency_text",
+    "number",
+    "point_text",
+    "reason",
+]
+
 LIMITING_SHARE = 0.9
 """A zero is named as what limits the certificate when ``|z|^2`` is at least this share of its smallest rate."""
 FLOOR_SHARE = 0.01

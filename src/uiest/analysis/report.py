@@ -22,6 +22,8 @@ from uiest.analysis.recommend import (
 from uiest.analysis.zeros import Zero, Zeros
 from uiest.box import FloatArray
 
+__all__ = ["ModelAnalysis"]
+
 
 @dataclass(frozen=True, eq=False)
 class ModelAnalysis:

@@ -27,6 +27,8 @@ from uiest.box import FloatArray
 from uiest.detectability.linear import invariant_zeros
 from uiest.system import System
 
+__all__ = ["Channel", "Zero", "Zeros", "find_zeros"]
+
 ComplexArray = NDArray[np.complex128]
 
 

@@ -30,6 +30,8 @@ from fractions import Fraction
 
 import casadi as ca
 
+__all__ = ["Expressed", "Form", "Forms", "constant_of", "express", "variable_part"]
+
 Monomial = tuple[tuple[int, int], ...]
 """Sorted ``(atom id, power)`` pairs; ``()`` is the constant monomial."""
 

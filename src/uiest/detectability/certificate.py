@@ -23,6 +23,23 @@ from uiest.errors import CertificationError, OptionError
 if TYPE_CHECKING:
     from uiest.detectability.falsify import Falsification
 
+__all__ = [
+    "DEFAULT_MAX_CONDITION",
+    "STATUS_OF",
+    "Certificate",
+    "CertificateStatus",
+    "MuCertificate",
+    "StrongDetectabilityBase",
+    "Verification",
+    "check_rate",
+    "horizon_condition",
+    "quad",
+    "sample_pairs",
+    "state_labels",
+    "strong_horizon",
+    "verdict",
+]
+
 
 class CertificateStatus(StrEnum):
     """The statuses a certificate can end in (compare with the strings or the members).

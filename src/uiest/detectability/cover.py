@@ -40,6 +40,8 @@ from uiest.detectability.lmi import batched, grid_points
 from uiest.detectability.sampled_cover import sampled_vertices
 from uiest.errors import ModelError, OptionError
 
+__all__ = ["MAX_PARAMETERS", "Cover", "cover"]
+
 CONSTANT, ENTRIES, PARAMETER_BOX, SAMPLED = "constant", "exact by entries", "parameter box", "sampled cover"
 """The kinds of cover; all but SAMPLED are proofs."""
 

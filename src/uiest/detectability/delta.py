@@ -34,6 +34,8 @@ from uiest.detectability.certificate import DEFAULT_MAX_CONDITION, Certificate, 
 from uiest.errors import ModelError, OptionError
 from uiest.system import System
 
+__all__ = ["DeltaIOSS", "certify_delta_ioss"]
+
 
 @dataclass(frozen=True, eq=False)
 class DeltaIOSS(Certificate):

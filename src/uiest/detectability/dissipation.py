@@ -54,6 +54,8 @@ from uiest.detectability.dissipation_rate import RateStage
 from uiest.detectability.tradeoff import check_condition
 from uiest.errors import OptionError
 
+__all__ = ["DissipationSolution", "IncrementalModel", "PairCheck", "check_options", "check_pairs", "solve"]
+
 STRUCTURES = ("full", "identity")
 
 

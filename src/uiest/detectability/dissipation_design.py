@@ -22,6 +22,8 @@ if TYPE_CHECKING:
 else:
     from uiest.detectability.lmi import cp  # cvxpy, imported when first used
 
+__all__ = ["ROUNDING", "Finished", "Recheck", "design_and_check", "recheck"]
+
 DESIGN_SLACK = 0.5
 """The design imposes the inequality at ``mu - DESIGN_SLACK * t``, t the rate problem's margin at mu."""
 

@@ -42,6 +42,8 @@ import scipy.linalg
 
 from uiest.box import FloatArray
 
+__all__ = ["CONDITION_RTOL", "Vertices", "balancing", "smallest_weight"]
+
 KERNEL_RTOL = 1e-10
 """Singular values of the state output map below this fraction of the output map's norm count as zero."""
 

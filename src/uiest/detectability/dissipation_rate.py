@@ -20,6 +20,8 @@ if TYPE_CHECKING:
 else:
     from uiest.detectability.lmi import cp  # cvxpy, imported when first used
 
+__all__ = ["RateProblem", "RateStage"]
+
 MARGIN_FLOOR = 1e-9
 """Smallest margin ``t*`` of the rate problem (relative to the storage on the kernels) that counts as feasible."""
 

@@ -32,6 +32,8 @@ import numpy as np
 from uiest.box import Box, FloatArray
 from uiest.detectability.certificate import sample_pairs
 
+__all__ = ["MIN_SEPARATION", "Falsification", "search"]
+
 PAIRS = 20_000
 """Sampled pairs (half of them close), besides the anchored ones."""
 

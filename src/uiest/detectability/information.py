@@ -29,6 +29,8 @@ from uiest.checks import check_real, real_array, shown
 from uiest.errors import DataError, OptionError
 from uiest.system import System
 
+__all__ = ["InformationBound", "window_information"]
+
 
 @dataclass(frozen=True)
 class InformationBound:

@@ -24,6 +24,8 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 
+__all__ = ["Bounds", "IntervalUnsupportedError", "bounds", "centered", "enclosure"]
+
 Interval = tuple[FloatArray, FloatArray]
 
 

@@ -32,6 +32,8 @@ from uiest.detectability.certificate import (
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
+__all__ = ["LinearStrongDetectability", "invariant_zeros", "linear_strong_detectability"]
+
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
 

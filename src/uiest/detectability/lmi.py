@@ -30,6 +30,23 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 
+__all__ = [
+    "RATE_FLOOR",
+    "RATE_GAP",
+    "SOLVED",
+    "ActiveSet",
+    "Bisection",
+    "batched",
+    "bisect_rate",
+    "cutting_plane_probe",
+    "finite_box",
+    "grid_points",
+    "is_constant",
+    "min_eig",
+    "solve",
+    "symmetric",
+]
+
 
 class _ImportedOnFirstUse:
     """Stands for the module ``name`` and imports it when one of its attributes is first read.

@@ -31,6 +31,8 @@ from uiest.detectability import dissipation
 from uiest.detectability.certificate import DEFAULT_MAX_CONDITION, MuCertificate, Verification
 from uiest.errors import ModelError
 
+__all__ = ["ReducedIOSS", "certify_reduced_ioss"]
+
 
 @dataclass(frozen=True, eq=False)
 class ReducedIOSS(MuCertificate):

@@ -22,6 +22,8 @@ import scipy.spatial
 from uiest.box import Box, FloatArray
 from uiest.errors import ModelError
 
+__all__ = ["sampled_vertices"]
+
 MARGIN = 1e-4
 """Faces of a sampled cover are pushed out by this fraction of the samples' extent."""
 

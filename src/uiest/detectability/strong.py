@@ -53,6 +53,8 @@ from uiest.errors import ModelError, OptionError
 from uiest.system import System, as_function
 from uiest.theory import cite
 
+__all__ = ["StrongDetectability", "certify_strong_detectability", "worst_case_ratio"]
+
 
 @dataclass(frozen=True, eq=False)
 class StrongDetectability(StrongDetectabilityBase):

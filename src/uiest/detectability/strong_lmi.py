@@ -48,6 +48,8 @@ if TYPE_CHECKING:
 else:
     from uiest.detectability.lmi import cp  # cvxpy, imported when first used
 
+__all__ = ["Geometry", "RateProblem", "StrongLMI", "StrongSolution"]
+
 MARGIN_FLOOR = 1e-8
 """A rate is feasible when the restricted LMI keeps this margin (P normalised to ||P|| <= 1)."""
 

@@ -35,6 +35,8 @@ from uiest.detectability.lmi import batched, finite_box
 from uiest.errors import ModelError
 from uiest.system import System
 
+__all__ = ["RANK_RTOL", "InputStructure", "input_structure"]
+
 RANK_RTOL = 1e-8
 """Singular values below this fraction of the largest one count as zero (ranks of df/dw and C B)."""
 

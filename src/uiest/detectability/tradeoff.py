@@ -21,6 +21,8 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.errors import OptionError
 
+__all__ = ["DEFAULT_LEVELS", "Tradeoff", "TradeoffRow", "check_condition", "tabulate"]
+
 DEFAULT_LEVELS = (1e6, 1e8, 1e10, 1e12)
 """Bounds on cond(P) tabulated by default."""
 

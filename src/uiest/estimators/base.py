@@ -743,4 +743,4 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     )
 
 
-__all__ = ["WindowEstimator", "WindowOptions", "collect_run"]
+__all__ = ["StreamingEstimator", "WindowEstimator", "WindowOptions", "collect_run"]

@@ -39,6 +39,18 @@ import numpy as np
 
 from uiest.box import Box, FloatArray
 
+__all__ = [
+    "SETTLED",
+    "box_quadratic_max",
+    "impulse_bound",
+    "mhe_bound",
+    "noise_quadratic",
+    "reduction_bound",
+    "strong_bound",
+    "two_stage_rate",
+    "two_stage_z_bound",
+]
+
 SETTLED = 1.1
 """A guarantee's bound is this times its theorem's bound as k -> infinity; it holds once the initial error's share
 has decayed below the difference."""

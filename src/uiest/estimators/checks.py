@@ -7,6 +7,8 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.system import System
 
+__all__ = ["held_on_boundary", "window_bounds"]
+
 
 def window_bounds(k: int, N: int | None) -> tuple[int, int]:
     """``(N_k, first)``: the window length and first time of step k (``N_k = min(N, k)``, N None: k)."""

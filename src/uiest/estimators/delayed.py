@@ -35,6 +35,8 @@ from uiest.theory import cite
 from uiest.window import WindowTrajectory
 from uiest.window.size import check_horizon
 
+__all__ = ["DelayedUISE"]
+
 
 class DelayedUISE(UISE):
     r"""UISE of the delayed system (module docstring): estimates ``x[k-lag]``, ``lag >= 1``.

@@ -46,6 +46,8 @@ from uiest.system import System
 from uiest.theory import cite
 from uiest.window import WindowModel
 
+__all__ = ["FIE"]
+
 
 class FIE(WindowEstimator):
     r"""Full information estimator (lem:FIE): growing window from time 0, cost eq:cost_FIE_full.

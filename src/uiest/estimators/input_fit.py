@@ -21,6 +21,8 @@ from uiest.box import FloatArray
 from uiest.system import System
 from uiest.window.buffered import BufferedFunction
 
+__all__ = ["InputFit"]
+
 
 class InputFit:
     """Gauss-Newton least-squares fit of w in ``f(x_prev, u, w) = x_next`` (see the module docstring).

@@ -49,6 +49,8 @@ from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
 from uiest.theory import cite
 
+__all__ = ["LinearUIO"]
+
 
 def _dare_gain(E: FloatArray, C: FloatArray) -> FloatArray:
     """``K1 = E P C^T (C P C^T + I)^-1`` with P from the DARE of ``(E^T, C^T)``, Q = R = I."""

@@ -15,6 +15,8 @@ from uiest.detectability import lmi
 from uiest.errors import OptionError
 from uiest.reduction import ReducedModel
 
+__all__ = ["Projection"]
+
 PROJECTIONS = ("clip", "exact", "none")
 """Values accepted as ``projection=``."""
 

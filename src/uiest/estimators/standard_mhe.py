@@ -44,6 +44,8 @@ from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
 
+__all__ = ["SPAN", "StandardMHE"]
+
 SPAN = 1e8
 """Largest ratio between the window's newest and oldest discount the standard MHE keeps (``normalise``)."""
 

@@ -88,6 +88,8 @@ from uiest.theory import ALGEBRAIC_TWO_STAGE, cite
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
 
+__all__ = ["TwoStageUISE", "reduced_data_scales"]
+
 
 def reduced_data_scales(reduced: ReducedModel, x0_prior: ArrayLike | None) -> ReducedModel:
     """``reduced`` with its system's scales from data (:func:`~uiest.scales.data_scales`); itself where none change."""

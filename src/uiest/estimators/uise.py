@@ -45,6 +45,8 @@ from uiest.system import System
 from uiest.theory import cite
 from uiest.window import WindowModel
 
+__all__ = ["UISE", "check_system"]
+
 
 def check_system(system: Any) -> System:
     """``system`` if it is a :class:`~uiest.system.System`, else OptionError."""

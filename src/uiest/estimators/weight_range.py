@@ -29,6 +29,8 @@ from numpy.typing import NDArray
 
 from uiest.errors import OptionError
 
+__all__ = ["check_weight_range"]
+
 EPS = float(np.finfo(float).eps)
 """Double-precision rounding unit: a term below ``EPS`` times the largest vanishes from a sum."""
 

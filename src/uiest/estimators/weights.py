@@ -35,6 +35,18 @@ from uiest.system import System
 from uiest.theory import cite
 from uiest.window.problem import WindowWeights, sqrt_psd
 
+__all__ = [
+    "DeltaCertificate",
+    "MHEWeights",
+    "ReducedCertificate",
+    "Schedule",
+    "StrongCertificate",
+    "TwoStageWeights",
+    "UISEWeights",
+    "certificate_z_scale",
+    "resolve_weights",
+]
+
 OUTPUT_RATIO = 100.0
 """:meth:`MHEWeights.from_variances`: the output residual's weight over the noise's (mapped to y): the split of a
 measurement's misfit between the two puts 1/51 of it on the residual, so the misfit costs 98 % of its Gaussian

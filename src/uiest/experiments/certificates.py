@@ -9,6 +9,8 @@ from uiest.experiments.scenario import EstimatorSpec
 from uiest.experiments.study_model import KIND_CERTIFICATE
 from uiest.guarantee import Guarantee
 
+__all__ = ["describe", "summary"]
+
 
 def summary(spec: EstimatorSpec, certificate: Certificate | None, error: str = "") -> dict[str, object]:
     """What the report says of one certified estimator's certificate: rate, horizon, noise gain, coverage."""

@@ -22,6 +22,19 @@ from uiest.box import FloatArray
 from uiest.experiments.metrics import state_names
 from uiest.experiments.runner import StudyResult
 
+__all__ = [
+    "FILTER_KINDS",
+    "MIN_EFFECT",
+    "Claim",
+    "ClaimVerdict",
+    "Effect",
+    "decide",
+    "headline",
+    "paper_claims",
+    "per_run",
+    "relative",
+]
+
 MIN_EFFECT = 0.01
 """A relative effect on accuracy below this (1 %) is no measurable difference, however consistent the runs."""
 

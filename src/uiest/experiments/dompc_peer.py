@@ -73,6 +73,8 @@ from uiest.estimators import MHEWeights
 from uiest.system import System
 from uiest.window.solvers import IPOPT_DEFAULTS
 
+__all__ = ["DompcPeerResult", "run_dompc_standard_mhe"]
+
 FORMULATION_DIFFERENCES = (
     "measurement: do-mpc's noise enters additively with y = h(x) + v as an equality; ours bounds v inside h and "
     "penalises |h(x, v) - y|_R^2: our v is a state v_in driven by process noise, do-mpc's noise is our residual",

@@ -35,6 +35,8 @@ import pandas as pd
 from uiest.errors import OptionError
 from uiest.experiments.sweep_design import Task
 
+__all__ = ["processes", "results", "single_threaded_children", "spawn_pool", "stop_pool"]
+
 Outcome = tuple[Task, pd.DataFrame | None, str]
 """A task, its rows (None when it could not be computed here) and why not ('' otherwise)."""
 

@@ -8,6 +8,8 @@ import pandas as pd
 from uiest.experiments.runner import StudyResult
 from uiest.results import count_names
 
+__all__ = ["accuracy", "health", "state_names", "timing"]
+
 ACCURACY_COLUMNS = ("case", "estimator", "state", "rmse", "max_abs_error", "final_abs_error", "growth")
 TIMING_COLUMNS = (
     "case",

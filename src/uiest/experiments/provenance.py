@@ -11,6 +11,8 @@ import sys
 from importlib import metadata
 from pathlib import Path
 
+__all__ = ["code_version", "git_revision", "machine", "model_digest", "versions"]
+
 PACKAGE = Path(__file__).resolve().parents[1]
 """The ``uiest`` package folder."""
 

@@ -24,6 +24,8 @@ from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
 
+__all__ = ["guarantee_table", "write_report"]
+
 PAPER_T_MAX_MS = {
     "noise-free": {"standard MHE": 51.9, "UISE": 59.4, "two-stage UISE": 26.0},
     "noisy": {"standard MHE": 52.9, "UISE": 73.9, "two-stage UISE": 26.7},

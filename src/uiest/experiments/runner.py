@@ -51,6 +51,8 @@ from uiest.simulate import simulate
 from uiest.system import System
 from uiest.window.solvers import BACKENDS
 
+__all__ = ["BUILDERS", "RunOutcome", "StudyResult", "noise_model", "run_study", "simulate_run"]
+
 Builder = Callable[[StudyModel, EstimatorSpec, FloatArray, str], object]
 """``(study model, spec, prior, solver) -> estimator``."""
 

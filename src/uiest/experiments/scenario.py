@@ -21,6 +21,8 @@ from uiest.checks import MAX_SAMPLES, check_int
 from uiest.errors import OptionError
 from uiest.paths import plain_name, writable_file
 
+__all__ = ["EstimatorSpec", "Scenario", "model_beside", "read_toml"]
+
 ESTIMATOR_KINDS = ("uise", "two-stage", "standard-mhe", "smooth-mhe", "fie", "ekf", "ukf")
 CASES = ("noise-free", "noisy")
 WEIGHT_SOURCES = ("explicit", "certificate")

@@ -47,6 +47,8 @@ from uiest.models import crop_growth
 from uiest.window import IpoptSolver, WindowSolution, WindowSolver
 from uiest.window.size import check_horizon
 
+__all__ = ["SAME_WINDOW_CAP", "TABLE_HEADER", "bench_window_solvers", "same_window_deviation", "table_row"]
+
 SOLVERS = ("ipopt", "gn", "rti")
 
 ESTIMATORS = ("UISE", "two-stage UISE", "standard MHE")

@@ -31,6 +31,8 @@ from uiest.simulate import simulate
 from uiest.system import System
 from uiest.theory import cite
 
+__all__ = ["KIND_CERTIFICATE", "StudyModel", "study_model"]
+
 KIND_CERTIFICATE = {
     "uise": cite("theo:Lyapunov"),
     "fie": cite("theo:Lyapunov"),

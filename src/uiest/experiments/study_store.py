@@ -32,6 +32,8 @@ from uiest.experiments import provenance
 from uiest.experiments.scenario import Scenario
 from uiest.paths import writable_folder
 
+__all__ = ["StudyStore"]
+
 SUFFIX = ".pickle"
 
 

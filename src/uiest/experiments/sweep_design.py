@@ -27,6 +27,8 @@ from uiest.experiments.scenario import Scenario, model_beside, read_toml
 from uiest.window import DEFAULT_BACKEND
 from uiest.window.solvers import BACKENDS
 
+__all__ = ["SWEEPABLE", "Sweep", "Task", "apply"]
+
 SWEEPABLE = ("N", "mu", "output_weight", "noise_scale", "w_gain", "initial_error", "steps", "estimator", "solver")
 """Parameters a sweep may vary: N, mu, output_weight apply to every estimator; estimator keeps only
 the named one; solver selects the window backend; the rest are Scenario fields."""

@@ -30,6 +30,8 @@ from uiest.reduction import ReducedModel
 from uiest.simulate import InputLike
 from uiest.system import System
 
+__all__ = ["BUILT_IN", "ModelEntry", "SimulationSetup", "get", "load", "loadable_elsewhere", "names", "register"]
+
 
 @dataclass(frozen=True)
 class SimulationSetup:

@@ -42,6 +42,8 @@ from uiest.errors import ModelError
 from uiest.reduction import ReducedModel
 from uiest.system import System
 
+__all__ = ["NAME", "contraction_rate", "jacobian_parameters", "noise_free_error", "reduction", "system"]
+
 NAME = "closed-form"
 
 

@@ -71,6 +71,20 @@ from uiest.system import System
 if TYPE_CHECKING:
     from uiest.experiments.scenario import Scenario
 
+__all__ = [
+    "DEFAULT_SCENARIO",
+    "NAME",
+    "CropParameters",
+    "CropScenario",
+    "UnknownInputLaw",
+    "jacobian_parameters",
+    "photosynthesis",
+    "reduction",
+    "study",
+    "system",
+    "unknown_input_value",
+]
+
 NAME = "crop-growth"
 
 

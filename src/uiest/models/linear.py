@@ -14,6 +14,8 @@ from uiest.checks import check_int, check_seed, real_array
 from uiest.errors import ModelError
 from uiest.system import System
 
+__all__ = ["example", "linear_system", "with_invariant_zeros"]
+
 
 def _matrix(value: ArrayLike, name: str, rows: int | None = None, cols: int | None = None) -> FloatArray:
     arr = real_array(value, name, "a real matrix", error=ModelError)

@@ -13,6 +13,8 @@ import numpy as np
 
 from uiest.box import FloatArray
 
+__all__ = ["BufferedFunction"]
+
 
 class BufferedFunction:
     """A CasADi Function evaluated through its buffer; results are the outputs' nonzeros.

@@ -29,6 +29,8 @@ from uiest.box import FloatArray
 from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 
+__all__ = ["BlockCurvature"]
+
 IndexArray = npt.NDArray[np.int64]
 
 

@@ -94,6 +94,8 @@ from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
 
+__all__ = ["DAMPING_FLOOR", "QP_OPTIONS", "SINGULAR_DAMPING", "SOC_RATIO", "VIOLATION_FLOOR", "GaussNewtonSolver"]
+
 QP_OPTIONS: dict[str, Any] = {
     "print_iter": False,
     "print_header": False,

@@ -36,6 +36,8 @@ from uiest.window.buffered import BufferedFunction
 if TYPE_CHECKING:
     from uiest.reduction import ReducedModel
 
+__all__ = ["WindowModel", "box_scale"]
+
 
 def _scale(values: ArrayLike, n: int, name: str) -> FloatArray:
     arr = np.array(values, dtype=float).reshape(-1)

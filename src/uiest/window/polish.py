@@ -29,6 +29,8 @@ from uiest.box import FloatArray
 from uiest.window.buffered import BufferedFunction
 from uiest.window.problem import WindowProblem
 
+__all__ = ["refine"]
+
 ACTIVE_TOL = 1e-6
 """Distance (scaled units) below which a bound or an inequality counts as active."""
 

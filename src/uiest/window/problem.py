@@ -55,6 +55,8 @@ from uiest.errors import DataError, OptionError
 from uiest.system import System
 from uiest.window.model import WindowModel
 
+__all__ = ["WIDE", "WindowProblem", "WindowTrajectory", "WindowWeights", "sqrt_psd", "working_center"]
+
 
 def sqrt_psd(matrix: ArrayLike, name: str) -> FloatArray:
     """Symmetric square root of a symmetric positive semidefinite matrix, or of each of a stack of them.

@@ -21,6 +21,18 @@ from uiest.errors import OptionError
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 
+__all__ = [
+    "BACKENDS",
+    "DEFAULT_BACKEND",
+    "FEASIBILITY_TOL",
+    "IPOPT_DEFAULTS",
+    "IPOPT_WARM_START",
+    "IpoptSolver",
+    "WindowSolution",
+    "WindowSolver",
+    "make_solver",
+]
+
 SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
 """IPOPT return statuses counted as a usable solution."""
 

@@ -17,6 +17,8 @@ from uiest.box import FloatArray
 from uiest.window.problem import WindowProblem, WindowTrajectory
 from uiest.window.solvers import WindowSolution
 
+__all__ = ["predicted_guess", "shifted_guess"]
+
 
 def _node_data(problem: WindowProblem, data: FloatArray | None) -> FloatArray:
     if data is None:
