@@ -2,7 +2,8 @@
 A chaotic map carrying a message
 ================================
 
-A Hénon map hides random bits (+-0.02) in its state; only x1 is sent, with noise 1e-3. The designed UISE returns the message as its unknown-input estimate, one sample late.
+A Hénon map hides random bits (+-0.02) in its state; only x1 is sent, with noise 1e-3. The designed
+UISE returns the message as its unknown-input estimate, one sample late.
 
 The committed figure (``python examples/chaotic_message.py``, 400 samples):
 

@@ -2,7 +2,9 @@
 A linear benchmark: UIO, UISE and EKF
 =====================================
 
-Three states, two outputs, noise 0.05 and an unknown input that steps to 5 and then ramps. The Chen-Patton-Zhang unknown-input observer and the designed UISE ignore it; the EKF, tuned on a random-walk record, lags after each change.
+Three states, two outputs, noise 0.05 and an unknown input that steps to 5 and then ramps. The
+Chen-Patton-Zhang unknown-input observer and the designed UISE ignore it; the EKF, tuned on a
+random-walk record, lags after each change.
 
 The committed figure (``python examples/linear_uio_benchmark.py``, 200 samples):
 

@@ -2,7 +2,9 @@
 A pendulum driven by an unknown torque
 ======================================
 
-A damped pendulum whose angle is measured and whose torque is unknown, sampled every 0.05 s by ``System.from_ode``. Once sampled, the torque (relative degree 2 to the angle) creates a zero near -1: ``uiest analyse`` names it, and recommends the smooth-input MHE.
+A damped pendulum whose angle is measured and whose torque is unknown, sampled every 0.05 s by
+``System.from_ode``. Once sampled, the torque (relative degree 2 to the angle) creates a zero near
+-1: ``uiest analyse`` names it, and recommends the smooth-input MHE.
 
 The model file, ``examples/pendulum.py`` (a module with ``system`` and ``setup()``: any command that
 takes a model name takes its path):

@@ -2,7 +2,11 @@
 A continuous stirred-tank reactor with an actuator fault
 ========================================================
 
-A dimensionless CSTR (concentration c_A, temperature T), only the temperature measured; a coolant actuator fault drifts as the unknown input. Sampled every 0.05 by ``System.from_ode``; its ``setup()`` is the default simulation and its ``study()`` what ``uiest reproduce examples/reactor.py`` runs. ``examples/data/reactor.csv`` is a record of it, the data of ``uiest estimate examples/reactor.py --data examples/data/reactor.csv``.
+A dimensionless CSTR (concentration c_A, temperature T), only the temperature measured; a coolant
+actuator fault drifts as the unknown input. Sampled every 0.05 by ``System.from_ode``; its
+``setup()`` is the default simulation and its ``study()`` what ``uiest reproduce
+examples/reactor.py`` runs. ``examples/data/reactor.csv`` is a record of it, the data of ``uiest
+estimate examples/reactor.py --data examples/data/reactor.csv``.
 
 The model file, ``examples/reactor.py`` (a module with ``system`` and ``setup()``: any command that
 takes a model name takes its path):

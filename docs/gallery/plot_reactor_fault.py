@@ -2,7 +2,9 @@
 A reactor with a drifting actuator fault
 ========================================
 
-The continuous-time CSTR of ``examples/reactor.py``, only the temperature measured, the coolant actuator's fault as the unknown input. The designed (certified) UISE beside an EKF whose random-walk variance is tuned on a separate simulation; the fault drifts smoothly, the EKF's case.
+The continuous-time CSTR of ``examples/reactor.py``, only the temperature measured, the coolant
+actuator's fault as the unknown input. The designed (certified) UISE beside an EKF whose random-walk
+variance is tuned on a separate simulation; the fault drifts smoothly, the EKF's case.
 
 The committed figure (``python examples/reactor_fault.py``, 400 samples):
 

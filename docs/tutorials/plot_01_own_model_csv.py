@@ -32,7 +32,6 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
 
 from uiest import System, UniformNoise, simulate
 from uiest.estimators import EKF, UISE

@@ -130,7 +130,9 @@ print(UISE(build(1.0), certificate=certify_strong_detectability(build(1.0))).gua
 mapped = certify_strong_detectability(
     system, parameters=lambda x, u: [x[1] * np.sin(x[0]), np.cos(x[0]), 1 - np.tanh(x[0]) ** 2]
 )
-print(mapped.status, "| cover:", mapped.cover.kind, "| sound:", mapped.cover.sound, "| mu_min:", round(mapped.mu_min, 4))
+print(
+    mapped.status, "| cover:", mapped.cover.kind, "| sound:", mapped.cover.sound, "| mu_min:", round(mapped.mu_min, 4)
+)
 
 # %%
 # When nothing is proved

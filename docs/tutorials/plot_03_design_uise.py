@@ -29,7 +29,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from uiest import System, UniformNoise, simulate
-from uiest.estimators import EKF, UKF, UISE
+from uiest.estimators import EKF, UISE, UKF
 
 cpu_start = time.thread_time()
 

@@ -142,7 +142,7 @@ for name, result in results.items():
     axes[1].plot(k, result.x_hat[:, 2], lw=1, label=name)
 axes[0].legend(fontsize=7, ncol=4)
 axes[1].legend(fontsize=7, ncol=3)
-for row, (name, result) in enumerate(results.items()):
+for row, result in enumerate(results.values()):
     for value, color in ((Outcome.PROPAGATED, "C3"), (Outcome.SOLVED, "C2"), (Outcome.UPDATED, "C2")):
         hit = result.outcome == value
         axes[2].plot(k[hit], np.full(hit.sum(), row), "|", color=color, ms=8)
