@@ -26,7 +26,9 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+# the repository's examples/: sphinx-gallery runs each script in its own folder (docs/gallery), without __file__
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+EXAMPLES = HERE.parents[1] / "examples"
 spec = importlib.util.spec_from_file_location("example_chaotic_message", EXAMPLES / "chaotic_message.py")
 example = importlib.util.module_from_spec(spec)
 sys.modules[spec.name] = example

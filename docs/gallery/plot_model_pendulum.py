@@ -23,7 +23,9 @@ import matplotlib.pyplot as plt
 from uiest import analyse, simulate
 from uiest.models import load
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+# the repository's examples/: sphinx-gallery runs each script in its own folder (docs/gallery), without __file__
+HERE = Path(__file__).resolve().parent if "__file__" in globals() else Path.cwd()
+EXAMPLES = HERE.parents[1] / "examples"
 entry = load(EXAMPLES / "pendulum.py")
 system = entry.build()
 print(analyse(system).text())
