@@ -155,5 +155,6 @@ fig.tight_layout()
 
 # %%
 # The UISE's leak estimate ``w_hat[k]`` follows the leak from the next measurement on: an unknown
-# input acting from ``k`` to ``k+1`` is seen in ``y[k+1]``. The EKF's random-walk model smooths it.
+# input acting from ``k`` to ``k+1`` is seen in ``y[k+1]``. The EKF's input model (the one its fit chose,
+# printed above) smooths it.
 print(f"CPU time of this tutorial: {time.thread_time() - cpu_start:.1f} s")
