@@ -78,7 +78,7 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
     filled = np.setdiff1d(np.arange(rows), position)
     t0 = float(frame["t"].iloc[0]) if has_t else None
     out = frame.set_axis(pd.Index(position), axis=0).reindex(pd.RangeIndex(rows))
-    if has_t:
+    if t0 is not None:
         out["t"] = t0 + np.arange(rows) * dt
     if filled.size:
         warnings.warn(
