@@ -322,6 +322,7 @@ class SmoothInputMHE(WindowEstimator):
                                       "eq. (16))")  # fmt: skip
         dw_box = getattr(self.certificate, "w_box", None)
         dw_box = aug.w_range if dw_box is None else dw_box
+        assert dw_box is not None  # the augmented model's w_range is the increments' range: always set
         bound, settling = mhe_bound(w.P, w.Q_w, w.Q_v, w.eta, self.N, dw_box, self.w_prior, aug.v.bounds, self.v_prior,
                                     aug.x.bounds.width, current=True)  # fmt: skip
         nx = self.system.nx
