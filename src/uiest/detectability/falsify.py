@@ -239,8 +239,8 @@ def _local(terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floo
             full = point(t)
             if np.linalg.norm((full[:n] - full[n : 2 * n]) / scale) < floor:
                 return -np.inf, np.zeros_like(t)
-            value, grad, denominator = evaluate(full)
-            value, denominator = float(value), float(denominator)
+            ratio_dm, grad, rhs_dm = evaluate(full)
+            value, denominator = float(ratio_dm), float(rhs_dm)
             if not (np.isfinite(value) and denominator > 0.0):
                 return -np.inf, np.zeros_like(t)
             g = np.asarray(grad, dtype=float).ravel()[free] * width[free]
