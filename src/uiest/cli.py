@@ -234,7 +234,9 @@ def estimate(
             raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
         prior = as_vector(values, system.nx, "--x0")
     system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
-    built, notes, skipped = {}, {}, {}
+    built: dict[str, Any] = {}
+    notes: dict[str, str] = {}
+    skipped: dict[str, str] = {}
     options = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "record": record}
     with console.status("building estimators") as status:
         if not estimator:
@@ -249,7 +251,8 @@ def estimate(
         else:
             for kind in estimator:
                 status.update(f"building {kind}")
-                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
+                                                           w_variance=w_variance, record=record)  # fmt: skip
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
@@ -534,7 +537,9 @@ def reproduce(
         error_console.print(message, markup=False, soft_wrap=True)
         raise typer.Exit(code=130) from None
     console.print((folder / "table1.md").read_text(), highlight=False, markup=False)
-    console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})", markup=False)
+    files = manifest["files"]
+    assert isinstance(files, list)  # write_report's manifest lists the files it wrote
+    console.print(f"wrote {len(files)} files to {folder} (report: {folder / 'report.md'})", markup=False)
     if (result.runs["error"] != "").all():
         error_console.print("error: every estimator raised on every run; see the report's Failures", markup=False)
         raise typer.Exit(code=1)

@@ -11,7 +11,7 @@ import contextlib
 import numbers
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from concurrent.futures import as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
@@ -298,8 +298,8 @@ def run_study(
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    kept = {task: saved.load(*task, expected=RunOutcome) for task in tasks} if saved is not None else {}
-    kept = {task: outcome for task, outcome in kept.items() if outcome is not None}
+    loaded = {task: saved.load(*task, expected=RunOutcome) for task in tasks} if saved is not None else {}
+    kept = {task: outcome for task, outcome in loaded.items() if outcome is not None}
 
     def add(outcome: RunOutcome) -> None:
         truths[(outcome.case, outcome.run)] = outcome.truth
@@ -373,7 +373,7 @@ def run_case(
 
 def _outcomes(
     scenario: Scenario, study: StudyModel, given: bool, tasks: list[tuple[str, int]], solver: str, workers: int | None
-) -> Iterator[RunOutcome]:
+) -> Generator[RunOutcome, None, None]:
     """Each (case, run)'s outcome as it completes: in this process, or in a pool of ``workers`` processes.
 
     Spawned workers load built-in models and model files by name, with the certificates and

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -97,7 +98,9 @@ def _number(value: object) -> bool:
 def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[float, ...]:
     """A tuple of real numbers (finite unless ``allow_nan`` lets NaN through), else OptionError naming ``name``."""
     try:
-        items = tuple(value)  # type: ignore[arg-type]
+        if not isinstance(value, Iterable):
+            raise TypeError
+        items = tuple(value)
     except TypeError:
         raise OptionError(f"{name}: expected a list of numbers, got {value!r}") from None
     out = []
