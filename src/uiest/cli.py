@@ -9,7 +9,7 @@ import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, ParamSpec, TypeVar
 
 import numpy as np
 import typer
@@ -35,7 +35,8 @@ app = typer.Typer(
 console = Console(markup=False)  # paths and messages may hold brackets
 error_console = Console(stderr=True, markup=False)
 
-F = TypeVar("F", bound=Callable[..., Any])
+Params = ParamSpec("Params")
+Result = TypeVar("Result")
 _COMMAND_EXITS: contextvars.ContextVar[contextlib.ExitStack] = contextvars.ContextVar("command_exits")
 """What the running command releases when it ends (the output folder it holds)."""
 
@@ -53,7 +54,7 @@ def _positive(value: int | None, option: str, *, allow_zero: bool = False) -> in
     return value
 
 
-def _user_errors(command: F) -> F:
+def _user_errors(command: Callable[Params, Result]) -> Callable[Params, Result]:
     """Turn uiest's typed errors into a one-line message and exit code 2, and warnings into plain message lines.
 
     Any other OSError (a file that could not be read or written) becomes one line naming the file and the
@@ -61,7 +62,7 @@ def _user_errors(command: F) -> F:
     """
 
     @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
+    def wrapper(*args: Params.args, **kwargs: Params.kwargs) -> Result:
         with warnings.catch_warnings(), contextlib.ExitStack() as exits:  # restores the filters and showwarning
             warnings.showwarning = _show_warning
             token = _COMMAND_EXITS.set(exits)
@@ -76,7 +77,7 @@ def _user_errors(command: F) -> F:
             finally:
                 _COMMAND_EXITS.reset(token)
 
-    return wrapper  # type: ignore[return-value]
+    return wrapper
 
 
 def _error_line(text: str) -> None:

@@ -24,6 +24,7 @@ Not finding a violation proves nothing; finding one disproves the certificate.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
@@ -206,7 +207,9 @@ def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list
     return chosen
 
 
-def _local(terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floor: float):  # type: ignore[no-untyped-def]
+def _local(
+    terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floor: float
+) -> Callable[[FloatArray], tuple[float, FloatArray, int]]:
     """A maximiser of ``lhs / rhs`` from a start ``(a, b, s)``: returns (ratio, point, evaluations).
 
     Points whose pair is closer than ``floor`` (scaled by ``scale``) score -inf.

@@ -168,7 +168,9 @@ class Geometry:
                          [np.zeros((p, k)), s2 * np.eye(p), Y2.T],
                          [PGN, Y2, P]])  # fmt: skip
 
-    def kernel_blocks(self, vertices: FloatArray, P: FloatArray, Y2: FloatArray, s2: float, mu: float):  # type: ignore[no-untyped-def]
+    def kernel_blocks(
+        self, vertices: FloatArray, P: FloatArray, Y2: FloatArray, s2: float, mu: float
+    ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
         """Per vertex ``(Q_nn, Q_nm, Q_mm)`` of ``Q_i = mu P - H_i^T W^-1 H_i`` in ``[N, R]`` coordinates."""
         W = np.block([[s2 * np.eye(self.p), Y2.T], [Y2, P]])
         T = np.hstack([self.N, self.R])

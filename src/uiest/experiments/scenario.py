@@ -116,12 +116,15 @@ def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[floa
 def _index_pairs(value: object) -> tuple[tuple[int, int], ...]:
     """``prior_from_output`` as (state, output) pairs of integers, else OptionError."""
     try:
-        pairs = tuple(tuple(pair) for pair in value)  # type: ignore[attr-defined]
+        if not isinstance(value, Iterable):
+            raise TypeError
+        pairs = [tuple(pair) if isinstance(pair, Iterable) else () for pair in value]
     except TypeError:
-        pairs = ((),)
-    if not all(len(pair) == 2 and all(type(i) is int for i in pair) for pair in pairs):
+        pairs = [()]
+    checked = tuple((i, j) for i, j in (p for p in pairs if len(p) == 2) if type(i) is int and type(j) is int)
+    if len(checked) != len(pairs):
         raise OptionError(f"prior_from_output: expected [state, output] integer index pairs, got {value!r}")
-    return pairs  # type: ignore[return-value]
+    return checked
 
 
 @dataclass(frozen=True)
