@@ -466,7 +466,7 @@ class ReducedCertificate(Protocol):
 
     @property
     def c_x(self) -> float:
-        """``lambda_max(P) / lambda_min(P)`` in scaled norms (eq:N_cond's constant)."""
+        """``lambda_max(P) / lambda_min(P)`` in scaled norms (the constant of Eq. (31))."""
         ...
 
     @property
