@@ -82,7 +82,7 @@ def run_task(task: Task) -> pd.DataFrame:
         try:
             estimator = BUILDERS[spec.kind](study, spec, prior, task.solver)
             with quiet_bound_warnings():  # counted in the row
-                result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+                result = estimator.run(truth.u, truth.y)
         except Exception as exc:  # recorded, whatever it is; the sweep goes on
             row["error"] = f"{type(exc).__name__}: {exc}"
             rows.append(row)
