@@ -85,7 +85,11 @@ def increments(dw_bound: ArrayLike | None, dw_variance: ArrayLike | None, nw: in
     if dw_bound is None and dw_variance is None:
         raise OptionError("dw_bound, dw_variance: expected at least one (the increments' bound or variance)")
     variance = None if dw_variance is None else increment_bound(dw_variance, nw, "dw_variance")
-    bound = DW_SIGMAS * np.sqrt(variance) if dw_bound is None else increment_bound(dw_bound, nw)  # type: ignore[arg-type]
+    if dw_bound is not None:
+        bound = increment_bound(dw_bound, nw)
+    else:
+        assert variance is not None  # one of the two is given (checked above)
+        bound = DW_SIGMAS * np.sqrt(variance)
     return bound, (bound / DW_SIGMAS) ** 2 if variance is None else variance
 
 

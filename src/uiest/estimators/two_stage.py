@@ -275,8 +275,8 @@ class TwoStageUISE(WindowEstimator):
             missing = self._horizon_missing("reduced i-IOSS", TWO_STAGE_HORIZON)
             if missing:
                 return self._no_guarantee(theorem, missing)
-            assert self.weights is not None and self.N is not None
-            c_x, mu = float(self.certificate.c_x), self.weights.mu  # type: ignore[union-attr]
+            assert self.weights is not None and self.N is not None and self.certificate is not None
+            c_x, mu = float(self.certificate.c_x), self.weights.mu
             noise = noise_quadratic(self.weights.R_v, system.v.bounds, self.v_prior)
             rate, z_settled = two_stage_rate(mu, c_x, self.N), two_stage_z_bound(mu, c_x, self.N, noise)
             scale = certificate_z_scale(self.certificate)
