@@ -273,6 +273,7 @@ def test_reproduce_interrupted_by_ctrl_c_keeps_its_finished_runs_and_the_rerun_c
     assert len(list((out / "runs").glob("*.pickle"))) == 4 and (out / "report.md").exists()
 
 
+@pytest.mark.slow
 def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored_runs_back(tmp_path):
     from test_experiments import tiny
 

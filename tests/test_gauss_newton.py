@@ -485,6 +485,7 @@ def test_the_qp_is_scaled_so_that_qrqp_tells_small_curvature_from_none(henon_mhe
     assert 2 * scaled < _henon_qrqp_iterations(henon_mhe_windows, counts)
 
 
+@pytest.mark.slow
 def test_curvature_too_small_for_qrqp_is_raised(henon_mhe_windows, monkeypatch):
     """The oldest nodes' curvature (weights 0.6^99) is below what qrqp tells from zero even in the scaled QP: raised,
     qrqp moves those variables by the least it can instead of holding them on their boxes and releasing them later.
