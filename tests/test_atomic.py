@@ -104,6 +104,7 @@ def test_a_staged_folder_replaces_its_files_all_together_or_not_at_all(tmp_path)
     assert contents(tmp_path) == {"a.csv": b"new a", "b.csv": b"old b", "c.csv": b"new c"}
 
 
+@pytest.mark.slow
 def test_estimate_on_a_full_disk_ends_in_one_line_and_keeps_the_earlier_estimates(tmp_path, monkeypatch):
     data = chain_record(tmp_path)
     out = tmp_path / "out"
@@ -171,6 +172,7 @@ def test_sweep_on_a_full_disk_keeps_the_stored_tasks_and_resumes(tmp_path, monke
     assert "3 of 3 tasks stored (0 with an error)" in again.output
 
 
+@pytest.mark.slow
 def test_a_file_size_limit_ends_estimate_in_one_line_naming_the_file(tmp_path):
     data = chain_record(tmp_path)
     out = tmp_path / "out"

@@ -81,6 +81,7 @@ def test_reproduce_runs_a_scenario_file(tmp_path):
     assert none.exit_code == 2 and "has no study()" in none.output
 
 
+@pytest.mark.slow
 def test_reproduce_runs_the_study_of_a_model_file(tmp_path):
     from pathlib import Path
 
@@ -109,6 +110,7 @@ def test_sweep_command_runs_and_resumes(tmp_path):
     assert "sweep: 2 of 2 tasks done (2 stored before), 0 left" in again.output
 
 
+@pytest.mark.slow
 def test_bench_runs_only_the_chosen_estimator_and_window_length(tmp_path):
     import json
 
@@ -127,6 +129,7 @@ def test_bench_rejects_unknown_estimators_and_window_lengths_before_running(args
     assert "cpu ms" not in result.output  # no table was started
 
 
+@pytest.mark.slow
 def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     import json
 
@@ -158,6 +161,7 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     assert all((r["windows_cost_above_1e-8"] > 0) == (r["max_cost_excess_vs_ipopt"] > 1e-8) for r in gn)
 
 
+@pytest.mark.slow
 def test_certify_says_the_crop_uise_bound_is_vacuous_in_kg_per_m2(tmp_path):
     import json
 
@@ -171,6 +175,7 @@ def test_certify_says_the_crop_uise_bound_is_vacuous_in_kg_per_m2(tmp_path):
     assert "UISE: vacuous" in result.output and "applies" not in line
 
 
+@pytest.mark.slow
 def test_estimate_prints_warnings_as_messages_and_the_guarantee_with_its_verdict(tmp_path):
     import numpy as np
 
@@ -268,6 +273,7 @@ def test_reproduce_interrupted_by_ctrl_c_keeps_its_finished_runs_and_the_rerun_c
     assert len(list((out / "runs").glob("*.pickle"))) == 4 and (out / "report.md").exists()
 
 
+@pytest.mark.slow
 def test_reproduce_without_a_terminal_writes_progress_lines_and_reads_its_stored_runs_back(tmp_path):
     from test_experiments import tiny
 

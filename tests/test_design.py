@@ -28,6 +28,7 @@ def benchmark(seed: int):
 
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.slow
 def test_designed_uise_is_as_accurate_as_the_linear_uio(seed):
     system, traj, v = benchmark(seed)
     uio = LinearUIO(system, x0_prior=np.zeros(3))
@@ -72,6 +73,7 @@ def test_regret_scores_every_component_against_its_best():
     np.testing.assert_allclose(regret(np.array([[1.0, 1e-15], [1.0, 1e-13]])), [1.0, 1.0])
 
 
+@pytest.mark.slow
 def test_design_is_within_the_tolerance_of_the_best_candidate_on_every_state():
     # the README's linear benchmark: x1 is measured (its error ties across rates), x2 is not; scoring the worst
     # state alone broke the tie by list order (mu 0.3, N 4: x2 error 330x the best candidate's)
@@ -103,6 +105,7 @@ def test_design_refuses_what_it_cannot_do():
     assert (copy.limit, copy.shortest, str(copy)) == (1, shortest, str(refused.value))
 
 
+@pytest.mark.slow
 def test_two_stage_design_is_guaranteed_and_picks_its_most_accurate_candidate():
     from uiest.estimators import TwoStageUISE
     from uiest.estimators.bounds import noise_quadratic, two_stage_z_bound
@@ -145,6 +148,7 @@ def _logistic():
     )  # fmt: skip
 
 
+@pytest.mark.slow
 def test_a_rate_whose_window_is_too_long_is_certified_again_with_a_bounded_condition():
     # mu_min = 0.81 (0.9^2); the gain-optimal P has cond ~250, so min_horizon is 37 > 30 and the design once refused
     # the model. cond(P) bounded to fit N = 30 certifies the same rate.
@@ -162,6 +166,7 @@ def test_a_rate_whose_window_is_too_long_is_certified_again_with_a_bounded_condi
         certify_strong_detectability(system, max_condition=1.0)
 
 
+@pytest.mark.slow
 def test_a_design_whose_guarantee_bounds_nothing_under_the_noise_says_so():
     import warnings
 
@@ -177,6 +182,7 @@ def test_a_design_whose_guarantee_bounds_nothing_under_the_noise_says_so():
         assert UISE.design(strong, x0_prior=[0.0], rates=(0.5,), trials=1, steps=40).guarantee.informative
 
 
+@pytest.mark.slow
 def test_a_design_scores_its_candidates_on_the_users_records_when_given():
     from uiest.results import Trajectory
 
@@ -197,6 +203,7 @@ def test_a_design_scores_its_candidates_on_the_users_records_when_given():
         UISE.design(system, x0_prior=[0.0], rates=(0.5,), records=record)
 
 
+@pytest.mark.slow
 def test_a_certificate_with_larger_output_weights_still_holds_and_the_design_tries_them():
     system, _, _ = benchmark(1)
     cert = certify_strong_detectability(system, mu=0.6)
@@ -233,6 +240,7 @@ def chen_patton_record(system, K=300):
     return simulate(system, [1.0, -1.0, 2.0], K, w=w, v=rng.uniform(-1e-2, 1e-2, (K + 1, 2)))
 
 
+@pytest.mark.slow
 def test_uise_design_where_x_means_unbounded_takes_scales_from_data_and_matches_the_linear_uio():
     # X = +-1e9 and no scales: X's width as every state's scale (2e9) made the design pick mu 0.1, N 4 and gave
     # 45-4600x the UIO's RMSE per state, with a scale warning per noise trial; the scales now come from the prior
@@ -257,6 +265,7 @@ def test_uise_design_where_x_means_unbounded_takes_scales_from_data_and_matches_
     assert np.all(rmse(result) <= 1.2 * rmse(uio)), (rmse(result), rmse(uio))
 
 
+@pytest.mark.slow
 def test_two_stage_design_on_the_chen_patton_benchmark_matches_the_linear_uio():
     # the reduced certificate once failed at every rate tried here ("solver failed") and the design raised
     from uiest.estimators import TwoStageUISE

@@ -109,6 +109,7 @@ def test_delta_ioss_closed_form():
     assert data["kind"] == "delta_ioss" and data["structure"] == "full"
 
 
+@pytest.mark.slow
 def test_crop_certificates_hold_with_discounts_near_one():
     system = crop_growth.system()
     delta = certify_delta_ioss(system)  # w over the known range [0.965, 1]
@@ -146,6 +147,7 @@ def test_bisect_rate_never_reports_a_solver_failure_as_infeasible():
     assert "upper estimate" in found.note
 
 
+@pytest.mark.slow
 def test_certificates_share_one_interface():
     system = closed_form.system()
     delta = certify_delta_ioss(system, w_bounds=(-1, 1), **FAST)
@@ -185,6 +187,7 @@ def test_a_dissipation_certificate_the_search_refutes_is_not_certified(monkeypat
     assert cert.falsification.worst_ratio > 1.0 and "refuted: the pair" in cert.reason
 
 
+@pytest.mark.slow
 def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p():
     from uiest.detectability.cover import cover
 
@@ -214,6 +217,7 @@ def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p()
     assert list(frame["max_condition"]) == [1e6, 1e8, 1e10, 1e12] and "noise_gain z1" in frame
 
 
+@pytest.mark.slow
 def test_the_bound_on_cond_p_is_an_argument_of_every_certify_function():
     f, h, bounds = _linear_reduced(np.array([[0.5, 2.0], [0.0, 0.3]]))
     system = linear.linear_system(np.diag([0.6, 0.3]), [[1.0], [0.0]], [[0.0, 1.0]], x_bounds=(-1, 1),

@@ -55,6 +55,7 @@ def test_matching_failure_is_a_typed_error_with_the_ranks():
         certify_strong_detectability(system)
 
 
+@pytest.mark.slow
 def test_closed_form_rate_over_a_domain_twenty_times_wider_in_one_state():
     # x2+ = a(x1) x2 + u with a = 0.5 + 0.3 tanh(x1), x1 in [-3, 3]: mu* = max a^2; x2 in [-60, 60]
     system = closed_form.system(x_bounds=((-3.0, -60.0), (3.0, 60.0)))
@@ -229,6 +230,7 @@ def _lorenz(dt):
                            x_bounds=((-30.0, -30.0, 0.0), (30.0, 30.0, 60.0)), v_bounds=(-0.1, 0.1))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_infeasible_at_a_covers_vertices_is_a_proof_only_when_the_sampled_jacobians_agree():
     # dt = 0.002: the exact box of the 9 independent Jacobian entries (512 vertices) admits no P, the Jacobians
     # themselves do (their zero dynamics contract like exp(-dt)): undecided, not "infeasible". dt = 0.01: the
@@ -318,6 +320,7 @@ def _ridge(width=1e-6):
                                  x_bounds=((-2.0, -1.0, -1.0), (2.0, 1.0, 1.0)), v_bounds=(-1e-3, 1e-3))  # fmt: skip
 
 
+@pytest.mark.slow
 def test_a_narrow_diagonal_ridge_in_the_coupling_is_not_certified():
     # on the ridge the unmeasured pair's dynamics [[0.5, 2.1], [0.5, 0.5]] have an eigenvalue 1.52; off it 0.72.
     # Samples miss a ridge 1e-6 wide: the sampled cover's LMI holds (mu_min 0.524) but proves nothing.

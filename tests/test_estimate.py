@@ -82,6 +82,7 @@ def test_measured_records_round_trip_and_refuse_what_is_missing(tmp_path):
         Trajectory.from_pandas(plant.assign(comment="ok"), system)
 
 
+@pytest.mark.slow
 def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
     # the README's third command, with a second estimator and the lag
     out = tmp_path / "out"
@@ -112,6 +113,7 @@ def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one(
         build_estimator("two-stage", entry, system, np.zeros(3))
 
 
+@pytest.mark.slow
 def test_estimate_fits_the_mhe_where_its_certificate_is_vacuous_and_names_why_a_uise_has_none():
     from uiest.estimate import build_estimator
     from uiest.results import read_record
@@ -180,6 +182,7 @@ def test_estimate_on_a_model_whose_x_means_unbounded_takes_scales_from_the_data(
     assert rmse["uise"] <= 1.2 * rmse["uio"], rmse
 
 
+@pytest.mark.slow
 def test_without_an_estimator_the_cli_runs_the_analysis_recommendation(tmp_path):
     # the reactor certifies with an informative bound: the UISE; a pendulum sampled every 0.05 s has a sampling zero
     # at -0.997: an estimator that assumes a smooth unknown input
@@ -204,6 +207,7 @@ def test_without_an_estimator_the_cli_runs_the_analysis_recommendation(tmp_path)
     assert np.sqrt(np.mean(rate**2)) < 0.1 * entry.build().x.bounds.width[1]
 
 
+@pytest.mark.slow
 def test_estimator_all_runs_every_estimator_the_model_admits(tmp_path):
     out = tmp_path / "all"
     result = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "all",
@@ -217,6 +221,7 @@ def test_estimator_all_runs_every_estimator_the_model_admits(tmp_path):
 
 
 @pytest.mark.parametrize("estimator", ["mhe", "smooth"])
+@pytest.mark.slow
 def test_a_lag_longer_than_the_default_window_lengthens_it_without_a_horizon(tmp_path, estimator):
     # without --horizon the windows hold x[k - lag] (the check allows lags below 60); a given horizon is kept
     entry = get("closed-form")

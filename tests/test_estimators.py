@@ -129,6 +129,7 @@ def crop_weights(system):
     return uise, mhe
 
 
+@pytest.mark.slow
 def test_crop_noise_free_uise_converges_standard_mhe_does_not():
     system = crop_growth.system()
     scenario = crop_growth.DEFAULT_SCENARIO
@@ -364,6 +365,7 @@ def test_result_is_frozen_and_tabulates(closed_form_case):
     assert np.isnan(frame["w_hat"].iloc[-1])
 
 
+@pytest.mark.slow
 def test_noise_free_crop_standard_mhe_error_is_the_bias_of_its_unknown_input_prior():
     # Noise-free data, true w ~ 0.978 inside the known range (0.965, 1): penalising |w - w_bar|
     # (w_bar = 0.9825, the range's centre) biases x^d; the bias shrinks with the disturbance weight
@@ -394,6 +396,7 @@ def test_standard_mhe_raises_a_tiny_certified_eta_to_keep_the_window_well_scaled
 
 
 @pytest.mark.parametrize("solver", ["gn", "ipopt"])
+@pytest.mark.slow
 def test_a_domain_meant_as_unbounded_gets_scales_from_data_not_widths(solver):
     # X = +-1e9 without scales: with scales from X's width a noise-free UISE erred by ~0.5 (gn). The estimators
     # take the state scales from the prior and a short simulation (uiest.scales) instead, as a user does from a

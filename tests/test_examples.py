@@ -17,12 +17,14 @@ def _module(name):
     return module
 
 
+@pytest.mark.slow
 def test_chaotic_map_message_is_recovered_bit_for_bit(tmp_path):
     metrics = _module("chaotic_message").run(tmp_path, steps=200)
     assert metrics["bit_errors"] == 0 and metrics["w_rmse"] < 0.005  # bits are +-0.02; measured 1.4e-3
     assert (tmp_path / "chaotic_message.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_reactor_fault_is_tracked_by_the_uise_and_the_ekf(tmp_path):
     metrics = _module("reactor_fault").run(tmp_path, steps=200)
     assert metrics["uise_x_rmse"] < 5e-3 and metrics["ekf_x_rmse"] < 5e-3  # measured 8e-4 each (400 steps)
@@ -30,6 +32,7 @@ def test_reactor_fault_is_tracked_by_the_uise_and_the_ekf(tmp_path):
     assert (tmp_path / "reactor_fault.png").stat().st_size > 10_000
 
 
+@pytest.mark.slow
 def test_linear_benchmark_uio_and_uise_ignore_the_step_the_ekf_does_not(tmp_path):
     metrics = _module("linear_uio_benchmark").run(tmp_path, steps=120)
     assert metrics["UISE (designed)"] <= 1.2 * metrics["linear UIO"]

@@ -5,7 +5,11 @@ import sys
 import textwrap
 import warnings
 
+import pytest
+
 from uiest.experiments import executors
+
+pytestmark = pytest.mark.slow
 
 GHOST_WORKER = textwrap.dedent(
     """

@@ -105,6 +105,7 @@ def test_an_estimator_that_raises_is_recorded_and_the_study_goes_on(monkeypatch)
     assert set(study.steps.estimator) == {"UISE"}
 
 
+@pytest.mark.slow
 def test_certificate_weights_reach_the_study_and_its_report(tmp_path):
     base = tiny()
     certified = EstimatorSpec("UISE (certified)", "uise", N=0, mu=0.9, weights="certificate")
@@ -131,6 +132,7 @@ def test_certificate_weights_reach_the_study_and_its_report(tmp_path):
         EstimatorSpec("x", "uise", weights="guess")
 
 
+@pytest.mark.slow
 def test_the_crop_report_says_its_certified_uise_bound_is_vacuous_in_kg_per_m2():
     from uiest.experiments.metrics import accuracy
     from uiest.experiments.report import guarantee_table
@@ -177,6 +179,7 @@ def test_a_state_leaving_x_is_counted_and_reported(tmp_path):
     assert "## Failures and step health" in report and "Estimator runs that raised: none." in report
 
 
+@pytest.mark.slow
 def test_runs_in_worker_processes_give_the_same_numbers():
     scenario = tiny()
     serial = run_study(scenario, solver="gn")
@@ -190,6 +193,7 @@ def test_runs_in_worker_processes_give_the_same_numbers():
     assert set(parallel.results) == set(serial.results) and set(parallel.truths) == set(serial.truths)
 
 
+@pytest.mark.slow
 def test_studies_run_the_ekf_and_the_ukf_tuned_or_given():
     specs = (EstimatorSpec("EKF (tuned)", "ekf"), EstimatorSpec("UKF", "ukf", w_variance=0.01))
     scenario = dataclasses.replace(tiny(), runs=1, estimators=specs)
@@ -200,6 +204,7 @@ def test_studies_run_the_ekf_and_the_ukf_tuned_or_given():
         EstimatorSpec("EKF", "ekf", w_variance=-1.0)
 
 
+@pytest.mark.slow
 def test_a_study_of_a_model_file():
     from pathlib import Path
 
@@ -214,6 +219,7 @@ def test_a_study_of_a_model_file():
     assert acc[(acc.case == "noise-free") & (acc.state == "c_A")].rmse.max() < 0.01
 
 
+@pytest.mark.slow
 def test_a_study_of_a_model_given_as_an_object_computes_each_certificate_once(monkeypatch, tmp_path):
     from uiest import models
     from uiest.experiments import study_model as study_module
@@ -323,6 +329,7 @@ def numbers_of(study):
     return steps, runs.reset_index(drop=True)
 
 
+@pytest.mark.slow
 def test_a_stored_study_reads_its_finished_runs_back_and_computes_only_the_others(tmp_path):
     store = tmp_path / "runs"
     first = run_study(tiny(), store=store)

@@ -152,6 +152,7 @@ def test_gauss_newton_equals_ipopt_on_the_noisy_linear_example(estimator):
 
 
 @pytest.mark.parametrize(("kind", "N"), [("two-stage", 10), ("uise", 30)])
+@pytest.mark.slow
 def test_second_order_corrections_spare_the_fallbacks_on_noisy_crop_windows(kind, N, monkeypatch):
     """Long steps along weakly seen directions leave the dynamics violated: without the correction,
     damped and full steps alternate until the iteration limit and IPOPT takes the sample over."""
@@ -214,6 +215,7 @@ def _reactor_mhe_fallbacks(N: int, steps: int) -> int:
     return _gn_mhe_fallbacks(system, traj, MHEWeights.from_scales(system, 0.6), N, np.array([0.65, 1.05]))
 
 
+@pytest.mark.slow
 def test_the_merit_penalty_is_relative_to_the_multipliers_on_windows_with_a_small_cost(monkeypatch):
     """The CSTR's MHE windows have costs near 1e-5 and multipliers near 1e-3: the absolute margin
     used before, nu = 2 |lam| + 1, rejects every step that leaves a violation of a few 1e-7, and with
@@ -234,6 +236,7 @@ def _crop_mhe_fallbacks(N: int, steps: int) -> int:
     return _gn_mhe_fallbacks(system, traj, weights, N, scenario.prior(traj.y[0]))
 
 
+@pytest.mark.slow
 def test_the_curvature_and_the_corrections_follow_curved_valleys(monkeypatch):
     """Noisy crop standard MHE, N = 30: in four windows the full step runs 0.5 (state scales) along a
     valley the cost barely sees while the dynamics curve away from it; the merit rejects it, and damped
@@ -260,6 +263,7 @@ def _closed_form_mhe_fallbacks(N: int, steps: int) -> int:
     return _gn_mhe_fallbacks(system, traj, MHEWeights.from_scales(system, 0.6), N, prior)
 
 
+@pytest.mark.slow
 def test_a_step_saved_by_poor_corrections_switches_to_the_curvature(monkeypatch):
     """Closed-form standard MHE, N = 10: along its barely observable x2 the dynamics curve away from the step;
     four corrections bring the violation back with a merit ratio near 0.36, and the step is taken. Switched to
@@ -323,6 +327,7 @@ def _crop_uise_agreement(steps: int) -> dict[str, float]:
     return same_window_deviation(recorder)
 
 
+@pytest.mark.slow
 def test_a_step_that_restores_feasibility_at_a_higher_cost_does_not_end_the_solve(monkeypatch):
     """Noisy crop UISE windows (N = 30) where a long first step leaves the dynamics violated and the
     next one restores them at a higher cost: gn's optimum is IPOPT's. Control: read as "no decrease
@@ -332,6 +337,7 @@ def test_a_step_that_restores_feasibility_at_a_higher_cost_does_not_end_the_solv
     assert _crop_uise_agreement(90)["max_cost_excess_vs_ipopt"] > 1e-6
 
 
+@pytest.mark.slow
 def test_sides_held_at_a_zero_multiplier_are_released_for_the_next_qp(monkeypatch):
     """The oldest noise estimates of noisy crop UISE windows (weights 0.48^29) parked on the noise box's
     sides with qrqp's zero-multiplier marks: released, every window's cost is within 1e-8 of IPOPT's.
@@ -406,6 +412,7 @@ def test_a_step_that_would_only_restore_rounding_ends_the_solve(monkeypatch):
     assert stopping.iterations.sum() < taking.iterations.sum()
 
 
+@pytest.mark.slow
 def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monkeypatch):
     """Noisy crop UISE windows (N = 30), whose first QPs need up to tens of active-set changes, with qrqp
     limited to 8 iterations per call: continued from the active set it reached, no QP has to be
@@ -465,6 +472,7 @@ def _henon_qrqp_iterations(windows, counts: list[int]) -> int:
     return sum(counts)
 
 
+@pytest.mark.slow
 def test_the_qp_is_scaled_so_that_qrqp_tells_small_curvature_from_none(henon_mhe_windows, monkeypatch):
     """qrqp takes a KKT matrix whose QR factor has a diagonal entry below 1e-12 (absolute) for singular. The Henon
     windows' largest curvature is 2: unscaled, qrqp holds their weakly weighted variables on their boxes one
@@ -477,6 +485,7 @@ def test_the_qp_is_scaled_so_that_qrqp_tells_small_curvature_from_none(henon_mhe
     assert 2 * scaled < _henon_qrqp_iterations(henon_mhe_windows, counts)
 
 
+@pytest.mark.slow
 def test_curvature_too_small_for_qrqp_is_raised(henon_mhe_windows, monkeypatch):
     """The oldest nodes' curvature (weights 0.6^99) is below what qrqp tells from zero even in the scaled QP: raised,
     qrqp moves those variables by the least it can instead of holding them on their boxes and releasing them later.
@@ -487,6 +496,7 @@ def test_curvature_too_small_for_qrqp_is_raised(henon_mhe_windows, monkeypatch):
     assert 2 * raised < _henon_qrqp_iterations(henon_mhe_windows, counts)
 
 
+@pytest.mark.slow
 def test_damping_returns_to_zero_gradually_after_good_steps(monkeypatch):
     """The crop UISE with N = 50, whose oldest states are free to rounding: returning to undamped steps at once,
     the undamped step runs far along them and is rejected, a damped one is accepted, and so on to the iteration

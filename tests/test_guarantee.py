@@ -67,6 +67,7 @@ def test_the_uise_bound_is_the_proofs_formula():
     assert np.all(np.isinf(strong_bound(P, R_v, 0.9, 1, V, np.zeros(1), np.array([2.0, 2.0]))[0]))  # 8 mu >= 1
 
 
+@pytest.mark.slow
 def test_crop_certified_uise_holds_but_is_vacuous_in_kg_per_m2():
     from uiest.experiments.runner import BUILDERS
     from uiest.experiments.study_model import StudyModel

@@ -138,6 +138,7 @@ def test_a_gauss_newton_window_handed_to_ipopt_is_counted_from_its_field(monkeyp
     assert result.fallbacks == 0 and result.counts()["fallbacks"] == 0
 
 
+@pytest.mark.slow
 def test_the_solver_bench_counts_fallbacks_from_the_field(monkeypatch):
     from uiest.experiments.solver_bench import bench_window_solvers
 
@@ -183,6 +184,7 @@ def test_the_status_line_is_derived_from_the_fields():
         EstimationResult(outcome=["prior", "error"], **{**fields, "guarantee": "none"})
 
 
+@pytest.mark.slow
 def test_the_cli_counts_the_steps_and_shows_the_bound_warning_as_a_message(tmp_path):
     model = tmp_path / "narrow.py"
     model.write_text(

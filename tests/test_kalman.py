@@ -69,6 +69,7 @@ def test_ekf_and_ukf_equal_the_kalman_filter_on_a_linear_gaussian_model():
         np.testing.assert_allclose(integrated.w_hat[:, 0], reference[1:, 3] - reference[1:, 4], rtol=0, atol=atol)
 
 
+@pytest.mark.slow
 def test_tuned_ekf_beats_the_uise_on_a_smooth_input_and_loses_on_a_ramp():
     # the measurement: EKF wins when w is a slow random walk, the UISE when w ramps far away
     system = _system()

@@ -65,6 +65,7 @@ def test_the_api_writers_refuse_a_folder_in_use(tmp_path, held):
     assert sorted(p.name for p in folder.iterdir()) == [LOCK_NAME]
 
 
+@pytest.mark.slow
 def test_a_lock_left_by_a_killed_run_is_taken_over_with_a_note(tmp_path):
     folder = tmp_path / "out"
     folder.mkdir()

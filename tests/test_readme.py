@@ -25,6 +25,7 @@ PAPER_LABEL = re.compile(r"\b(?:theo|eq|ass|lem|prop|rem|def|cor|sec):[A-Za-z_][
 @pytest.mark.parametrize(
     ("page", "index", "block"), BLOCKS, ids=[f"{page.relative_to(ROOT)}:{index}" for page, index, _ in BLOCKS]
 )
+@pytest.mark.slow
 def test_python_block_runs(page, index, block, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     exec(compile(block, f"{page.relative_to(ROOT)} block {index}", "exec"), {"__name__": "__readme__"})

@@ -76,6 +76,7 @@ def test_scales_the_user_gave_and_widths_of_the_signals_order_are_kept():
 
 
 @pytest.mark.filterwarnings("ignore:design. the chosen guarantee is not informative")
+@pytest.mark.slow
 def test_the_closed_form_design_keeps_its_system_and_certificate_bit_for_bit():
     entry = get("closed-form")
     system = entry.build()

@@ -126,6 +126,7 @@ def test_a_sampling_zero_at_minus_one_defeats_strong_detectability_not_the_augme
 # ---------------------------------------------------------------------------------------------- known answers
 
 
+@pytest.mark.slow
 def test_while_the_window_holds_every_sample_it_is_the_kalman_filter():
     # linear, Gaussian weights, no discount (eta -> 1), N >= K: the full-information estimate, which the Kalman filter's
     # mean is; the EKF's augmented model is the same random walk with the same variances and priors
@@ -211,6 +212,7 @@ def pendulum_record():
     return x, torque, y
 
 
+@pytest.mark.slow
 def test_on_the_pendulum_the_uise_fails_and_the_smooth_mhe_matches_a_well_tuned_ekf(pendulum_record):
     system = pendulum()
     x, torque, y = pendulum_record
@@ -230,6 +232,7 @@ def test_on_the_pendulum_the_uise_fails_and_the_smooth_mhe_matches_a_well_tuned_
 
 
 @pytest.mark.parametrize("model", ["pendulum", "cart"])
+@pytest.mark.slow
 def test_after_a_jump_of_the_unknown_input_the_smooth_mhe_beats_the_ekf_with_its_variance(model):
     # a step of 12 times the smooth part's amplitude, after which the state stays in X; both estimators use the
     # increment variance that suits the smooth part (the EKF's best on the pendulum's smooth record is near 1e-3..1e-2)
@@ -246,6 +249,7 @@ def test_after_a_jump_of_the_unknown_input_the_smooth_mhe_beats_the_ekf_with_its
     assert smooth < 0.85 * filtered and result.failures == 0
 
 
+@pytest.mark.slow
 def test_bounded_increments_hold_each_window_to_the_bound_and_penalised_ones_follow_a_jump():
     system = spring_cart()
     K = 120
@@ -266,6 +270,7 @@ def test_bounded_increments_hold_each_window_to_the_bound_and_penalised_ones_fol
 # ---------------------------------------------------------------------------------------------- guarantees, errors
 
 
+@pytest.mark.slow
 def test_the_error_stays_within_the_guarantee_and_an_outage_is_bridged():
     system = linear.example()  # zeros {0.5, 0.2}; X = +-10
     variance, K = 1e-4, 300
@@ -341,6 +346,7 @@ def test_bad_input_gets_typed_errors():
         SmoothInputMHE.design("system", dw_variance=0.01)
 
 
+@pytest.mark.slow
 def test_cpu_per_sample_is_recorded_beside_the_standard_mhe_on_the_same_model(pendulum_record):
     # the numbers go to the report (DEVELOPING.md); here only that both are measured per step, by thread CPU time
     system = pendulum()
@@ -355,6 +361,7 @@ def test_cpu_per_sample_is_recorded_beside_the_standard_mhe_on_the_same_model(pe
 # ---------------------------------------------------------------------------------------------- CLI and studies
 
 
+@pytest.mark.slow
 def test_uiest_estimate_runs_the_smooth_input_mhe_on_a_model_file(tmp_path, pendulum_record):
     model = tmp_path / "pendulum.py"
     model.write_text(

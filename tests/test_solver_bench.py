@@ -2,7 +2,11 @@
 
 import math
 
+import pytest
+
 from uiest.experiments.solver_bench import SAME_WINDOW_CAP, bench_window_solvers
+
+pytestmark = pytest.mark.slow
 
 
 def test_long_horizon_protocol_times_ipopt_on_a_capped_set_of_gn_windows():

@@ -34,6 +34,7 @@ def numbers(frame):
     return frame[cols].sort_values(["key", "estimator"]).reset_index(drop=True)
 
 
+@pytest.mark.slow
 def test_serial_processes_and_dask_agree_bit_for_bit(tmp_path):
     serial = sweep(design(), tmp_path / "serial", workers=1)
     assert len(serial) == 4 and set(serial["N"]) == {2, 4} and (serial["error"] == "").all()
@@ -44,6 +45,7 @@ def test_serial_processes_and_dask_agree_bit_for_bit(tmp_path):
     assert (tmp_path / "serial" / "summary.csv").exists() and (tmp_path / "serial" / "sweep_N.png").exists()
 
 
+@pytest.mark.slow
 def test_interrupted_sweep_resumes_without_recomputing(tmp_path):
     first = sweep(design(), tmp_path, workers=1, max_tasks=2)
     assert len(first) == 2
@@ -92,6 +94,7 @@ def test_the_readme_example_sweep_file_parses():
     assert len(design.points()) == 6 and len(design.tasks()) == 6 * design.scenario.runs
 
 
+@pytest.mark.slow
 def test_every_backend_collects_its_rows_and_the_manifest_records_provenance(tmp_path):
     import json
 

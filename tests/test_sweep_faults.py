@@ -116,6 +116,7 @@ def test_a_damaged_page_is_detected_and_its_task_computed_again(tmp_path):
     assert len(list((out / "runs" / "corrupt").glob("*.parquet"))) == 1
 
 
+@pytest.mark.slow
 def test_rows_of_other_code_are_never_stored(tmp_path):
     from dataclasses import replace
 

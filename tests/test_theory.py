@@ -116,6 +116,7 @@ def test_guarantees_reasons_and_errors_name_results_in_words(linear_model):
             assert USER_LABEL.search(text) is None, (name, text)
 
 
+@pytest.mark.slow
 def test_the_cli_analyse_and_estimate_print_no_label(tmp_path):
     runner = CliRunner()
     analysed = runner.invoke(app, ["analyse", "closed-form"], terminal_width=300)

@@ -77,6 +77,7 @@ def test_the_filters_log_likelihood_is_the_kalman_filters_with_missing_channels_
         assert estimator.log_likelihood == pytest.approx(expected, rel=tol)
 
 
+@pytest.mark.slow
 def test_the_likelihood_maximum_of_a_gaussian_random_walk_lies_near_its_true_variance():
     # K = 400 steps: the profile's 95 % interval (L within LIKELIHOOD_INTERVAL of its maximum, Wilks) spans a factor
     # of 1.56 (median of 40 records in bench/tuning.py: chosen / true 0.75 .. 1.28, the true variance inside the
@@ -110,6 +111,7 @@ def test_the_likelihood_maximum_of_a_gaussian_random_walk_lies_near_its_true_var
     assert ukf.likelihood.chosen == pytest.approx(profile.chosen, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_the_fit_chooses_the_integrated_random_walk_for_an_input_that_drifts_smoothly():
     # the input's rate is a Gaussian random walk (step 0.002): its increments are far from independent
     system = _system()
@@ -143,6 +145,7 @@ def test_the_fit_chooses_the_integrated_random_walk_for_an_input_that_drifts_smo
         EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), prior_factors=[-1.0])
 
 
+@pytest.mark.slow
 def test_filters_fitted_without_the_truth_are_as_accurate_as_the_best_tuned_on_it():
     system = _system()
     truth = _record(system, 3, K=250)
@@ -158,6 +161,7 @@ def test_filters_fitted_without_the_truth_are_as_accurate_as_the_best_tuned_on_i
         assert min(grid) * 3 < max(grid)  # the variance matters here
 
 
+@pytest.mark.slow
 def test_the_standard_mhe_fitted_by_likelihood_is_within_the_bound_of_the_best_on_the_truth():
     system = _system()
     truth = _record(system, 4, K=150)
@@ -249,6 +253,7 @@ def test_a_model_whose_filters_all_fail_is_set_aside_and_the_ascent_never_loses_
         fit_filter(score, models=(InputModel.INTEGRATED_RANDOM_WALK,), **grids)
 
 
+@pytest.mark.slow
 def test_a_flat_profile_warns_and_bad_grids_are_refused():
     system = _system(B=np.zeros((3, 1)))  # the unknown input acts nowhere: the data cannot see its variance
     truth = _record(system, 5, K=50)
@@ -263,6 +268,7 @@ def test_a_flat_profile_warns_and_bad_grids_are_refused():
         UKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), variances=[0.0])
 
 
+@pytest.mark.slow
 def test_estimate_fits_the_filters_and_the_mhe_to_the_data_it_is_given():
     from uiest.estimate import build_estimator
 
@@ -292,6 +298,7 @@ def test_estimate_keeps_an_informative_mhe_certificate():
     assert note.startswith("delta-IOSS certificate") and mhe.guarantee.informative and mhe.likelihood is None
 
 
+@pytest.mark.slow
 def test_the_reactors_standard_mhe_fitted_by_likelihood_and_its_arrival_cost():
     # a drifting fault the MHE's white-disturbance model does not hold: with the window prior's weight P0^-1 (a prior
     # that never tightens) the window moves its oldest c_A instead of paying for the fault

@@ -101,6 +101,7 @@ def test_linear_two_stage_reaches_the_linear_uio_limit(linear_case, w_kind):
     np.testing.assert_allclose(result.w_hat[45:], traj.w[45:], atol=1e-14 * scale * 100)
 
 
+@pytest.mark.slow
 def test_crop_noise_free_converges_to_solver_precision():
     reduced = crop_growth.reduction()
     scenario = crop_growth.DEFAULT_SCENARIO

@@ -15,6 +15,8 @@ from numpy.typing import NDArray
 from uiest.errors import DataError, OptionError
 
 if TYPE_CHECKING:
+    from types import FrameType
+
     from numpy.typing import ArrayLike
 
     from uiest.system import System
@@ -79,8 +81,8 @@ def check_int(
     if (
         isinstance(value, bool)
         or not isinstance(value, numbers.Integral)
-        or value < low
-        or (high is not None and value > high)
+        or int(value) < low
+        or (high is not None and int(value) > high)
     ):
         wanted = f">= {low}" if high is None else f"in [{low}, {high:_}]"
         raise error(f"{name}: expected an integer {wanted}, got {shown(value)}")
@@ -243,7 +245,8 @@ def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[F
 
 def user_stacklevel() -> int:
     """The ``stacklevel`` for ``warnings.warn`` called right here that names the first frame outside uiest."""
-    frame, level = sys._getframe(1), 1
+    frame: FrameType | None = sys._getframe(1)
+    level = 1
     while frame is not None and str(frame.f_globals.get("__name__", "")).split(".")[0] == "uiest":
         frame, level = frame.f_back, level + 1
     return level

@@ -9,7 +9,7 @@ import math
 import warnings
 from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any, ParamSpec, TypeVar
 
 import numpy as np
 import typer
@@ -37,7 +37,8 @@ app = typer.Typer(
 console = Console(markup=False)  # paths and messages may hold brackets
 error_console = Console(stderr=True, markup=False)
 
-F = TypeVar("F", bound=Callable[..., Any])
+Params = ParamSpec("Params")
+Result = TypeVar("Result")
 _COMMAND_EXITS: contextvars.ContextVar[contextlib.ExitStack] = contextvars.ContextVar("command_exits")
 """What the running command releases when it ends (the output folder it holds)."""
 
@@ -55,7 +56,7 @@ def _positive(value: int | None, option: str, *, allow_zero: bool = False) -> in
     return value
 
 
-def _user_errors(command: F) -> F:
+def _user_errors(command: Callable[Params, Result]) -> Callable[Params, Result]:
     """Turn uiest's typed errors into a one-line message and exit code 2, and warnings into plain message lines.
 
     Any other OSError (a file that could not be read or written) becomes one line naming the file and the
@@ -63,7 +64,7 @@ def _user_errors(command: F) -> F:
     """
 
     @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
+    def wrapper(*args: Params.args, **kwargs: Params.kwargs) -> Result:
         with warnings.catch_warnings(), contextlib.ExitStack() as exits:  # restores the filters and showwarning
             warnings.showwarning = _show_warning
             token = _COMMAND_EXITS.set(exits)
@@ -78,7 +79,7 @@ def _user_errors(command: F) -> F:
             finally:
                 _COMMAND_EXITS.reset(token)
 
-    return wrapper  # type: ignore[return-value]
+    return wrapper
 
 
 def _error_line(text: str) -> None:
@@ -263,7 +264,9 @@ def estimate(
             raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
         prior = as_vector(values, system.nx, "--x0")
     system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
-    built, notes, skipped = {}, {}, {}
+    built: dict[str, Any] = {}
+    notes: dict[str, str] = {}
+    skipped: dict[str, str] = {}
     options = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "record": record}
     with console.status("building estimators") as status:
         if not estimator:
@@ -278,7 +281,8 @@ def estimate(
         else:
             for kind in estimator:
                 status.update(f"building {kind}")
-                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
+                                                           w_variance=w_variance, record=record)  # fmt: skip
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
@@ -563,7 +567,9 @@ def reproduce(
         error_console.print(message, markup=False, soft_wrap=True)
         raise typer.Exit(code=130) from None
     console.print((folder / "table1.md").read_text(), highlight=False, markup=False)
-    console.print(f"wrote {len(manifest['files'])} files to {folder} (report: {folder / 'report.md'})", markup=False)
+    files = manifest["files"]
+    assert isinstance(files, list)  # write_report's manifest lists the files it wrote
+    console.print(f"wrote {len(files)} files to {folder} (report: {folder / 'report.md'})", markup=False)
     if (result.runs["error"] != "").all():
         error_console.print("error: every estimator raised on every run; see the report's Failures", markup=False)
         raise typer.Exit(code=1)

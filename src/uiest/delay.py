@@ -49,7 +49,7 @@ MATCHING_SAMPLES = 32
 """Points of X x U (and w around its nominal value) at which :func:`matching_ranks` compares ranks."""
 
 
-def _rank(M: FloatArray, reference: float) -> int:
+def _rank(M: FloatArray, reference: float | np.floating) -> int:
     s = np.linalg.svd(M, compute_uv=False) if M.size else np.zeros(0)
     return int(np.sum(s > RANK_RTOL * reference)) if reference > 0 else 0
 

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -75,6 +75,10 @@ from uiest.models import ModelEntry
 from uiest.paths import plain_name
 from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
+
+if TYPE_CHECKING:
+    from uiest.estimators import UISE, TwoStageUISE
+    from uiest.kalman import KalmanFilter
 
 __all__ = [
     "ALL",
@@ -196,12 +200,14 @@ def build_estimator(
                 **options,
             }
             try:
+                built: UISE | TwoStageUISE
                 if kind == "uise":
                     built = est.UISE.design(system, x0_prior=x0, **design_kw)
                 elif kind == "delayed":
                     built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
                 else:
                     built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
+                assert built.weights is not None  # a certified design has weights (n_sharp = 0 has no design)
                 return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
             except HorizonError as exc:  # certified, with a longer window: the next limit may admit it
                 reason = horizon_reason(exc.limit, exc.shortest)
@@ -229,7 +235,8 @@ def build_estimator(
     else:
         u, y = _record_data(kind, system, record)
         if kind != "smooth":
-            fitted = (est.EKF if kind == "ekf" else est.UKF).fit(system, u, y, x0_prior=x0)
+            kalman: type[KalmanFilter] = est.EKF if kind == "ekf" else est.UKF
+            fitted = kalman.fit(system, u, y, x0_prior=x0)
             assert fitted.filter_fit is not None
             return fitted, f"{fitted.filter_fit.summary()} on the data"
         # the smooth-input MHE's model is the random walk, its prior the EKF's default: the EKF's fit of that model
@@ -238,7 +245,7 @@ def build_estimator(
         factor, source = fitted.likelihood.chosen, f"the EKF's random walk: {fitted.likelihood.summary()} on the data"
     if kind == "smooth":
         return _smooth_mhe(system, x0, factor, source, horizon, options, record)
-    cls = est.EKF if kind == "ekf" else est.UKF
+    cls: type[KalmanFilter] = est.EKF if kind == "ekf" else est.UKF
     return cls(system, w_variance=factor * system.w.scale**2, x0_prior=x0), (
         f"random-walk variance {variance_text(system, factor)} ({source})"
     )

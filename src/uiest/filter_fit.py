@@ -18,7 +18,7 @@ maximise_likelihood`'s grid and golden-section refinement). The models have the 
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -126,7 +126,9 @@ def check_models(models: object | None) -> tuple[InputModel, ...]:
         return tuple(InputModel)
     items = [models] if isinstance(models, str | InputModel) else models
     try:
-        chosen = tuple(dict.fromkeys(InputModel(m) for m in items))  # type: ignore[union-attr]
+        if not isinstance(items, Iterable):
+            raise TypeError
+        chosen = tuple(dict.fromkeys(InputModel(m) for m in items))
     except (TypeError, ValueError):
         chosen = ()
     if not chosen:

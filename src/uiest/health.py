@@ -14,7 +14,7 @@ import warnings
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from enum import StrEnum
-from typing import Any, TypeVar
+from typing import ParamSpec, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -22,7 +22,8 @@ from numpy.typing import NDArray
 from uiest.box import Box, FloatArray
 from uiest.errors import BoundWarning
 
-F = TypeVar("F", bound=Callable[..., Any])
+Params = ParamSpec("Params")
+Result = TypeVar("Result")
 
 
 class Outcome(StrEnum):
@@ -197,15 +198,15 @@ def quiet_bound_warnings() -> Iterator[None]:
         yield
 
 
-def without_bound_warnings(function: F) -> F:
+def without_bound_warnings(function: Callable[Params, Result]) -> Callable[Params, Result]:
     """``function`` run inside :func:`quiet_bound_warnings` (a wrapper in uiest: ``user_stacklevel`` skips it)."""
 
     @functools.wraps(function)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
+    def wrapper(*args: Params.args, **kwargs: Params.kwargs) -> Result:
         with quiet_bound_warnings():
             return function(*args, **kwargs)
 
-    return wrapper  # type: ignore[return-value]
+    return wrapper
 
 
 __all__ = [

@@ -263,7 +263,7 @@ class KalmanFilter(StreamingEstimator):
             except np.linalg.LinAlgError as exc:  # keep the prediction, as for a missing measurement
                 outcome, reason, term = Outcome.UPDATE_SKIPPED, str(exc), np.nan
         if not _finite(z, P):
-            if self._z is None:
+            if self._z is None or self._P is None:  # both None before the first step, both set after it
                 raise DataError(f"step k={k}: the prior gives no finite estimate")
             z, P, outcome, inside = self._z, self._P, Outcome.KEPT, False
         X = s.x.bounds

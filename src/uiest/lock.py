@@ -23,7 +23,7 @@ import socket
 import warnings
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import ParamSpec, TypeVar
 
 from uiest.atomic import STAGED_PREFIX, STAGED_SUFFIX
 from uiest.errors import StorageError
@@ -36,7 +36,8 @@ LOCK_NAME = ".uiest.lock"
 _held: dict[Path, int] = {}
 """Folders this process holds (resolved path -> nesting depth)."""
 
-F = TypeVar("F", bound=Callable[..., Any])
+Params = ParamSpec("Params")
+Result = TypeVar("Result")
 
 
 def _owner(text: str) -> str:
@@ -136,7 +137,7 @@ def folder_lock(folder: Path | str, name: str) -> Iterator[Path]:
         _release(folder, fd)
 
 
-def holds_folder(argument: str) -> Callable[[F], F]:
+def holds_folder(argument: str) -> Callable[[Callable[Params, Result]], Callable[Params, Result]]:
     """Decorate a function so that it holds the folder given as its ``argument`` while it runs.
 
     The folder is created if missing. A value that is not a path is passed on unchecked (the
@@ -144,11 +145,11 @@ def holds_folder(argument: str) -> Callable[[F], F]:
     """
     from uiest.paths import writable_folder
 
-    def decorate(function: F) -> F:
+    def decorate(function: Callable[Params, Result]) -> Callable[Params, Result]:
         signature = inspect.signature(function)
 
         @functools.wraps(function)
-        def wrapper(*args: Any, **kwargs: Any) -> Any:
+        def wrapper(*args: Params.args, **kwargs: Params.kwargs) -> Result:
             try:
                 folder = signature.bind(*args, **kwargs).arguments.get(argument)
             except TypeError:
@@ -158,6 +159,6 @@ def holds_folder(argument: str) -> Callable[[F], F]:
             with folder_lock(writable_folder(Path(folder), argument), argument):
                 return function(*args, **kwargs)
 
-        return wrapper  # type: ignore[return-value]
+        return wrapper
 
     return decorate

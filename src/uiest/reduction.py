@@ -319,7 +319,7 @@ def _dominance(
     zs, vs = ca.SX.sym("z", system.nx), ca.SX.sym("v", system.nv)
     jac = ca.Function("dhT", [zs, vs], [ca.jacobian(system.h(T_inv(zs), vs), zs[:n_flat])])
     H = lmi.batched(jac, [z, v])[0]  # (m, ny, n_flat)
-    best = (-np.inf, ())
+    best: tuple[float, tuple[int, ...]] = (-np.inf, ())
     for outputs in itertools.permutations(range(system.ny), n_flat):
         rows = np.abs(H[:, list(outputs), :])  # (m, n_flat, n_flat)
         diagonal = np.diagonal(rows, axis1=1, axis2=2)

@@ -14,7 +14,6 @@ from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
@@ -26,9 +25,20 @@ from uiest.sampling import on_time_grid
 from uiest.system import System
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from uiest.window.problem import WindowTrajectory
 
 __all__ = ["HEALTH_FIELDS", "EstimationResult", "StepEstimate", "Trajectory", "count_names", "read_record"]
+
+
+_NOT_GIVEN: NDArray[Any] = np.zeros(0)
+_NOT_GIVEN.setflags(write=False)
+
+
+def _not_given() -> NDArray[Any]:
+    """The default of a per-step field that ``__post_init__`` fills in (told apart by identity, as None is)."""
+    return _NOT_GIVEN
 
 
 def _freeze(array: FloatArray, name: str) -> FloatArray:
@@ -88,8 +98,8 @@ class Trajectory(_PicklableNames):
     system_name: str = "system"
     seed: int | None = None
     time_unit: str = "s"
-    x_outside: NDArray[np.bool_] | None = None
-    v_outside: NDArray[np.bool_] | None = None
+    x_outside: NDArray[np.bool_] = field(default_factory=_not_given)
+    v_outside: NDArray[np.bool_] = field(default_factory=_not_given)
 
     def __post_init__(self) -> None:
         for name in ("t", "x", "u", "w", "v", "y"):
@@ -104,7 +114,8 @@ class Trajectory(_PicklableNames):
                 raise DataError(f"{name}: expected shape {wanted} with K+1 = len(t) = {samples}, got {arr.shape}")
         for name in ("x_outside", "v_outside"):
             value = getattr(self, name)
-            flags = np.zeros(self.t.shape[0], dtype=bool) if value is None else np.array(value, dtype=bool)
+            given = value is not None and value is not _NOT_GIVEN
+            flags = np.array(value, dtype=bool) if given else np.zeros(self.t.shape[0], dtype=bool)
             if flags.shape != self.t.shape:
                 raise DataError(f"{name}: expected shape {self.t.shape} (one flag per time index), got {flags.shape}")
             flags.setflags(write=False)
@@ -139,6 +150,8 @@ class Trajectory(_PicklableNames):
         if not isinstance(system, System):
             raise DataError(f"system: expected a uiest.System (uiest.models.get(name).build() for a name), got "
                             f"{shown(system)}")  # fmt: skip
+        import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
+
         if not isinstance(frame, pd.DataFrame):
             raise DataError(f"frame: expected a pandas DataFrame, got {type(frame).__name__}")
         if len(frame) < 1:
@@ -164,12 +177,15 @@ class Trajectory(_PicklableNames):
             bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
             why = "is absent from the record (a gap in k or t)" if bad in filled else f"has {arrays['u'][bad]}"
             raise DataError(f"frame: the known input u must be given at every k < K; row {bad} {why}")
-        t = frame["t"].to_numpy(dtype=float) if "t" in frame.columns else np.arange(rows) * system.dt
+        t = frame["t"].to_numpy(dtype=float) if "t" in frame.columns else np.arange(rows, dtype=np.float64) * system.dt
         names = {sig.kind: sig.names for sig in system.signals}
-        return cls(t=t, names=names, system_name=system.name, time_unit=system.time_unit, **arrays)
+        return cls(t=t, x=arrays["x"], u=arrays["u"], w=arrays["w"], v=arrays["v"], y=arrays["y"], names=names,
+                   system_name=system.name, time_unit=system.time_unit)  # fmt: skip
 
     def to_pandas(self) -> pd.DataFrame:
         """One row per time index k = 0..K (u and w are NaN in the last row: no transition), then the flags."""
+        import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
+
         columns: dict[str, FloatArray] = {"t": self.t}
         for kind in ("x", "u", "w", "v", "y"):
             data = getattr(self, kind)
@@ -413,16 +429,16 @@ class EstimationResult(_PicklableNames):
     time_unit: str = "s"
     x_lag: FloatArray | None = None
     lag: int = 0
-    at_bound: NDArray[np.bool_] | None = None
-    solver_status: NDArray[np.str_] | None = None
-    fallback: NDArray[np.bool_] | None = None
-    primary_status: NDArray[np.str_] | None = None
-    reason: NDArray[np.str_] | None = None
-    held_input: NDArray[np.bool_] | None = None
-    on_boundary: NDArray[np.bool_] | None = None
-    window_at_bound: NDArray[np.bool_] | None = None
-    evaluated_inside: NDArray[np.bool_] | None = None
-    cpu_time: FloatArray | None = None
+    at_bound: NDArray[np.bool_] = field(default_factory=_not_given)
+    solver_status: NDArray[np.str_] = field(default_factory=_not_given)
+    fallback: NDArray[np.bool_] = field(default_factory=_not_given)
+    primary_status: NDArray[np.str_] = field(default_factory=_not_given)
+    reason: NDArray[np.str_] = field(default_factory=_not_given)
+    held_input: NDArray[np.bool_] = field(default_factory=_not_given)
+    on_boundary: NDArray[np.bool_] = field(default_factory=_not_given)
+    window_at_bound: NDArray[np.bool_] = field(default_factory=_not_given)
+    evaluated_inside: NDArray[np.bool_] = field(default_factory=_not_given)
+    cpu_time: FloatArray = field(default_factory=_not_given)
 
     def __post_init__(self) -> None:
         if not isinstance(self.guarantee, Guarantee):
@@ -447,13 +463,15 @@ class EstimationResult(_PicklableNames):
         for name, dtype in (("at_bound", bool), *HEALTH_FIELDS.items()):
             value = getattr(self, name)
             shape = self.x_hat.shape if name == "at_bound" else (rows,)
-            arr = np.zeros(shape, dtype=dtype) if value is None else _frozen(value, dtype)
-            if value is None:
+            given = value is not None and value is not _NOT_GIVEN
+            arr = _frozen(value, dtype) if given else np.zeros(shape, dtype=dtype)
+            if not given:
                 arr.setflags(write=False)
             if arr.shape != shape:
                 raise DataError(f"{name}: expected shape {shape} (time-first, one row per step), got {arr.shape}")
             object.__setattr__(self, name, arr)
-        cpu = np.full(rows, np.nan) if self.cpu_time is None else _frozen(self.cpu_time, float)
+        given = self.cpu_time is not None and self.cpu_time is not _NOT_GIVEN
+        cpu = _frozen(self.cpu_time, float) if given else np.full(rows, np.nan)
         if cpu.shape != (rows,):
             raise DataError(f"cpu_time: expected shape ({rows},) (one value per step), got {cpu.shape}")
         cpu.setflags(write=False)
@@ -484,7 +502,7 @@ class EstimationResult(_PicklableNames):
                 on_boundary=bool(self.on_boundary[k]), evaluated_inside=bool(self.evaluated_inside[k]),
             )
             for k in range(self.t.shape[0])
-        ], dtype=str)  # fmt: skip
+        ], dtype=np.str_)  # fmt: skip
 
     @property
     def failures(self) -> int:
@@ -542,6 +560,8 @@ class EstimationResult(_PicklableNames):
         length, the number of missing outputs and, with a lag, the lagged estimates ``<state>_lag`` of
         ``x[k-lag]``. The unknown-input columns are NaN in the last row (no transition after K).
         """
+        import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
+
         columns: dict[str, object] = {"t": self.t}
         x_names = self._x_names()
         w_names = self.names.get("w") or tuple(f"w[{i}]" for i in range(self.w_hat.shape[1]))
@@ -575,6 +595,8 @@ def read_record(path: Any, system: Any) -> Trajectory:
     """
     from os import PathLike
     from pathlib import Path
+
+    import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
 
     if not isinstance(path, str | PathLike):
         raise DataError(f"path: expected a file path (str or os.PathLike), got {type(path).__name__} {path!r:.60}")

@@ -10,13 +10,15 @@ neither is taken as contiguous, with a warning.
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from uiest.checks import real_array, user_stacklevel
 from uiest.errors import DataError
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["on_time_grid"]
 
@@ -77,10 +79,12 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
             f"frame: its k or t spans {rows:_} samples for {len(frame)} rows; filling the gaps with missing samples "
             f"would take {needed / 2**30:.3g} GiB (limit {FILLED_BYTES_LIMIT / 2**30:.3g} GiB): check t and dt"
         )
+    import pandas as pd  # imported when used (a frame is given): not by `import uiest`
+
     filled = np.setdiff1d(np.arange(rows), position)
     t0 = float(frame["t"].iloc[0]) if has_t else None
     out = frame.set_axis(pd.Index(position), axis=0).reindex(pd.RangeIndex(rows))
-    if has_t:
+    if t0 is not None:
         out["t"] = t0 + np.arange(rows) * dt
     if filled.size:
         warnings.warn(
@@ -94,6 +98,8 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
 
 def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
     """Each row's time index ``round((t - t[0]) / dt)``; times off the grid, repeated or out of order refused."""
+    import pandas as pd  # imported when used (a frame is given): not by `import uiest`
+
     column, dt = frame["t"], float(system.dt)
     if not pd.api.types.is_numeric_dtype(column) or pd.api.types.is_bool_dtype(column):
         raise DataError(

@@ -75,8 +75,8 @@ def data_scales(system: System, x0: ArrayLike | None, record: Any = None) -> Sys
         return system
     prior = as_vector(x0, system.nx, "x0_prior")
     x = system.x
-    unit = np.array([s is ScaleSource.UNIT for s in x.scale_source], dtype=bool)
-    width = np.array([s is ScaleSource.WIDTH for s in x.scale_source], dtype=bool)
+    unit = np.array([s is ScaleSource.UNIT for s in x.scale_source], dtype=np.bool_)
+    width = np.array([s is ScaleSource.WIDTH for s in x.scale_source], dtype=np.bool_)
     open_ = unit | (width & (x.scale > WIDE_DOMAIN * np.abs(prior)))  # the prior alone does not settle them
     magnitude = np.maximum(np.abs(prior), state_peaks(system, prior, record)) if open_.any() else np.abs(prior)
     largest = float(np.max(magnitude, initial=0.0))
@@ -84,7 +84,7 @@ def data_scales(system: System, x0: ArrayLike | None, record: Any = None) -> Sys
     magnitude = np.where(unmoved, largest, magnitude)  # the order of the states that did move
     replace_x = (magnitude > 0) & (unit | (width & (x.scale > WIDE_DOMAIN * magnitude)))
     new_x = _replaced(x, replace_x, magnitude)
-    new_y = _output_scales(system, new_x, replace_x.any(), prior, record)
+    new_y = _output_scales(system, new_x, bool(replace_x.any()), prior, record)
     if new_x is x and new_y is system.y:
         return system
     return dataclasses.replace(system, x=new_x, y=new_y)
@@ -126,9 +126,11 @@ def _output_scales(system: System, x: Signal, x_changed: bool, prior: FloatArray
     """The output scales of the module docstring for the new state signal ``x``."""
     y = system.y
     peaks = _output_peaks(system, record)
-    derived = np.array([s is ScaleSource.OUTPUT for s in y.scale_source], dtype=bool) & x_changed
+    derived = np.array([s is ScaleSource.OUTPUT for s in y.scale_source], dtype=np.bool_) & x_changed
     width = y.bounds.width
-    too_wide = np.array([s is ScaleSource.WIDTH for s in y.scale_source], dtype=bool) & (width > WIDE_DOMAIN * peaks)
+    too_wide = np.array([s is ScaleSource.WIDTH for s in y.scale_source], dtype=np.bool_) & (
+        width > WIDE_DOMAIN * peaks
+    )
     if not (derived.any() or too_wide.any()):
         return y
     spread = output_spread(system.h, x, system.v, at=prior)

@@ -58,7 +58,7 @@ class Signal:
     units: tuple[str, ...]
     bounds: Box
     scale: FloatArray
-    scale_source: tuple[ScaleSource, ...] | None = None
+    scale_source: tuple[ScaleSource, ...] = ()
 
     def __post_init__(self) -> None:
         n = self.bounds.size
@@ -73,7 +73,7 @@ class Signal:
             raise ModelError(f"{self.kind}_scale: expected {n} positive finite numbers, got {scale.tolist()}")
         scale.setflags(write=False)
         object.__setattr__(self, "scale", scale)
-        sources = (ScaleSource.GIVEN,) * n if self.scale_source is None else tuple(self.scale_source)
+        sources = tuple(self.scale_source) if self.scale_source else (ScaleSource.GIVEN,) * n  # None too
         if len(sources) != n or not all(isinstance(source, ScaleSource) for source in sources):
             raise ModelError(f"{self.kind}: expected {n} ScaleSource values as scale_source, got {sources!r}")
         object.__setattr__(self, "scale_source", sources)

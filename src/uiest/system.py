@@ -582,7 +582,7 @@ class System:
             sources[kind] = (ScaleSource.GIVEN,) * len(new[kind])
         signals = {s.kind: dataclasses.replace(s, scale=np.array(new[s.kind], dtype=float),
                                                scale_source=sources[s.kind]) for s in self.signals}  # fmt: skip
-        return dataclasses.replace(self, **signals)
+        return dataclasses.replace(self, x=signals["x"], u=signals["u"], w=signals["w"], v=signals["v"], y=signals["y"])
 
     # ------------------------------------------------------------------ numerics
     def step(self, x: ArrayLike, u: ArrayLike | None, w: ArrayLike) -> FloatArray:

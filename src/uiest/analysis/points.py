@@ -102,13 +102,14 @@ def linearise(system: System, reference: FloatArray | None = None, *, points: in
     sx, sw, sy, sv = system.x.scale, system.w.scale, system.y.scale, system.v.scale
     keep = np.flatnonzero(finite)
 
-    def scaled(M: FloatArray | None, rows: FloatArray, cols: FloatArray) -> FloatArray | None:
-        return None if M is None else M[keep] * cols[None, None, :] / rows[None, :, None]
+    def scaled(M: FloatArray, rows: FloatArray, cols: FloatArray) -> FloatArray:
+        return M[keep] * cols[None, None, :] / rows[None, :, None]
 
     return Linearisations(
         x=x[keep], u=u[keep], A=scaled(A, sx, sx), B=scaled(B, sx, sw), C=scaled(C, sy, sx), D=scaled(D, sy, sv),
-        A_c=scaled(A_c, sx, sx), G=scaled(G, sx, sw), dropped=int(points - len(keep)),
-    )  # type: ignore[arg-type]  # fmt: skip
+        A_c=None if A_c is None else scaled(A_c, sx, sx), G=None if G is None else scaled(G, sx, sw),
+        dropped=int(points - len(keep)),
+    )  # fmt: skip
 
 
 def relative_degrees(A: FloatArray, B: FloatArray, C: FloatArray) -> np.ndarray:

@@ -32,6 +32,7 @@ from fractions import Fraction
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
 
 from uiest.box import Box, FloatArray
 from uiest.detectability import interval
@@ -98,7 +99,7 @@ class Cover:
     extremes: FloatArray | None = None
 
 
-def relevant_axes(fun: ca.Function) -> FloatArray:
+def relevant_axes(fun: ca.Function) -> NDArray[np.bool_]:
     """Boolean mask over the entries of z that ``fun(z)`` depends on (structurally)."""
     z = ca.SX.sym("z", fun.numel_in(0))
     out = ca.vec(fun(z))

@@ -124,13 +124,13 @@ def design_solve(
         return status, None
     P_val = T_inv.T @ (np.asarray(P.value) if structure == "full" else float(P.value) * np.eye(n)) @ T_inv
     P_val = 0.5 * (P_val + P_val.T)
-    low = float(np.linalg.eigvalsh(P_val)[0])
-    if not low > 0.0:
+    lowest = float(np.linalg.eigvalsh(P_val)[0])
+    if not lowest > 0.0:
         return "singular storage", None
     if bounded and np.linalg.cond(P_val) > kappa * (1.0 + CONDITION_RTOL):
         return f"cond(P) {np.linalg.cond(P_val):.6g} above max_condition ({status})", None
     q_val = np.maximum(np.asarray(q.value, dtype=float).reshape(-1), 0.0) * sigma
-    return status, Design(P_val / low, q_val / low, "design")
+    return status, Design(P_val / lowest, q_val / lowest, "design")
 
 
 def output_weight(vertices: Vertices, P: FloatArray, q: FloatArray, mu: float) -> float:

@@ -233,21 +233,22 @@ class RateStage:
         if self.vertices.measured_everything:
             self.solutions[mu] = (np.eye(self.vertices.n), mu)
             return lmi.FEASIBLE
-        found: dict[str, object] = {}
+        found: dict[str, str | float] = {}
 
-        def solve() -> tuple[str, object, float]:
+        def solve() -> tuple[str, FloatArray | None, float]:
             status, P, t = self._solve(mu)
             found.update(status=status, t=t)
             return status, P, t
 
-        def recheck(P: object) -> FloatArray:
-            return self.vertices.kernel_margins(P, mu)  # type: ignore[arg-type]
+        def recheck(P: FloatArray) -> FloatArray:
+            return self.vertices.kernel_margins(P, mu)
 
-        outcome, P = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)
-        if outcome == lmi.FEASIBLE:
-            self.solutions[mu] = (P, float(found["t"]))  # type: ignore[arg-type]
+        probed = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)  # not unpacked here: mypy would
+        outcome, P = probed  # infer the solution type from the targets and take None into it
+        if outcome == lmi.FEASIBLE and P is not None:
+            self.solutions[mu] = (P, float(found["t"]))
         elif (outcome == lmi.FAILED and found.get("status") == "optimal_inaccurate"
-              and float(found["t"]) < -MARGIN_FLOOR and mu < 1.0 - 10.0 * lmi.RATE_GAP):  # type: ignore[arg-type]  # fmt: skip
+              and float(found["t"]) < -MARGIN_FLOOR and mu < 1.0 - 10.0 * lmi.RATE_GAP):  # fmt: skip
             self.inexact.append(mu)
             return lmi.INFEASIBLE
         return outcome

@@ -24,6 +24,7 @@ Not finding a violation proves nothing; finding one disproves the certificate.
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import casadi as ca
@@ -208,7 +209,9 @@ def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list
     return chosen
 
 
-def _local(terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floor: float):  # type: ignore[no-untyped-def]
+def _local(
+    terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floor: float
+) -> Callable[[FloatArray], tuple[float, FloatArray, int]]:
     """A maximiser of ``lhs / rhs`` from a start ``(a, b, s)``: returns (ratio, point, evaluations).
 
     Points whose pair is closer than ``floor`` (scaled by ``scale``) score -inf.
@@ -241,8 +244,8 @@ def _local(terms: ca.Function, domain: Box, shared: Box, scale: FloatArray, floo
             full = point(t)
             if np.linalg.norm((full[:n] - full[n : 2 * n]) / scale) < floor:
                 return -np.inf, np.zeros_like(t)
-            value, grad, denominator = evaluate(full)
-            value, denominator = float(value), float(denominator)
+            ratio_dm, grad, rhs_dm = evaluate(full)
+            value, denominator = float(ratio_dm), float(rhs_dm)
             if not (np.isfinite(value) and denominator > 0.0):
                 return -np.inf, np.zeros_like(t)
             g = np.asarray(grad, dtype=float).ravel()[free] * width[free]

@@ -21,6 +21,7 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
 
 from uiest.box import Box, FloatArray
 
@@ -70,7 +71,7 @@ def _inv(a: Interval) -> Interval:
         return np.where(spans_zero, -np.inf, 1.0 / hi), np.where(spans_zero, np.inf, 1.0 / lo)
 
 
-def _periodic_peak(lo: FloatArray, hi: FloatArray, peak: float) -> FloatArray:
+def _periodic_peak(lo: FloatArray, hi: FloatArray, peak: float) -> NDArray[np.bool_]:
     """Whether ``[lo, hi]`` contains ``peak + 2 pi k`` for some integer k."""
     k = np.ceil((lo - peak) / (2.0 * np.pi))
     return peak + 2.0 * np.pi * k <= hi
@@ -436,9 +437,9 @@ def _split_axis(
     upper: FloatArray,
     jac_lo: FloatArray,
     jac_hi: FloatArray,
-    splittable: FloatArray,
+    splittable: NDArray[np.bool_],
     scale: FloatArray,
-) -> FloatArray:
+) -> NDArray[np.intp]:
     """The side to halve per box: the largest smear ``max|dg/dz_i| * width_i`` (where the function changes most).
 
     Where a smear is infinite (no derivative bound), the widest side relative to the box among those.

@@ -23,7 +23,7 @@ import itertools
 import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import casadi as ca
 import numpy as np
@@ -114,8 +114,8 @@ def batched(fun: ca.Function, columns: list[FloatArray]) -> list[FloatArray]:
     ``columns[i]`` has shape (m, n_i); returns one array of shape (m, rows, cols) per output.
     """
     m = columns[0].shape[0]
-    outs = fun.map(m, "serial")(*[c.T for c in columns])
-    outs = outs if isinstance(outs, tuple | list) else [outs]
+    mapped = fun.map(m, "serial")(*[c.T for c in columns])
+    outs = mapped if isinstance(mapped, tuple | list) else [mapped]
     result = []
     for i, out in enumerate(outs):
         rows, cols = fun.size_out(i)
@@ -135,7 +135,7 @@ def is_constant(fun: ca.Function, output: int, wrt: list[int]) -> bool:
 def min_eig(matrices: FloatArray) -> FloatArray:
     """Smallest eigenvalue of each symmetric matrix in a batch (m, k, k) -> (m,)."""
     sym = 0.5 * (matrices + np.swapaxes(matrices, -1, -2))
-    return np.linalg.eigvalsh(sym)[..., 0]
+    return np.asarray(np.linalg.eigvalsh(sym)[..., 0], dtype=np.float64)
 
 
 def symmetric(expr: cp.Expression) -> cp.Expression:
@@ -238,12 +238,15 @@ def bisect_rate(
     return Bisection(1.0 - float(np.exp(hi)), FEASIBLE, tuple(failed), probes)
 
 
+Solution = TypeVar("Solution")
+
+
 def cutting_plane_probe(
-    solve: Callable[[], tuple[str, object, float]],
-    recheck: Callable[[object], FloatArray],
+    solve: Callable[[], tuple[str, Solution | None, float]],
+    recheck: Callable[[Solution], FloatArray],
     active: ActiveSet,
     floor: float,
-) -> tuple[str, object]:
+) -> tuple[str, Solution | None]:
     """One rate probe: solve the margin problem on the active vertices, re-check all, grow, repeat.
 
     ``solve()`` returns (solver status, solution or None, margin t) for the active vertices;

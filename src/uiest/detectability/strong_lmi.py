@@ -34,7 +34,7 @@ states), or ``sigma_min(C B)`` when the unknown input spans every output directi
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, overload
 
 import numpy as np
 import scipy.linalg
@@ -132,7 +132,7 @@ class Geometry:
         CB = C @ B
         self.Q = scipy.linalg.null_space(CB.T) if B.shape[1] else np.eye(p)
         free_part = max((np.linalg.norm(self.Q.T @ C @ A @ self.N, 2) for A in vertices), default=0.0)
-        scale = np.linalg.norm(C, 2) * max(1.0, max(np.linalg.norm(A, 2) for A in vertices))
+        scale = np.linalg.norm(C, 2) * max(1.0, max(float(np.linalg.norm(A, 2)) for A in vertices))
         if self.Q.shape[1] and self.N.shape[1] and free_part > 1e-12 * scale:
             self.eps = float(free_part)
         elif B.shape[1]:
@@ -143,6 +143,10 @@ class Geometry:
         self.measured_gram = (C @ self.R).T @ (C @ self.R)
         self.k = self.N.shape[1]
 
+    @overload
+    def Y2(self, P: FloatArray, Z: FloatArray | None) -> FloatArray: ...
+    @overload
+    def Y2(self, P: cp.Expression, Z: cp.Expression | None) -> cp.Expression: ...
     def Y2(self, P: FloatArray | cp.Expression, Z: FloatArray | cp.Expression | None) -> FloatArray | cp.Expression:
         """``P B K + Z Q^T`` (the matched injection plus the free part)."""
         parts = []
@@ -166,7 +170,9 @@ class Geometry:
                          [np.zeros((p, k)), s2 * np.eye(p), Y2.T],
                          [PGN, Y2, P]])  # fmt: skip
 
-    def kernel_blocks(self, vertices: FloatArray, P: FloatArray, Y2: FloatArray, s2: float, mu: float):  # type: ignore[no-untyped-def]
+    def kernel_blocks(
+        self, vertices: FloatArray, P: FloatArray, Y2: FloatArray, s2: float, mu: float
+    ) -> list[tuple[FloatArray, FloatArray, FloatArray]]:
         """Per vertex ``(Q_nn, Q_nm, Q_mm)`` of ``Q_i = mu P - H_i^T W^-1 H_i`` in ``[N, R]`` coordinates."""
         W = np.block([[s2 * np.eye(self.p), Y2.T], [Y2, P]])
         T = np.hstack([self.N, self.R])
@@ -210,7 +216,7 @@ class RateProblem:
         """Solve at ``mu``; returns (status, (P, Y2, s2) or None, t)."""
         self.mu.value = mu
         status = lmi.solve(self.problem)
-        if status not in lmi.SOLVED or self.P.value is None:
+        if status not in lmi.SOLVED or self.P.value is None or self.s2.value is None or self.t.value is None:
             return status, None, float("nan")
         P = 0.5 * (self.P.value + self.P.value.T)
         Z = None if self.Z is None else self.Z.value
@@ -255,16 +261,16 @@ class StrongLMI:
         """(outcome, solution, margin t) of the rate problem at ``mu`` on all vertices."""
         found: dict[str, float] = {"t": float("nan")}
 
-        def solve() -> tuple[str, object, float]:
+        def solve() -> tuple[str, tuple[FloatArray, FloatArray, float] | None, float]:
             status, solution, t = self._rate().solve(mu)
             found["t"] = t
             return status, solution, t
 
-        def recheck(solution: object) -> FloatArray:
-            return restricted_margins(self.geometry, self.vertices, *solution, mu)  # type: ignore[misc]
+        def recheck(solution: tuple[FloatArray, FloatArray, float]) -> FloatArray:
+            return restricted_margins(self.geometry, self.vertices, *solution, mu)
 
-        outcome, solution = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)
-        return outcome, solution, found["t"]  # type: ignore[return-value]
+        probed = lmi.cutting_plane_probe(solve, recheck, self.active, MARGIN_FLOOR)  # not unpacked: mypy would infer
+        return probed[0], probed[1], found["t"]  # the solution type from the targets and take None into it
 
     def solve(self, mu: float | None, *, tol: float = 1e-4, mu_min: float | None = None) -> StrongSolution:
         """Bisect for mu_min, design at mu, then the closed-form s1 and the re-check.
@@ -362,7 +368,7 @@ class StrongLMI:
             constraints.append(lmi.symmetric(block) >> margin * np.eye(2 * n + p))
         problem = cp.Problem(cp.Minimize(gain + TRACE_WEIGHT * cp.trace(P) / n), constraints)
         status = lmi.solve(problem)
-        if status not in lmi.SOLVED or P.value is None:
+        if status not in lmi.SOLVED or P.value is None or s2.value is None:
             return status, None
         Pv = 0.5 * (P.value + P.value.T)
         if bounded and np.linalg.cond(Pv) > self.kappa * (1.0 + CONDITION_RTOL):

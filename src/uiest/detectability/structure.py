@@ -92,7 +92,7 @@ class InputStructure:
     names: tuple[str, ...]
 
 
-def _rank(M: FloatArray, scale: float) -> int:
+def _rank(M: FloatArray, scale: float | np.floating) -> int:
     s = np.linalg.svd(M, compute_uv=False) if M.size else np.zeros(0)
     return int(np.sum(s > RANK_RTOL * scale)) if scale > 0 else 0
 

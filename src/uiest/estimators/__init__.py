@@ -18,6 +18,8 @@ the UISE, the FIE and the smooth-input MHE use ``y[0..k]``, the standard MHE ``y
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
+from typing import TYPE_CHECKING
+
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
@@ -29,6 +31,9 @@ from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 from uiest.guarantee import Guarantee, Verdict
 from uiest.results import EstimationResult, Outcome, StepEstimate
+
+if TYPE_CHECKING:  # their types for the checker; at run time they come from __getattr__ below
+    from uiest.kalman import EKF, UKF
 
 
 def __getattr__(name: str) -> object:

@@ -131,6 +131,8 @@ class StreamingEstimator:
     system: System
     _x0_prior: FloatArray | None
     _k: int
+    estimator_name: ClassVar[str]
+    """The estimator's name in messages, results and reprs (each concrete estimator sets it)."""
     theorem: ClassVar[str] = "none"
     """The user-facing name of the theorem behind :attr:`guarantee`."""
 
@@ -218,6 +220,8 @@ class WindowEstimator(StreamingEstimator):
     outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
     status_note: str = ""
     """Why a forced estimator carries no guarantee (" [no guarantee: ...]"; its :attr:`guarantee` says so)."""
+    _last: tuple[int, WindowProblem, WindowSolution] | None
+    """The newest solved window: (its first time index, its problem, its solution); None before one."""
 
     def __init__(
         self,
@@ -308,7 +312,7 @@ class WindowEstimator(StreamingEstimator):
         self._y: deque[FloatArray] = deque(maxlen=maxlen)
         self._data: deque[FloatArray] = deque(maxlen=maxlen)
         self._priors: deque[FloatArray] = deque(maxlen=maxlen)
-        self._last: tuple[int, WindowProblem, WindowSolution] | None = None
+        self._last = None
         self._x_last: FloatArray | None = None
         self._node_last: FloatArray | None = None
         self._w_last: FloatArray | None = None

@@ -66,8 +66,13 @@ class DelayedUISE(UISE):
         self.delayed = delayed_system(system)
         _check_lag(lag, self.delayed.system)
         certificate = keywords.get("certificate")
-        if keywords.get("N") is None and getattr(certificate, "certified", False) and isinstance(lag, int | np.integer):
-            keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)  # type: ignore[union-attr]
+        if (
+            keywords.get("N") is None
+            and certificate is not None
+            and getattr(certificate, "certified", False)
+            and isinstance(lag, int | np.integer)
+        ):
+            keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)
         self._fit = InputFit(system)
         self._a_last: FloatArray | None = None
         super().__init__(system, lag=lag, **keywords)

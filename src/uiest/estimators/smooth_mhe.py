@@ -85,7 +85,11 @@ def increments(dw_bound: ArrayLike | None, dw_variance: ArrayLike | None, nw: in
     if dw_bound is None and dw_variance is None:
         raise OptionError("dw_bound, dw_variance: expected at least one (the increments' bound or variance)")
     variance = None if dw_variance is None else increment_bound(dw_variance, nw, "dw_variance")
-    bound = DW_SIGMAS * np.sqrt(variance) if dw_bound is None else increment_bound(dw_bound, nw)  # type: ignore[arg-type]
+    if dw_bound is not None:
+        bound = increment_bound(dw_bound, nw)
+    else:
+        assert variance is not None  # one of the two is given (checked above)
+        bound = DW_SIGMAS * np.sqrt(variance)
     return bound, (bound / DW_SIGMAS) ** 2 if variance is None else variance
 
 
@@ -322,6 +326,7 @@ class SmoothInputMHE(WindowEstimator):
                                       "eq. (16))")  # fmt: skip
         dw_box = getattr(self.certificate, "w_box", None)
         dw_box = aug.w_range if dw_box is None else dw_box
+        assert dw_box is not None  # the augmented model's w_range is the increments' range: always set
         bound, settling = mhe_bound(w.P, w.Q_w, w.Q_v, w.eta, self.N, dw_box, self.w_prior, aug.v.bounds, self.v_prior,
                                     aug.x.bounds.width, current=True)  # fmt: skip
         nx = self.system.nx

@@ -277,12 +277,13 @@ class TwoStageUISE(WindowEstimator):
             missing = self._horizon_missing("reduced i-IOSS", TWO_STAGE_HORIZON)
             if missing:
                 return self._no_guarantee(theorem, missing)
-            assert self.weights is not None and self.N is not None
-            c_x, mu = float(self.certificate.c_x), self.weights.mu  # type: ignore[union-attr]
+            assert self.weights is not None and self.N is not None and self.certificate is not None
+            c_x, mu = float(self.certificate.c_x), self.weights.mu
             noise = noise_quadratic(self.weights.R_v, system.v.bounds, self.v_prior)
             rate, z_settled = two_stage_rate(mu, c_x, self.N), two_stage_z_bound(mu, c_x, self.N, noise)
-            z_scale = certificate_z_scale(self.certificate)
-            assert z_scale is not None
+            scale = certificate_z_scale(self.certificate)
+            assert scale is not None
+            z_scale = scale
         J_z, J_v = self._map_gains
         bound, settling = reduction_bound(J_z, J_v, z_scale, red.z_bounds.width, system.v.bounds, self.v_prior, c_x,
                                           rate, z_settled)  # fmt: skip
@@ -302,6 +303,7 @@ class TwoStageUISE(WindowEstimator):
     def _map_gains(self) -> tuple[FloatArray, FloatArray]:
         """Jacobians (nx, n_sharp), (nx, nv) of Eq. (26)'s ``x(gamma, z_sharp, v)``; NaN rows where they vary."""
         red, system = self.reduced, self.system
+        symbols: list[Any]  # SX, or MX for MX maps: casadi's stubs type each, and no call takes the union
         symbols = [ca.SX.sym(name, n) for name, n in (("gamma", system.ny), ("z", red.n_sharp), ("v", system.nv))]
         try:
             x = red.T_inv(ca.vertcat(red.psi(*symbols), symbols[1]))

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, Literal, Protocol, overload, runtime_checkable
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -58,11 +58,30 @@ weight ``2 Q_v``."""
 class StrongCertificate(Protocol):
     """What the UISE and the FIE read from a strong-detectability certificate."""
 
-    certified: bool
-    mu: float
-    P: FloatArray
-    R_y: FloatArray
-    R_v: FloatArray
+    @property
+    def certified(self) -> bool:
+        """Whether the inequality is proved on the whole domain."""
+        ...
+
+    @property
+    def mu(self) -> float:
+        """The certified discount."""
+        ...
+
+    @property
+    def P(self) -> FloatArray:
+        """Storage matrix (nx, nx), original units."""
+        ...
+
+    @property
+    def R_y(self) -> FloatArray:
+        """Weight of the outputs (ny, ny), original units."""
+        ...
+
+    @property
+    def R_v(self) -> FloatArray:
+        """Weight of the measurement noise (nv, nv), original units."""
+        ...
 
     def min_horizon(self) -> int:
         """Smallest horizon satisfying Eq. (13)."""
@@ -73,12 +92,35 @@ class StrongCertificate(Protocol):
 class DeltaCertificate(Protocol):
     """What the standard MHE reads from a delta-IOSS certificate (Schiller et al. 2023)."""
 
-    certified: bool
-    eta: float
-    P: FloatArray
-    Q_w: FloatArray
-    Q_v: FloatArray
-    R: FloatArray
+    @property
+    def certified(self) -> bool:
+        """Whether the inequality is proved on the whole domain."""
+        ...
+
+    @property
+    def eta(self) -> float:
+        """The certified discount."""
+        ...
+
+    @property
+    def P(self) -> FloatArray:
+        """Storage matrix (nx, nx), original units."""
+        ...
+
+    @property
+    def Q_w(self) -> FloatArray:
+        """Weight of the unknown input (nw, nw), original units."""
+        ...
+
+    @property
+    def Q_v(self) -> FloatArray:
+        """Weight of the measurement noise (nv, nv), original units."""
+        ...
+
+    @property
+    def R(self) -> FloatArray:
+        """Weight of the output (ny, ny), original units."""
+        ...
 
     def min_horizon(self) -> int:
         """Smallest horizon M with ``4 eta^M lambda_max(P2, P1) < 1`` (their eq. (16))."""
@@ -188,6 +230,20 @@ class Schedule:
         )
 
 
+@overload
+def resolve_weights(
+    kind: type[Any], certificate: object | None, weights: object | None, N: int | None, fits: Callable[[Any], None]
+) -> tuple[Any, Any, int]: ...
+@overload
+def resolve_weights(
+    kind: type[Any],
+    certificate: object | None,
+    weights: object | None,
+    N: int | None,
+    fits: Callable[[Any], None],
+    *,
+    needs_horizon: Literal[False],
+) -> tuple[Any, Any, None]: ...
 def resolve_weights(
     kind: type[Any],
     certificate: object | None,
@@ -378,12 +434,12 @@ class MHEWeights:
         x = np.where(np.isfinite(center), center, 0.0) if at is None else as_vector(at, system.nx, "at")
         v_bar = np.where(np.isfinite(system.v.bounds.center), system.v.bounds.center, 0.0)
         D = system.linearize(x, v=v_bar).D_v
-        inverse = {}
+        inverse: dict[str, FloatArray] = {}
         for name, matrix in (("w_variance", Sigma_w), ("v_covariance", Sigma_v), ("P0", P_0),
                              ("v_covariance mapped to y (D Sigma_v D^T)", D @ Sigma_v @ D.T)):  # fmt: skip
             if matrix.size and np.linalg.eigvalsh(matrix)[0] <= 0.0:
                 raise OptionError(f"{name}: expected a positive definite covariance (its inverse is a weight)")
-            inverse[name] = np.linalg.inv(matrix) if matrix.size else matrix
+            inverse[name] = np.asarray(np.linalg.inv(matrix), dtype=np.float64) if matrix.size else matrix
         return cls(eta=eta, P=inverse["P0"], Q_w=inverse["w_variance"], Q_v=inverse["v_covariance"],
                    R=OUTPUT_RATIO * inverse["v_covariance mapped to y (D Sigma_v D^T)"])  # fmt: skip
 
@@ -410,11 +466,30 @@ class ReducedCertificate(Protocol):
     :class:`~uiest.detectability.ReducedIOSS`) or an attribute ``z_scale``.
     """
 
-    certified: bool
-    mu: float
-    c_x: float
-    R_y: FloatArray
-    R_v: FloatArray
+    @property
+    def certified(self) -> bool:
+        """Whether the inequality is proved on the whole domain."""
+        ...
+
+    @property
+    def mu(self) -> float:
+        """The certified discount."""
+        ...
+
+    @property
+    def c_x(self) -> float:
+        """``lambda_max(P) / lambda_min(P)`` in scaled norms (the constant of Eq. (31))."""
+        ...
+
+    @property
+    def R_y(self) -> FloatArray:
+        """Weight of the outputs (ny, ny), original units."""
+        ...
+
+    @property
+    def R_v(self) -> FloatArray:
+        """Weight of the measurement noise (nv, nv), original units."""
+        ...
 
     def min_horizon(self) -> int:
         """Smallest N with ``N > -log_mu(4 c_x)`` (Eq. (31))."""

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import json
 import math
 import os
@@ -61,7 +62,7 @@ def _csv(frame: pd.DataFrame, path: Path) -> None:
 def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
     paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
     for path in paths:
-        write_file(path, lambda tmp, path=path: fig.savefig(tmp, dpi=140, format=path.suffix.lstrip(".")))
+        write_file(path, functools.partial(fig.savefig, dpi=140, format=path.suffix.lstrip(".")))
     plt.close(fig)
     return paths
 

@@ -11,12 +11,12 @@ import contextlib
 import numbers
 import os
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from concurrent.futures import as_completed
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 import pandas as pd
@@ -51,9 +51,13 @@ from uiest.simulate import simulate
 from uiest.system import System
 from uiest.window.solvers import BACKENDS
 
+if TYPE_CHECKING:
+    from uiest.estimators.base import WindowEstimator
+    from uiest.kalman import KalmanFilter
+
 __all__ = ["BUILDERS", "RunOutcome", "StudyResult", "noise_model", "run_study", "simulate_run"]
 
-Builder = Callable[[StudyModel, EstimatorSpec, FloatArray, str], object]
+Builder = Callable[[StudyModel, EstimatorSpec, FloatArray, str], "WindowEstimator | KalmanFilter"]
 """``(study model, spec, prior, solver) -> estimator``."""
 
 STUDY_MAX_STEPS = 10_000_000
@@ -65,7 +69,7 @@ def _certificate(study: StudyModel, spec: EstimatorSpec) -> Any:
     return study.certificate(spec.kind, spec.mu, spec.w_variance) if spec.weights == "certificate" else None
 
 
-def _uise(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _uise(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
     certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return UISE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
@@ -75,7 +79,7 @@ def _uise(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str
     return UISE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _fie(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _fie(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
     certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return FIE(system, certificate=certificate, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
@@ -85,7 +89,9 @@ def _fie(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str)
     return FIE(system, weights=weights, x0_prior=prior, solver=solver, max_steps=STUDY_MAX_STEPS)
 
 
-def _standard_mhe(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _standard_mhe(
+    study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str
+) -> WindowEstimator | KalmanFilter:
     certificate, system = _certificate(study, spec), study.system
     if certificate is not None:
         return StandardMHE(system, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
@@ -100,7 +106,9 @@ def _standard_mhe(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, sol
     return StandardMHE(system, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _two_stage(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _two_stage(
+    study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str
+) -> WindowEstimator | KalmanFilter:
     reduced, certificate = study.reduction, _certificate(study, spec)
     if certificate is not None:
         return TwoStageUISE(reduced, certificate=certificate, N=spec.N or None, x0_prior=prior, solver=solver)
@@ -110,7 +118,7 @@ def _two_stage(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver
     return TwoStageUISE(reduced, weights=weights, N=spec.N, x0_prior=prior, solver=solver)
 
 
-def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
     from uiest.kalman import EKF, UKF
 
     factor = spec.w_variance if spec.w_variance > 0 else study.tuned_variance(spec.kind)
@@ -118,7 +126,9 @@ def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: s
     return (EKF if spec.kind == "ekf" else UKF)(system, w_variance=factor * system.w.scale**2, x0_prior=prior)
 
 
-def _smooth_mhe(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> object:
+def _smooth_mhe(
+    study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str
+) -> WindowEstimator | KalmanFilter:
     system = study.system
     variance = study.increment_variance(spec.w_variance) * system.w.scale**2
     certificate = _certificate(study, spec)
@@ -300,8 +310,8 @@ def run_study(
     truths: dict[tuple[str, int], Trajectory] = {}
     results: dict[tuple[str, int, str], EstimationResult] = {}
     tasks = [(case, run) for case in scenario.cases for run in range(scenario.runs)]
-    kept = {task: saved.load(*task, expected=RunOutcome) for task in tasks} if saved is not None else {}
-    kept = {task: outcome for task, outcome in kept.items() if outcome is not None}
+    loaded = {task: saved.load(*task, expected=RunOutcome) for task in tasks} if saved is not None else {}
+    kept = {task: outcome for task, outcome in loaded.items() if outcome is not None}
 
     def add(outcome: RunOutcome) -> None:
         truths[(outcome.case, outcome.run)] = outcome.truth
@@ -357,7 +367,7 @@ def run_case(
         try:
             estimator = BUILDERS[spec.kind](study, spec, prior, solver)
             with quiet_bound_warnings():  # counted in the run's row and reported
-                result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+                result = estimator.run(truth.u, truth.y)
         except Exception as exc:  # recorded, whatever it is; the study goes on
             error = f"{type(exc).__name__}: {exc}"
             result = None
@@ -375,7 +385,7 @@ def run_case(
 
 def _outcomes(
     scenario: Scenario, study: StudyModel, given: bool, tasks: list[tuple[str, int]], solver: str, workers: int | None
-) -> Iterator[RunOutcome]:
+) -> Generator[RunOutcome, None, None]:
     """Each (case, run)'s outcome as it completes: in this process, or in a pool of ``workers`` processes.
 
     Spawned workers load built-in models and model files by name, with the certificates and

@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 import os
 import tomllib
+from collections.abc import Iterable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -99,7 +100,9 @@ def _number(value: object) -> bool:
 def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[float, ...]:
     """A tuple of real numbers (finite unless ``allow_nan`` lets NaN through), else OptionError naming ``name``."""
     try:
-        items = tuple(value)  # type: ignore[arg-type]
+        if not isinstance(value, Iterable):
+            raise TypeError
+        items = tuple(value)
     except TypeError:
         raise OptionError(f"{name}: expected a list of numbers, got {value!r}") from None
     out = []
@@ -115,12 +118,15 @@ def _numbers(value: object, name: str, *, allow_nan: bool = False) -> tuple[floa
 def _index_pairs(value: object) -> tuple[tuple[int, int], ...]:
     """``prior_from_output`` as (state, output) pairs of integers, else OptionError."""
     try:
-        pairs = tuple(tuple(pair) for pair in value)  # type: ignore[attr-defined]
+        if not isinstance(value, Iterable):
+            raise TypeError
+        pairs = [tuple(pair) if isinstance(pair, Iterable) else () for pair in value]
     except TypeError:
-        pairs = ((),)
-    if not all(len(pair) == 2 and all(type(i) is int for i in pair) for pair in pairs):
+        pairs = [()]
+    checked = tuple((i, j) for i, j in (p for p in pairs if len(p) == 2) if type(i) is int and type(j) is int)
+    if len(checked) != len(pairs):
         raise OptionError(f"prior_from_output: expected [state, output] integer index pairs, got {value!r}")
-    return pairs  # type: ignore[return-value]
+    return checked
 
 
 @dataclass(frozen=True)

@@ -20,6 +20,7 @@ model file is computed again).
 from __future__ import annotations
 
 import datetime as dt
+import functools
 import json
 import os
 import time
@@ -81,7 +82,7 @@ def run_task(task: Task) -> pd.DataFrame:
         try:
             estimator = BUILDERS[spec.kind](study, spec, prior, task.solver)
             with quiet_bound_warnings():  # counted in the row
-                result = estimator.run(truth.u, truth.y)  # type: ignore[attr-defined]
+                result = estimator.run(truth.u, truth.y)
         except Exception as exc:  # recorded, whatever it is; the sweep goes on
             row["error"] = f"{type(exc).__name__}: {exc}"
             rows.append(row)
@@ -331,6 +332,6 @@ def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Pat
         axes[0].legend(fontsize=7)
         fig.tight_layout()
         try:
-            write_file(out / f"sweep_{param}.png", lambda tmp, fig=fig: fig.savefig(tmp, dpi=130, format="png"))
+            write_file(out / f"sweep_{param}.png", functools.partial(fig.savefig, dpi=130, format="png"))
         finally:
             plt.close(fig)

@@ -39,9 +39,9 @@ class BufferedFunction:
         self._buffer: Any
         self._buffer, self._call = function.buffer()
         for i, arr in enumerate(self._args):
-            self._buffer.set_arg(i, memoryview(arr))
+            self._buffer.set_arg(i, arr.data)
         for i, arr in enumerate(self._outs):
-            self._buffer.set_res(i, memoryview(arr))
+            self._buffer.set_res(i, arr.data)
 
     def __call__(self, *args: FloatArray) -> list[FloatArray]:
         """Evaluate at ``args`` (one array per input, of the input's number of nonzeros)."""

@@ -63,6 +63,7 @@ from typing import Any, NamedTuple
 
 import casadi as ca
 import numpy as np
+from numpy.typing import NDArray
 
 from uiest.box import FloatArray
 from uiest.checks import check_int, check_real
@@ -266,8 +267,8 @@ def _raise_flat(H: ca.SX) -> ca.SX:
 
 
 def _released(
-    held: FloatArray, lam: FloatArray, gradient: FloatArray, rounding: FloatArray, width: FloatArray, tol: float
-) -> FloatArray:
+    held: NDArray[np.bool_], lam: FloatArray, gradient: FloatArray, rounding: FloatArray, width: FloatArray, tol: float
+) -> NDArray[np.bool_]:
     """Which of the sides qrqp holds at a zero multiplier (``held``; ``lam`` > 0 upper, < 0 lower) to release.
 
     Those whose exact multiplier (``-gradient``, the QP's gradient at its solution) has the wrong

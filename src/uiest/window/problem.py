@@ -410,10 +410,10 @@ class WindowProblem:
             ubg[self.n_dyn : self.n_dyn + self.n_out_con] = np.tile(hi, M)
         if rows:
             assert s.node_bounds is not None and s.node_scale is not None
-            c_center, c_scale = working_center(s.node_bounds, s.node_scale)[rows], s.node_scale[rows]
+            center, scale = working_center(s.node_bounds, s.node_scale)[rows], s.node_scale[rows]
             start = self.n_dyn + self.n_out_con
-            lbg[start:] = np.tile((s.node_bounds.lower[rows] - c_center) / c_scale, M)
-            ubg[start:] = np.tile((s.node_bounds.upper[rows] - c_center) / c_scale, M)
+            lbg[start:] = np.tile((s.node_bounds.lower[rows] - center) / scale, M)
+            ubg[start:] = np.tile((s.node_bounds.upper[rows] - center) / scale, M)
         self.lbg, self.ubg = lbg, ubg
 
     @cached_property
