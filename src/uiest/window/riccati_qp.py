@@ -171,7 +171,7 @@ class StageQPSolution:
     lam_c : ndarray (n_con,)
         Multipliers of the general inequality rows (sign as ``lam_x``).
     cost : float
-        ``1/2 z^T H z + q^T z``.
+        ``1/2 z^T (H + regularisation I) z + q^T z``.
     status : QPStatus
     iterations : int
         Interior-point iterations.
@@ -1025,7 +1025,7 @@ def _ipm(
         h0 = ho[k]
         z0 = zo[k]
         for r in range(nk):
-            s = 0.0
+            s = reg * z[z0 + r]
             for c in range(nk):
                 s += H[h0 + r * nk + c] * z[z0 + c]
             tmpn[z0 + r] = s
