@@ -47,7 +47,7 @@ from uiest.models import crop_growth
 from uiest.window import IpoptSolver, WindowSolution, WindowSolver
 from uiest.window.size import check_horizon
 
-SOLVERS = ("ipopt", "gn", "rti")
+SOLVERS = ("ipopt", "gn", "rti", "gn-riccati")
 
 ESTIMATORS = ("UISE", "two-stage UISE", "standard MHE")
 """The estimators :func:`bench_window_solvers` times, in its order."""
@@ -374,6 +374,7 @@ def bench_window_solvers(
                     "closed_loop_dev_vs_ipopt": closed_loop,
                     "failures": int(result.failures),
                     "fallbacks": result.fallbacks,
+                    "qp_fallbacks": getattr(recorder.solver if recorder else None, "qp_fallbacks", 0),
                     "load": os.getloadavg()[0],
                 })  # fmt: skip
             if long:
