@@ -481,7 +481,7 @@ class GaussNewtonSolver:
         """
         c = self._qp_scale
         if form.stage is not None:
-            staged = form.stage.solve(c * h, c * q, a, bounds)
+            staged = form.stage.solve(c * h, c * q, a, bounds, (self._lam_x, self._lam_a) if warm else None)
             if staged is not None:
                 self._released_any = False
                 dz, cost, lam_x, lam_a = staged

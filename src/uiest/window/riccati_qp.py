@@ -179,8 +179,13 @@ class StageQPSolution:
         The interior point's largest scaled KKT residual (stationarity, dynamics, bounds, complementarity) at its
         last iterate.
     exact_active_set : bool
-        Whether ``z`` and the multipliers are the exact solution of the interior point's active set (the bounds
-        it found active held as equalities, checked to ``tol``), rather than the last interior iterate.
+        Whether ``z`` and the multipliers are the exact solution of an active set (its rows held as equalities,
+        optimality checked to ``tol``), rather than the last interior iterate.
+    active_set : ndarray (n_var + n_con,)
+        -1 / 0 / +1 per inequality row (the bounds, then the general rows): lower side active, free, upper side
+        active; a ``guess`` for the next, similar QP.
+    active_set_steps : int
+        Primal-dual active-set steps taken from the ``guess`` (0 without one).
 
     """
 
@@ -193,6 +198,8 @@ class StageQPSolution:
     iterations: int
     residual: float
     exact_active_set: bool
+    active_set: FloatArray
+    active_set_steps: int
 
     @property
     def solved(self) -> bool:
@@ -205,6 +212,8 @@ DEFAULT_TOL = 1e-11
 
 DEFAULT_MAX_ITER = 60
 """Interior-point iterations per solve."""
+
+_NO_GUESS = np.zeros(0)
 
 
 def solve_stage_qp(
@@ -222,6 +231,7 @@ def solve_stage_qp(
     regularisation: float = 0.0,
     tol: float = DEFAULT_TOL,
     max_iter: int = DEFAULT_MAX_ITER,
+    guess: npt.ArrayLike | None = None,
 ) -> StageQPSolution:
     """Solve the stage-wise QP of the module docstring.
 
@@ -247,6 +257,10 @@ def solve_stage_qp(
         Stopping tolerance (> 0).
     max_iter : int
         Interior-point iterations (>= 1).
+    guess : array_like, shape (n_var + n_con,), optional
+        An active set to try first (-1 / 0 / +1 per row, as :attr:`StageQPSolution.active_set`): up to
+        :data:`_ACTIVE_SET_ROUNDS` primal-dual active-set steps from it, each one Riccati factorisation; the
+        interior point runs only if they do not reach the optimum.
 
     Returns
     -------
@@ -278,8 +292,15 @@ def solve_stage_qp(
         raise OptionError(f"tol: expected a finite number > 0, got {tol!r}")
     if isinstance(max_iter, bool) or not isinstance(max_iter, int | np.integer) or max_iter < 1:
         raise OptionError(f"max_iter: expected an integer >= 1, got {max_iter!r}")
+    start = None
+    if guess is not None:
+        start = np.ascontiguousarray(guess, dtype=float).reshape(-1)
+        if start.size != n + nc or not np.isin(start, (-1.0, 0.0, 1.0)).all():
+            raise OptionError(f"guess: expected {n + nc} entries from -1, 0, 1, got {np.asarray(guess).tolist()}")
     kernel = StageKernel(layout)
-    return kernel.solve(**data, regularisation=float(regularisation), tol=float(tol), max_iter=int(max_iter))
+    return kernel.solve(
+        **data, regularisation=float(regularisation), tol=float(tol), max_iter=int(max_iter), guess=start
+    )
 
 
 class StageKernel:
@@ -312,6 +333,7 @@ class StageKernel:
         regularisation: float = 0.0,
         tol: float = DEFAULT_TOL,
         max_iter: int = DEFAULT_MAX_ITER,
+        guess: FloatArray | None = None,
     ) -> StageQPSolution:
         """Solve with contiguous float arrays of the sizes :func:`solve_stage_qp` checks."""
         layout = self.layout
@@ -319,9 +341,11 @@ class StageKernel:
         lam_x = np.zeros(layout.n_var)
         lam_dyn = np.zeros(layout.n_dyn)
         lam_c = np.zeros(layout.n_con)
-        info = np.zeros(4)
-        code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter,
-                    z, lam_x, lam_dyn, lam_c, info)  # fmt: skip
+        info = np.zeros(5)
+        side = np.zeros(layout.n_var + layout.n_con)
+        start = _NO_GUESS if guess is None else guess
+        code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
+                    z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
         return StageQPSolution(
             z=z,
             lam_x=lam_x,
@@ -332,6 +356,8 @@ class StageKernel:
             iterations=int(info[1]),
             residual=float(info[2]),
             exact_active_set=bool(info[3]),
+            active_set=side,
+            active_set_steps=int(info[4]),
         )
 
 
@@ -347,55 +373,61 @@ _PENALTY = 1e6
 _MULTIPLIER_ROUNDS = 5
 """Multiplier updates :func:`_crossover` tries before it gives up on an active set."""
 
+_ACTIVE_SET_ROUNDS = 3
+"""Primal-dual active-set steps tried from a guessed active set before the interior point."""
+
 CROSSOVER_BELOW = 1e-6
 """The interior point tries its active set's exact solution (:func:`_crossover`) once its residual is below this."""
 
 
-@numba.njit(cache=True)
-def _cholesky(M: FloatArray, n: int, off: int, L: FloatArray) -> bool:  # pragma: no cover (compiled)
-    """Lower Cholesky factor of the (n, n) block of M starting at off... (row-major ``M[r * n + c]`` with offset)."""
+@numba.njit(cache=True, error_model="numpy")
+def _cholesky(M: FloatArray, moff: int, stride: int, n: int, L: FloatArray, loff: int) -> bool:  # pragma: no cover
+    """Lower Cholesky factor of ``M[moff + r * stride + c]`` (r, c < n) into ``L[loff + r * n + c]``.
+
+    False if a pivot is not positive.
+    """
     for j in range(n):
-        s = M[off + j * n + j]
+        s = M[moff + j * stride + j]
         for k in range(j):
-            s -= L[j * n + k] * L[j * n + k]
+            s -= L[loff + j * n + k] * L[loff + j * n + k]
         if not (s > 0.0):
             return False
         d = math.sqrt(s)
-        L[j * n + j] = d
+        L[loff + j * n + j] = d
         for i in range(j + 1, n):
-            t = M[off + i * n + j]
+            t = M[moff + i * stride + j]
             for k in range(j):
-                t -= L[i * n + k] * L[j * n + k]
-            L[i * n + j] = t / d
+                t -= L[loff + i * n + k] * L[loff + j * n + k]
+            L[loff + i * n + j] = t / d
         for i in range(j):
-            L[i * n + j] = 0.0
+            L[loff + i * n + j] = 0.0
     return True
 
 
-@numba.njit(cache=True)
-def _chol_solve(L: FloatArray, n: int, x: FloatArray) -> None:  # pragma: no cover (compiled)
-    """``x <- (L L^T)^{-1} x`` in place."""
+@numba.njit(cache=True, error_model="numpy")
+def _chol_solve(L: FloatArray, loff: int, n: int, x: FloatArray, xoff: int) -> None:  # pragma: no cover
+    """``x[xoff : xoff + n] <- (L L^T)^{-1} x[xoff : xoff + n]`` in place, ``L`` at ``loff``."""
     for i in range(n):
-        t = x[i]
+        t = x[xoff + i]
         for k in range(i):
-            t -= L[i * n + k] * x[k]
-        x[i] = t / L[i * n + i]
+            t -= L[loff + i * n + k] * x[xoff + k]
+        x[xoff + i] = t / L[loff + i * n + i]
     for i in range(n - 1, -1, -1):
-        t = x[i]
+        t = x[xoff + i]
         for k in range(i + 1, n):
-            t -= L[k * n + i] * x[k]
-        x[i] = t / L[i * n + i]
+            t -= L[loff + k * n + i] * x[xoff + k]
+        x[xoff + i] = t / L[loff + i * n + i]
 
 
-@numba.njit(cache=True)
-def _factor(nx, N1, nz, zo, ho, ao, A, Hm, M, L, K, P, Lx):  # pragma: no cover (compiled)
+@numba.njit(cache=True, error_model="numpy")
+def _factor(nx, N1, nz, ho, ao, A, Hm, M, L, K, P, Lx, W):  # pragma: no cover (compiled)
     """Backward Riccati factorisation of the Newton matrix; False where a pivot is not positive.
 
-    Stage k: ``M_k = Hm_k + A_k^T P_{k+1} A_k`` (row-major, ``ho``), its input block's Cholesky factor in
-    ``L`` (stride ``n_k - nx``, at ``ho``), ``K_k = M_uu^{-1} M_ux`` (row-major ``nu x nx`` at ``ho``),
-    ``P_k`` (``nx x nx`` at ``k nx^2``); ``Lx`` the Cholesky factor of ``P_0``.
+    Stage k: ``M_k = Hm_k + A_k^T P_{k+1} A_k`` (row-major, at ``ho[k]``), the Cholesky factor of its input
+    block ``M_uu`` in ``L`` (``nu x nu``, at ``ho[k]``), ``K_k = M_uu^{-1} M_ux`` (row-major ``nu x nx`` at
+    ``ho[k]``), ``P_k`` (``nx x nx`` at ``k nx^2``); ``Lx`` the Cholesky factor of ``P_0``. ``W``: scratch of
+    at least ``nx max(n_k) + max(n_k)`` entries.
     """
-    tmp = np.empty(nx * nx)
     for k in range(N1 - 1, -1, -1):
         n = nz[k]
         nu = n - nx
@@ -405,139 +437,118 @@ def _factor(nx, N1, nz, zo, ho, ao, A, Hm, M, L, K, P, Lx):  # pragma: no cover 
         if k < N1 - 1:
             a0 = ao[k]
             p1 = (k + 1) * nx * nx
-            # M += A^T P A: first T = P A (nx x n) stored in row-major scratch, reuse K region? use local array
-            PA = np.empty(nx * n)
-            for r in range(nx):
+            for r in range(nx):  # W = P_{k+1} A_k, (nx, n)
                 for c in range(n):
                     s = 0.0
                     for j in range(nx):
                         s += P[p1 + r * nx + j] * A[a0 + j * n + c]
-                    PA[r * n + c] = s
+                    W[r * n + c] = s
             for r in range(n):
                 for c in range(r, n):
                     s = 0.0
                     for j in range(nx):
-                        s += A[a0 + j * n + r] * PA[j * n + c]
+                        s += A[a0 + j * n + r] * W[j * n + c]
                     M[h0 + r * n + c] += s
                     if c != r:
                         M[h0 + c * n + r] += s
         pk = k * nx * nx
         if nu > 0:
-            Muu = np.empty(nu * nu)
-            for r in range(nu):
-                for c in range(nu):
-                    Muu[r * nu + c] = M[h0 + (nx + r) * n + nx + c]
-            Lk = np.empty(nu * nu)
-            if not _cholesky(Muu, nu, 0, Lk):
+            if not _cholesky(M, h0 + nx * n + nx, n, nu, L, h0):
                 return False
-            for i in range(nu * nu):
-                L[h0 + i] = Lk[i]
-            # K = Muu^{-1} Mux, column by column
-            col = np.empty(nu)
+            col = nx * n  # K = M_uu^{-1} M_ux, column by column, through W[col : col + nu]
             for c in range(nx):
                 for r in range(nu):
-                    col[r] = M[h0 + (nx + r) * n + c]
-                _chol_solve(Lk, nu, col)
+                    W[col + r] = M[h0 + (nx + r) * n + c]
+                _chol_solve(L, h0, nu, W, col)
                 for r in range(nu):
-                    K[h0 + r * nx + c] = col[r]
+                    K[h0 + r * nx + c] = W[col + r]
             for r in range(nx):
-                for c in range(nx):
+                for c in range(r, nx):
                     s = M[h0 + r * n + c]
                     for j in range(nu):
                         s -= M[h0 + r * n + nx + j] * K[h0 + j * nx + c]
-                    tmp[r * nx + c] = s
-            for r in range(nx):
-                for c in range(nx):
-                    P[pk + r * nx + c] = 0.5 * (tmp[r * nx + c] + tmp[c * nx + r])
+                    P[pk + r * nx + c] = s
+                    P[pk + c * nx + r] = s
         else:
             for r in range(nx):
                 for c in range(nx):
                     P[pk + r * nx + c] = M[h0 + r * n + c]
     if nx > 0:
-        return _cholesky(P, nx, 0, Lx)
+        return _cholesky(P, 0, nx, nx, Lx, 0)
     return True
 
 
-@numba.njit(cache=True)
-def _riccati_solve(nx, N1, nz, zo, ho, ao, A, M, L, K, P, Lx, rq, b, dz, pi):  # pragma: no cover
+@numba.njit(cache=True, error_model="numpy")
+def _riccati_solve(nx, N1, nz, zo, ho, ao, A, M, L, K, P, Lx, rq, b, dz, pi, W, p):  # pragma: no cover
     """Solve ``min 1/2 dz^T Hm dz + rq^T dz`` s.t. ``x_{k+1} = A_k z_k + b_k`` with the factors of :func:`_factor`.
 
-    Writes ``dz`` and the dynamics multipliers ``pi`` (``N nx``).
+    Writes ``dz`` and the dynamics multipliers ``pi`` (``N nx``). ``W``: scratch of at least
+    ``max(n_k) + nx`` entries; ``p``: scratch of ``(N + 1) nx`` (the cost-to-go's gradients). The input parts of
+    ``dz`` hold ``M_uu^{-1} m_u`` between the sweeps.
     """
-    p = np.zeros(N1 * nx)
-    ku = np.zeros(zo[N1])
     for k in range(N1 - 1, -1, -1):
         n = nz[k]
         nu = n - nx
         h0 = ho[k]
         z0 = zo[k]
-        m = np.empty(n)
-        for i in range(n):
-            m[i] = rq[z0 + i]
+        for i in range(n):  # m = rq_k + A_k^T (P_{k+1} b_k + p_{k+1}) in W[:n]
+            W[i] = rq[z0 + i]
         if k < N1 - 1:
             a0 = ao[k]
             p1 = (k + 1) * nx * nx
-            v = np.empty(nx)  # P_{k+1} b_k + p_{k+1}
             for r in range(nx):
                 s = p[(k + 1) * nx + r]
                 for j in range(nx):
                     s += P[p1 + r * nx + j] * b[k * nx + j]
-                v[r] = s
+                W[n + r] = s
             for c in range(n):
                 s = 0.0
                 for j in range(nx):
-                    s += A[a0 + j * n + c] * v[j]
-                m[c] += s
+                    s += A[a0 + j * n + c] * W[n + j]
+                W[c] += s
         if nu > 0:
-            mu_ = np.empty(nu)
             for r in range(nu):
-                mu_[r] = m[nx + r]
-            Lk = L[h0 : h0 + nu * nu]
-            _chol_solve(Lk, nu, mu_)
-            for r in range(nu):
-                ku[z0 + nx + r] = mu_[r]
+                dz[z0 + nx + r] = W[nx + r]
+            _chol_solve(L, h0, nu, dz, z0 + nx)
             for r in range(nx):
-                s = m[r]
+                s = W[r]
                 for j in range(nu):
-                    s -= M[h0 + r * n + nx + j] * mu_[j]
+                    s -= M[h0 + r * n + nx + j] * dz[z0 + nx + j]
                 p[k * nx + r] = s
         else:
             for r in range(nx):
-                p[k * nx + r] = m[r]
-    # x_0
-    x = np.empty(nx)
-    for r in range(nx):
-        x[r] = -p[r]
+                p[k * nx + r] = W[r]
+    for r in range(nx):  # x_0 = -P_0^{-1} p_0, into dz's first stage
+        dz[r] = -p[r]
     if nx > 0:
-        _chol_solve(Lx, nx, x)
+        _chol_solve(Lx, 0, nx, dz, 0)
     for k in range(N1):
         n = nz[k]
         nu = n - nx
         h0 = ho[k]
         z0 = zo[k]
-        for r in range(nx):
-            dz[z0 + r] = x[r]
         for r in range(nu):
-            s = ku[z0 + nx + r]
+            s = dz[z0 + nx + r]
             for c in range(nx):
-                s += K[h0 + r * nx + c] * x[c]
+                s += K[h0 + r * nx + c] * dz[z0 + c]
             dz[z0 + nx + r] = -s
         if k < N1 - 1:
             a0 = ao[k]
             p1 = (k + 1) * nx * nx
+            z1 = zo[k + 1]
             for r in range(nx):
                 s = b[k * nx + r]
                 for c in range(n):
                     s += A[a0 + r * n + c] * dz[z0 + c]
-                x[r] = s
+                dz[z1 + r] = s
             for r in range(nx):
                 s = p[(k + 1) * nx + r]
                 for j in range(nx):
-                    s += P[p1 + r * nx + j] * x[j]
+                    s += P[p1 + r * nx + j] * dz[z1 + j]
                 pi[k * nx + r] = s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, out):  # pragma: no cover
     """``out = C z`` (the general rows, stage by stage)."""
     for k in range(N1):
@@ -549,7 +560,7 @@ def _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, out):  # pragma: no cov
             out[cro[k] + r] = s
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, y, out):  # pragma: no cover
     """``out += C^T y``."""
     for k in range(N1):
@@ -561,7 +572,7 @@ def _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, y, out):  # pragma: no c
                     out[zo[k] + c] += C[co[k] + r * n + c] * yr
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, out):  # pragma: no cover (compiled)
     """``out = (H + reg I) z + q + E^T pi``, ``E`` the dynamics ``A_k z_k - x_{k+1}``."""
     for k in range(N1):
@@ -585,64 +596,34 @@ def _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, out):  # pragma: no c
                 out[z0 + r] -= pi[(k - 1) * nx + r]
 
 
-@numba.njit(cache=True)
-def _crossover(
-    nx,
-    N1,
-    nz,
-    zo,
-    ho,
-    ao,
-    ncs,
-    co,
-    cro,
-    H,
-    q,
-    A,
-    b,
-    C,
-    lo,
-    hi,
-    has_lo,
-    has_hi,
-    reg,
-    tol,
-    scale,
-    sl,
-    su,
-    yl,
-    yu,
-    z,
-    pi,
-    lam,
-):  # pragma: no cover (compiled)
-    """Solve the equality-constrained QP of the interior point's active set exactly; True if it is the optimum.
+@numba.njit(cache=True, error_model="numpy")
+def _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, scale,
+                  side, lam, z, pi):  # pragma: no cover (compiled)  # fmt: skip
+    """Solve the QP with the rows ``side != 0`` held at their bounds (-1 lower, +1 upper) and the others free.
 
-    A side is active where its multiplier exceeds its slack. The active rows are held at their bounds by the
-    method of multipliers (augmented Lagrangian, penalty :data:`_PENALTY` times the Hessian's size) on the same
-    Riccati recursion: each round is one factorisation-free solve of a quadratic, the multiplier update
-    contracts the rows' error by about the penalty's inverse. Accepted (``z``, ``pi``, ``lam`` written) when the
-    active rows hold their bounds, the others their boxes, and the active multipliers have the right sign, each
-    to ``tol``; the interior point then stops with an exact vertex instead of one ``mu`` inside it.
+    The active rows are held by the method of multipliers (augmented Lagrangian, penalty :data:`_PENALTY` times
+    the Hessian's size, ``lam`` the multipliers' start) on the Riccati recursion: one factorisation, then one
+    solve per round, each round contracting the rows' error by about the penalty's inverse. The bounds'
+    multipliers are then read off stationarity. Returns 0 when the solution is the QP's optimum (the active
+    rows hold their bounds, the others their boxes, the active multipliers have the right sign, each to
+    ``tol``; ``z``, ``pi``, ``lam`` written, ``lam`` zero on free rows); 1 when it is not, with ``side``
+    updated as a primal-dual active-set step (violated rows made active, wrong-signed ones released); 2 when
+    the active set's QP is singular or its rows inconsistent.
     """
     n = zo[N1]
     nc = cro[N1]
     m = n + nc
-    side = np.zeros(m)
     target = np.zeros(m)
-    lam_w = np.zeros(m)
     any_active = False
     for i in range(m):
-        if has_hi[i] and yu[i] > su[i]:
-            side[i] = 1.0
+        if side[i] > 0.0:
             target[i] = hi[i]
-            lam_w[i] = yu[i] - yl[i]
             any_active = True
-        elif has_lo[i] and yl[i] > sl[i]:
-            side[i] = -1.0
+        elif side[i] < 0.0:
             target[i] = lo[i]
-            lam_w[i] = yu[i] - yl[i]
             any_active = True
+        else:
+            lam[i] = 0.0
     h_scale = 1.0
     for i in range(H.size):
         h_scale = max(h_scale, abs(H[i]))
@@ -662,70 +643,71 @@ def _crossover(
                 for r in range(nk):
                     for c in range(nk):
                         Hm[h0 + r * nk + c] += rho * C[c0 + r] * C[c0 + c]
+    nmax = 0
+    for k in range(N1):
+        nmax = max(nmax, nz[k])
     Mw = np.empty(H.size)
     Lw = np.empty(H.size)
     Kw = np.empty(H.size)
     Pw = np.empty(N1 * nx * nx)
     Lx = np.empty(nx * nx)
-    if not _factor(nx, N1, nz, zo, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx):
-        return False
+    W = np.empty(nx * nmax + nmax + nx)
+    pw = np.empty(N1 * nx)
+    if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
+        return 2
     rq = np.empty(n)
     w = np.empty(m)
-    zt = np.empty(n)
-    pit = np.empty((N1 - 1) * nx)
     Dz = np.empty(m)
     cz = np.empty(nc)
-    ok = False
+    held = False
     for _ in range(_MULTIPLIER_ROUNDS):
         for i in range(m):
-            w[i] = (lam_w[i] - rho * target[i]) if side[i] != 0.0 else 0.0
+            w[i] = (lam[i] - rho * target[i]) if side[i] != 0.0 else 0.0
         for i in range(n):
             rq[i] = q[i] + w[i]
         _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
-        _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, b, zt, pit)
-        _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, zt, cz)
+        _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, b, z, pi, W, pw)
+        _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
         for i in range(n):
-            Dz[i] = zt[i]
+            Dz[i] = z[i]
         for i in range(nc):
             Dz[n + i] = cz[i]
-        ok = True
+        held = True
         for i in range(m):
             if side[i] != 0.0:
                 err = Dz[i] - target[i]
-                lam_w[i] += rho * err
+                lam[i] += rho * err
                 if abs(err) > tol * (1.0 + abs(target[i])):
-                    ok = False
-        if ok:
+                    held = False
+        if held:
             break
-    if not ok:
-        return False
+    if not held:
+        return 2
     # the bounds' multipliers from stationarity (rho times the rows' rounding would otherwise stay in them)
     grad = np.empty(n)
     for i in range(m):
-        w[i] = lam_w[i] if (i >= n and side[i] != 0.0) else 0.0
-    _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, zt, pit, grad)
+        w[i] = lam[i] if (i >= n and side[i] != 0.0) else 0.0
+    _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, grad)
     _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], grad)
     for i in range(n):
         if side[i] != 0.0:
-            lam_w[i] = -grad[i]
+            lam[i] = -grad[i]
+    optimal = True
     for i in range(m):
         if side[i] != 0.0:
-            if side[i] * lam_w[i] < -tol * scale:
-                return False
-        elif (has_lo[i] and Dz[i] < lo[i] - tol * (1.0 + abs(lo[i]))) or (
-            has_hi[i] and Dz[i] > hi[i] + tol * (1.0 + abs(hi[i]))
-        ):
-            return False
-    for i in range(n):
-        z[i] = zt[i]
-    for i in range(pit.size):
-        pi[i] = pit[i]
-    for i in range(m):
-        lam[i] = lam_w[i] if side[i] != 0.0 else 0.0
-    return True
+            if side[i] * lam[i] < -tol * scale:
+                side[i] = 0.0
+                optimal = False
+        elif lo[i] > -math.inf and Dz[i] < lo[i] - tol * (1.0 + abs(lo[i])):
+            side[i] = -1.0
+            optimal = False
+        elif hi[i] < math.inf and Dz[i] > hi[i] + tol * (1.0 + abs(hi[i])):
+            side[i] = 1.0
+            optimal = False
+    return 0 if optimal else 1
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, error_model="numpy")
 def _ipm(
     nx,
     nz,
@@ -747,13 +729,20 @@ def _ipm(
     reg,
     tol,
     max_iter,
+    guess,
     z_out,
     lam_x_out,
     lam_dyn_out,
     lam_c_out,
+    side_out,
     info,
 ):  # pragma: no cover
-    """Mehrotra predictor-corrector interior point; returns a :class:`QPStatus` code. See :func:`solve_stage_qp`."""
+    """Mehrotra predictor-corrector interior point; returns a :class:`QPStatus` code. See :func:`solve_stage_qp`.
+
+    ``guess`` (empty, or -1/0/+1 per inequality row, the boxes first): an active set to try first, with up to
+    :data:`_ACTIVE_SET_ROUNDS` primal-dual active-set steps (:func:`_solve_active`); the interior point runs only
+    if they do not reach the optimum. ``side_out``: the active set found (-1/0/+1 per row).
+    """
     N1 = nz.size
     n = zo[N1]
     nc = cro[N1]
@@ -820,6 +809,11 @@ def _ipm(
     Kw = np.empty(H.size)
     Pw = np.empty(N1 * nx * nx)
     Lx = np.empty(nx * nx)
+    nmax = 0
+    for k in range(N1):
+        nmax = max(nmax, nz[k])
+    W = np.empty(nx * nmax + nmax + nx)
+    pw = np.empty(N1 * nx)
     rd = np.empty(n)
     re = np.empty(ndyn)
     rl = np.zeros(m)
@@ -853,8 +847,31 @@ def _ipm(
     it = 0
     res = math.inf
     crossed = False
-    lam = np.empty(m)
-    for it in range(max_iter + 1):
+    lam = np.zeros(m)
+    side = np.zeros(m)
+    zt = np.empty(n)
+    pit = np.empty(ndyn)
+    rounds = 0
+    code = 2
+    tried = False
+    if guess.size == m:
+        for i in range(m):
+            side[i] = guess[i] if (guess[i] < 0.0 and has_lo[i]) or (guess[i] > 0.0 and has_hi[i]) else 0.0
+        for rounds in range(1, _ACTIVE_SET_ROUNDS + 1):  # noqa: B007 (reported)
+            code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, q_scale,
+                                 side, lam, z, pi)  # fmt: skip
+            if code != 1:
+                break
+        if code == 0:
+            crossed = True
+            status = 0
+            res = 0.0
+        else:
+            for i in range(n):
+                z[i] = 0.0
+            for i in range(ndyn):
+                pi[i] = 0.0
+    for it in range(0 if crossed else max_iter + 1):
         # residuals
         _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
         for i in range(n):
@@ -903,12 +920,25 @@ def _ipm(
             status = 5
             break
         res = max(dres / (q_scale + ymax), eres / b_scale, pres, mu / (q_scale + ymax))
-        if res <= CROSSOVER_BELOW and _crossover(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi,
-                                                 has_lo, has_hi, reg, tol, q_scale + ymax, sl, su, yl, yu,
-                                                 z, pi, lam):  # fmt: skip
-            status = 0
-            crossed = True
-            break
+        if (res <= CROSSOVER_BELOW and not tried) or res <= tol:
+            # the exact solution of the active set (a side is active where y > s), then active-set steps
+            tried = True
+            for i in range(m):
+                side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
+                lam[i] = yu[i] - yl[i]
+            for _ in range(_ACTIVE_SET_ROUNDS):
+                code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol,
+                                     q_scale + ymax, side, lam, zt, pit)  # fmt: skip
+                if code != 1:
+                    break
+            if code == 0:
+                for i in range(n):
+                    z[i] = zt[i]
+                for i in range(ndyn):
+                    pi[i] = pit[i]
+                status = 0
+                crossed = True
+                break
         if res <= tol:
             status = 0
             break
@@ -943,7 +973,7 @@ def _ipm(
                         if cr != 0.0:
                             for c in range(nk):
                                 Hm[h0 + r * nk + c] += cr * C[c0 + c]
-        if not _factor(nx, N1, nz, zo, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx):
+        if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
             status = 2
             break
         sigma = 0.0
@@ -969,7 +999,7 @@ def _ipm(
             for i in range(n):
                 rq[i] = rd[i] + w[i]
             _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
-            _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, re, dz, dpi)
+            _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, re, dz, dpi, W, pw)
             _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, dz, cdz)
             for i in range(n):
                 Ddz[i] = dz[i]
@@ -1032,6 +1062,9 @@ def _ipm(
     if not crossed:
         for i in range(m):
             lam[i] = yu[i] - yl[i]
+            side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
+    for i in range(m):
+        side_out[i] = side[i]
     for i in range(n):
         cost += z[i] * (0.5 * tmpn[i] + q[i])
         z_out[i] = z[i]
@@ -1044,4 +1077,5 @@ def _ipm(
     info[1] = it
     info[2] = res
     info[3] = 1.0 if crossed else 0.0
+    info[4] = rounds
     return status

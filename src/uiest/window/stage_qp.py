@@ -113,7 +113,12 @@ class StageForm:
         self.last_status: QPStatus | None = None
 
     def solve(
-        self, h: FloatArray, q: FloatArray, a: FloatArray, bounds: tuple[FloatArray, ...], regularisation: float = 0.0
+        self,
+        h: FloatArray,
+        q: FloatArray,
+        a: FloatArray,
+        bounds: tuple[FloatArray, ...],
+        guess: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, cost, lam_x, lam_a)`` of ``min 1/2 dz^T H dz + q^T dz``, ``lba <= A dz <= uba``, ``lbx <= dz <= ubx``.
 
@@ -124,8 +129,9 @@ class StageForm:
         q : ndarray (n_var,)
         bounds : (lba, uba, lbx, ubx)
             ``lba, uba`` (n_con,) in the problem's row order; ``lbx, ubx`` (n_var,).
-        regularisation : float
-            Added to ``H``'s diagonal.
+        guess : (lam_x, lam_a), optional
+            Multipliers whose nonzeros (their signs) are the active set to try first, as qrqp's warm start:
+            a previous QP's multipliers, or marks of the sides the linearisation point sits on.
 
         Returns
         -------
@@ -145,8 +151,9 @@ class StageForm:
         self._a[self._a_target] = -a[self._a_source] / e[self._a_row]
         self._c[self._c_target] = a[self._c_source]
         b = lba[:n_dyn] / e
+        start = None if guess is None else np.sign(np.concatenate((guess[0], guess[1][self._c_rows])))
         result = self._kernel.solve(
-            self._h, q, self._a, b, lbx, ubx, self._c, lba[self._c_rows], uba[self._c_rows], regularisation
+            self._h, q, self._a, b, lbx, ubx, self._c, lba[self._c_rows], uba[self._c_rows], guess=start
         )
         self.last_status = result.status
         if not result.solved:
