@@ -362,6 +362,10 @@ class StageKernel:
 
 
 # ---------------------------------------------------------------------- compiled kernel
+_FASTMATH = {"reassoc", "contract", "nsz", "arcp"}
+"""LLVM's fast-math flags the kernel allows: reordered sums and fused multiply-adds, but not ``nnan``/``ninf``
+(absent bounds are infinite, and the kernel tests for NaN)."""
+
 # Dense helpers on small row-major blocks; the kernel allocates its workspace once per call.
 
 _BIG = 1e20
@@ -380,7 +384,7 @@ CROSSOVER_BELOW = 1e-6
 """The interior point tries its active set's exact solution (:func:`_crossover`) once its residual is below this."""
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _cholesky(M: FloatArray, moff: int, stride: int, n: int, L: FloatArray, loff: int) -> bool:  # pragma: no cover
     """Lower Cholesky factor of ``M[moff + r * stride + c]`` (r, c < n) into ``L[loff + r * n + c]``.
 
@@ -404,7 +408,7 @@ def _cholesky(M: FloatArray, moff: int, stride: int, n: int, L: FloatArray, loff
     return True
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _chol_solve(L: FloatArray, loff: int, n: int, x: FloatArray, xoff: int) -> None:  # pragma: no cover
     """``x[xoff : xoff + n] <- (L L^T)^{-1} x[xoff : xoff + n]`` in place, ``L`` at ``loff``."""
     for i in range(n):
@@ -419,7 +423,7 @@ def _chol_solve(L: FloatArray, loff: int, n: int, x: FloatArray, xoff: int) -> N
         x[xoff + i] = t / L[loff + i * n + i]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _factor(nx, N1, nz, ho, ao, A, Hm, M, L, K, P, Lx, W):  # pragma: no cover (compiled)
     """Backward Riccati factorisation of the Newton matrix; False where a pivot is not positive.
 
@@ -478,7 +482,7 @@ def _factor(nx, N1, nz, ho, ao, A, Hm, M, L, K, P, Lx, W):  # pragma: no cover (
     return True
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _riccati_solve(nx, N1, nz, zo, ho, ao, A, M, L, K, P, Lx, rq, b, dz, pi, W, p):  # pragma: no cover
     """Solve ``min 1/2 dz^T Hm dz + rq^T dz`` s.t. ``x_{k+1} = A_k z_k + b_k`` with the factors of :func:`_factor`.
 
@@ -548,7 +552,7 @@ def _riccati_solve(nx, N1, nz, zo, ho, ao, A, M, L, K, P, Lx, rq, b, dz, pi, W, 
                 pi[k * nx + r] = s
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, out):  # pragma: no cover
     """``out = C z`` (the general rows, stage by stage)."""
     for k in range(N1):
@@ -560,7 +564,7 @@ def _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, out):  # pragma: no cov
             out[cro[k] + r] = s
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, y, out):  # pragma: no cover
     """``out += C^T y``."""
     for k in range(N1):
@@ -572,7 +576,7 @@ def _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, y, out):  # pragma: no c
                     out[zo[k] + c] += C[co[k] + r * n + c] * yr
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, out):  # pragma: no cover (compiled)
     """``out = (H + reg I) z + q + E^T pi``, ``E`` the dynamics ``A_k z_k - x_{k+1}``."""
     for k in range(N1):
@@ -596,7 +600,7 @@ def _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, out):  # pragma: no c
                 out[z0 + r] -= pi[(k - 1) * nx + r]
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, scale,
                   side, lam, z, pi):  # pragma: no cover (compiled)  # fmt: skip
     """Solve the QP with the rows ``side != 0`` held at their bounds (-1 lower, +1 upper) and the others free.
@@ -707,7 +711,7 @@ def _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, r
     return 0 if optimal else 1
 
 
-@numba.njit(cache=True, error_model="numpy")
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _ipm(
     nx,
     nz,
