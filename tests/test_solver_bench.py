@@ -7,8 +7,9 @@ from uiest.experiments.solver_bench import SAME_WINDOW_CAP, bench_window_solvers
 
 def test_long_horizon_protocol_times_ipopt_on_a_capped_set_of_gn_windows():
     records = bench_window_solvers(horizons=(8,), long_horizon=8)
+    solvers = ("gn", "rti", "gn-riccati", "ipopt")
     assert [(r["estimator"], r["solver"]) for r in records] == [
-        (name, solver) for name in ("UISE", "two-stage UISE", "standard MHE") for solver in ("gn", "rti", "gn-riccati", "ipopt")
+        (name, solver) for name in ("UISE", "two-stage UISE", "standard MHE") for solver in solvers
     ]
     for r in records:
         # 300 samples (k = 0 .. 300), 8 of them warm-up: the fast backends are timed in closed loop on 293
