@@ -378,7 +378,8 @@ _MULTIPLIER_ROUNDS = 5
 """Multiplier updates :func:`_crossover` tries before it gives up on an active set."""
 
 _ACTIVE_SET_ROUNDS = 3
-"""Primal-dual active-set steps tried from a guessed active set before the interior point."""
+"""Primal-dual active-set steps tried from a guessed active set before the interior point (fewer when a step
+changes as many rows as the one before)."""
 
 CROSSOVER_BELOW = 1e-6
 """The interior point tries its active set's exact solution (:func:`_crossover`) once its residual is below this."""
@@ -861,10 +862,19 @@ def _ipm(
     if guess.size == m:
         for i in range(m):
             side[i] = guess[i] if (guess[i] < 0.0 and has_lo[i]) or (guess[i] > 0.0 and has_hi[i]) else 0.0
+        before = np.empty(m)
+        changed = m + 1
         for rounds in range(1, _ACTIVE_SET_ROUNDS + 1):  # noqa: B007 (reported)
+            before[:] = side
             code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, q_scale,
                                  side, lam, z, pi)  # fmt: skip
             if code != 1:
+                break
+            previous = changed
+            changed = 0
+            for i in range(m):
+                changed += int(side[i] != before[i])
+            if changed >= previous:  # the steps do not settle: leave it to the interior point
                 break
         if code == 0:
             crossed = True

@@ -27,6 +27,10 @@ from uiest.errors import OptionError
 from uiest.window.problem import WindowProblem
 from uiest.window.riccati_qp import QPStatus, StageKernel, StageLayout
 
+GUESS_FLOOR = 1e-9
+"""Multipliers below this fraction of the largest are not taken as active in a guess: an interior point's
+inactive sides keep multipliers of about ``mu / s`` (1e-11 relative at its tolerance)."""
+
 EQUALITY_TOL = 1e-14
 """Dynamics rows whose bounds differ by more than this are not equalities: such a QP is not put in stage form."""
 
@@ -130,8 +134,9 @@ class StageForm:
         bounds : (lba, uba, lbx, ubx)
             ``lba, uba`` (n_con,) in the problem's row order; ``lbx, ubx`` (n_var,).
         guess : (lam_x, lam_a), optional
-            Multipliers whose nonzeros (their signs) are the active set to try first, as qrqp's warm start:
-            a previous QP's multipliers, or marks of the sides the linearisation point sits on.
+            Multipliers whose signs, where above :data:`GUESS_FLOOR` of the largest, are the active set to try
+            first, as qrqp's warm start: a previous QP's multipliers, or marks of the sides the linearisation
+            point sits on.
 
         Returns
         -------
@@ -151,7 +156,10 @@ class StageForm:
         self._a[self._a_target] = -a[self._a_source] / e[self._a_row]
         self._c[self._c_target] = a[self._c_source]
         b = lba[:n_dyn] / e
-        start = None if guess is None else np.sign(np.concatenate((guess[0], guess[1][self._c_rows])))
+        start = None
+        if guess is not None:
+            lam = np.concatenate((guess[0], guess[1][self._c_rows]))
+            start = np.where(np.abs(lam) > GUESS_FLOOR * np.abs(lam).max(initial=0.0), np.sign(lam), 0.0)
         result = self._kernel.solve(
             self._h, q, self._a, b, lbx, ubx, self._c, lba[self._c_rows], uba[self._c_rows], guess=start
         )
