@@ -377,6 +377,9 @@ _PENALTY = 1e6
 _MULTIPLIER_ROUNDS = 5
 """Multiplier updates :func:`_crossover` tries before it gives up on an active set."""
 
+_START_SLACK = 0.1
+"""Smallest starting slack of a bound (scaled units); the interior point starts from ``z = 0``, multipliers 1."""
+
 _ACTIVE_SET_ROUNDS = 3
 """Primal-dual active-set steps tried from a guessed active set before the interior point (fewer when a step
 changes as many rows as the one before)."""
@@ -575,6 +578,29 @@ def _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, y, out):  # pragma: no c
             if yr != 0.0:
                 for c in range(n):
                     out[zo[k] + c] += C[co[k] + r * n + c] * yr
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _barrier_hessian(N1, nz, zo, ho, ncs, co, cro, H, C, reg, sigma, Hm):  # pragma: no cover (compiled)
+    """``Hm = H + reg I + diag(sigma_box) + C^T diag(sigma_c) C``, stage by stage (``sigma``: boxes, then rows)."""
+    n = zo[N1]
+    for k in range(N1):
+        nk = nz[k]
+        h0 = ho[k]
+        z0 = zo[k]
+        for i in range(nk * nk):
+            Hm[h0 + i] = H[h0 + i]
+        for r in range(nk):
+            Hm[h0 + r * nk + r] += reg + sigma[z0 + r]
+        for j in range(ncs[k]):
+            sig = sigma[n + cro[k] + j]
+            if sig != 0.0:
+                c0 = co[k] + j * nk
+                for r in range(nk):
+                    cr = C[c0 + r] * sig
+                    if cr != 0.0:
+                        for c in range(nk):
+                            Hm[h0 + r * nk + c] += cr * C[c0 + c]
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
@@ -839,15 +865,6 @@ def _ipm(
     n_sides = 0
     for i in range(m):
         n_sides += int(has_lo[i]) + int(has_hi[i])
-    # slack start from the starting point
-    _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
-    for i in range(n):
-        Dz[i] = z[i]
-    for i in range(nc):
-        Dz[n + i] = cz[i]
-    for i in range(m):
-        sl[i] = max(Dz[i] - lo[i], 1.0) if has_lo[i] else 1.0
-        su[i] = max(hi[i] - Dz[i], 1.0) if has_hi[i] else 1.0
     status = 1
     it = 0
     res = math.inf
@@ -885,6 +902,15 @@ def _ipm(
                 z[i] = 0.0
             for i in range(ndyn):
                 pi[i] = 0.0
+    # slacks from the starting point
+    _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
+    for i in range(n):
+        Dz[i] = z[i]
+    for i in range(nc):
+        Dz[n + i] = cz[i]
+    for i in range(m):
+        sl[i] = max(Dz[i] - lo[i], _START_SLACK) if has_lo[i] else 1.0
+        su[i] = max(hi[i] - Dz[i], _START_SLACK) if has_hi[i] else 1.0
     for it in range(0 if crossed else max_iter + 1):
         # residuals
         _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
@@ -970,23 +996,7 @@ def _ipm(
             if has_hi[i]:
                 sig += yu[i] / su[i]
             w[i] = sig
-        for k in range(N1):
-            nk = nz[k]
-            h0 = ho[k]
-            z0 = zo[k]
-            for i in range(nk * nk):
-                Hm[h0 + i] = H[h0 + i]
-            for r in range(nk):
-                Hm[h0 + r * nk + r] += reg + w[z0 + r]
-            for j in range(ncs[k]):
-                sig = w[n + cro[k] + j]
-                if sig != 0.0:
-                    c0 = co[k] + j * nk
-                    for r in range(nk):
-                        cr = C[c0 + r] * sig
-                        if cr != 0.0:
-                            for c in range(nk):
-                                Hm[h0 + r * nk + c] += cr * C[c0 + c]
+        _barrier_hessian(N1, nz, zo, ho, ncs, co, cro, H, C, reg, w, Hm)
         if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
             status = 2
             break
