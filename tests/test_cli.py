@@ -119,7 +119,7 @@ def test_bench_runs_only_the_chosen_estimator_and_window_length(tmp_path):
     assert result.exit_code == 0, result.output
     records = json.loads(out.read_text())
     assert {(r["estimator"], r["N"]) for r in records} == {("standard MHE", 3)}
-    assert {"ipopt", "gn", "rti"} <= {r["solver"] for r in records}
+    assert {"ipopt", "gn", "rti", "gn-riccati"} <= {r["solver"] for r in records}
 
 
 @pytest.mark.parametrize("args", [["--estimator", "EKF"], ["-N", "0"]], ids=["estimator", "horizon"])
@@ -140,11 +140,12 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
             "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt", "median_dev_vs_ipopt",
             "windows_compared", "windows_dev_above_1e-6", "windows_cost_above_1e-8", "median_cpu_ms", "p95_cpu_ms",
-            "max_cpu_ms", "cpu_ratio_vs_ipopt", "median_solve_ms", "samples", "fallbacks", "load"}  # fmt: skip
+            "max_cpu_ms", "cpu_ratio_vs_ipopt", "median_solve_ms", "samples", "fallbacks", "qp_fallbacks",
+            "load"}  # fmt: skip
     from uiest.experiments.solver_bench import _dompc_available
 
-    # 3 estimators x 3 backends, plus the do-mpc peer of the standard MHE where do-mpc is installed
-    assert len(records) == 9 + _dompc_available() and all(keys <= set(r) for r in records)
+    # 3 estimators x 4 backends, plus the do-mpc peer of the standard MHE where do-mpc is installed
+    assert len(records) == 12 + _dompc_available() and all(keys <= set(r) for r in records)
     assert {(r["estimator"], r["solver"]) for r in records if r["max_dev_vs_ipopt"] == 0.0} >= {
         ("UISE", "ipopt"),
         ("two-stage UISE", "ipopt"),

@@ -586,7 +586,7 @@ def sweep(
     scheduler: Annotated[
         str | None, typer.Option(help="Dask scheduler address, or 'local' for a LocalCluster.")
     ] = None,
-    solver: Annotated[str, typer.Option(help="Default window solver backend (ipopt, gn, rti).")] = "gn",
+    solver: Annotated[str, typer.Option(help="Default window solver backend (ipopt, gn, rti, gn-riccati).")] = "gn",
     retry_failed: Annotated[bool, typer.Option(help="Compute again the stored tasks that recorded an error.")] = False,
 ) -> None:
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
@@ -649,7 +649,7 @@ def bench(
         typer.Option(help="'UISE', 'two-stage UISE' or 'standard MHE' (repeat for several; default all)."),
     ] = None,
 ) -> None:
-    """Window solver backends (ipopt, gn, rti) x estimators x N on the noisy crop scenario."""
+    """Window solver backends (ipopt, gn, rti, gn-riccati) x estimators x N on the noisy crop scenario."""
     import json
 
     from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row

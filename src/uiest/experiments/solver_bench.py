@@ -49,7 +49,7 @@ from uiest.window.size import check_horizon
 
 __all__ = ["SAME_WINDOW_CAP", "TABLE_HEADER", "bench_window_solvers", "same_window_deviation", "table_row"]
 
-SOLVERS = ("ipopt", "gn", "rti")
+SOLVERS = ("ipopt", "gn", "rti", "gn-riccati")
 
 ESTIMATORS = ("UISE", "two-stage UISE", "standard MHE")
 """The estimators :func:`bench_window_solvers` times, in its order."""
@@ -221,6 +221,7 @@ def _dompc_record(
         "closed_loop_dev_vs_ipopt": peer.max_dev_vs_ipopt,
         "failures": peer.failures,
         "fallbacks": 0,
+        "qp_fallbacks": 0,
         "load": os.getloadavg()[0],
     }
 
@@ -255,6 +256,7 @@ def _ipopt_on_windows(name: str, N: int, times: _IpoptTimes) -> dict[str, object
         "closed_loop_dev_vs_ipopt": float("nan"),
         "failures": int(np.sum(~np.array(times.success))),
         "fallbacks": 0,
+        "qp_fallbacks": 0,
         "load": os.getloadavg()[0],
     }
 
@@ -277,7 +279,8 @@ def bench_window_solvers(
     CPU and wall times over this one's, measured in the same run. Also: ``protocol`` (``"closed
     loop"``, or at long horizons the windows IPOPT was timed on, see the module docstring),
     ``samples`` (timed), ``iterations`` (mean), ``failures``, ``fallbacks`` (samples the
-    Gauss-Newton backend handed to IPOPT), max_dev_vs_ipopt, median_dev_vs_ipopt,
+    Gauss-Newton backend handed to IPOPT), ``qp_fallbacks`` (QPs of the full windows that ``gn-riccati``'s
+    interior point handed to qrqp; 0 for the other backends), max_dev_vs_ipopt, median_dev_vs_ipopt,
     windows_compared, windows_dev_above_1e-6, max_cost_excess_vs_ipopt, windows_cost_above_1e-8 and
     closed_loop_dev_vs_ipopt (see the module docstring), and ``load`` (the 1-minute load
     average when the record was taken).
@@ -336,7 +339,7 @@ def bench_window_solvers(
         for name, build in ((name, builders[name]) for name in chosen):
             reference, reference_ms, reference_cpu = None, 0.0, 0.0
             ipopt_times = _IpoptTimes()
-            for solver in ("gn", "rti") if long else SOLVERS:
+            for solver in ("gn", "rti", "gn-riccati") if long else SOLVERS:
                 estimator = build(solver)
                 recorder = _record_full_windows(estimator, N) if solver != "ipopt" else None
                 clock = _StepClock(estimator)
@@ -376,6 +379,7 @@ def bench_window_solvers(
                     "closed_loop_dev_vs_ipopt": closed_loop,
                     "failures": int(result.failures),
                     "fallbacks": result.fallbacks,
+                    "qp_fallbacks": getattr(recorder.solver if recorder else None, "qp_fallbacks", 0),
                     "load": os.getloadavg()[0],
                 })  # fmt: skip
             if long:
@@ -387,14 +391,14 @@ def bench_window_solvers(
 
 
 TABLE_HEADER = (
-    f"{'estimator':15s} {'solver':6s} {'N':>4s} {'cpu ms':>8s} {'p95':>7s} {'max':>7s} {'x ipopt':>8s} "
+    f"{'estimator':15s} {'solver':10s} {'N':>4s} {'cpu ms':>8s} {'p95':>7s} {'max':>7s} {'x ipopt':>8s} "
     f"{'wall ms':>8s} {'solve':>7s} {'iter':>5s} {'window dev':>10s} {'>1e-6':>7s} {'cost exc':>9s} {'>1e-8':>7s} "
-    f"{'run dev':>9s} {'fail':>4s} {'fallb':>5s} {'load':>5s}  protocol"
+    f"{'run dev':>9s} {'fail':>4s} {'fallb':>5s} {'qp fb':>5s} {'load':>5s}  protocol"
 )
 """Column headers of :func:`table_row`: per-sample CPU ms (median, p95, max), the CPU ratio to IPOPT, the wall
 median, the solver's share, then the same-window agreement with IPOPT (largest deviation, count above 1e-6,
-largest cost excess, count above 1e-8), the closed-loop deviation, failures, IPOPT fallbacks, the load average and
-the protocol."""
+largest cost excess, count above 1e-8), the closed-loop deviation, failures, IPOPT fallbacks, QPs the Riccati
+interior point handed to qrqp (``gn-riccati``), the load average and the protocol."""
 
 
 def table_row(r: dict[str, object]) -> str:
@@ -404,9 +408,10 @@ def table_row(r: dict[str, object]) -> str:
     share = f"{r['windows_dev_above_1e-6']}/{compared}" if known else "-"
     cost_share = f"{r['windows_cost_above_1e-8']}/{compared}" if known else "-"
     return (
-        f"{r['estimator']:15s} {r['solver']:6s} {r['N']:4d} {r['median_cpu_ms']:8.3f} {r['p95_cpu_ms']:7.2f} "
+        f"{r['estimator']:15s} {r['solver']:10s} {r['N']:4d} {r['median_cpu_ms']:8.3f} {r['p95_cpu_ms']:7.2f} "
         f"{r['max_cpu_ms']:7.2f} {r['cpu_ratio_vs_ipopt']:8.1f} {r['median_ms']:8.3f} {r['median_solve_ms']:7.3f} "
         f"{r['iterations']:5.1f} {r['max_dev_vs_ipopt']:10.2e} {share:>7s} {r['max_cost_excess_vs_ipopt']:9.1e} "
         f"{cost_share:>7s} "
-        f"{r['closed_loop_dev_vs_ipopt']:9.2e} {r['failures']:4d} {r['fallbacks']:5d} {r['load']:5.2f}  {r['protocol']}"
+        f"{r['closed_loop_dev_vs_ipopt']:9.2e} {r['failures']:4d} {r['fallbacks']:5d} "
+        f"{r.get('qp_fallbacks', 0):5d} {r['load']:5.2f}  {r['protocol']}"
     )

@@ -5,7 +5,8 @@
 - :class:`WindowProblem`: decision variables (scaled), residuals, dynamics constraints,
   simple bounds; the window data are parameters, so it is built once per window length.
 - :func:`make_solver`: backends ``"ipopt"`` (the reference), ``"gn"`` (Gauss-Newton SQP, the
-  estimators' default :data:`DEFAULT_BACKEND`) and ``"rti"`` (real-time iteration), returning
+  estimators' default :data:`DEFAULT_BACKEND`), ``"rti"`` (real-time iteration) and ``"gn-riccati"``
+  (Gauss-Newton with the stage-wise Riccati QP of :mod:`uiest.window.riccati_qp`), returning
   :class:`WindowSolution`.
 - :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """

@@ -73,6 +73,7 @@ from uiest.window.curvature import BlockCurvature, IndexArray
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
+from uiest.window.stage_qp import StageForm
 
 __all__ = ["DAMPING_FLOOR", "QP_OPTIONS", "SINGULAR_DAMPING", "SOC_RATIO", "VIOLATION_FLOOR", "GaussNewtonSolver"]
 
@@ -85,6 +86,9 @@ QP_OPTIONS: dict[str, Any] = {
 }
 """qrqp options; ``max_iter`` bounds one call (see :data:`QP_CONTINUATIONS`; a failed QP is retried damped, then
 by IPOPT)."""
+
+QP_SOLVERS = ("qrqp", "riccati")
+"""The QP solvers :class:`GaussNewtonSolver` takes as ``qp``."""
 
 QP_ITERATION_LIMIT = "Maximum number of iterations reached"
 """qrqp's status when ``max_iter`` stopped it."""
@@ -195,15 +199,19 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
 
 
 class _QPForm(NamedTuple):
-    """A QP's Hessian sparsity: qrqp, the QP's gradient at a solution with its rounding, the diagonal's positions."""
+    """A QP's Hessian sparsity: qrqp, the QP's gradient at a solution with its rounding, the diagonal's positions.
+
+    ``stage``: the QP in stage form for the Riccati interior point (``qp="riccati"``), else None.
+    """
 
     qrqp: BufferedFunction
     gradient: BufferedFunction
     diagonal: IndexArray
+    stage: StageForm | None
 
     @classmethod
-    def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity) -> _QPForm:
-        """Qrqp for these sparsities, and ``H dz + q + A^T lam_a`` with its rounding (see :func:`_released`)."""
+    def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity, staged: WindowProblem | None = None) -> _QPForm:
+        """Qrqp, ``H dz + q + A^T lam_a`` with its rounding (:func:`_released`), ``staged``'s stage form if given."""
         qrqp = BufferedFunction(ca.conic("gn_qp", "qrqp", {"h": h_sparsity, "a": a_sparsity}, dict(QP_OPTIONS)))
         h, a = ca.SX.sym("h", h_sparsity), ca.SX.sym("a", a_sparsity)
         q, dz, lam = (
@@ -215,7 +223,8 @@ class _QPForm(NamedTuple):
         magnitude = ca.mtimes(ca.fabs(h), ca.fabs(dz)) + ca.fabs(q) + ca.mtimes(ca.fabs(a).T, ca.fabs(lam))
         function = ca.Function("gn_qp_gradient", [h, q, a, dz, lam], [gradient, ROUNDING * magnitude])
         rows, cols = (np.asarray(index) for index in h_sparsity.get_triplet())
-        return cls(qrqp, BufferedFunction(function), np.flatnonzero(rows == cols))
+        stage = None if staged is None else StageForm(staged, h_sparsity, a_sparsity)
+        return cls(qrqp, BufferedFunction(function), np.flatnonzero(rows == cols), stage)
 
 
 class _Point(NamedTuple):
@@ -353,6 +362,15 @@ class GaussNewtonSolver:
         factorisations of ``J`` instead of the normal equations ``J^T J``, whose condition
         number is ``cond(J)^2``): in directions the data barely determine, Gauss-Newton stops
         where the cost no longer changes at double precision.
+    qp : {"qrqp", "riccati"}
+        The QP solver: CasADi's active-set ``qrqp``, or the stage-wise interior point of
+        :mod:`uiest.window.riccati_qp` (:class:`~uiest.window.stage_qp.StageForm`), with qrqp for any QP it
+        does not solve (counted in :attr:`qp_fallbacks`).
+
+    Attributes
+    ----------
+    qp_fallbacks : int
+        QPs the Riccati interior point did not solve and qrqp was given, since construction or :meth:`reset`.
 
     Notes
     -----
@@ -371,8 +389,13 @@ class GaussNewtonSolver:
         min_damping: float = 0.0,
         kkt_tol: float = 1e-10,
         polish: bool = False,
+        qp: str = "qrqp",
     ) -> None:
         self.problem = problem
+        if qp not in QP_SOLVERS:
+            raise OptionError(f"solver_options: qp: expected one of {list(QP_SOLVERS)}, got {qp!r}")
+        self.qp = qp
+        self.qp_fallbacks = 0
         self.max_iter = check_int(max_iter, "solver_options: max_iter", low=1)
         tolerances = {"step_tol": step_tol, "cost_tol": cost_tol, "min_damping": min_damping, "kkt_tol": kkt_tol}
         for name, value in tolerances.items():
@@ -398,7 +421,8 @@ class GaussNewtonSolver:
             "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
-        self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity)
+        self._staged = problem if qp == "riccati" else None
+        self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._staged)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
         self._curvature: tuple[BlockCurvature, _QPForm] | None = None
         self._curved = False  # this solve's QPs hold the curvature (since a rejected or poorly corrected step)
@@ -416,6 +440,7 @@ class GaussNewtonSolver:
     def reset(self) -> None:
         """Forget the least damping that failed QPs left (kept from solve to solve, see the module docstring)."""
         self._kept_damping = 0.0
+        self.qp_fallbacks = 0
 
     # ------------------------------------------------------------------ evaluations
     def _evaluate(self, z: FloatArray, p: FloatArray, keep: _Point | None = None) -> _Point:
@@ -451,13 +476,21 @@ class GaussNewtonSolver:
         warm: bool,
         release_tol: float,
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
-        """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units) by qrqp, or None.
+        """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units), or None.
 
-        ``warm``: start from the last QP's active set. Sides qrqp holds at a zero multiplier are
+        By the form's stage-wise interior point if it has one, else (or if that fails) by qrqp.
+        ``warm``: qrqp starts from the last QP's active set. Sides qrqp holds at a zero multiplier are
         released where the QP's own multiplier has the wrong sign and leaving the side could lower
         ``|r|^2`` by more than ``release_tol`` (see :func:`_released`).
         """
         c = self._qp_scale
+        if form.stage is not None:
+            staged = form.stage.solve(c * h, c * q, a, bounds, (self._lam_x, self._lam_a) if warm else None)
+            if staged is not None:
+                self._released_any = False
+                dz, cost, lam_x, lam_a = staged
+                return dz, cost / c, lam_x / c, lam_a / c
+            self.qp_fallbacks += 1
         lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
         qrqp = form.qrqp
@@ -501,7 +534,7 @@ class GaussNewtonSolver:
         """Switch the solve to QPs with the curvature Gauss-Newton leaves out; False if the model has none."""
         if self._curvature is None:
             curvature = BlockCurvature(self.problem, self._h_sparsity)
-            form = _QPForm.build(curvature.sparsity, self._a_sparsity)
+            form = _QPForm.build(curvature.sparsity, self._a_sparsity, self._staged)
             self._curvature = curvature, form
         self._curved = self._curvature[0].curved
         return self._curved

@@ -257,7 +257,7 @@ def largest_violation(problem: WindowProblem, z: FloatArray, g: FloatArray) -> f
     return worst
 
 
-BACKENDS = ("ipopt", "gn", "rti")
+BACKENDS = ("ipopt", "gn", "rti", "gn-riccati")
 """Names accepted as ``solver=``."""
 
 DEFAULT_BACKEND = "gn"
@@ -276,12 +276,14 @@ def make_solver(
     """Build the backend ``name`` for ``problem``; unknown names raise :class:`OptionError`."""
     if name == "ipopt":
         return IpoptSolver(problem, warm_start=warm_start, options=options, polish=polish)
-    if name in ("gn", "rti"):
+    if name in ("gn", "rti", "gn-riccati"):
         from uiest.window.gauss_newton import GaussNewtonSolver
 
         settings = {"polish": polish, **(options or {})}
         if name == "rti":
             settings["max_iter"] = 1
+        if name == "gn-riccati":
+            settings["qp"] = "riccati"
         try:
             return GaussNewtonSolver(problem, **settings)
         except TypeError as exc:

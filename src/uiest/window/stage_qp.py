@@ -1,0 +1,172 @@
+r"""The Gauss-Newton QP of a window problem in stage form, for :mod:`uiest.window.riccati_qp`.
+
+A :class:`~uiest.window.problem.WindowProblem` stacks its variables stage by stage,
+``z_k = [x_k, v_k, w_k]`` (``v_k`` at measured nodes, ``w_k`` for ``k < L``), so no permutation of the
+variables is needed: stage ``k`` is the slice from ``x_index[k][0]`` to ``x_index[k+1][0]``. The QP's
+Hessian (``J^T J``, with the curvature ``S_+`` or a damping) is block diagonal by stage, since every residual
+and every constraint is nonlinear in one node only. Its constraint rows are
+
+- the dynamics ``g_k = (f(x_k, ...) - x_{k+1}) / s_x``, ``k = 0 .. L-1``: row ``k nx + r`` has the Jacobian of
+  ``f`` in stage ``k``'s columns and ``e_r`` (``-1`` by construction) at ``x_{k+1, r}``, an equality; it becomes
+  ``x_{k+1} = A_k z_k + b_k`` with ``A_k = -(row) / e``, ``b_k = lbg_row / e``;
+- output and node constraints at measured nodes, each in one stage's columns: the stage's rows ``C_k``,
+  reordered stage by stage (the problem orders them by kind).
+
+:class:`StageForm` checks this structure once, from the sparsities (a matrix that breaks it raises
+:class:`~uiest.errors.OptionError`), and keeps the index maps that scatter CasADi's nonzeros into the packed
+stage blocks, so that a QP costs one NumPy scatter per matrix and one call of the compiled kernel.
+"""
+
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from uiest.box import FloatArray
+from uiest.errors import OptionError
+from uiest.window.problem import WindowProblem
+from uiest.window.riccati_qp import QPStatus, StageKernel, StageLayout
+
+GUESS_FLOOR = 1e-9
+"""Multipliers below this fraction of the largest are not taken as active in a guess: an interior point's
+inactive sides keep multipliers of about ``mu / s`` (1e-11 relative at its tolerance)."""
+
+EQUALITY_TOL = 1e-14
+"""Dynamics rows whose bounds differ by more than this are not equalities: such a QP is not put in stage form."""
+
+
+class StageForm:
+    """A window QP's sparsities mapped onto :class:`~uiest.window.riccati_qp.StageLayout`.
+
+    Parameters
+    ----------
+    problem : WindowProblem
+    h_sparsity : casadi.Sparsity
+        The QP Hessian's, (n_var, n_var); every nonzero must lie in one stage's diagonal block.
+    a_sparsity : casadi.Sparsity
+        The constraint Jacobian's, (n_con, n_var), rows as the problem orders them.
+
+    Attributes
+    ----------
+    layout : StageLayout
+    last_status : QPStatus or None
+        The status of the last :meth:`solve`.
+
+    """
+
+    def __init__(self, problem: WindowProblem, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity) -> None:
+        nx, L, n = problem.model.nx, problem.length, problem.n_var
+        if nx == 0:
+            raise OptionError("problem: expected a model with states (nx >= 1) for the stage-wise QP")
+        starts = np.append(problem.x_index[:, 0], n).astype(np.int64)
+        sizes = np.diff(starts)
+        stage_of = np.repeat(np.arange(L + 1), sizes)
+        if not all(np.array_equal(problem.x_index[k], np.arange(starts[k], starts[k] + nx)) for k in range(L + 1)):
+            raise OptionError("problem: expected each stage's state first in its variables")
+        # Hessian nonzeros -> packed row-major stage blocks
+        rows, cols = (np.asarray(index, dtype=np.int64) for index in h_sparsity.get_triplet())
+        if np.any(stage_of[rows] != stage_of[cols]):
+            raise OptionError("h_sparsity: expected a Hessian block diagonal by stage")
+        stage = stage_of[rows]
+        h_offset = np.concatenate(([0], np.cumsum(sizes**2)))
+        self._h_target = h_offset[stage] + (rows - starts[stage]) * sizes[stage] + (cols - starts[stage])
+        self._h = np.zeros(int(h_offset[-1]))
+        # constraint nonzeros: dynamics rows -> A_k (and e at x_{k+1}); the other rows -> C_k, stage-ordered
+        a_rows, a_cols = (np.asarray(index, dtype=np.int64) for index in a_sparsity.get_triplet())
+        n_dyn = problem.n_dyn
+        dynamic = a_rows < n_dyn
+        d_rows, d_cols = a_rows[dynamic], a_cols[dynamic]
+        d_stage = d_rows // nx
+        own = stage_of[d_cols] == d_stage
+        nxt = ~own & (stage_of[d_cols] == d_stage + 1) & (d_cols - starts[np.minimum(d_stage + 1, L)] == d_rows % nx)
+        if not np.all(own | nxt) or np.count_nonzero(nxt) != n_dyn:
+            raise OptionError("a_sparsity: expected dynamics rows in their stage's columns and x_{k+1} only")
+        a_offset = np.concatenate(([0], np.cumsum(nx * sizes[:-1]), [nx * sizes[:-1].sum()]))
+        positions = np.flatnonzero(dynamic)
+        self._a_source = positions[own]
+        self._a_row = d_rows[own]
+        self._a_target = (
+            a_offset[d_stage[own]] + (d_rows[own] % nx) * sizes[d_stage[own]] + (d_cols[own] - starts[d_stage[own]])
+        )
+        self._e_source = positions[nxt][np.argsort(d_rows[nxt])]  # e of row r, in row order
+        self._a = np.zeros(int(a_offset[-1]))
+        other = ~dynamic
+        c_rows, c_cols = a_rows[other] - n_dyn, a_cols[other]
+        n_other = problem.n_con - n_dyn
+        row_stage = np.zeros(n_other, dtype=np.int64)
+        for row in range(n_other):
+            in_row = stage_of[c_cols[c_rows == row]]
+            if in_row.size and np.any(in_row != in_row[0]):
+                raise OptionError(f"a_sparsity: constraint row {n_dyn + row} spans more than one stage")
+            row_stage[row] = in_row[0] if in_row.size else 0
+        order = np.argsort(row_stage, kind="stable")  # stage-ordered position -> problem row (after the dynamics)
+        position = np.empty(n_other, dtype=np.int64)
+        position[order] = np.arange(n_other)
+        c_sizes = np.bincount(row_stage, minlength=L + 1).astype(np.int64)
+        self.layout = StageLayout(nx, sizes, c_sizes)
+        c_offset, con_offset = self.layout.c_offset, self.layout.con_offset
+        c_stage = row_stage[c_rows]
+        self._c_source = np.flatnonzero(other)
+        self._c_target = (
+            c_offset[c_stage] + (position[c_rows] - con_offset[c_stage]) * sizes[c_stage] + (c_cols - starts[c_stage])
+        )
+        self._c = np.zeros(int(c_offset[-1]))
+        self._c_rows = n_dyn + order  # problem rows in stage order
+        self._n_dyn, self._n_con = n_dyn, problem.n_con
+        self._kernel = StageKernel(self.layout)
+        self.last_status: QPStatus | None = None
+
+    def solve(
+        self,
+        h: FloatArray,
+        q: FloatArray,
+        a: FloatArray,
+        bounds: tuple[FloatArray, ...],
+        guess: tuple[FloatArray, FloatArray] | None = None,
+    ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
+        """``(dz, cost, lam_x, lam_a)`` of ``min 1/2 dz^T H dz + q^T dz``, ``lba <= A dz <= uba``, ``lbx <= dz <= ubx``.
+
+        Parameters
+        ----------
+        h, a : ndarray
+            The nonzeros of ``H`` and ``A`` in the sparsities' (CasADi's) order.
+        q : ndarray (n_var,)
+        bounds : (lba, uba, lbx, ubx)
+            ``lba, uba`` (n_con,) in the problem's row order; ``lbx, ubx`` (n_var,).
+        guess : (lam_x, lam_a), optional
+            Multipliers whose signs, where above :data:`GUESS_FLOOR` of the largest, are the active set to try
+            first, as qrqp's warm start: a previous QP's multipliers, or marks of the sides the linearisation
+            point sits on.
+
+        Returns
+        -------
+        tuple or None
+            The minimiser, the QP's cost, and the multipliers in CasADi's convention; None when the
+            kernel does not report :attr:`QPStatus.SOLVED` (then :attr:`last_status` says why) or the
+            dynamics rows are not equalities.
+
+        """
+        lba, uba, lbx, ubx = bounds
+        n_dyn = self._n_dyn
+        if np.any(np.abs(uba[:n_dyn] - lba[:n_dyn]) > EQUALITY_TOL):
+            self.last_status = None
+            return None
+        self._h[self._h_target] = h
+        e = a[self._e_source]  # (N nx,), -1 for a window problem
+        self._a[self._a_target] = -a[self._a_source] / e[self._a_row]
+        self._c[self._c_target] = a[self._c_source]
+        b = lba[:n_dyn] / e
+        start = None
+        if guess is not None:
+            lam = np.concatenate((guess[0], guess[1][self._c_rows]))
+            start = np.where(np.abs(lam) > GUESS_FLOOR * np.abs(lam).max(initial=0.0), np.sign(lam), 0.0)
+        result = self._kernel.solve(
+            self._h, q, self._a, b, lbx, ubx, self._c, lba[self._c_rows], uba[self._c_rows], guess=start
+        )
+        self.last_status = result.status
+        if not result.solved:
+            return None
+        lam_a = np.empty(self._n_con)
+        lam_a[:n_dyn] = -result.lam_dyn.reshape(-1) / e
+        lam_a[self._c_rows] = result.lam_c
+        return result.z, result.cost, result.lam_x, lam_a

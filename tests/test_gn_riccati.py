@@ -1,0 +1,103 @@
+"""The Gauss-Newton solver with the stage-wise Riccati interior point (``qp="riccati"``) against IPOPT."""
+
+from __future__ import annotations
+
+import runpy
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from uiest import UniformNoise, simulate
+from uiest.errors import OptionError
+from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
+from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
+from uiest.models import closed_form, crop_growth, get, load
+from uiest.window import WindowProblem, make_solver
+from uiest.window.gauss_newton import GaussNewtonSolver
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def _linear_uise():
+    entry = get("linear-example")
+    system, setup = entry.build(), entry.setup()
+    traj = simulate(system, setup.x0, 25, w=setup.w, v=setup.noise, seed=3)
+    weights = UISEWeights.from_scales(system, 0.5, output=1e4)
+    return UISE(system, weights=weights, N=6, x0_prior=np.zeros(3), solver="gn-riccati"), 6, traj
+
+
+def _crop(kind):
+    system = crop_growth.system()
+    scenario = crop_growth.DEFAULT_SCENARIO
+    traj = simulate(system, scenario.x0, 25, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    prior = scenario.prior(traj.y[0])
+    if kind == "uise":
+        weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+        return UISE(system, weights=weights, N=10, x0_prior=prior, solver="gn-riccati"), 10, traj
+    if kind == "mhe":
+        weights = MHEWeights.from_scales(system, 0.48, output=1e6)
+        return StandardMHE(system, weights=weights, N=10, x0_prior=prior, solver="gn-riccati"), 10, traj
+    reduced = crop_growth.reduction()  # output and node constraints: stage rows C_k
+    weights = TwoStageWeights.from_scales(reduced, 0.48, output=1e6)
+    return TwoStageUISE(reduced, weights=weights, N=10, x0_prior=prior, solver="gn-riccati"), 10, traj
+
+
+def _henon_mhe():
+    example = runpy.run_path(str(EXAMPLES / "chaotic_message.py"))
+    system = example["build"]()
+    traj = simulate(system, [0.1, 0.1], 30, w=example["message"](30), v=UniformNoise.symmetric(1e-3), seed=0)
+    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=15, x0_prior=np.zeros(2),
+                            solver="gn-riccati")  # fmt: skip
+    return estimator, 15, traj
+
+
+def _reactor_mhe():
+    entry = load(EXAMPLES / "reactor.py")
+    system, setup = entry.build(), entry.simulation()
+    traj = simulate(system, setup.x0, 25, u=setup.u, w=setup.w, v=setup.noise, seed=0)
+    weights = MHEWeights.from_scales(system, 0.6)
+    return StandardMHE(system, weights=weights, N=10, x0_prior=np.array([0.65, 1.05]), solver="gn-riccati"), 10, traj
+
+
+def _closed_form_uise():
+    system = closed_form.system()
+    entry = get(closed_form.NAME)
+    setup = entry.setup()
+    traj = simulate(system, setup.x0, 25, u=setup.u, w=setup.w, v=setup.noise, seed=2)
+    weights = UISEWeights.from_scales(system, 0.5, output=1e4)
+    return UISE(system, weights=weights, N=8, x0_prior=setup.x0, solver="gn-riccati"), 8, traj
+
+
+CASES = {
+    "linear-uise": _linear_uise,
+    "crop-uise": lambda: _crop("uise"),
+    "crop-mhe": lambda: _crop("mhe"),
+    "crop-two-stage": lambda: _crop("two-stage"),
+    "henon-mhe": _henon_mhe,
+    "reactor-mhe": _reactor_mhe,
+    "closed-form-uise": _closed_form_uise,
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_the_riccati_backend_reaches_ipopts_optimum_on_small_windows(case):
+    estimator, N, traj = CASES[case]()
+    recorder = _record_full_windows(estimator, N)
+    result = estimator.run(traj.u, traj.y)
+    assert result.failures == 0 and result.fallbacks == 0
+    assert recorder.calls and recorder.solver.qp_fallbacks == 0  # the interior point solved every QP
+    agreement = same_window_deviation(recorder)
+    assert agreement["windows_compared"] == len(recorder.calls)
+    assert agreement["max_cost_excess_vs_ipopt"] <= 1e-8
+    assert agreement["max_dev_vs_ipopt"] <= 1e-5
+
+
+def test_qp_option_is_checked_and_the_backend_is_selectable():
+    system = get("linear-example").build()
+    problem = WindowProblem(system, 3, [0, 1, 2, 3])
+    with pytest.raises(OptionError, match="qp: expected one of"):
+        GaussNewtonSolver(problem, qp="hpipm")
+    solver = make_solver("gn-riccati", problem)
+    assert isinstance(solver, GaussNewtonSolver) and solver.qp == "riccati"
+    assert make_solver("gn", problem).qp == "qrqp"
