@@ -488,8 +488,8 @@ class GaussNewtonSolver:
             staged = form.stage.solve(c * h, c * q, a, bounds, (self._lam_x, self._lam_a) if warm else None)
             if staged is not None:
                 self._released_any = False
-                dz, cost, lam_x, lam_a = staged
-                return dz, cost / c, lam_x / c, lam_a / c
+                staged_dz, staged_cost, staged_lam_x, staged_lam_a = staged
+                return staged_dz, staged_cost / c, staged_lam_x / c, staged_lam_a / c
             self.qp_fallbacks += 1
         lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
         # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
