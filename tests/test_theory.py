@@ -1,5 +1,6 @@
-"""The paper's labels: every label in src/ has words (uiest.theory) and a row in docs/theory-map.md, and none
-reaches the strings users read (guarantees, reasons, errors, `uiest analyse` and `uiest estimate`)."""
+"""The paper's labels: every label in uiest.theory has words and a row in docs/theory-map.md, no other module
+of src/ holds one, and none reaches the strings users read (guarantees, reasons, errors, `uiest analyse` and
+`uiest estimate`)."""
 
 import os
 import re
@@ -51,6 +52,25 @@ def test_every_label_in_src_has_words_and_a_row_in_the_theory_map():
         number = re.search(r"\((\w+\.? [^ ]+) of Guo et al\.\)$", words)
         assert number and number.group(1) in rows[label], (label, words, rows[label])
         assert USER_LABEL.search(words) is None
+
+
+def test_no_label_in_src_outside_uiest_theory():
+    """Docstrings, comments and strings name results by their numbers and words; only uiest.theory holds labels."""
+    theory = ROOT / "src" / "uiest" / "theory.py"
+    found = [f"{path.relative_to(ROOT)}:{number}: {line.strip()}"
+             for path in sorted((ROOT / "src").rglob("*.py")) if path != theory
+             for number, line in enumerate(path.read_text().splitlines(), 1)
+             if re.search(r"\b(?:theo|eq|ass|lem|prop|rem|def|cor|sec|fig|tab):[A-Za-z_]", line)]  # fmt: skip
+    assert found == []
+
+
+def test_the_named_results_are_the_words_of_their_labels():
+    from uiest import theory
+
+    assert cite("theo:MHE_full") == theory.FULL_ORDER_GUARANTEE
+    assert cite("eq:N_cond") == theory.TWO_STAGE_HORIZON
+    named = {value for name, value in vars(theory).items() if name.isupper() and isinstance(value, str)}
+    assert named - {theory.CITATION, theory.ALGEBRAIC_TWO_STAGE} <= set(PAPER.values())
 
 
 def test_cite_names_the_result_and_refuses_an_unknown_label():

@@ -46,13 +46,13 @@ FloatArray = NDArray[np.float64]
 MAX_SAMPLES = 1_000_000
 """Most random points one call may draw (cover samples, verification pairs, assumption-check points).
 
-Ten times the default verification; a larger count is refused before anything is allocated
-(10**6 verification pairs take about 7 s and 0.3 GB on the closed-form model)."""
+Ten times the default verification; a larger count is refused before anything is allocated (design notes:
+input checks)."""
 
 STAGE_BYTES_PER_SIZE2 = 4 * 1024
-"""Estimated bytes of a window problem per stage and per squared stage size ``(nx + nw + nv + ny)^2``: about 1.3 KB
-measured to build (DEVELOPING.md), rounded up to 2 KiB and doubled for the solver's factorisation
-(:mod:`uiest.window.size`)."""
+"""Estimated bytes of a window problem per stage and per squared stage size ``(nx + nw + nv + ny)^2``: the build's
+measured memory rounded up to 2 KiB and doubled for the solver's factorisation (:mod:`uiest.window.size`; design
+notes: input checks)."""
 
 MEMORY_BUDGET = 4 * 1024**3
 """Largest estimated memory of one window problem, or of one record's arrays: 4 GiB."""

@@ -1,8 +1,9 @@
 r"""Choosing the UISE's rate mu and horizon N for accuracy under noise, from certificates.
 
 The minimal certified rate is a poor design under noise: with ``mu ~ 1e-2`` the window forgets
-its past at once and the estimate follows every noise sample. theo:MHE_full's proof bounds the
-error the noise leaves (:func:`uiest.estimators.bounds.strong_bound`, the bound of
+its past at once and the estimate follows every noise sample. The proof of Theorem 3.6 of Guo et
+al. (the full-order UISE guarantee; see the theory map) bounds the error the noise leaves
+(:func:`uiest.estimators.bounds.strong_bound`, the bound of
 :attr:`UISE.guarantee <uiest.estimators.UISE.guarantee>`): with ``lambda = 8^{1/N} mu`` it is
 proportional to ``1 / sqrt(lambda (1 - lambda))``. That bound is worst-case (every noise sample
 aligned): it is smallest near ``lambda = 1/2``, while under independent noise a slower forgetting
@@ -49,7 +50,7 @@ from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
 from uiest.scales import data_scales
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import REDUCED_IOSS
 from uiest.window.size import check_horizon
 
 __all__ = [
@@ -144,7 +145,7 @@ class Design:
         Certified at the chosen rate.
     N : int
     bound : ndarray (nx,)
-        The chosen estimator's guarantee's error bound per state (theo:MHE_full or theo:stab,
+        The chosen estimator's guarantee's error bound per state (Theorem 3.6 or Theorem 4.8,
         :mod:`uiest.estimators.bounds`), in the states' units.
     candidates : tuple of Candidate
     seconds : float
@@ -225,11 +226,27 @@ def design_uise(
     **options
         Window options of the candidate UISEs (``solver``, ...).
 
+    Returns
+    -------
+    Design
+        The chosen certificate and horizon, the guarantee's bound per state (states' units) and every candidate.
+
     Raises
     ------
     CertificationError
         When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
         certified rate has an admissible N within ``max_horizon``.
+
+    Examples
+    --------
+    >>> from uiest.design import design_uise
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> design = design_uise(system, [0.0, 0.0], rates=(0.8,), max_horizon=10, trials=1)
+    >>> round(design.certificate.mu, 2), design.N, design.certificate.certified
+    (0.8, 10, True)
+    >>> design.bound.shape
+    (2,)
 
     """
     from uiest.detectability import certify_strong_detectability
@@ -278,11 +295,11 @@ def design_two_stage(
     records: Sequence[Any] | None = None,
     **options: Any,
 ) -> Design:
-    """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and theo:stab's bound.
+    """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and Theorem 4.8's bound.
 
     ``reduced`` is a :class:`~uiest.reduction.ReducedModel`; ``options`` are the
     :class:`~uiest.estimators.TwoStageUISE` keywords (``projection``, window options). N is
-    ranked by theo:stab's settled bound on ``z_sharp`` (:func:`~uiest.estimators.bounds.two_stage_z_bound`,
+    ranked by Theorem 4.8's settled bound on ``z_sharp`` (:func:`~uiest.estimators.bounds.two_stage_z_bound`,
     the one the guarantee carries to the states).
     """
     from uiest.estimators import TwoStageUISE
@@ -299,7 +316,7 @@ def design_two_stage(
     return _design(
         system, x0, lambda mu: reduced.certify(mu=mu, **certify), rank,
         lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
-        what=cite("ass:e-ioss"), max_horizon=max_horizon, rates=rates, budget=budget,
+        what=REDUCED_IOSS, max_horizon=max_horizon, rates=rates, budget=budget,
         trials=trials, steps=steps, seed=seed, records=records,
     )  # fmt: skip
 

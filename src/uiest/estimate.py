@@ -35,6 +35,26 @@ the step health fields of :meth:`~uiest.results.EstimationResult.to_pandas`, and
 columns with a lag) and ``estimates.png`` (measured outputs beside each
 estimator's predicted output ``h(x_hat, 0)``, the state and unknown-input estimates, and the
 truth where the record has it).
+
+Examples
+--------
+What ``uiest estimate closed-form --data FILE --estimator uise --horizon 10`` does, from Python (here on a
+simulated record, which also holds the true states):
+
+>>> from uiest import models, simulate
+>>> from uiest.estimate import build_estimator, default_prior, errors_against_truth, run_estimators
+>>> entry = models.get("closed-form")
+>>> system = entry.build()
+>>> setup = entry.simulation()
+>>> record = simulate(system, setup.x0, 30, u=setup.u, w=setup.w, v=setup.noise, seed=3)
+>>> prior = default_prior(entry, system)
+>>> uise, note = build_estimator("uise", entry, system, prior, horizon=10)
+>>> note  # doctest: +ELLIPSIS
+'designed: mu=..., N=..., certified'
+>>> results = run_estimators({"uise": uise}, record, prior)
+>>> results["uise"].guarantee.applies, bool(errors_against_truth(record, results)["uise"] < 0.05)
+(True, True)
+
 """
 
 from __future__ import annotations

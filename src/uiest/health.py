@@ -79,7 +79,7 @@ FAILURES = frozenset({Outcome.FAILED, Outcome.ERROR, Outcome.UPDATE_SKIPPED, Out
 AT_BOUND_RTOL = 1e-5
 """A state lies at a side of a box when it is within this fraction of the box's width (its scale where the width
 is infinite) of that side, or beyond it: wider than an interior-point solver's distance to an active side, narrower
-than an estimate's distance to a side that does not hold it (measured in DEVELOPING.md, "Step health")."""
+than an estimate's distance to a side that does not hold it (design notes: step health)."""
 
 BOUND_SHARE = 0.05
 """A run warns (:func:`bound_message`) when some state's estimate lies at a side of X in more than this share of

@@ -61,7 +61,7 @@ from uiest.system import System
 
 EDGE_GAIN = 1.01
 """``tuned`` warns about an end of its grid only when the neighbour's RMS is above this times the end's (below it
-the error is flat there: the reactor's EKF is as good at 1e6 w.scale^2 as at the grid's 100)."""
+the error is flat there, and an end of the grid is as good as beyond it)."""
 INSIDE_MARGIN = 1e-6
 """The inside-X retry evaluates the model this fraction of X's width (x's scale on a half-open axis) inside its
 finite sides (a square root or a logarithm at a side has an infinite derivative there)."""

@@ -1,14 +1,16 @@
-r"""Reduced-order models (sec:UISE_red): the map T, the function psi and the decoupled model.
+r"""Reduced-order models (Section 4): the map T, the function psi and the decoupled model.
+
+Section, assumption and equation numbers are those of Guo et al. (see the theory map).
 
 Given a diffeomorphism ``T(x) = (T_flat(x), T_sharp(x))`` with ``n_flat`` flat coordinates and
-a function ``psi`` with ``z_flat = psi(y, z_sharp, v)`` (ass, eq:ass_1), the reduced-order model
-eq:sys_red is
+a function ``psi`` with ``z_flat = psi(y, z_sharp, v)`` (Assumption 4.2, Eq. (17)), the reduced-order model
+Eq. (21) is
 
     z_sharp+ = f_sharp(z_sharp, gamma, u, v) = T_sharp(f(T^-1(psi(gamma, z_sharp, v), z_sharp), u, w)),
     y        = h_sharp(z_sharp, gamma, v)    = h(T^-1(psi(gamma, z_sharp, v), z_sharp), v),
 
-which must not depend on w (eq:ass_2; checked symbolically). The full state is recovered by
-eq:fullest, ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
+which must not depend on w (Eq. (18); checked symbolically). The full state is recovered by
+Eq. (26), ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
 """
 
 from __future__ import annotations
@@ -29,12 +31,12 @@ from uiest.detectability.certificate import NOT_PROVED
 from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
-from uiest.theory import cite
+from uiest.theory import PSI_RECOVERY, QUASI_STATE_AFFINE_REDUCTION, W_FREE_REDUCED_DYNAMICS
 
 __all__ = ["ASSUMPTION_TOL", "AssumptionReport", "ReducedModel", "reduce_quasi_state_affine"]
 
 ASSUMPTION_TOL = 1e-8
-"""Largest relative violation of eq:ass_1, eq:ass_2 and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
+"""Largest relative violation of Eq. (17), Eq. (18) and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
 
 
 @dataclass(frozen=True)
@@ -46,9 +48,9 @@ class AssumptionReport:
     inverse_error : float
         ``max |T_inv(T(x)) - x| / (|x| + scale_x)`` (relative to |x|, so a wide X with a small scale is fine).
     psi_error : float
-        eq:ass_1: ``max |psi(h(x, v), T_sharp(x), v) - T_flat(x)| / |T_flat|``.
+        Eq. (17): ``max |psi(h(x, v), T_sharp(x), v) - T_flat(x)| / |T_flat|``.
     w_sensitivity : float
-        eq:ass_2: ``max |d z_sharp+ / dw| scale_w / |z_sharp|`` (w up to 1e6 scales).
+        Eq. (18): ``max |d z_sharp+ / dw| scale_w / |z_sharp|`` (w up to 1e6 scales).
     dominance_margin : float
         The remark after ass: ``d = min (|dh^i/dz_flat^i| - sum_(j != i) |dh^i/dz_flat^j|)`` over
         the samples for the best choice of distinct outputs; ``d > 0`` on all of the domain is the
@@ -106,7 +108,7 @@ def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box
 
 @dataclass(frozen=True, eq=False)
 class ReducedModel:
-    """A system with its reduction (T, psi) and the reduced-order model eq:sys_red.
+    """A system with its reduction (T, psi) and the reduced-order model Eq. (21).
 
     Attributes
     ----------
@@ -180,8 +182,8 @@ class ReducedModel:
         """Build the reduced-order model from T, its inverse and psi (callables or casadi Functions).
 
         Checks (see :meth:`check_assumptions`), raising ModelError naming the violated condition
-        and the largest violation when it exceeds ``ASSUMPTION_TOL``: eq:ass_2 (f_sharp
-        independent of w), ``T_inv(T(x)) = x`` and eq:ass_1 on ``check_points`` random points.
+        and the largest violation when it exceeds ``ASSUMPTION_TOL``: Eq. (18) (f_sharp
+        independent of w), ``T_inv(T(x)) = x`` and Eq. (17) on ``check_points`` random points.
         ``z_bounds`` defaults to the min/max of ``T_sharp`` over a 5-point grid of X (exact for
         linear T, whose extremes lie at the corners).
         """
@@ -200,9 +202,9 @@ class ReducedModel:
         dz_dw = ca.Function("dz_dw", [z, g, u, w, v], [ca.jacobian(z_next, w)])
         report = _assumption_report(system, T_fun, T_inv_fun, psi_fun, dz_dw, n_flat, check_points, seed)
         for label, value, condition in (
-            ("T: the reduced dynamics T_sharp(f(x, u, w)) depend on w", report.w_sensitivity, cite("eq:ass_2")),
+            ("T: the reduced dynamics T_sharp(f(x, u, w)) depend on w", report.w_sensitivity, W_FREE_REDUCED_DYNAMICS),
             ("T_inv: T_inv(T(x)) differs from x", report.inverse_error, "T_inv o T = id"),
-            ("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x)", report.psi_error, cite("eq:ass_1")),
+            ("psi: psi(h(x, v), T_sharp(x), v) differs from T_flat(x)", report.psi_error, PSI_RECOVERY),
         ):
             if value > ASSUMPTION_TOL:
                 raise ModelError(
@@ -232,7 +234,7 @@ class ReducedModel:
         return _assumption_report(self.system, self.T, self.T_inv, self.psi, dz_dw, self.n_flat, n_points, seed)
 
     def full_state(self, y: FloatArray, z_sharp: FloatArray, v: FloatArray | None = None) -> FloatArray:
-        """eq:fullest: ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` (v defaults to the centre of V)."""
+        """Eq. (26): ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` (v defaults to the centre of V)."""
         system = self.system
         y, z_sharp = as_vector(y, system.ny, "y"), as_vector(z_sharp, self.n_sharp, "z_sharp")
         v = system.v.bounds.center if v is None else as_vector(v, system.nv, "v")
@@ -338,7 +340,7 @@ def reduce_quasi_state_affine(
     w_spread: float = 100.0,
     **options: Any,
 ) -> ReducedModel:
-    """The reduction of prop:special_case for systems of the form eq:sys_spec.
+    """The reduction of Proposition 4.4 of Guo et al. for systems of the form Eq. (19).
 
     ``x_bar = phi(x)`` with ``x_bar+ = f_1(x_bar, u) + B f_2(w, x_bar, u)`` and
     ``y = C x_bar + g(v)``. With ``r = rank(C B) = rank(B)``: ``S_flat`` selects the first r
@@ -395,7 +397,7 @@ def reduce_quasi_state_affine(
     rank_CB = _rank(C @ B, rtol)
     if rank_CB != rank_B:
         raise ModelError(
-            f"rank(C B) = {rank_CB} != rank(B) = {rank_B}: {cite('prop:special_case')} needs the unknown "
+            f"rank(C B) = {rank_CB} != rank(B) = {rank_B}: {QUASI_STATE_AFFINE_REDUCTION} needs the unknown "
             "input to reach the output within one step (matching condition); no reduction of this form exists"
         )
     r = rank_B

@@ -280,6 +280,55 @@ class System:
         Scales default to the finite domain widths; for y, where Y is unbounded, to the output
         change caused by moving x and v by their scales (first order, at the domain centre);
         for w to the width of ``w_range`` when given; else 1.
+
+        Parameters
+        ----------
+        f : casadi.Function
+            ``x[k+1] = f(x[k], u[k], w[k])``: three inputs of sizes (nx, nu, nw), one output (nx). ``u[k]`` and
+            ``w[k]`` act from time k to k+1.
+        h : casadi.Function
+            ``y[k] = h(x[k], v[k])``: two inputs of sizes (nx, nv), one output (ny >= 1).
+        x_bounds, u_bounds, v_bounds, y_bounds : Box or (lower, upper), optional
+            The domains X, U, V and Y, in the signals' units.
+        w_range : Box or (lower, upper), optional
+            A range the unknown input is known to keep to (only its scale and centre are used; the
+            estimators do not bound w).
+        x_names, u_names, w_names, v_names, y_names, x_units, ... : sequence of str, optional
+            Component names and units (defaults ``x1, x2, ...`` and no unit).
+        x_scale, u_scale, w_scale, v_scale, y_scale : array_like, optional
+            Nominal magnitudes (positive, in the signals' units) that solvers and certificates divide by.
+        dt : float
+            Sampling interval in ``time_unit``.
+        time_unit : str
+            Unit of ``dt`` and of the time column of records.
+        name : str
+            The model's name in reports.
+
+        Returns
+        -------
+        System
+
+        Raises
+        ------
+        ModelError
+            ``f`` or ``h`` not a Function with 3 and 2 inputs, no output, repeated names, or ``f``, ``h`` not
+            finite at the domain centre.
+
+        Examples
+        --------
+        A scalar system ``x+ = 0.5 x + u + w``, ``y = x + v``:
+
+        >>> import casadi as ca
+        >>> from uiest import System
+        >>> x, u, w, v = (ca.SX.sym(name) for name in "xuwv")
+        >>> f = ca.Function("f", [x, u, w], [0.5 * x + u + w])
+        >>> h = ca.Function("h", [x, v], [x + v])
+        >>> system = System.from_functions(f, h, x_bounds=(-10, 10), u_bounds=(-1, 1), v_bounds=(-0.1, 0.1))
+        >>> system.nx, system.nu, system.nw, system.nv, system.ny
+        (1, 1, 1, 1, 1)
+        >>> print(system.step([2.0], [0.5], [1.0]), system.output([2.0], [0.05]))
+        [2.5] [2.05]
+
         """
         for label, fun, n_in in (("f", f, 3), ("h", h, 2)):
             if not isinstance(fun, ca.Function) or fun.n_in() != n_in:
@@ -388,6 +437,48 @@ class System:
         :mod:`uiest.ode` for the discretisation error. Further keywords as in :meth:`from_functions`.
         The system keeps the continuous model in ``sampled_from`` (the analysis names the zeros
         sampling created from it).
+
+        Parameters
+        ----------
+        rhs : callable or casadi.Function
+            ``dx/dt = rhs(x, u, w)`` (nx,), in state units per ``time_unit``.
+        h : callable or casadi.Function
+            ``y = h(x, v)`` (ny,).
+        nx, nw, nv, nu : int
+            Sizes of the state, unknown input, noise and known input (``nu`` may be 0).
+        dt : float
+            Sampling interval (> 0) in ``time_unit``; u and w are held over it.
+        substeps : int
+            Integrator steps per sample.
+        input_channel : {None, "rk4"}
+            ``"rk4"`` keeps w inside RK4 even where rhs is affine in w.
+        method : {"rk4", "collocation"}
+            The integrator.
+        **spec
+            As for :meth:`from_functions` (bounds, names, units, scales, ``name``).
+
+        Returns
+        -------
+        System
+            The sampled model ``x[k+1] = f(x[k], u[k], w[k])``, with ``sampled_from`` set.
+
+        Raises
+        ------
+        ModelError
+            Callables that cannot be traced, wrong output sizes, or a sampled model that is not finite.
+
+        Examples
+        --------
+        A pendulum whose angle is measured and whose torque is unknown, sampled every 0.05 s:
+
+        >>> import numpy as np
+        >>> from uiest import System
+        >>> pendulum = System.from_ode(
+        ...     lambda x, u, w: [x[1], -9.81 * np.sin(x[0]) + w[0]], lambda x, v: [x[0] + v[0]],
+        ...     nx=2, nw=1, nv=1, dt=0.05, substeps=2, x_bounds=(-5, 5), v_bounds=(-0.01, 0.01), name="pendulum")
+        >>> print(pendulum.dt, pendulum.step([0.1, 0.0], None, [0.0]).round(4))
+        0.05 [ 0.0988 -0.0488]
+
         """
         from uiest import ode
 

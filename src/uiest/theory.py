@@ -2,8 +2,10 @@
 
 The paper is Y. Guo, J. A. Moreno, S. Streif, "Strong nonlinear detectability and moving horizon
 estimation for nonlinear systems with unknown inputs". Strings that users read (guarantees,
-reasons, errors, CLI output, reports) name a result through :data:`PAPER` (:func:`cite`), never by
-its label; ``docs/theory-map.md`` gives each label's statement and the uiest names that use it.
+reasons, errors, CLI output, reports) name a result through the constants below (e.g.
+:data:`FULL_ORDER_GUARANTEE`) or :data:`PAPER` (:func:`cite`), never by its label; this module is the one
+place in the sources that holds the labels, and the theory map (``docs/theory-map.md``) gives each label's
+statement and the uiest names that use it.
 
 Numbers follow the manuscript's counters: theorems, lemmas, propositions, definitions,
 assumptions and remarks share one counter per section ("Theorem 3.6" is the sixth numbered
@@ -61,6 +63,32 @@ PAPER = MappingProxyType({
     "eq:fullest_new": _ref("the projected full-state map", "Eq. (35)"),
 })  # fmt: skip
 """Each paper label that uiest refers to, mapped to the words users read."""
+
+# The results the code names, as constants: the labels stay in this module (and the theory map) only.
+LYAPUNOV_CHARACTERISATION = PAPER["theo:Lyapunov"]
+"""Theorem 3.2: strong detectability through an incremental storage function (what a certificate shows)."""
+FIE_GUARANTEE = PAPER["lem:FIE"]
+"""Lemma 3.3: the full information estimator is a UISE."""
+LINEAR_STRONG_DETECTABILITY = PAPER["lem:UIO_LTI"]
+"""Lemma 3.5: strong detectability of linear systems (Hautus' conditions)."""
+FULL_ORDER_GUARANTEE = PAPER["theo:MHE_full"]
+"""Theorem 3.6: the MHE-based UISE with the full-order model is a UISE."""
+QUASI_STATE_AFFINE_REDUCTION = PAPER["prop:special_case"]
+"""Proposition 4.4: the reduction of quasi-state-affine systems."""
+TWO_STAGE_GUARANTEE = PAPER["theo:stab"]
+"""Theorem 4.8: the two-stage UISE with a reduced-order model is a UISE."""
+REDUCED_IOSS = PAPER["ass:e-ioss"]
+"""Assumption 4.7: exponential i-IOSS of the reduced-order model."""
+DECREASE_CONDITION = PAPER["eq:Lyapunov_2"]
+"""Eq. (5b): the storage function's decrease."""
+FULL_ORDER_HORIZON = PAPER["eq:MHE_full_horizon"]
+"""Eq. (13): the full-order UISE's horizon condition."""
+PSI_RECOVERY = PAPER["eq:ass_1"]
+"""Eq. (17): the flat coordinates are read from the output."""
+W_FREE_REDUCED_DYNAMICS = PAPER["eq:ass_2"]
+"""Eq. (18): the reduced dynamics do not depend on the unknown input."""
+TWO_STAGE_HORIZON = PAPER["eq:N_cond"]
+"""Eq. (31): the two-stage UISE's horizon condition."""
 
 ALGEBRAIC_TWO_STAGE = _ref("the algebraic two-stage UISE for n_sharp = 0", "Remark 4.9")
 """Remark 4.9 (after the two-stage UISE guarantee; it has no label): with ``n_sharp = 0`` the estimate is algebraic."""

@@ -68,6 +68,16 @@ def analyse(
     DataError
         ``x0`` of the wrong shape or not finite.
 
+    Examples
+    --------
+    >>> from uiest import analyse
+    >>> from uiest.models import closed_form
+    >>> analysis = analyse(closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0))))
+    >>> analysis.rank_CB, analysis.rank_B, analysis.strong.certified
+    (1, 1, True)
+    >>> analysis.recommendation.value, analysis.cause.value
+    ('UISE', "the UISE's guarantee is informative")
+
     """
     start = time.thread_time()
     if not isinstance(system, System):

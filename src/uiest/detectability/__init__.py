@@ -3,13 +3,14 @@
 Every certificate is a :class:`Certificate` (verdict and status, rate, quadratic storage P,
 ``weights()`` for its estimator, ``min_horizon()``, ``verify()``, ``to_dict()``):
 
-- :func:`certify_strong_detectability` (theo:Lyapunov): the unknown input and the current-output
+- :func:`certify_strong_detectability` (Theorem 3.2 of Guo et al.; see the theory map): the unknown input and
+  the current-output
   gain eliminated exactly, vertices that provably cover the Jacobian over X x U.
 
 Each ``certify_*`` searches for a pair that violates what its LMIs claim before it returns
 (``falsification``); ``certified`` is True only for a proof that search did not refute.
-- :func:`linear_strong_detectability` (lem:UIO_LTI): matching, invariant zeros, mu_min.
-- :func:`certify_reduced_ioss` (ass:e-ioss): exponential i-IOSS of a reduced-order model.
+- :func:`linear_strong_detectability` (Lemma 3.5): matching, invariant zeros, mu_min.
+- :func:`certify_reduced_ioss` (Assumption 4.7): exponential i-IOSS of a reduced-order model.
 - :func:`certify_delta_ioss` (Schiller et al. 2023, Assumption 1): for the standard MHE.
 - :func:`window_information`: the smallest state difference one window's data can resolve.
 """

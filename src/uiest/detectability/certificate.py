@@ -100,7 +100,7 @@ larger bound buys for a given model, and ``max_condition=`` asks for it.
 
 
 def strong_horizon(mu: float, condition: float) -> int:
-    r"""Smallest N with ``8 mu^N a2 / a1 < 1`` (eq:MHE_full_horizon for ``alpha_i(r) = a_i r^2``).
+    r"""Smallest N with ``8 mu^N a2 / a1 < 1`` (Eq. (13) for ``alpha_i(r) = a_i r^2``).
 
     ``(2 mu^N alpha_2 o 2 alpha_1^-1)(r) = 8 mu^N (a2 / a1) r`` with ``alpha_1^-1(s) = sqrt(s / a1)``;
     ``condition = a2 / a1``.
@@ -334,12 +334,12 @@ class MuCertificate(Certificate):
 class StrongDetectabilityBase(MuCertificate):
     """What the nonlinear and the linear strong-detectability certificates share.
 
-    mu, the horizon of eq:MHE_full_horizon and the UISE's weights ``(mu, P, R_y, R_v)``
+    mu, the horizon of Eq. (13) and the UISE's weights ``(mu, P, R_y, R_v)``
     (subclasses hold ``R_y`` and ``R_v``).
     """
 
     def _horizon(self) -> int:
-        """eq:MHE_full_horizon in the scaled norm: :func:`strong_horizon`."""
+        """Eq. (13) in the scaled norm: :func:`strong_horizon`."""
         return strong_horizon(self.mu, self.condition)
 
     def weights(self) -> Any:

@@ -73,7 +73,7 @@ class DeltaIOSS(Certificate):
     def noise_gain(self) -> FloatArray:
         """Per-step noise gain per state, in the state's units: ``2 sqrt(q_v d^2 / (eta lambda_min(P))) x_scale``.
 
-        The form of theo:stab's (:attr:`ReducedIOSS.noise_gain`) for Assumption 1's noise channel, d V's
+        The form of Theorem 4.8's (Guo et al.) (:attr:`ReducedIOSS.noise_gain`) for Assumption 1's noise channel, d V's
         scaled diameter. NaN when not certified.
         """
         if not self.certified:

@@ -106,7 +106,7 @@ class LinearStrongDetectability(StrongDetectabilityBase):
         return float(np.max(np.abs(np.linalg.eigvals(closed)), initial=0.0))
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
-        """eq:Lyapunov_2 on random increments (the system is linear: pairs are increments)."""
+        """Eq. (5b) on random increments (the system is linear: pairs are increments)."""
         from uiest.detectability.strong import worst_case_ratio
 
         rng = np.random.default_rng(seed)

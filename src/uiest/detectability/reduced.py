@@ -1,18 +1,18 @@
-r"""Exponential i-IOSS of a reduced-order model (ass:e-ioss, eq:p-eioss_quadratic) by LMIs.
+r"""Exponential i-IOSS of a reduced-order model (Assumption 4.7 and Eq. (27) of Guo et al.; see the theory map) by LMIs.
 
-The reduced model eq:sys_red is ``z+ = f_sharp(z, gamma, u, v)``, ``y = h_sharp(z, gamma, v)``
+The reduced model Eq. (21) is ``z+ = f_sharp(z, gamma, u, v)``, ``y = h_sharp(z, gamma, v)``
 with the fictitious input gamma (it lives in Y). With the dissipation inequality of
 :mod:`uiest.detectability.dissipation` for ``V = |z - z~|_P^2`` (scaled coordinates, ``P >= I``)
 
     V+ <= mu V + q_gamma |dgamma|^2 + q_v |dv|^2 + r |dy|^2,
 
 summing ``V_k <= mu^k V_0 + sum_i mu^(k-1-i) (...)_i`` and ``lambda_min |dz|^2 <= V <= lambda_max |dz|^2``
-gives eq:p-eioss_quadratic with
+gives Eq. (27) with
 
     c_x = lambda_max(P) / lambda_min(P),   c_y = r / (mu lambda_min(P)),
     c_v = q_v / (mu lambda_min(P)),        c_gamma = q_gamma / (mu lambda_min(P)),
 
-all in scaled norms ``|S^-1 .|``. The horizon condition eq:N_cond is ``N > -log_mu(4 c_x)``.
+all in scaled norms ``|S^-1 .|``. The horizon condition Eq. (31) is ``N > -log_mu(4 c_x)``.
 """
 
 from __future__ import annotations
@@ -36,17 +36,17 @@ __all__ = ["ReducedIOSS", "certify_reduced_ioss"]
 
 @dataclass(frozen=True, eq=False)
 class ReducedIOSS(MuCertificate):
-    """An exponential i-IOSS certificate of a reduced-order model (ass:e-ioss).
+    """An exponential i-IOSS certificate of a reduced-order model (Assumption 4.7 of Guo et al.).
 
     Beyond :class:`~uiest.detectability.certificate.Certificate` (``rate`` is mu):
 
     Attributes
     ----------
     c_x, c_v, c_y, c_gamma : float
-        The constants of eq:p-eioss_quadratic in scaled norms.
+        The constants of Eq. (27) in scaled norms.
     R_v, R_y, R_gamma : ndarray
         ``c_v |dv|^2`` etc. as weight matrices in original units (``|dv|^2_{R_v}``): the weights of
-        the two-stage MHE cost eq:cost_MHE.
+        the two-stage MHE cost Eq. (28).
     q, r : ndarray, float
         The scaled weights of the dissipation inequality (channels gamma and v, and the output).
     recertify : callable, optional
@@ -64,9 +64,9 @@ class ReducedIOSS(MuCertificate):
 
     @property
     def noise_gain(self) -> FloatArray:
-        """theo:stab's per-step noise gain per component of z, in z's units: ``2 sqrt(c_v) d z_scale``.
+        """Theorem 4.8's per-step noise gain per component of z, in z's units: ``2 sqrt(c_v) d z_scale``.
 
-        d is V's scaled diameter: eq:rges_proof_4 bounds the error of z by ``sum_i lambda^i 2 sqrt(c_v) |v - v_bar|``
+        d is V's scaled diameter: Eq. (33) bounds the error of z by ``sum_i lambda^i 2 sqrt(c_v) |v - v_bar|``
         (scaled norms). NaN when not certified.
         """
         if not self.certified:
@@ -122,11 +122,11 @@ class ReducedIOSS(MuCertificate):
         return self._matrix(self.c_y, self.model.y_scale)
 
     def _horizon(self) -> int:
-        """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
+        """Smallest N with ``N > -log_mu(4 c_x)`` (Eq. (31))."""
         return int(np.floor(np.log(4.0 * self.c_x) / np.log(1.0 / self.mu))) + 1
 
     def weights(self) -> Any:
-        """:class:`~uiest.estimators.TwoStageWeights` from the constants of eq:p-eioss_quadratic."""
+        """:class:`~uiest.estimators.TwoStageWeights` from the constants of Eq. (27)."""
         from uiest.estimators.weights import TwoStageWeights
 
         return TwoStageWeights.from_certificate(self)
@@ -182,7 +182,7 @@ def certify_reduced_ioss(
     max_condition: float = DEFAULT_MAX_CONDITION,
     **options: Any,
 ) -> ReducedIOSS:
-    """Certify exponential i-IOSS (ass:e-ioss) of a reduced-order model by LMIs.
+    """Certify exponential i-IOSS (Assumption 4.7 of Guo et al.) of a reduced-order model by LMIs.
 
     Parameters
     ----------

@@ -1,4 +1,4 @@
-r"""Strong nonlinear detectability certificates (theo:Lyapunov) with quadratic storage.
+r"""Strong nonlinear detectability certificates (Theorem 3.2 of Guo et al.; see the theory map) with quadratic storage.
 
 For ``x+ = f1(x, u) + B d`` (d free: w is unbounded), ``y = C x + g(v)`` the certificate is
 :mod:`uiest.detectability.strong_lmi`'s
@@ -7,7 +7,7 @@ For ``x+ = f1(x, u) + B d`` (d free: w is unbounded), ``y = C x + g(v)`` the cer
 
 at the vertices of a cover of the state Jacobian over X x U (:mod:`uiest.detectability.cover`).
 With ``C dx = dy - (g(v) - g(v~))`` and ``|a - b|^2 <= 2 |a|^2 + 2 |b|^2`` it gives the paper's
-eq:Lyapunov_2 with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)``,
+Eq. (5b) with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)``,
 
     sigma_y(r) = sigma_y r^2,  sigma_y = 2 max(s1, s2),      sigma_v(r) = sigma_y ||D||^2 r^2
     (as solved; :meth:`StrongDetectability.with_output_weight` multiplies both)
@@ -51,14 +51,14 @@ from uiest.detectability.structure import InputStructure, input_structure
 from uiest.detectability.tradeoff import check_condition
 from uiest.errors import ModelError, OptionError
 from uiest.system import System, as_function
-from uiest.theory import cite
+from uiest.theory import DECREASE_CONDITION
 
 __all__ = ["StrongDetectability", "certify_strong_detectability", "worst_case_ratio"]
 
 
 @dataclass(frozen=True, eq=False)
 class StrongDetectability(StrongDetectabilityBase):
-    """A strong-detectability certificate (theo:Lyapunov): ``V = |x - x~|_P^2``.
+    """A strong-detectability certificate (Theorem 3.2 of Guo et al.): ``V = |x - x~|_P^2``.
 
     Beyond :class:`~uiest.detectability.certificate.Certificate`:
 
@@ -66,13 +66,13 @@ class StrongDetectability(StrongDetectabilityBase):
     ----------
     sigma_y, sigma_v : float
         ``sigma_y(r) = sigma_y r^2`` on the scaled output increment, ``sigma_v(r) = sigma_v r^2``
-        on the scaled noise increment (eq:Lyapunov_2).
+        on the scaled noise increment (Eq. (5b)).
     R_y, R_v : ndarray
         The same as weight matrices in original units: ``sigma_y(dy) = |dy|_{R_y}^2``.
     noise_gain : ndarray (nx,)
         ``sqrt((sigma_v(d) + sigma_v(d)) / alpha_1)`` in state units, d the largest noise
         increment ``|v - v~|`` in V (its diameter): how far the noise terms of one step of
-        eq:Lyapunov_2 can move the bound on each state (inf when V is unbounded).
+        Eq. (5b) can move the bound on each state (inf when V is unbounded).
     s1, s2, eps : float
         The core certificate's output weights on ``|C dx|^2``, ``|C dx+|^2`` (scaled) and the
         output scaling of the solve.
@@ -118,7 +118,7 @@ class StrongDetectability(StrongDetectabilityBase):
     def with_output_weight(self, factor: float) -> StrongDetectability:
         """The weaker certificate with ``sigma_y``, ``sigma_v`` (and ``R_y``, ``R_v``) times ``factor >= 1``.
 
-        eq:Lyapunov_2 still holds (only its right side grows), with the same mu and P, so the horizon
+        Eq. (5b) still holds (only its right side grows), with the same mu and P, so the horizon
         and the guarantee stay; the estimator weighs its outputs ``factor`` times more against its
         prior, and the noise gain grows by ``sqrt(factor)``. ``s1``, ``s2`` stay the core solve's.
         :func:`~uiest.design.design_uise` tries a few factors.
@@ -186,7 +186,11 @@ def certify_strong_detectability(
     seed: int = 0,
     max_condition: float = DEFAULT_MAX_CONDITION,
 ) -> StrongDetectability:
-    """Certify strong nonlinear detectability of ``system`` (theo:Lyapunov) by LMIs.
+    """Certify strong nonlinear detectability of ``system`` (Theorem 3.2 of Guo et al.) by LMIs.
+
+    Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
+    of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
+    makes it "refuted". The search's size and worst ratio are in ``falsification``.
 
     Parameters
     ----------
@@ -218,9 +222,12 @@ def certify_strong_detectability(
         faster rate at the price of larger weights; :meth:`StrongDetectability.tradeoff` tabulates it.
         The estimator's horizon grows with cond(P): ``min_horizon() <= N`` when ``cond(P) < mu^-N / 8``.
 
-    Before a certificate is returned, :func:`uiest.detectability.falsify.search` looks for a pair
-    of states that violates the LMI's inequality (worst unknown input in closed form); a pair found
-    makes it "refuted". The search's size and worst ratio are in ``falsification``.
+    Returns
+    -------
+    StrongDetectability
+        The certificate: its ``status`` (a :class:`~uiest.detectability.certificate.CertificateStatus`;
+        ``certified`` only when proved on the whole domain), rate ``mu``, storage matrix ``P``, noise and
+        output weights, and :meth:`~StrongDetectability.min_horizon`.
 
     Raises
     ------
@@ -232,6 +239,17 @@ def certify_strong_detectability(
         to do).
     OptionError
         ``mu`` outside (0, 1), bad ``cover``, ``samples``, ``tol`` or ``max_condition``.
+
+    Examples
+    --------
+    >>> from uiest.detectability import certify_strong_detectability
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> certificate = certify_strong_detectability(system)
+    >>> certificate.status.value, certificate.certified, round(certificate.mu, 2)
+    ('certified', True, 0.65)
+    >>> certificate.min_horizon()  # the UISE's horizon condition (Eq. (13) of Guo et al.)
+    30
 
     """
     start = time.perf_counter()
@@ -386,7 +404,7 @@ def _certificate(
 
 
 def _verify(cert: StrongDetectability, n_pairs: int, seed: int) -> Verification:
-    """eq:Lyapunov_2 on pairs of X (half close pairs along ker C), u in U, noise from V for half of them."""
+    """Eq. (5b) on pairs of X (half close pairs along ker C), u in U, noise from V for half of them."""
     system, s = cert.system, cert.structure
     rng = np.random.default_rng(seed)
     sx, sy, sv = system.x.scale, system.y.scale, system.v.scale
@@ -455,7 +473,7 @@ def worst_case_ratio(
     sigma_y: float,
     sigma_v: float,
 ) -> Verification:
-    """Largest ``LHS / RHS`` of eq:Lyapunov_2 over pairs, with the worst unknown-input increment.
+    """Largest ``LHS / RHS`` of Eq. (5b) over pairs, with the worst unknown-input increment.
 
     All scaled, per pair (rows): the drift increment ``a = f1(x) - f1(x~)`` (m, n), ``dx``,
     ``dy``, the noise part of ``dy+`` (m, p) and ``|dv|^2 + |dv+|^2`` (m,). With
@@ -477,5 +495,5 @@ def worst_case_ratio(
         float((value[used] / rhs[used]).max(initial=-np.inf)),
         int(used.sum()),
         n_pairs,
-        f"ratio = LHS / RHS of {cite('eq:Lyapunov_2')} with the worst unknown-input increment (closed form)",
+        f"ratio = LHS / RHS of {DECREASE_CONDITION} with the worst unknown-input increment (closed form)",
     )

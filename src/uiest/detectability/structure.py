@@ -1,6 +1,6 @@
 r"""The form ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` that the strong-detectability LMI needs.
 
-The unknown input must act through a constant input matrix B (the paper's eq:sys_spec after
+The unknown input must act through a constant input matrix B (Eq. (19) of Guo et al. after
 its change of input ``d = f2(w, x, u)``): then d is as free as w, and the LMI eliminates it
 exactly. :func:`input_structure` reads the form off a :class:`~uiest.system.System`:
 

@@ -1,12 +1,12 @@
 """Estimators: ``reset(x0_prior)``, ``step(u_prev, y) -> StepEstimate``, ``run(u, y) -> EstimationResult``.
 
-- :class:`UISE`: MHE-based unknown input state estimator (theo:MHE_full).
-- :class:`FIE`: full information estimator (lem:FIE), growing window.
+- :class:`UISE`: MHE-based unknown input state estimator (Theorem 3.6 of Guo et al.; see the theory map).
+- :class:`FIE`: full information estimator (Lemma 3.3), growing window.
 - :class:`StandardMHE`: robust MHE of Schiller et al. 2023, one-step-ahead (baseline).
 - :class:`SmoothInputMHE`: that MHE on the model with the unknown input as a state of bounded, penalised
   increments (:func:`uiest.augmented.augmented_system`), current measurement included.
 - :class:`DelayedUISE`: the UISE of the delayed system, x[k-lag] for an input of relative degree 2.
-- :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (theo:stab).
+- :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (Theorem 4.8).
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
 - :class:`EKF`, :class:`UKF`: Kalman filters with the unknown input as a random walk (:mod:`uiest.kalman`).
 

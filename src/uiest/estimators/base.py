@@ -14,7 +14,7 @@ prior rule), then one of
   instead);
 
 then the *post-map* from the window's newest node to ``x_hat[k]`` (identity for the full-order
-estimators; the two-stage UISE's eq:fullest_new), the unknown-input estimate, the step's health
+estimators; the two-stage UISE's projection, Eq. (35) of Guo et al.), the unknown-input estimate, the step's health
 fields (:class:`~uiest.results.StepEstimate`: states at X's sides, the held input, ...) and the commit.
 A run (:func:`collect_run`) warns (:class:`~uiest.errors.BoundWarning`) when a state's estimate lies at
 a side of X in more than 5 % of the steps.

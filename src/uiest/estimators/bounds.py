@@ -11,10 +11,10 @@ delayed UISE), read back through ``x = M s`` (rows of M). The theorems give
 ``V_k <= c lam^k V_0 + S`` and so ``|e_i| <= sqrt(V_k (M P^-1 M^T)_ii)`` (the largest ``e_i``
 on the ellipsoid):
 
-- theo:MHE_full (UISE, P-norm prior, :mod:`uiest.estimators.uise`): ``rho = 8 mu^N``,
+- Theorem 3.6 of Guo et al. (see the theory map) (UISE, P-norm prior, :mod:`uiest.estimators.uise`): ``rho = 8 mu^N``,
   ``lam = 8^{1/N} mu``, ``c = rho / mu^N = 8`` and, from the proof's last line with the current
   sample's term kept, ``S = sum_{i>=0} 8 lam^{i-1} sigma_v(2 |dv|) = 32 s_v / (lam (1 - lam))``;
-- lem:FIE with the comparison functions of :mod:`uiest.estimators.fie`: ``lam = mu``, ``c = 8``,
+- Lemma 3.3 with the comparison functions of :mod:`uiest.estimators.fie`: ``lam = mu``, ``c = 8``,
   ``S = 16 s_v / (mu (1 - mu))``;
 - Schiller et al. 2023 (standard MHE, P1 = P2 = P): with ``(a + b)^2 <= 2 a^2 + 2 b^2`` and
   optimality, ``W_k <= 4 eta^N W_{k-N} + 4 sum_{j=1}^{N} eta^{j-1} d``, so ``lam = 4^{1/N} eta``,
@@ -148,7 +148,7 @@ def strong_bound(
     T: FloatArray | None = None,
     M: FloatArray | None = None,
 ) -> tuple[FloatArray, int | None]:
-    """theo:MHE_full's bound with horizon N (None: lem:FIE's), per row of M (module docstring).
+    """Theorem 3.6's bound with horizon N (None: Lemma 3.3's), per row of M (module docstring).
 
     ``P`` and ``R_v`` are the certificate's (original units) of the storage state ``s = T x``
     (default ``T = M = I``); the initial error is any ``T e0`` with ``|e0_i| <= x_width_i``.
@@ -194,13 +194,13 @@ def mhe_bound(
 
 
 def two_stage_rate(mu: float, c_x: float, N: int) -> float:
-    """theo:stab's contraction ``lambda = max(sqrt(mu) (2 sqrt(c_x))^{1/N}, sqrt(mu))`` (eq:rges_proof_4)."""
+    """Theorem 4.8's contraction ``lambda = max(sqrt(mu) (2 sqrt(c_x))^{1/N}, sqrt(mu))`` (Eq. (33))."""
     eta = float(np.sqrt(mu))
     return max(eta * (2.0 * float(np.sqrt(c_x))) ** (1.0 / N), eta)
 
 
 def two_stage_z_bound(mu: float, c_x: float, N: int, noise: float) -> float:
-    """theo:stab's settled error of ``z_sharp`` in the certificate's scaled norm (eq:rges_proof_4).
+    """Theorem 4.8's settled error of ``z_sharp`` in the certificate's scaled norm (Eq. (33)).
 
     ``2 sqrt(noise) lambda / (1 - lambda)`` with ``noise = max_{v in V} |v - v_bar|_{R_v}^2``
     (``c_v`` times the scaled noise's square); inf when ``lambda >= 1``.
@@ -220,7 +220,7 @@ def reduction_bound(
     rate: float,
     z_settled: float,
 ) -> tuple[FloatArray, int | None]:
-    """theo:stab through ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` with Jacobians ``J_z``, ``J_v`` (rows NaN: none).
+    """Theorem 4.8 through ``x = T^-1(psi(y, z_sharp, v), z_sharp)`` with Jacobians ``J_z``, ``J_v`` (rows NaN: none).
 
     ``|e_i| <= |J_z,i diag(z_scale)| |dz|_scaled + max_{v in V} |J_v,i (v_bar - v)|``, with
     ``|dz|_scaled <= 2 sqrt(c_x) rate^k |z_width / z_scale| + z_settled`` (the prior and the true

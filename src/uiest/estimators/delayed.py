@@ -2,7 +2,8 @@ r"""The delayed UISE: an unknown input of relative degree 2, estimated with a la
 
 When the next output does not see some directions of the unknown input (``rank(C B) <
 rank(B)``), x[k] is not determined by y[..k], but x[k-1] can be (:mod:`uiest.delay`). The
-delayed UISE runs the UISE of theo:MHE_full on the delayed system (state ``b = T_b x``,
+delayed UISE runs the UISE of Theorem 3.6 of Guo et al. (the full-order UISE guarantee) on the
+delayed system (state ``b = T_b x``,
 unknown input ``(w, a)`` with ``a = T_a x``) and reads the original state from its window::
 
     x_lag[k]   = M_a a*_{k-lag|k} + M_b b*_{k-lag|k}     (the estimate of x[k-lag], lag >= 1)
@@ -31,7 +32,7 @@ from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import FULL_ORDER_GUARANTEE, FULL_ORDER_HORIZON
 from uiest.window import WindowTrajectory
 from uiest.window.size import check_horizon
 
@@ -57,7 +58,7 @@ class DelayedUISE(UISE):
     """
 
     estimator_name = "DelayedUISE"
-    theorem = f"{cite('theo:MHE_full')} for the delayed system"
+    theorem = f"{FULL_ORDER_GUARANTEE} for the delayed system"
     free_input = False  # its nodes are the delayed system's; its newest input is found from later outputs
 
     def __init__(self, system: System, *, lag: int = 1, **keywords: Any) -> None:
@@ -158,13 +159,13 @@ class DelayedUISE(UISE):
     # ------------------------------------------------------------------ guarantee
     @property
     def guarantee(self) -> Guarantee:
-        """theo:MHE_full for the delayed system, read back to ``x_hat[k] = M_a a + M_b b`` (or why it does not apply).
+        """Theorem 3.6 for the delayed system, read back to ``x_hat[k] = M_a a + M_b b`` (or why it does not apply).
 
         The theorem bounds the estimate of ``b[k]``; ``a`` is an unknown input of the delayed system,
         which it does not bound, so only the states with ``M_a``'s row zero (to 1e-12 of the row)
         have a bound; the others are NaN. The lagged estimates are not covered.
         """
-        missing = self._horizon_missing("delayed system's strong-detectability", cite("eq:MHE_full_horizon"))
+        missing = self._horizon_missing("delayed system's strong-detectability", FULL_ORDER_HORIZON)
         if missing:
             return self._no_guarantee(self.theorem, missing)
         d = self.delayed

@@ -1,4 +1,4 @@
-r"""The full information estimator of lem:FIE (eq:op_FIE, eq:cost_FIE_full).
+r"""The full information estimator of Lemma 3.3 of Guo et al. (Eq. (6), Eq. (7); see the theory map).
 
 Index convention::
 
@@ -6,20 +6,19 @@ Index convention::
     x_hat[k] = x^*_{k|k}  from  x_bar_0, u[0 .. k-1], y[0 .. k]    (growing window, N_k = k)
     w_hat[k-1] = w^*_{k-1|k}
 
-Cost: eq:cost_FIE_full with the comparison functions a quadratic strong-detectability
-certificate implies (iterating eq:Lyapunov_2 as in the proof of theo:Lyapunov):
+Cost: Eq. (7) with the comparison functions a quadratic strong-detectability
+certificate implies (iterating Eq. (5b) as in the proof of Theorem 3.2):
 ``alpha_0(r, k) = mu^k |r|_P^2``, ``alpha_v(r, j) = 2 mu^{j-1} |r|_{R_v}^2``,
 ``alpha_y(r, j) = 2 mu^{j-1} |r|_{R_y}^2``, so that::
 
     J_k = mu^k 4 |x_{0|k} - x_bar_0|_P^2
           + sum_{j=0}^{k} mu^{j-1} ( 8 |v_{k-j|k} - v_bar|_{R_v}^2 + 2 |y_{k-j} - h(x_{k-j|k}, v_{k-j|k})|_{R_y}^2 ),
 
-the UISE's cost eq:cost_MHE_full with the window reaching back to time 0. The FIE and the UISE
+the UISE's cost Eq. (11) with the window reaching back to time 0. The FIE and the UISE
 therefore solve the same problem while ``k <= N``, which makes the FIE a cross-check of the
 moving-horizon machinery (and an offline estimator). Its problems grow with k: one is built per
 length (k+1 of them) and all data are kept, so building takes time that grows with the square
-of the record's length (measured on the closed-form model, 2 cores: 50 steps 1 s, 100 steps
-4 s, 200 steps 18 s with either backend, nearly all of it building) and memory grows with k.
+of the record's length (design notes: input checks) and memory grows with k.
 ``max_steps`` (default 500) bounds it: a longer record raises :class:`OptionError` before any
 work, pointing to the UISE, whose window stays N long. For large k the prior weight ``mu^k``
 vanishes, and directions the data do not determine become flat: use it offline and for short
@@ -43,14 +42,14 @@ from uiest.guarantee import Guarantee
 from uiest.results import EstimationResult, StepEstimate
 from uiest.scales import data_scales
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import FIE_GUARANTEE
 from uiest.window import WindowModel
 
 __all__ = ["FIE"]
 
 
 class FIE(WindowEstimator):
-    r"""Full information estimator (lem:FIE): growing window from time 0, cost eq:cost_FIE_full.
+    r"""Full information estimator (Lemma 3.3 of Guo et al.): growing window from time 0, cost Eq. (7).
 
     Index convention::
 
@@ -63,7 +62,7 @@ class FIE(WindowEstimator):
     """
 
     estimator_name = "FIE"
-    theorem = cite("lem:FIE")
+    theorem = FIE_GUARANTEE
     free_input = True
 
     def __init__(
@@ -106,7 +105,7 @@ class FIE(WindowEstimator):
 
     @property
     def guarantee(self) -> Guarantee:
-        """lem:FIE's bound per state (:func:`~uiest.estimators.bounds.strong_bound` with N None), or why none."""
+        """Lemma 3.3's bound per state (:func:`~uiest.estimators.bounds.strong_bound` with N None), or why none."""
         if self.certificate is None:
             return self._no_guarantee(self.theorem, "explicit weights without a strong-detectability certificate")
         bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, None, self.system.v.bounds,

@@ -47,7 +47,7 @@ from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
 from uiest.results import EstimationResult, StepEstimate
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import LINEAR_STRONG_DETECTABILITY
 
 __all__ = ["LinearUIO"]
 
@@ -93,7 +93,7 @@ class LinearUIO(StreamingEstimator):
     """
 
     estimator_name = "LinearUIO"
-    theorem = f"linear UIO error dynamics (Chen-Patton-Zhang), with {cite('lem:UIO_LTI')}"
+    theorem = f"linear UIO error dynamics (Chen-Patton-Zhang), with {LINEAR_STRONG_DETECTABILITY}"
     N = None
 
     def __init__(

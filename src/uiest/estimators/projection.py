@@ -1,7 +1,9 @@
-r"""The projection of eq:fullest_new onto X for the two-stage UISE: ``"clip"``, ``"exact"`` or ``"none"``.
+r"""The projection of Eq. (35) onto X for the two-stage UISE: ``"clip"``, ``"exact"`` or ``"none"``.
+
+Equation and theorem numbers are those of Guo et al. (see the theory map).
 
 See :mod:`uiest.estimators.two_stage` for what each costs and why each keeps the remark after
-theo:stab (the projection error vanishes with the noise).
+Theorem 4.8 (the projection error vanishes with the noise).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ PROJECTIONS = ("clip", "exact", "none")
 
 
 class Projection:
-    """The projection of eq:fullest_new (``"clip"``, ``"exact"`` or ``"none"``; see the module docstring)."""
+    """The projection of Eq. (35) (``"clip"``, ``"exact"`` or ``"none"``; see the module docstring)."""
 
     def __init__(self, reduced: ReducedModel, mode: str) -> None:
         if mode not in PROJECTIONS:
@@ -40,7 +42,7 @@ class Projection:
             self._T = ca.Function("T_scaled", [x], [Tx, ca.jacobian(Tx, x)])
 
     def __call__(self, x: FloatArray) -> FloatArray:
-        """Project ``x = T^-1(z)`` (computed by eq:fullest) onto X as described for the mode."""
+        """Project ``x = T^-1(z)`` (computed by Eq. (26)) onto X as described for the mode."""
         if self.mode == "none" or self.box.contains(x):
             return x
         self.used += 1

@@ -1,9 +1,11 @@
-r"""The two-stage MHE-based UISE with a reduced-order model (theo:stab, eq:op_MHE, eq:fullest_new).
+r"""The two-stage MHE-based UISE with a reduced-order model (Theorem 4.8, Eq. (30), Eq. (35)).
+
+Theorem and equation numbers are those of Guo et al. (see the theory map).
 
 Given a :class:`~uiest.reduction.ReducedModel` (``z = T(x) = (z_flat, z_sharp)``,
 ``z_flat = psi(y, z_sharp, v)``), each step k does two things.
 
-**Stage 1: an MHE on the reduced model eq:sys_red** with past data only::
+**Stage 1: an MHE on the reduced model Eq. (21)** with past data only::
 
     z_sharp+ = f_sharp(z_sharp, gamma, u, v),   y = h_sharp(z_sharp, gamma, v),   gamma_j = y_j
     window at time k: nodes z_{k-N_k} .. z_k, data y_j, u_j, v_bar for j = k-N_k .. k-1, N_k = min(N, k)
@@ -16,13 +18,13 @@ subject to ``z_{j+1|k} = f_sharp(z_{j|k}, y_j, u_j, v_{j|k})``, every node in ``
 (a box containing the projection of T(X); the paper constrains ``z_{k|k}``),
 ``v_{j|k}`` in V and ``T^-1(psi(y_j, z_{j|k}, v_{j|k}), z_{j|k})`` in X for the nodes
 ``j = k-N_k .. k-1`` (``state_constraints=True``; the sides of X that are finite). This is
-eq:cost_MHE with the quadratic constants of eq:p-eioss_quadratic:
+Eq. (28) with the quadratic constants of Eq. (27):
 ``P_z = c_x diag(1 / z_scale^2)``, ``R_v = c_v diag(1 / v_scale^2)``,
 ``R_y = c_y diag(1 / y_scale^2)`` from a :class:`~uiest.detectability.ReducedIOSS` (see
-:class:`~uiest.estimators.TwoStageWeights`). Prior rule eq:prior: ``z_hat_0 = T_sharp(x_bar_0)``
+:class:`~uiest.estimators.TwoStageWeights`). Prior rule Eq. (29): ``z_hat_0 = T_sharp(x_bar_0)``
 and ``z_hat_{k-N_k}`` is the MHE estimate delivered at that time.
 
-**Stage 2: the full state** by eq:fullest with the projection of eq:fullest_new::
+**Stage 2: the full state** by Eq. (26) with the projection of Eq. (35)::
 
     x_hat_k = proj( T^-1( psi(y_k, z_hat_k, v_bar), z_hat_k ) )
 
@@ -30,30 +32,30 @@ Projections (``projection=``):
 
 - ``"clip"`` (default): ``x_hat`` clipped to the box X. As a map on z this is
   ``z -> T(clip(T^-1(z)))``: identity on T(X), continuous, onto T(X), so the remark after
-  theo:stab applies (the projection error vanishes with the noise). Cost: one clip (none when
+  Theorem 4.8 applies (the projection error vanishes with the noise). Cost: one clip (none when
   the point is in X).
-- ``"exact"``: the Euclidean projection of eq:fullest_new in scaled z coordinates,
+- ``"exact"``: the Euclidean projection of Eq. (35) in scaled z coordinates,
   ``argmin_{x in X} |S^-1 (T(x) - z)|^2`` (S: the widths of T(X) on a grid), solved by a small
   bounded least-squares problem (scipy ``least_squares``, nx unknowns) only when
   ``T^-1(z)`` leaves X; for a linear T the same as clipping only if T is diagonal.
-- ``"none"``: eq:fullest unprojected (``x_hat`` may leave X under noise).
+- ``"none"``: Eq. (26) unprojected (``x_hat`` may leave X under noise).
 
 **Unknown input.** ``w_hat[k-1]`` is fitted to the consecutive estimates by
 :class:`~uiest.estimators.input_fit.InputFit` (least squares ``f(x_hat[k-1], u[k-1], w) =
 x_hat[k]``, scaled by ``1 / x_scale``; exact for f affine in w), delivered at step k.
 
 **Missing measurements.** A missing channel of ``y_j`` drops its output residual (as in the
-full-order estimators). But ``gamma_j = y_j`` also drives the reduced dynamics and eq:fullest, and
+full-order estimators). But ``gamma_j = y_j`` also drives the reduced dynamics and Eq. (26), and
 with w unknown nothing else determines ``z_flat_j``. The missing channels of ``gamma_j`` are
 therefore filled with the output the estimator predicts at time j:
 ``h(x_pred_j, v_bar)`` with ``x_pred_j = T^-1(T_flat(f(x_hat_{j-1}, u_{j-1}, w_hat)), z_hat_j)``
 (the full model with the last unknown-input estimate; ``x_bar_0`` at j = 0), and that filled
-value is used in eq:fullest at time j and stored as the data ``gamma_j`` of later windows.
+value is used in Eq. (26) at time j and stored as the data ``gamma_j`` of later windows.
 Outputs psi does not use (the crop's ``y^d``) thus change nothing but the dropped residual; for
 outputs psi uses, ``x_hat_j`` and later windows carry the error of the unknown-input guess
 (the UISE guarantee does not cover such steps). :attr:`StepEstimate.missing` records them.
 
-**Special cases** (remark after theo:stab): ``n_sharp = 0`` needs no optimisation,
+**Special cases** (Remark 4.9): ``n_sharp = 0`` needs no optimisation,
 ``x_hat_k = proj(T^-1(psi(y_k, v_bar)))`` (outcome ``ALGEBRAIC``); ``n_flat = 0`` gives
 ``x_hat_k = proj(T^-1(z_hat_k))`` without using ``y_k``.
 
@@ -84,7 +86,7 @@ from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certif
 from uiest.guarantee import Guarantee
 from uiest.reduction import ReducedModel
 from uiest.scales import data_scales
-from uiest.theory import ALGEBRAIC_TWO_STAGE, cite
+from uiest.theory import ALGEBRAIC_TWO_STAGE, TWO_STAGE_GUARANTEE, TWO_STAGE_HORIZON
 from uiest.window import WindowModel, WindowTrajectory
 from uiest.window.buffered import BufferedFunction
 
@@ -98,7 +100,7 @@ def reduced_data_scales(reduced: ReducedModel, x0_prior: ArrayLike | None) -> Re
 
 
 class TwoStageUISE(WindowEstimator):
-    r"""Two-stage MHE-based UISE (theo:stab): MHE eq:op_MHE on the reduced model, then eq:fullest_new.
+    r"""Two-stage MHE-based UISE (Theorem 4.8 of Guo et al.): MHE Eq. (30) on the reduced model, then Eq. (35).
 
     Index convention::
 
@@ -114,29 +116,29 @@ class TwoStageUISE(WindowEstimator):
     reduced : ReducedModel
         The system with its reduction (T, psi), e.g. ``crop_growth.reduction()``.
     certificate : ReducedIOSS, optional
-        Gives ``mu, c_x, R_y, R_v`` and the default horizon ``min_horizon()`` (eq:N_cond).
+        Gives ``mu, c_x, R_y, R_v`` and the default horizon ``min_horizon()`` (Eq. (31)).
     weights : TwoStageWeights, optional
         Explicit weights instead (e.g. :meth:`TwoStageWeights.from_scales`); then N is required
-        and :attr:`guarantee` says theo:stab does not apply.
+        and :attr:`guarantee` says Theorem 4.8 does not apply.
         Neither is needed (nor accepted) when ``n_sharp = 0``.
     N : int, optional
         Horizon >= 1; default ``certificate.min_horizon()``.
     x0_prior : array_like (nx,), optional
         Prior ``x_bar_0`` in X (or give it to :meth:`reset` / :meth:`run`).
     v_prior : array_like (nv,), optional
-        Noise prior ``v_bar`` in V (default 0); used in the cost and in eq:fullest.
+        Noise prior ``v_bar`` in V (default 0); used in the cost and in Eq. (26).
     projection : {"clip", "exact", "none"}
-        The projection of eq:fullest_new.
+        The projection of Eq. (35).
     state_constraints : bool
-        Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (eq:op_MHE).
+        Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (Eq. (30)).
     **options
-        As for :class:`~uiest.estimators.UISE`. ``polish=True`` takes the crop model's noise-free
-        x^{d,1} error from ~5e-8 (ipopt) or ~2e-6 (gn) to ~2e-11, for ~2-4 ms per step.
+        As for :class:`~uiest.estimators.UISE`. ``polish=True`` refines each window solution where the data
+        barely determine a direction (design notes: window solvers).
 
     """
 
     estimator_name = "TwoStageUISE"
-    theorem = cite("theo:stab")
+    theorem = TWO_STAGE_GUARANTEE
     one_step_ahead = True
 
     def __init__(
@@ -177,7 +179,7 @@ class TwoStageUISE(WindowEstimator):
         self._fit = InputFit(system)
         x = ca.SX.sym("x", system.nx)
         self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
-        # eq:fullest (before the projection) as one buffered call: T^-1(psi(gamma, z_sharp, v), z_sharp)
+        # Eq. (26) (before the projection) as one buffered call: T^-1(psi(gamma, z_sharp, v), z_sharp)
         gamma, v = ca.MX.sym("gamma", system.ny), ca.MX.sym("v", system.nv)
         z_sharp = ca.MX.sym("z_sharp", reduced.n_sharp)
         x_full = reduced.T_inv(ca.vertcat(reduced.psi(gamma, z_sharp, v), z_sharp))
@@ -214,14 +216,14 @@ class TwoStageUISE(WindowEstimator):
 
     # ------------------------------------------------------------------ hooks of the template
     def _node_of(self, x: FloatArray) -> FloatArray:
-        """eq:prior: ``z_hat_0 = T_sharp(x_bar_0)``."""
+        """Eq. (29): ``z_hat_0 = T_sharp(x_bar_0)``."""
         return np.asarray(self._T_sharp(x), dtype=float).reshape(-1)
 
     def _node_state(self, window: WindowTrajectory, j: int, data: FloatArray) -> FloatArray:
         return self._full_state(window.x[j], data)
 
     def _full_state(self, node: FloatArray, data: FloatArray) -> FloatArray:
-        """eq:fullest_new with ``v_bar``: ``proj(T^-1(psi(gamma, z_sharp, v_bar), z_sharp))``."""
+        """Eq. (35) with ``v_bar``: ``proj(T^-1(psi(gamma, z_sharp, v_bar), z_sharp))``."""
         (x,) = self._unreduce(data, node, self.v_prior)
         return self.projection(x.copy())
 
@@ -258,7 +260,7 @@ class TwoStageUISE(WindowEstimator):
     # ------------------------------------------------------------------ guarantee
     @property
     def guarantee(self) -> Guarantee:
-        """theo:stab's bound on ``z_sharp`` carried to each state through eq:fullest, or why it does not apply.
+        """Theorem 4.8's bound on ``z_sharp`` carried to each state through Eq. (26), or why it does not apply.
 
         :func:`~uiest.estimators.bounds.reduction_bound` with the Jacobians of
         ``x = T^-1(psi(gamma, z_sharp, v), z_sharp)``: states where they vary have no bound (NaN;
@@ -272,7 +274,7 @@ class TwoStageUISE(WindowEstimator):
             z_scale = np.zeros(0)
         else:
             theorem = self.theorem
-            missing = self._horizon_missing("reduced i-IOSS", cite("eq:N_cond"))
+            missing = self._horizon_missing("reduced i-IOSS", TWO_STAGE_HORIZON)
             if missing:
                 return self._no_guarantee(theorem, missing)
             assert self.weights is not None and self.N is not None
@@ -298,7 +300,7 @@ class TwoStageUISE(WindowEstimator):
 
     @functools.cached_property
     def _map_gains(self) -> tuple[FloatArray, FloatArray]:
-        """Jacobians (nx, n_sharp), (nx, nv) of eq:fullest's ``x(gamma, z_sharp, v)``; NaN rows where they vary."""
+        """Jacobians (nx, n_sharp), (nx, nv) of Eq. (26)'s ``x(gamma, z_sharp, v)``; NaN rows where they vary."""
         red, system = self.reduced, self.system
         symbols = [ca.SX.sym(name, n) for name, n in (("gamma", system.ny), ("z", red.n_sharp), ("v", system.nv))]
         try:

@@ -1,4 +1,6 @@
-r"""The MHE-based unknown input state estimator with the full-order model (theo:MHE_full).
+r"""The MHE-based unknown input state estimator with the full-order model (Theorem 3.6).
+
+Theorem and equation numbers are those of Guo et al. (see the theory map).
 
 Index convention (every array time-first)::
 
@@ -7,19 +9,19 @@ Index convention (every array time-first)::
     w_hat[k-1] = w^*_{k-1|k}                                        (from the window ending at k)
     N_k = min(N, k)
 
-Cost (eq:cost_MHE_full with quadratic functions; node time ``k-j``, ``j = 0 .. N_k``)::
+Cost (Eq. (11) with quadratic functions; node time ``k-j``, ``j = 0 .. N_k``)::
 
     J = mu^{N_k} 4 |x_{k-N_k|k} - x_hat_{k-N_k}|_P^2
         + sum_{j=0}^{N_k} mu^{j-1} ( 8 |v_{k-j|k} - v_bar|_{R_v}^2 + 2 |y_{k-j} - h(x_{k-j|k}, v_{k-j|k})|_{R_y}^2 )
 
 subject to ``x_{j+1|k} = f(x_{j|k}, u_j, w_{j|k})``, ``x_{j|k}`` in X at every node, ``v_{j|k}`` in V,
-``w_{j|k}`` free (unbounded), and the prior rule eq:prior_rule: ``x_hat_{k-N_k}`` is the
+``w_{j|k}`` free (unbounded), and the prior rule Eq. (12): ``x_hat_{k-N_k}`` is the
 estimate delivered at time ``k-N_k`` (``x_bar_0`` when ``k-N_k = 0``).
 
 Where the numbers come from: the paper's ``alpha_2(2 r)`` term. The certificate's storage is
 ``V(x, x~) = |x - x~|_P^2 <= alpha_2(|x - x~|)`` with ``alpha_2(r) = lambda_max(P) r^2``. We use
 the quadratic form of P itself, ``4 |.|_P^2 = V(2 .)``, instead of ``4 lambda_max(P) |.|^2``: the
-proof of theo:MHE_full only needs ``V(x_{k-N}, x^*) <= |2 (x - prior)|_P^2 + |2 (x^* - prior)|_P^2``,
+proof of Theorem 3.6 only needs ``V(x_{k-N}, x^*) <= |2 (x - prior)|_P^2 + |2 (x^* - prior)|_P^2``,
 which holds for the P-norm (``|a + b|_P <= 2 max(|a|_P, |b|_P)``), and its last step then needs
 ``8 mu^N < 1``, weaker than ``8 mu^N lambda_max / lambda_min < 1`` which ``min_horizon()`` checks.
 So the certificate's horizon still suffices, and the prior is not over-weighted in the directions
@@ -42,7 +44,7 @@ from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_wei
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import FULL_ORDER_GUARANTEE, FULL_ORDER_HORIZON
 from uiest.window import WindowModel
 
 __all__ = ["UISE", "check_system"]
@@ -56,7 +58,7 @@ def check_system(system: Any) -> System:
 
 
 class UISE(WindowEstimator):
-    r"""MHE-based UISE (theo:MHE_full) with the cost eq:cost_MHE_full and the prior rule eq:prior_rule.
+    r"""MHE-based UISE (Theorem 3.6 of Guo et al.) with the cost Eq. (11) and the prior rule Eq. (12).
 
     The module docstring gives the index convention, the cost and the choice of P for ``alpha_2``.
 
@@ -70,7 +72,7 @@ class UISE(WindowEstimator):
         Gives ``mu, P, R_y, R_v`` and the default horizon ``min_horizon()``.
     weights : UISEWeights, optional
         Explicit weights instead of a certificate (e.g. :meth:`UISEWeights.from_scales`); then
-        N is required and :attr:`guarantee` says that theo:MHE_full does not apply.
+        N is required and :attr:`guarantee` says that Theorem 3.6 does not apply.
         :attr:`guarantee` bounds ``x_hat[k]`` (not the lagged estimates).
     N : int, optional
         Horizon >= 1; default ``certificate.min_horizon()``.
@@ -87,10 +89,40 @@ class UISE(WindowEstimator):
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
         ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``.
 
+    Raises
+    ------
+    ModelError
+        Matching fails and ``force`` is False.
+    OptionError
+        Neither or both of ``certificate`` and ``weights``, ``weights`` without ``N``, or a bad ``N`` or option.
+
+    Examples
+    --------
+    Estimate the closed-form model's states under an unknown input that grows without bound:
+
+    >>> import numpy as np
+    >>> from uiest import UniformNoise, simulate
+    >>> from uiest.detectability import certify_strong_detectability
+    >>> from uiest.estimators import UISE
+    >>> from uiest.models import closed_form
+    >>> system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    >>> truth = simulate(system, x0=[0.5, 1.0], steps=30, u=np.zeros(1), w=lambda k, x: [-0.5 * x[0] + 0.002 * k**2],
+    ...                  v=UniformNoise.symmetric(1e-3), seed=0)
+    >>> uise = UISE(system, certificate=certify_strong_detectability(system), x0_prior=[0.0, 0.0])
+    >>> uise.N, uise.guaranteed
+    (30, True)
+    >>> print(uise.guarantee)  # doctest: +ELLIPSIS
+    holds, bound x1 ..., x2 ... after ... steps (informative)
+    >>> result = uise.run(truth.u, truth.y)  # u[k] and w[k] act from k to k+1; y[k] measures x[k]
+    >>> result.x_hat.shape, result.w_hat.shape
+    ((31, 2), (30, 1))
+    >>> bool(np.abs(result.error(truth.x))[10:].max() < 0.05), result.counts()["failures"]
+    (True, 0)
+
     """
 
     estimator_name = "UISE"
-    theorem = cite("theo:MHE_full")
+    theorem = FULL_ORDER_GUARANTEE
     free_input = True
 
     def __init__(
@@ -156,11 +188,11 @@ class UISE(WindowEstimator):
 
     @property
     def guarantee(self) -> Guarantee:
-        """theo:MHE_full's bound per state (:func:`~uiest.estimators.bounds.strong_bound`), or why it does not apply."""
+        """Theorem 3.6's bound per state (:func:`~uiest.estimators.bounds.strong_bound`), or why it does not apply."""
         if not self.matching:
             return self._no_guarantee(self.theorem, f"matching fails ({self.status_note.strip(' []')}), x[k] is not "
                                       "determined by y[..k]")  # fmt: skip
-        missing = self._horizon_missing("strong-detectability", cite("eq:MHE_full_horizon"))
+        missing = self._horizon_missing("strong-detectability", FULL_ORDER_HORIZON)
         if missing:
             return self._no_guarantee(self.theorem, missing)
         bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, self.N, self.system.v.bounds,

@@ -2,13 +2,14 @@ r"""Cost weights of the estimators and where they come from (certificates or the
 
 - :class:`UISEWeights` ``(mu, P, R_y, R_v)``: the strong-detectability storage
   ``V = |x - x~|_P^2`` and ``sigma_y(dy) = |dy|_{R_y}^2``, ``sigma_v(dv) = |dv|_{R_v}^2``
-  (theo:Lyapunov), from a :class:`~uiest.detectability.StrongDetectability` certificate or given.
+  (Theorem 3.2 of Guo et al.; see the theory map), from a
+  :class:`~uiest.detectability.StrongDetectability` certificate or given.
 - :class:`MHEWeights` ``(eta, P, Q_w, Q_v, R)``: the delta-IOSS Lyapunov function of Schiller et
   al. 2023, Assumption 1 (``W = |x - x~|_P^2``,
   ``W+ <= eta W + |dw|_{Q_w}^2 + |dv|_{Q_v}^2 + |dy|_R^2``), from a ``DeltaIOSS`` certificate
   or given.
-- :class:`TwoStageWeights` ``(mu, prior, R_y, R_v)``: the constants of eq:p-eioss_quadratic of a
-  reduced-order model (ass:e-ioss), from a :class:`~uiest.detectability.ReducedIOSS` or given.
+- :class:`TwoStageWeights` ``(mu, prior, R_y, R_v)``: the constants of Eq. (27) of a
+  reduced-order model (Assumption 4.7), from a :class:`~uiest.detectability.ReducedIOSS` or given.
 
 Certificates are duck-typed (:class:`StrongCertificate`, :class:`DeltaCertificate`,
 :class:`ReducedCertificate`): any object
@@ -32,7 +33,7 @@ from uiest.errors import CertificationError, OptionError
 from uiest.estimators.weight_range import check_weight_range
 from uiest.reduction import ReducedModel
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import REDUCED_IOSS, TWO_STAGE_GUARANTEE
 from uiest.window.problem import WindowWeights, sqrt_psd
 
 __all__ = [
@@ -64,7 +65,7 @@ class StrongCertificate(Protocol):
     R_v: FloatArray
 
     def min_horizon(self) -> int:
-        """Smallest horizon satisfying eq:MHE_full_horizon."""
+        """Smallest horizon satisfying Eq. (13)."""
         ...
 
 
@@ -218,7 +219,7 @@ def resolve_weights(
 
 @dataclass(frozen=True)
 class UISEWeights:
-    r"""Weights of eq:cost_MHE_full (and eq:cost_FIE_full) with quadratic functions.
+    r"""Weights of Eq. (11) (and Eq. (7)) with quadratic functions.
 
     Attributes
     ----------
@@ -276,7 +277,7 @@ class UISEWeights:
         )
 
     def schedule(self) -> Schedule:
-        """eq:cost_MHE_full: prior ``4 mu^L P``, node ``j``: ``2 mu^{j-1} R_y``, ``8 mu^{j-1} R_v``."""
+        """Eq. (11): prior ``4 mu^L P``, node ``j``: ``2 mu^{j-1} R_y``, ``8 mu^{j-1} R_v``."""
         return Schedule(self.mu, 4.0 * self.P, 2.0 * self.R_y, 8.0 * self.R_v, shift=1)
 
     def check(self, system: System) -> None:
@@ -403,7 +404,7 @@ class MHEWeights:
 
 @runtime_checkable
 class ReducedCertificate(Protocol):
-    """What the two-stage UISE reads from a reduced-order i-IOSS certificate (ass:e-ioss).
+    """What the two-stage UISE reads from a reduced-order i-IOSS certificate (Assumption 4.7).
 
     ``c_x`` is in scaled norms ``|S_z^-1 dz|``; the scales are ``model.z_scale`` (as in
     :class:`~uiest.detectability.ReducedIOSS`) or an attribute ``z_scale``.
@@ -416,7 +417,7 @@ class ReducedCertificate(Protocol):
     R_v: FloatArray
 
     def min_horizon(self) -> int:
-        """Smallest N with ``N > -log_mu(4 c_x)`` (eq:N_cond)."""
+        """Smallest N with ``N > -log_mu(4 c_x)`` (Eq. (31))."""
         ...
 
 
@@ -430,7 +431,7 @@ def certificate_z_scale(certificate: object) -> FloatArray | None:
 
 @dataclass(frozen=True)
 class TwoStageWeights:
-    r"""Weights of the two-stage UISE's cost eq:cost_MHE, in original units.
+    r"""Weights of the two-stage UISE's cost Eq. (28), in original units.
 
     The window cost at time k (``N_k`` transitions, node times ``k-j``, ``j = 1 .. N_k``) is::
 
@@ -439,7 +440,7 @@ class TwoStageWeights:
                                      + |y_{k-j} - h_sharp(z_{k-j|k}, y_{k-j}, v_{k-j|k})|_{R_y}^2 ).
 
     From a certificate: ``prior = c_x diag(1 / z_scale^2)`` (the constant ``c_x`` of
-    eq:p-eioss_quadratic, which holds in the scaled norm ``|S_z^-1 dz|``, written as a matrix in
+    Eq. (27), which holds in the scaled norm ``|S_z^-1 dz|``, written as a matrix in
     original units), ``R_v = c_v diag(1 / v_scale^2)`` and ``R_y = c_y diag(1 / y_scale^2)``
     (the certificate's ``R_v``, ``R_y``).
 
@@ -468,7 +469,7 @@ class TwoStageWeights:
             certificate,
             ("certified", "mu", "c_x", "R_y", "R_v", "min_horizon"),
             "ReducedIOSS",
-            f"{cite('ass:e-ioss')} is not certified ({{reason}}); pass weights= to run without {cite('theo:stab')}",
+            f"{REDUCED_IOSS} is not certified ({{reason}}); pass weights= to run without {TWO_STAGE_GUARANTEE}",
         )
         z_scale = certificate_z_scale(certificate)
         if z_scale is None:
@@ -502,7 +503,7 @@ class TwoStageWeights:
         )
 
     def schedule(self) -> Schedule:
-        """eq:cost_MHE: prior ``2 mu^L prior``, node ``j``: ``mu^j R_y``, ``2 mu^j R_v``."""
+        """Eq. (28): prior ``2 mu^L prior``, node ``j``: ``mu^j R_y``, ``2 mu^j R_v``."""
         return Schedule(self.mu, 2.0 * self.prior, self.R_y, 2.0 * self.R_v, shift=0)
 
     def check(self, system: System, n_sharp: int) -> None:

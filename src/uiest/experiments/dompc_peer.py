@@ -33,7 +33,7 @@ Differences from our formulation (see also :data:`FORMULATION_DIFFERENCES`):
   unbounded v; ours has a bounded noise v inside h and penalises ``|h(x, v) - y|_R^2``. With
   the benchmark's weights R is *not* much larger than Q_v (``R / 2Q_v = 1e6 s_v^2 / (2 s_y^2)``
   ~ 2.5 for y^c), so using do-mpc's noise as our v with V as its bound gives a different optimum
-  (measured: costs 3-6x ours, estimates off by up to 0.4 x.scale); our bounded v is therefore
+  (design notes: stored study runs); our bounded v is therefore
   a state ``v_in`` driven by process noise, and do-mpc's measurement noise is our residual;
 - measured nodes: do-mpc measures nodes ``1..N`` of its window (a filtering MHE that uses
   ``y[k]``); ours measures ``0..N-1`` (one-step-ahead); the lagged copy ``x_prev`` makes do-mpc's

@@ -253,8 +253,8 @@ def dask(
     cluster = None
     if scheduler == "local":
         # Dask's default worker environment sets MALLOC_TRIM_THRESHOLD_=65536, which makes the
-        # allocation-heavy CasADi/IPOPT window solves about 3x slower (measured: 7.2 s against
-        # 2.2 s per crop run); keep its thread limits, drop the malloc setting.
+        # allocation-heavy CasADi/IPOPT window solves several times slower (design notes: stored study runs);
+        # keep its thread limits, drop the malloc setting.
         environ = dict(dask_module.config.get("distributed.nanny.pre-spawn-environ", {}))
         environ.pop("MALLOC_TRIM_THRESHOLD_", None)
         with dask_module.config.set({"distributed.nanny.pre-spawn-environ": environ}):

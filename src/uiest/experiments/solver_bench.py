@@ -14,8 +14,8 @@ Two deviations from the IPOPT backend are reported, both in the window problem's
   each estimator's priors come from its own earlier estimates, so differences carry over.
 
 Long horizons (N >= :data:`LONG_HORIZON`) are measured on a cheaper protocol (``protocol`` key):
-IPOPT is not run in closed loop (on the crop UISE at N = 300 it takes about 5 s per sample, and
-the window fills over N samples first). The fast backends run in closed loop as at short
+IPOPT is not run in closed loop (it takes seconds per sample on the long crop windows, and the
+window fills over N samples first; design notes: window solvers). The fast backends run in closed loop as at short
 horizons; at most :data:`SAME_WINDOW_CAP` of their full-length windows, evenly spread, are
 re-solved by IPOPT for the agreement keys, and IPOPT's record times its solves of the
 Gauss-Newton backend's windows (solve only: the CPU ratios of the fast backends, whole steps

@@ -29,14 +29,14 @@ from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
 from uiest.system import System
-from uiest.theory import cite
+from uiest.theory import LYAPUNOV_CHARACTERISATION, REDUCED_IOSS
 
 __all__ = ["KIND_CERTIFICATE", "StudyModel", "study_model"]
 
 KIND_CERTIFICATE = {
-    "uise": cite("theo:Lyapunov"),
-    "fie": cite("theo:Lyapunov"),
-    "two-stage": cite("ass:e-ioss"),
+    "uise": LYAPUNOV_CHARACTERISATION,
+    "fie": LYAPUNOV_CHARACTERISATION,
+    "two-stage": REDUCED_IOSS,
     "standard-mhe": "delta-IOSS (Schiller et al. 2023)",
     "smooth-mhe": "delta-IOSS of the model with w as a state (Schiller et al. 2023)",
 }

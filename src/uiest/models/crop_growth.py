@@ -232,7 +232,7 @@ def reduction(params: CropParameters | None = None, **overrides: Any) -> Reduced
 
     ``T(x) = (x^c, x^{d,1}, (a_d3 / a_c1) x^c + x^{d,2})`` with ``T_flat(x) = x^c`` and
     ``psi(y, z_sharp, v) = y^c - v^c``: the unknown input cancels in the third coordinate
-    (``(a_d3 / a_c1) Delta_t a_c1 phi w = Delta_t a_d3 phi w``), so eq:ass_2 holds. Further
+    (``(a_d3 / a_c1) Delta_t a_c1 phi w = Delta_t a_d3 phi w``), so Eq. (18) of Guo et al. holds. Further
     arguments as in :func:`system`.
     """
     p = (params or CropParameters()).with_overrides(**overrides)

@@ -1,7 +1,7 @@
 """Evaluate a CasADi Function into preallocated NumPy arrays (CasADi's buffer interface).
 
-A plain call converts every argument and result to ``casadi.DM`` (about 60 us per call for a
-window problem); the buffer interface writes into NumPy memory directly (about 4 us).
+A plain call converts every argument and result to ``casadi.DM``, which costs more than many window
+evaluations themselves; the buffer interface writes into NumPy memory directly (design notes: window solvers).
 """
 
 from __future__ import annotations

@@ -11,8 +11,8 @@ components of its graph), whatever the model. Each block is made positive semide
 dropping its negative eigenvalues (``V max(Lambda, 0) V^T``, a batched symmetric eigendecomposition in
 NumPy), so ``J^T J + S_+`` stays convex and qrqp can solve the QP.
 
-Where the constraints curve along a step the cost barely sees (a long, flat valley of the noisy crop
-standard MHE, multipliers in the hundreds), the Gauss-Newton model predicts a decrease that the
+Where the constraints curve along a step the cost barely sees (a long, flat valley with large
+multipliers; design notes: Gauss-Newton solver), the Gauss-Newton model predicts a decrease that the
 violation the curvature leaves behind outweighs, and the merit rejects the step; with ``S_+`` the
 model sees the curvature and the step follows the valley.
 """

@@ -2,78 +2,56 @@ r"""Gauss-Newton SQP and real-time iteration for window problems (nonlinear leas
 
 The window problem is ``min |r(z, p)|^2`` s.t. ``lbg <= g(z, p) <= ubg`` and ``lbx <= z <= ubx``
 in scaled variables (see :mod:`uiest.window.problem`). Each Gauss-Newton iteration solves the
-convex QP
+convex QP::
 
     min_dz  1/2 dz^T (H + lambda I) dz + (J^T r)^T dz
     s.t.    lbg - g <= G dz <= ubg - g,     lbx - z <= dz <= ubx - z,
 
-with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``; after the merit has rejected a step along a curved
-valley, or taken one only after poor corrections (below), for the rest of the solve ``H = J^T J + S_+``, with
-``S_+`` the residuals' and constraints' curvature that Gauss-Newton leaves out, convexified (see below and
-:class:`~uiest.window.curvature.BlockCurvature`, one more Function, built when first needed). One
-CasADi Function evaluates a point: ``|r|^2``, the
-violation of ``lbg <= g <= ubg`` (its sum and largest entry), ``J^T r``, ``J^T J``, ``g``, ``G``
-(sparse) and the stationarity measure of the KKT test below (given the QP's multipliers), so that
-the iteration's tests are scalars; the QP is solved by CasADi's active-set solver ``qrqp``. Both
-are called through CasADi's buffer interface, so no ``DM`` is built per call (a plain call costs
-about 60 us per Function, more than the evaluation itself), and two evaluation buffers take turns
-(the current point's and the trial point's), so nothing is copied. The QP's cost is scaled so that its
-largest curvature is :data:`QP_SCALE` (qrqp's tests are absolute), and positive curvatures too small for qrqp to
-tell from zero are raised (:data:`FLAT_CURVATURE`). qrqp's active set starts as the bounds
-and inequalities the starting point sits on (for the shifted previous optimum, mostly the
-final active set) and then as the previous iteration's, without the sides qrqp holds at a zero
-multiplier that the cost pulls away from (see :func:`_released`); a QP that fails from it is
-solved again from an empty active set.
-Steps are safeguarded by Levenberg-Marquardt damping ``lambda`` with a ratio test: a step is
-accepted when the actual decrease of the exact-penalty merit ``|r|^2 + nu |violation of g|_1``
-(``nu`` from the QP multipliers) is at least ``ACCEPT_RATIO`` times the decrease the model
-predicts; ``lambda`` stays 0 while steps are good (undamped steps), grows after poor or rejected
-steps (a rejected step keeps the linearisation) and shrinks back after good ones.
-A full step that the merit rejects because the cost fell but the constraints' curvature left the
-trial point infeasible (the Maratos effect: on the noisy crop windows, long steps along directions
-the cost barely sees) gets a second-order correction, the QP re-solved with the violation left at
-the trial point; one that is not good enough is corrected again from its own trial point (up to
-:data:`MAX_CORRECTIONS` times, while each lowers the violation by :data:`SOC_CONTRACTION`, as IPOPT
-does); a good correction, or else the last one if the merit accepts it, is taken instead of the damped
-steps that would follow. The first rejected step of a solve whose cost fell while the violation rose (or a
-step saved only by poor corrections, see :data:`CURVATURE_RATIO`) switches it to ``H = J^T J + S_+`` before
-any damping: where the dynamics curve away from a valley the cost barely sees, the Gauss-Newton model
-predicts a decrease along the straight line that the violation outweighs (noisy crop standard MHE,
-N = 30: full steps of 0.5 state scales rejected, then damped steps of 1e-3 to the iteration limit in 4
-of 271 windows; with the curvature and repeated corrections, none). Solves whose steps are all accepted
-stay plain Gauss-Newton. Rejections in a row grow the damping faster and faster (:data:`DAMPING_GROWTH`,
-:data:`DAMPING_ACCELERATION`).
+with ``J = dr/dz``, ``G = dg/dz`` and ``H = J^T J``. After the merit has rejected a step along a curved
+valley, or taken one only after poor corrections, the rest of the solve uses ``H = J^T J + S_+``, with
+``S_+`` the residuals' and constraints' curvature that Gauss-Newton leaves out, convexified
+(:class:`~uiest.window.curvature.BlockCurvature`, built when first needed).
 
-Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol``
-(scaled units), a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude (a
-step that restores feasibility at the price of a higher cost predicts a negative decrease, and is
-no sign of an optimum: taken as one, it stopped noisy crop UISE windows up to 1e-5 (relative)
-above IPOPT's cost), or KKT stationarity
-at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)`` (IPOPT's kind of
-test, which saves the last QP that would only confirm a zero step); or ``max_iter``. The merit
-counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point feasible
-to that level a step that predicts no decrease of ``|r|^2`` (it would restore the rounding at the
-cost's expense) ends the solve there, unless the step is damped beyond ``DAMPING_FLOOR`` or its QP
-released held sides (:func:`_released`) that the next QP would be free to leave: such steps were
-rejected again and again while the damping grew until the step was below ``step_tol`` (noisy crop
-two-stage UISE with N = 10: 13 iterations where 3 do).
-RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is not the
-optimum but the first Gauss-Newton iterate from the shifted previous solution (exact for
-linear models, whose window problem is a QP).
+Evaluation: one CasADi Function evaluates a point (``|r|^2``, the violation of ``lbg <= g <= ubg``,
+``J^T r``, ``J^T J``, ``g``, sparse ``G`` and the KKT stationarity measure), called through CasADi's buffer
+interface with two buffers that take turns (current and trial point). The QP is solved by CasADi's
+active-set solver ``qrqp``, its cost scaled so that its largest curvature is :data:`QP_SCALE`, with
+positive curvatures too small for qrqp raised (:data:`FLAT_CURVATURE`). qrqp's active set starts as the
+bounds and inequalities the starting point sits on, then as the previous iteration's, without the sides
+qrqp holds at a zero multiplier that the cost pulls away from (:func:`_released`); a QP that fails from it
+is solved again from an empty active set.
 
-Reliability: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or NaN)
-is retried with ``lambda = SINGULAR_DAMPING max|J^T J|`` (1e-14), then ``DAMPING_FLOOR max|J^T J|`` (1e-9),
-then ``REGULARISED_DAMPING max|J^T J|`` (1e-5); the status then ends in ``"(regularised)"``. The problem keeps
-the smallest of the first two dampings above the one that failed as its least damping, for all later
-iterations and solves until :meth:`GaussNewtonSolver.reset` (an estimator's ``reset()`` or ``run()``) (the
-crop UISE with N = 100, whose oldest nodes carry weights ``mu^99 ~ 1e-32``: without it,
-every sample would first spend hundreds of qrqp iterations on a QP that fails; on the two-stage
-UISE with N = 300 each such failure took qrqp 4-7 s, and solves that went back to the damping
-that had failed paid it again and again). If the damped QP fails too,
-or the iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and
-the status says so. Where the curvature Gauss-Newton leaves out is large and partly negative
-(the noise-free closed-form model's standard MHE, along its barely observable x2), ``J^T J + S_+``,
-which drops the negative part, still converges only linearly.
+Globalisation: Levenberg-Marquardt damping ``lambda`` with a ratio test on the exact-penalty merit
+``|r|^2 + nu |violation of g|_1`` (``nu`` from the QP multipliers, :data:`PENALTY_MARGIN`). A step is
+accepted when the actual decrease is at least :data:`ACCEPT_RATIO` times the predicted one; ``lambda``
+stays 0 while steps are good, grows after poor or rejected steps (:data:`DAMPING_GROWTH`,
+:data:`DAMPING_ACCELERATION`; a rejected step keeps the linearisation) and shrinks back after good ones
+(:data:`DAMPING_DECAY`). A full step that the merit rejects because the cost fell while the violation rose
+(the Maratos effect) gets second-order corrections, the QP re-solved with the violation left at the trial
+point, up to :data:`MAX_CORRECTIONS` times while each lowers the violation by :data:`SOC_CONTRACTION`; a
+good correction (:data:`SOC_RATIO`), or else the last one if it passes :data:`LAST_CORRECTION_RATIO`, is
+taken. Such a rejection, or a step saved only by poor corrections (:data:`CURVATURE_RATIO`), switches the
+solve to ``H = J^T J + S_+`` before any damping. Solves whose steps are all accepted stay plain
+Gauss-Newton.
+
+Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol`` (scaled
+units); a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude; or KKT stationarity
+at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)``; otherwise ``max_iter``.
+The merit counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point
+feasible to that level a step at the least damping that predicts no decrease of ``|r|^2`` ends the solve.
+RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is the first
+Gauss-Newton iterate from the shifted previous solution (exact for linear models, whose window problem
+is a QP).
+
+Failures: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or
+NaN) is retried with the dampings :data:`RETRY_DAMPINGS` (times ``max|J^T J|``); the status then ends in
+``"(regularised)"``, and the problem keeps the smallest of the first two dampings above the one that
+failed as its least damping until :meth:`GaussNewtonSolver.reset`. If the damped QP fails too, or the
+iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and the status says so.
+Where the curvature Gauss-Newton leaves out is large and partly negative, ``J^T J + S_+`` (which drops
+the negative part) converges only linearly.
+
+The measurements behind each constant and safeguard are in the design notes: Gauss-Newton solver.
 """
 
 from __future__ import annotations
@@ -111,37 +89,24 @@ QP_ITERATION_LIMIT = "Maximum number of iterations reached"
 
 QP_CONTINUATIONS = 1
 """Further calls of ``max_iter`` qrqp iterations for a QP that the limit stopped, each from the active set the
-last one reached. qrqp changes one bound per iteration: the first full window of the noisy crop standard
-MHE with N = 300 needs about 270 changes, and a failed QP left the problem damped for good (1e-9 max|J^T J|),
-after which damped Gauss-Newton crawled to the iteration limit and IPOPT took every sample over. Continued,
-the windows k = 300..309 (re-solved in turn by one solver) converged in 8.6 iterations on average, all
-within 2.2e-9 below IPOPT's cost."""
+last one reached (qrqp changes one bound per iteration; long windows need hundreds)."""
 
 QP_SCALE = 1e6
-"""The QP's cost is scaled so that its largest curvature (``max |J^T J|``) is this. qrqp's tests are absolute: it takes
-a KKT matrix whose QR factor has a diagonal entry below :data:`QRQP_SINGULAR` for singular, and holds a bound of such a
-direction at a zero multiplier, one iteration each. Scaled as IPOPT's cost (the largest weight brought down to 1e6,
-never up), a noisy Henon map's standard MHE with N = 100 and mu = 0.6 (bench/gn_models.py), largest curvature 2,
-had 134 of 402 variables below that; qrqp held about 85 of them on their boxes in each sample's first QP and
-released them again later: 73 ms per sample. Its UISE: 114 ms and 34 of 150 samples to IPOPT. The Van der Pol UISE
-with N = 30: 44 of 200 samples to IPOPT. Scaled (and with :data:`FLAT_CURVATURE`): 2.7 ms, 1.0 ms and none, and
-none. The crop windows' largest curvature was already about 1e6 after IPOPT's scaling."""
+"""The QP's cost is scaled so that its largest curvature (``max |J^T J|``) is this.
+
+qrqp's tests are absolute: it takes a KKT matrix whose QR factor has a diagonal entry below
+:data:`QRQP_SINGULAR` for singular, and holds a bound of such a direction at a zero multiplier."""
 
 QRQP_SINGULAR = 1e-12
 """The smallest diagonal entry of the QR factor of the KKT matrix that qrqp does not take for singular (fixed in
 CasADi's ``casadi_qp``)."""
 
 FLAT_CURVATURE = 10.0 * QRQP_SINGULAR / QP_SCALE
-"""A variable's own curvature (``J^T J``'s diagonal) that is positive but below this times the largest is raised to it:
-ten times what qrqp tells from zero in the scaled QP, so that qrqp does not hold the variable on its box (a step
-along a direction the data leave flat, to the box, then released again) but moves it as little as it can. Long
-windows have many such variables: their weights fall as ``mu^k`` (crop, 0.48^299 ~ 1e-95 at N = 300). Raised: the
-Henon standard MHE with N = 100 (see :data:`QP_SCALE`) 23 -> 2.7 ms per sample; 11 windows of the crop's two-stage
-UISE with N = 300, each solved by a fresh solver, 510 -> 73 ms median (89 in a rerun beside other work), 3.6 -> 2.1
-iterations, with 5 instead of 6 of them above 1e-8 of IPOPT's cost. Structural zeros (the UISE's unpenalised ``w``,
-fixed by the dynamics) are left alone. Raised further, to ``1e-14`` of the largest (the damping a singular QP is
-retried with), the Van der Pol UISE with N = 100 sent 82 of 150 samples to IPOPT (its steps ran far along the old
-nodes, and feasibility came back only linearly), against 2 here."""
+"""A variable's own curvature (``J^T J``'s diagonal) that is positive but below this times the largest is raised to it.
+
+Ten times what qrqp tells from zero in the scaled QP, so that qrqp moves such a variable as little as it can
+instead of holding it on its box. Long windows have many of them: their weights fall as ``mu^k``. Structural
+zeros (the UISE's unpenalised ``w``, fixed by the dynamics) are left alone."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
@@ -149,25 +114,18 @@ ACCEPT_RATIO = 1e-4
 SOC_RATIO = 0.75
 """Ratio of actual to predicted merit decrease at which a second-order correction is taken at once (see
 :meth:`GaussNewtonSolver._second_order_correction`); below it the next correction is tried, and the last one is
-taken if it passes :data:`LAST_CORRECTION_RATIO`. Taking the first correction that passed 0.25 or 1e-4 slowed the
-ill-conditioned crop UISE windows with N = 100 (weights down to 0.48^99): 17 -> 20 at the iteration limit."""
+taken if it passes :data:`LAST_CORRECTION_RATIO`."""
 
 MAX_CORRECTIONS = 4
 """Second-order corrections tried in a row on one step (IPOPT's ``max_soc``)."""
 
 LAST_CORRECTION_RATIO = ACCEPT_RATIO
 """When no correction of a step reaches :data:`SOC_RATIO`, the last one is still taken if its ratio exceeds this
-(the plain acceptance test), rather than damping the step. On the noise-free closed-form standard MHE with N = 100,
-whose steps run along flat, strongly curved valleys, four corrections in a row brought the violation back and the
-last one's ratio to 0.2-0.4, yet the step was rejected and damped, damping level after damping level, to the
-iteration limit: 25 of 150 samples to IPOPT, 14 with the last correction taken (13 with :data:`CURVATURE_RATIO`'s
-switch too)."""
+(the plain acceptance test), rather than damping the step."""
 
 CURVATURE_RATIO = SOC_RATIO
 """A step saved by a correction whose ratio is at most this switches the solve to ``J^T J + S_+`` (as a rejected
-step does): on the noise-free closed-form standard MHE with N = 10, steps taken after four poor corrections (ratio
-0.36) without the switch crawled to the iteration limit in 14 of 200 windows that the curvature solves in 4-10
-iterations, one in 29 (21 IPOPT fallbacks against 8)."""
+step does)."""
 
 SOC_CONTRACTION = 0.99
 """A further correction is tried only while each lowers the trial point's violation by this factor (IPOPT's
@@ -180,14 +138,8 @@ DAMPING_FLOOR = 1e-9
 DAMPING_DECAY = 10.0
 """After a rejected step, each good step (ratio above 0.75) divides the damping by this until it falls below
 ``SINGULAR_DAMPING max |J^T J|``, and then it returns to the solve's minimum (0, or the damping the problem keeps
-after failed QPs): about six good steps from ``DAMPING_FLOOR``. Returning at once, the crop UISE windows with N = 50
-and N = 100, whose oldest states are free to rounding (weights 0.48^49 .. 0.48^99, ``w`` unpenalised), cycled: the
-undamped step ran 1e3 .. 1e9 state scales along those states and was rejected with its corrections, the damped step
-was accepted with ratio 1.0, the damping went back to 0, and so on to the iteration limit (traced on N = 100
-windows). In closed loop with N = 50 (100 samples), 23 samples went to IPOPT that way and 11 this way. Damping that
-a poor but accepted step left (no rejection) still returns at once from ``DAMPING_FLOOR``: returning gradually there
-too, damped steps crawled along noisy crop UISE valleys (N = 30) that one long undamped step crosses, until the KKT
-test stopped them up to 6e-8 above IPOPT's cost (2 of 271)."""
+after failed QPs): about six good steps from ``DAMPING_FLOOR``. Damping that a poor but accepted step left (no
+rejection) returns at once from ``DAMPING_FLOOR``."""
 
 DAMPING_GROWTH = 4.0
 """Factor by which a rejected step grows the damping (from at least ``DAMPING_FLOOR``) when it is the first
@@ -195,8 +147,7 @@ rejection in a row that damps."""
 
 DAMPING_ACCELERATION = 2.0
 """Each further rejection in a row multiplies the damping's growth by this (Nielsen's rule, Madsen, Nielsen and
-Tingleff 2004): from ``DAMPING_FLOOR`` the damping reaches ``max |J^T J|`` after 6 more rejections instead of 15.
-On the noisy crop UISE with N = 100 (150 samples), 25 samples went to IPOPT with it and 33 without."""
+Tingleff 2004): from ``DAMPING_FLOOR`` the damping reaches ``max |J^T J|`` after 6 more rejections instead of 15."""
 
 DAMPING_CAP = 1e10
 """Largest damping, relative to ``max |J^T J|``: far beyond any step the solve could still take (steps shrink
@@ -214,27 +165,18 @@ its least damping once it is tried."""
 
 PENALTY_MARGIN = 2.0
 """The merit's penalty ``nu`` on the violation is this times the largest multiplier of ``|r|^2``
-(``2 |lam_g|_inf``): above it, as an exact penalty must be, and in the cost's own units. An
-absolute margin (``nu = 2 |lam_g|_inf + 1``, before) outweighed the cost on windows whose cost
-is small and rejected every step that left a violation of a few 1e-7 (noisy Van der Pol
-standard MHE with N = 30, cost 2e-5 and ``2 |lam_g|_inf`` 4e-3: 138 of 200 samples handed to IPOPT,
-54 with this margin; a CSTR's: 30 and 0). Where all multipliers are 0 the merit is the cost
-alone, and a step may raise the violation; the next step's linearised constraints remove it."""
+(``2 |lam_g|_inf``): above it, as an exact penalty must be, and in the cost's own units. Where all
+multipliers are 0 the merit is the cost alone, and a step may raise the violation; the next step's
+linearised constraints remove it."""
 
 VIOLATION_FLOOR = 1e-14
 """Violation of one constraint (scaled units) that the merit counts as none: rounding in evaluating
-``g = (f(x_i, ...) - x_{i+1}) / s_x`` (about 45 ulps of an O(1) scaled value). Counted, ``nu`` times the
-rounding dominated the merit decrease that late iterations predict: on the noisy crop standard MHE with
-N = 300, ``nu = 405`` times a violation of 4.6e-13 (summed over 900 rows) against a predicted cost
-decrease of 1.2e-10 held the ratio near 0.4 and the damping at 4e-5 for 20 iterations."""
+``g = (f(x_i, ...) - x_{i+1}) / s_x`` (about 45 ulps of an O(1) scaled value)."""
 
 RELEASE_GAIN = 1e-9
 """A side qrqp holds at a zero multiplier is released when leaving it could lower ``|r|^2`` by more than this
-times ``1 + |r|^2`` (see :func:`_released`), a tenth of the 1e-8 to which optima are compared with IPOPT's.
-On the noisy crop windows the releases that closed the UISE's gap to IPOPT (N = 30) could gain 3e-10 ..
-5e-8 (relative); those of the flat oldest nodes of the two-stage UISE with N = 100 up to 3e-10, and qrqp
-took each back one iteration at a time, QP after QP: per-sample CPU (mean of 50) 3.5 ms with no release,
-225 ms with 1e-10 and 4.9 ms with 1e-9."""
+times ``1 + |r|^2`` (see :func:`_released`), a tenth of the 1e-8 (relative) to which optima are compared with
+IPOPT's."""
 
 ROUNDING = 64.0 * np.finfo(float).eps
 """Rounding of the QP's gradient ``H dz + q + A^T lam_a`` relative to the sum of its terms' magnitudes
@@ -334,13 +276,9 @@ def _released(
     (``2 |gradient| width``: the QP is in ``|r|^2 / 2`` units). Only bounds: the marks of inequality
     rows (the two-stage UISE's output and node constraints) stay in the warm start.
 
-    Kept in the next QP's warm start, such a side holds its variable although the cost pulls it
-    inwards. On the noisy crop UISE with N = 30, the oldest nodes' noise estimates (weights
-    ``0.48^29``) stayed on the noise box's sides where IPOPT puts them near its centre: 1e-8 .. 4e-8
-    (relative) above IPOPT's cost in 46 of 101 windows; released, none above 1e-8 (largest excess
-    1.2e-10). Without the rounding and size tests, sides of the flat oldest nodes (N = 100, weights
-    down to ``0.48^99``) were released and re-taken by qrqp one per iteration, QP after QP: 3.6 ->
-    286 ms per sample on the standard MHE, 3.2 -> 120 ms on the two-stage UISE.
+    Kept in the next QP's warm start, such a side would hold its variable although the cost pulls it
+    inwards; the rounding and size tests keep qrqp from releasing and re-taking flat sides one per
+    iteration (design notes: Gauss-Newton solver).
     """
     wrong_sign = np.sign(lam) * gradient > 0.0
     relevant = (np.abs(gradient) > rounding) & (2.0 * np.abs(gradient) * np.minimum(width, 1e300) > tol)
@@ -386,22 +324,16 @@ class GaussNewtonSolver:
     Parameters
     ----------
     problem : WindowProblem
+        The window problem (scaled variables ``z``, parameters ``p``), built once.
     max_iter : int
         Iterations per solve (1: real-time iteration). Where the residuals' curvature is large
-        (noisy windows), Gauss-Newton converges linearly, with a contraction of about 0.5 per
-        iteration on the noisy crop standard MHE: 30 iterations, about the CPU of one IPOPT
-        fallback at N = 30, let those windows finish (15 handed 2 of 291 standard-MHE samples at
-        N = 10 and 28 two-stage UISE samples at N = 300 to IPOPT; 30: 0 and 4).
+        (noisy windows), Gauss-Newton converges linearly.
     step_tol : float
         Convergence tolerance on ``|dz|_inf`` in scaled units.
     cost_tol : float
         Also converged when the Gauss-Newton model predicts a change of ``|r|^2`` below
         ``cost_tol (1 + |r|^2)`` in magnitude (flat, weakly observable directions move without
-        changing the cost). 1e-12, four orders below the 1e-8 (relative) to which the optimum's
-        cost is compared with IPOPT's: against 1e-14, one Gauss-Newton iteration fewer per
-        sample on the crop UISE with N = 30 (4.4 -> 3.4) and the same agreement with IPOPT
-        (windows beyond 1e-6, cost excess); estimates within 4e-7 (state scales) of IPOPT's on
-        the Henon, CSTR, Van der Pol, pendulum and closed-form models of bench/gn_models.py.
+        changing the cost).
     fallback : bool
         Solve the sample with IPOPT (from the same starting point) when Gauss-Newton does not
         converge: both the plain and the damped QP fail, ``max_iter`` is reached or the iterate
@@ -418,8 +350,11 @@ class GaussNewtonSolver:
         Refine every converged solution with :func:`uiest.window.polish.refine` (orthogonal
         factorisations of ``J`` instead of the normal equations ``J^T J``, whose condition
         number is ``cond(J)^2``): in directions the data barely determine, Gauss-Newton stops
-        where the cost no longer changes at double precision (on the noise-free crop two-stage
-        UISE, x^{d,1} about 2e-6 off; polished 1e-10), for a few ms per sample.
+        where the cost no longer changes at double precision.
+
+    Notes
+    -----
+    The measurements behind the defaults are in the design notes: Gauss-Newton solver.
 
     """
 
@@ -623,7 +558,23 @@ class GaussNewtonSolver:
         lam_x0: FloatArray | None = None,
         lam_g0: FloatArray | None = None,
     ) -> WindowSolution:
-        """Gauss-Newton iterations from ``z0`` (clipped into the bounds)."""
+        """Gauss-Newton iterations from ``z0`` (clipped into the bounds).
+
+        Parameters
+        ----------
+        z0 : numpy.ndarray
+            Starting point, shape (n_var,), scaled variables.
+        p : numpy.ndarray
+            The window's parameters (data, prior, weights), shape (n_par,).
+        lam_x0, lam_g0 : numpy.ndarray, optional
+            Accepted for the solver interface; qrqp's warm start comes from the starting point's active set.
+
+        Returns
+        -------
+        WindowSolution
+            The solution, its status, iterations and solve time; ``fallback=True`` when IPOPT solved it.
+
+        """
         prob = self.problem
         start = time.perf_counter()
         p = np.asarray(p, dtype=float)

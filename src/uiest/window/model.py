@@ -11,8 +11,8 @@ measurement noise ``v`` (per measured node), and node data ``d`` (per node, a pa
 - :meth:`WindowModel.from_system`: a full :class:`~uiest.system.System` (``f(x, u, w)``,
   ``h(x, v)``; no node data, no node constraints). Every full-order estimator uses it.
 - :meth:`WindowModel.from_reduced`: the reduced-order model of the two-stage UISE:
-  ``x = z_sharp``, no ``w``, ``d = gamma`` (the measurement entering eq:sys_red), f depends on
-  ``v`` and the node constraint ``T^-1(psi(gamma, z_sharp, v), z_sharp) in X`` of eq:op_MHE.
+  ``x = z_sharp``, no ``w``, ``d = gamma`` (the measurement entering Eq. (21) of Guo et al.), f depends on
+  ``v`` and the node constraint ``T^-1(psi(gamma, z_sharp, v), z_sharp) in X`` of Eq. (30).
 
 When ``f`` depends on ``v``, transition ``i`` uses the noise estimate of node ``i``, so every
 node ``0 .. L-1`` of a window must carry one (be "measured").
@@ -176,7 +176,7 @@ class WindowModel:
 
     @cached_property
     def _f_buffered(self) -> BufferedFunction:
-        """``f`` through CasADi's buffer interface (a plain call builds DMs: ~0.2 ms of a 1.6 ms crop step)."""
+        """``f`` through CasADi's buffer interface (a plain call builds DMs, which costs more than evaluating ``f``)."""
         return BufferedFunction(self.f)
 
     def __getstate__(self) -> dict[str, object]:
@@ -208,9 +208,9 @@ class WindowModel:
 
     @classmethod
     def from_reduced(cls, reduced: ReducedModel, *, state_constraints: bool = True) -> WindowModel:
-        """eq:sys_red as a :class:`~uiest.window.WindowModel`: state ``z_sharp``, node data ``gamma``, no w.
+        """Eq. (21) as a :class:`~uiest.window.WindowModel`: state ``z_sharp``, node data ``gamma``, no w.
 
-        With ``state_constraints`` the node constraint ``T^-1(psi(gamma, z, v), z) in X`` of eq:op_MHE.
+        With ``state_constraints`` the node constraint ``T^-1(psi(gamma, z, v), z) in X`` of Eq. (30).
         """
         s = reduced.system
         n = reduced.n_sharp

@@ -17,8 +17,7 @@ unconstrained linear least-squares problem (``lstsq``). A step is shortened to k
 variables in their bounds and accepted only if the inequality constraints still hold (to 1e-9,
 scaled), the equality violation does not grow past ``max(old, 1e-9)`` and either the cost does
 not increase by more than a relative 1e-6 or the point was infeasible (> 1e-9) and the step
-halved its violation; otherwise the previous point is kept. Measured on the
-crop model's two-stage UISE: the noise-free x^{d,1} error drops from ~1e-7 to ~1e-12.
+halved its violation; otherwise the previous point is kept (design notes: window solvers).
 """
 
 from __future__ import annotations

@@ -450,12 +450,10 @@ class WindowProblem:
         """The factor ``c = min(1, LARGEST_WEIGHT / w_max)`` on the NLP's cost (w_max: largest squared weight root).
 
         The minimiser does not change. IPOPT's step computation breaks down when the weights span
-        ~1e12 (a certificate's output weight against a unit prior: Error_In_Step_Computation in 59
-        of 60 crop windows); with the largest weight brought to ``LARGEST_WEIGHT`` it solves them
-        all. Its stopping test (``tol`` on the scaled problem) is then ``1/c`` times looser in the
-        original units, so :class:`~uiest.window.solvers.IpoptSolver` polishes its solution when
-        ``c < POLISH_BELOW``. The crop study's explicit UISE (output weight 1e6 per scaled unit,
-        the newest node's doubled by the schedule) gets c = 0.24.
+        ~1e12 (a certificate's output weight against a unit prior); with the largest weight brought to
+        ``LARGEST_WEIGHT`` it does not. Its stopping test (``tol`` on the scaled problem) is then ``1/c``
+        times looser in the original units, so :class:`~uiest.window.solvers.IpoptSolver` polishes its
+        solution when ``c < POLISH_BELOW`` (design notes: window solvers).
         """
         roots = np.asarray(p, dtype=float)[self.parameter_slices["weights"]]
         largest = float(np.abs(roots).max(initial=0.0)) ** 2

@@ -6,7 +6,7 @@ expression graph of ``f`` and ``h`` at that node. Its memory grows linearly in `
 per-stage cost that grows with the square of the stage's size ``n = nx + nw + nv + ny`` (the
 Jacobian and Hessian blocks of a stage). The estimate :func:`window_bytes` takes
 :data:`STAGE_BYTES_PER_SIZE2` bytes per stage and per ``n^2`` (the IPOPT problem's build as
-measured on two models, see DEVELOPING.md, doubled for the solver's factorisation), and a
+measured on two models, doubled for the solver's factorisation; design notes: input checks), and a
 horizon whose window would need more than :data:`MEMORY_BUDGET` is refused before anything is
 built.
 """

@@ -38,14 +38,12 @@ SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
 
 NEAR_SUCCESS_STATUSES = frozenset({"Search_Direction_Becomes_Too_Small"})
 """Statuses counted as solved when the final iterate is feasible: IPOPT stops because no step can
-improve the point further at the given numerical precision (seen on the crop model at k = 0 with
-dual infeasibility 3e-9 against tol 1e-10)."""
+improve the point further at the given numerical precision."""
 
 POLISH_BELOW = 1e-3
 """A solution of a window whose cost IPOPT saw scaled by less than this (weights above 1e9, see
 :meth:`WindowProblem.objective_scale`) is refined (:func:`uiest.window.polish.refine`): IPOPT's
-stopping test is ``1/c`` times looser in the original units (certified crop UISE: 2e-5 from the
-optimum instead of 3e-7 polished)."""
+stopping test is ``1/c`` times looser in the original units."""
 
 FEASIBILITY_TOL = 1e-8
 """Largest violation of the (scaled) constraints and bounds accepted for a near-success status."""
@@ -63,11 +61,9 @@ IPOPT_DEFAULTS: dict[str, Any] = {
 """IPOPT options used unless overridden.
 
 The window problem is already scaled (variables by the signals' scales, residuals by the
-weights), so IPOPT's own gradient-based scaling is off: it scales the objective down by the
-initial gradient (large when the prior is far off) and then stops ~1e-4 short of the optimum in
-the weakly observable directions (measured on the crop model: x^{d,1} error 3e-4 with it,
-3e-8 without it, after one 30-step window). The adaptive barrier update took 25 % less time
-than the monotone one there (4.5 against 6.0 ms per step, same errors).
+weights), so IPOPT's own gradient-based scaling is off: it would scale the objective down by the
+initial gradient (large when the prior is far off) and then stop short of the optimum in the
+weakly observable directions. The barrier update is adaptive. Design notes: window solvers.
 """
 
 IPOPT_WARM_START: dict[str, Any] = {
@@ -265,10 +261,8 @@ BACKENDS = ("ipopt", "gn", "rti")
 """Names accepted as ``solver=``."""
 
 DEFAULT_BACKEND = "gn"
-"""The estimators' default backend: Gauss-Newton SQP, 3-7x less CPU per sample than IPOPT on the crop
-windows with N <= 100 (``uiest bench``); at N = 300, where the weights span 1e-95 to 1e6, 5x less for the
-standard MHE and 2.7x less for the two-stage UISE (README). IPOPT is its fallback for any sample it does
-not solve."""
+"""The estimators' default backend: Gauss-Newton SQP, with IPOPT as its fallback for any sample it does not
+solve (its cost against IPOPT's: the performance page and the design notes, window solvers)."""
 
 
 def make_solver(
