@@ -125,8 +125,12 @@ def page_name(target: str) -> str:
 
 
 def name_page(entry: Entry) -> str:
-    """The reStructuredText of one documented name's page."""
-    lines = [entry.target.replace("_", r"\_"), "=" * (len(entry.target) + entry.target.count("_")), ""]
+    """The reStructuredText of one documented name's page.
+
+    The page is in no toctree (``:orphan:``): its module's page links to it, and the site's navigation lists
+    modules, not every name.
+    """
+    lines = [":orphan:", "", entry.target.replace("_", r"\_"), "=" * (len(entry.target) + entry.target.count("_")), ""]
     lines.append(f".. currentmodule:: {entry.home}")
     lines.append("")
     if entry.kind in ("class", "exception"):
@@ -141,21 +145,30 @@ def name_page(entry: Entry) -> str:
     return "\n".join(lines) + "\n"
 
 
-def module_page(module_name: str, listed: list[Entry]) -> str:
+def summary(entry: Entry, attribute_docs: dict[str, str]) -> str:
+    """The first paragraph of a name's docstring (of a constant: its ``#:`` comment or string), on one line."""
+    value = getattr(importlib.import_module(entry.home), entry.name)
+    text = attribute_docs.get(entry.name, "") if entry.kind == "data" else inspect.getdoc(value) or ""
+    return " ".join(text.strip().split("\n\n")[0].split())
+
+
+def module_page(module_name: str, listed: list[Entry], attribute_docs: dict[str, str] | None = None) -> str:
     """The reStructuredText of a module's page: its docstring, a table of its names, its re-exports."""
     title = f"``{module_name}``"
     lines = [title, "=" * len(title), "", f".. automodule:: {module_name}", "   :no-members:", ""]
     own = [entry for entry in listed if entry.defined_here]
     reexported = [entry for entry in listed if not entry.defined_here]
+    role = {"module": "mod", "class": "class", "exception": "exc", "function": "func", "data": "data"}
     if own:
-        lines += [f".. currentmodule:: {module_name}", "", ".. autosummary::", ""]
-        lines += [f"   {entry.name}" for entry in own]
-        lines += ["", ".. toctree::", "   :hidden:", ""]
-        lines += [f"   {page_name(entry.target)}" for entry in own]
+        lines += [".. list-table::", "   :widths: 30 70", ""]
+        for entry in own:
+            lines += [
+                f"   * - :py:{role[entry.kind]}:`~{entry.target}`",
+                f"     - {summary(entry, attribute_docs or {})}",
+            ]
         lines.append("")
     if reexported:
         lines += ["Also available here, documented where they are defined:", ""]
-        role = {"module": "mod", "class": "class", "exception": "exc", "function": "func", "data": "data"}
         lines += [f"- ``{module_name}.{entry.name}``: :py:{role[entry.kind]}:`{entry.target}`" for entry in reexported]
         lines.append("")
     return "\n".join(lines)
@@ -177,6 +190,14 @@ def index_page(modules: list[str]) -> str:
     ]
     lines += [f"   {module}" for module in modules]
     return "\n".join(lines) + "\n"
+
+
+def attribute_docs(module_name: str) -> dict[str, str]:
+    """The docstrings of a module's constants (``#:`` comments and strings after assignments), by name."""
+    from sphinx.pycode import ModuleAnalyzer  # the docs extra's; only the build writes pages
+
+    found = ModuleAnalyzer.for_module(module_name).find_attr_docs()
+    return {name: "\n".join(lines) for (scope, name), lines in found.items() if scope == ""}
 
 
 def write_pages(folder: Path, found: list[Entry] | None = None) -> int:
@@ -203,7 +224,7 @@ def write_pages(folder: Path, found: list[Entry] | None = None) -> int:
     (folder / "index.rst").write_text(index_page(modules))
     for module_name in modules:
         listed = [entry for entry in found if entry.module == module_name]
-        (folder / f"{module_name}.rst").write_text(module_page(module_name, listed))
+        (folder / f"{module_name}.rst").write_text(module_page(module_name, listed, attribute_docs(module_name)))
     own = [entry for entry in found if entry.defined_here]
     for entry in own:
         (folder / f"{page_name(entry.target)}.rst").write_text(name_page(entry))
