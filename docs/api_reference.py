@@ -90,12 +90,12 @@ def entries() -> list[Entry]:
     """
     modules = {name: importlib.import_module(name) for name in public_modules()}
     defined = {name: defined_names(module) for name, module in modules.items()}
+    without = [name for name, module in modules.items() if "__all__" not in vars(module)]
+    if without:
+        raise LookupError(f"{', '.join(without)} has no __all__")
     found: list[Entry] = []
     for module_name, module in modules.items():
-        listed = getattr(module, "__all__", None)
-        if listed is None:
-            raise LookupError(f"{module_name} has no __all__")
-        for name in listed:
+        for name in module.__all__:
             if not hasattr(module, name):
                 raise LookupError(f"{module_name}.__all__ lists {name!r}, which {module_name} does not have")
             value = getattr(module, name)
@@ -193,11 +193,30 @@ def index_page(modules: list[str]) -> str:
 
 
 def attribute_docs(module_name: str) -> dict[str, str]:
-    """The docstrings of a module's constants (``#:`` comments and strings after assignments), by name."""
-    from sphinx.pycode import ModuleAnalyzer  # the docs extra's; only the build writes pages
-
-    found = ModuleAnalyzer.for_module(module_name).find_attr_docs()
-    return {name: "\n".join(lines) for (scope, name), lines in found.items() if scope == ""}
+    """The docstrings of a module's constants, by name (a string after the assignment, or ``#:`` comments above)."""
+    source = inspect.getsource(importlib.import_module(module_name))
+    lines = source.splitlines()
+    body = ast.parse(source).body
+    found: dict[str, str] = {}
+    for node, after in zip(body, [*body[1:], None], strict=True):
+        if isinstance(node, ast.Assign):
+            names = [target.id for target in node.targets if isinstance(target, ast.Name)]
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names = [node.target.id]
+        else:
+            continue
+        comments = []
+        row = node.lineno - 2
+        while row >= 0 and lines[row].lstrip().startswith("#:"):
+            comments.insert(0, lines[row].lstrip()[2:].strip())
+            row -= 1
+        text = "\n".join(comments)
+        if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+            text = inspect.cleandoc(after.value.value)
+        for name in names:
+            if text:
+                found[name] = text
+    return found
 
 
 def write_pages(folder: Path, found: list[Entry] | None = None) -> int:
