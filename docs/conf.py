@@ -57,6 +57,15 @@ napoleon_use_rtype = False
 napoleon_use_ivar = True
 autodoc_typehints = "description"
 autodoc_typehints_format = "short"
+# The sources' array aliases by name, not expanded into numpy's unions (shapes are in the docstrings).
+autodoc_type_aliases = {
+    "ArrayLike": "numpy.typing.ArrayLike",
+    "FloatArray": "numpy.ndarray",
+    "ComplexArray": "numpy.ndarray",
+    "IndexArray": "numpy.ndarray",
+    "BoxLike": "uiest.system.BoxLike",
+    "InputLike": "uiest.simulate.InputLike",
+}
 autodoc_member_order = "bysource"
 autodoc_preserve_defaults = True
 autodoc_class_signature = "separated"
