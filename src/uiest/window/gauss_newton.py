@@ -38,7 +38,8 @@ Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= s
 units); a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude; or KKT stationarity
 at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)``; otherwise ``max_iter``.
 The merit counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point
-feasible to that level a step at the least damping that predicts no decrease of ``|r|^2`` ends the solve.
+feasible to that level a step that predicts no decrease of ``|r|^2`` ends the solve, unless it is damped
+beyond :data:`DAMPING_FLOOR` or its QP released held sides (:func:`_released`).
 RTI (``max_iter=1``) takes one full step from the warm start per sample: its estimate is the first
 Gauss-Newton iterate from the shifted previous solution (exact for linear models, whose window problem
 is a QP).
