@@ -159,9 +159,19 @@ def _own_docstring_only(app: Any, what: str, name: str, obj: Any, options: Any, 
             lines.clear()
 
 
+def _no_call_types_for_data(app: Any, domain: str, objtype: str, contentnode: Any) -> None:
+    """A constant that happens to be callable (the ``typer`` app) gets no parameter types of its ``__call__``."""
+    if domain != "py" or objtype != "data":
+        return
+    signature = contentnode.parent[0]
+    fullname = f"{signature['module']}.{signature['fullname']}" if signature.get("module") else signature["fullname"]
+    app.env.current_document.autodoc_annotations.pop(fullname, None)
+
+
 def setup(app: Any) -> dict[str, Any]:
     """Register the index's toctree filter, the re-exports' reference resolver and the constants' docstrings."""
     app.connect("source-read", _existing_toctrees)
     app.connect("autodoc-process-docstring", _own_docstring_only)
+    app.connect("object-description-transform", _no_call_types_for_data, priority=400)  # before autodoc's merge
     app.connect("missing-reference", _resolve_alias)
     return {"parallel_read_safe": True, "parallel_write_safe": True}
