@@ -2,14 +2,14 @@ r"""Exponential i-IOSS of a reduced-order model (Assumption 4.7 and Eq. (27) of 
 
 The reduced model Eq. (21) is ``z+ = f_sharp(z, gamma, u, v)``, ``y = h_sharp(z, gamma, v)``
 with the fictitious input gamma (it lives in Y). With the dissipation inequality of
-:mod:`uiest.detectability.dissipation` for ``V = |z - z~|_P^2`` (scaled coordinates, ``P >= I``)
+:mod:`uiest.detectability.dissipation` for ``V = |z - z~|_P^2`` (scaled coordinates, ``P >= I``)::
 
 ::
 
     V+ <= mu V + q_gamma |dgamma|^2 + q_v |dv|^2 + r |dy|^2,
 
 summing ``V_k <= mu^k V_0 + sum_i mu^(k-1-i) (...)_i`` and ``lambda_min |dz|^2 <= V <= lambda_max |dz|^2``
-gives Eq. (27) with
+gives Eq. (27) with::
 
 ::
 

@@ -1,7 +1,7 @@
 r"""Strong nonlinear detectability certificates (Theorem 3.2 of Guo et al.; see the theory map) with quadratic storage.
 
 For ``x+ = f1(x, u) + B d`` (d free: w is unbounded), ``y = C x + g(v)`` the certificate is
-:mod:`uiest.detectability.strong_lmi`'s
+:mod:`uiest.detectability.strong_lmi`'s::
 
 ::
 
@@ -9,7 +9,7 @@ For ``x+ = f1(x, u) + B d`` (d free: w is unbounded), ``y = C x + g(v)`` the cer
 
 at the vertices of a cover of the state Jacobian over X x U (:mod:`uiest.detectability.cover`).
 With ``C dx = dy - (g(v) - g(v~))`` and ``|a - b|^2 <= 2 |a|^2 + 2 |b|^2`` it gives the paper's
-Eq. (5b) with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)``,
+Eq. (5b) with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)`` and::
 
 ::
 

@@ -6,7 +6,7 @@ tolerance (1e-10), and in directions the data barely determine (the crop model's
 weights, seen only through slow dynamics) the iterate stops ~1e-6 (scaled) short of the optimum.
 Tightening ``tol`` makes IPOPT fail instead (restoration failures). A few Gauss-Newton steps on
 the same problem, solved by orthogonal factorisations instead of normal equations, reach the
-optimum to about ``eps * cond(J)``:
+optimum to about ``eps * cond(J)``::
 
 ::
 
