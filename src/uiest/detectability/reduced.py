@@ -4,14 +4,10 @@ The reduced model Eq. (21) is ``z+ = f_sharp(z, gamma, u, v)``, ``y = h_sharp(z,
 with the fictitious input gamma (it lives in Y). With the dissipation inequality of
 :mod:`uiest.detectability.dissipation` for ``V = |z - z~|_P^2`` (scaled coordinates, ``P >= I``)::
 
-::
-
     V+ <= mu V + q_gamma |dgamma|^2 + q_v |dv|^2 + r |dy|^2,
 
 summing ``V_k <= mu^k V_0 + sum_i mu^(k-1-i) (...)_i`` and ``lambda_min |dz|^2 <= V <= lambda_max |dz|^2``
 gives Eq. (27) with::
-
-::
 
     c_x = lambda_max(P) / lambda_min(P),   c_y = r / (mu lambda_min(P)),
     c_v = q_v / (mu lambda_min(P)),        c_gamma = q_gamma / (mu lambda_min(P)),

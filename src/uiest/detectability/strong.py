@@ -3,15 +3,11 @@ r"""Strong nonlinear detectability certificates (Theorem 3.2 of Guo et al.; see 
 For ``x+ = f1(x, u) + B d`` (d free: w is unbounded), ``y = C x + g(v)`` the certificate is
 :mod:`uiest.detectability.strong_lmi`'s::
 
-::
-
     |dx+|_P^2 <= mu |dx|_P^2 + s1 |C dx|^2 + s2 |C dx+|^2      for every w, w~     (scaled)
 
 at the vertices of a cover of the state Jacobian over X x U (:mod:`uiest.detectability.cover`).
 With ``C dx = dy - (g(v) - g(v~))`` and ``|a - b|^2 <= 2 |a|^2 + 2 |b|^2`` it gives the paper's
 Eq. (5b) with ``V = |x - x~|_P^2``, ``alpha_1 = lambda_min(P)``, ``alpha_2 = lambda_max(P)`` and::
-
-::
 
     sigma_y(r) = sigma_y r^2,  sigma_y = 2 max(s1, s2),      sigma_v(r) = sigma_y ||D||^2 r^2
     (as solved; :meth:`StrongDetectability.with_output_weight` multiplies both)

@@ -8,8 +8,6 @@ Tightening ``tol`` makes IPOPT fail instead (restoration failures). A few Gauss-
 the same problem, solved by orthogonal factorisations instead of normal equations, reach the
 optimum to about ``eps * cond(J)``::
 
-::
-
     min_d |r + J d|^2   s.t.   c_E + G_E d = 0,   d_i = 0 for variables at a bound,
 
 with ``E`` the dynamics and the inequality rows that are active (within ``active_tol`` of a
