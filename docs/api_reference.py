@@ -90,12 +90,12 @@ def entries() -> list[Entry]:
     """
     modules = {name: importlib.import_module(name) for name in public_modules()}
     defined = {name: defined_names(module) for name, module in modules.items()}
+    without = [name for name, module in modules.items() if "__all__" not in vars(module)]
+    if without:
+        raise LookupError(f"{', '.join(without)} has no __all__")
     found: list[Entry] = []
     for module_name, module in modules.items():
-        listed = getattr(module, "__all__", None)
-        if listed is None:
-            raise LookupError(f"{module_name} has no __all__")
-        for name in listed:
+        for name in module.__all__:
             if not hasattr(module, name):
                 raise LookupError(f"{module_name}.__all__ lists {name!r}, which {module_name} does not have")
             value = getattr(module, name)
@@ -125,8 +125,12 @@ def page_name(target: str) -> str:
 
 
 def name_page(entry: Entry) -> str:
-    """The reStructuredText of one documented name's page."""
-    lines = [entry.target.replace("_", r"\_"), "=" * (len(entry.target) + entry.target.count("_")), ""]
+    """The reStructuredText of one documented name's page.
+
+    The page is in no toctree (``:orphan:``): its module's page links to it, and the site's navigation lists
+    modules, not every name.
+    """
+    lines = [":orphan:", "", entry.target.replace("_", r"\_"), "=" * (len(entry.target) + entry.target.count("_")), ""]
     lines.append(f".. currentmodule:: {entry.home}")
     lines.append("")
     if entry.kind in ("class", "exception"):
@@ -141,21 +145,30 @@ def name_page(entry: Entry) -> str:
     return "\n".join(lines) + "\n"
 
 
-def module_page(module_name: str, listed: list[Entry]) -> str:
+def summary(entry: Entry, attribute_docs: dict[str, str]) -> str:
+    """The first paragraph of a name's docstring (of a constant: its ``#:`` comment or string), on one line."""
+    value = getattr(importlib.import_module(entry.home), entry.name)
+    text = attribute_docs.get(entry.name, "") if entry.kind == "data" else inspect.getdoc(value) or ""
+    return " ".join(text.strip().split("\n\n")[0].split())
+
+
+def module_page(module_name: str, listed: list[Entry], attribute_docs: dict[str, str] | None = None) -> str:
     """The reStructuredText of a module's page: its docstring, a table of its names, its re-exports."""
     title = f"``{module_name}``"
     lines = [title, "=" * len(title), "", f".. automodule:: {module_name}", "   :no-members:", ""]
     own = [entry for entry in listed if entry.defined_here]
     reexported = [entry for entry in listed if not entry.defined_here]
+    role = {"module": "mod", "class": "class", "exception": "exc", "function": "func", "data": "data"}
     if own:
-        lines += [f".. currentmodule:: {module_name}", "", ".. autosummary::", ""]
-        lines += [f"   {entry.name}" for entry in own]
-        lines += ["", ".. toctree::", "   :hidden:", ""]
-        lines += [f"   {page_name(entry.target)}" for entry in own]
+        lines += [".. list-table::", "   :widths: 30 70", ""]
+        for entry in own:
+            lines += [
+                f"   * - :py:{role[entry.kind]}:`~{entry.target}`",
+                f"     - {summary(entry, attribute_docs or {})}",
+            ]
         lines.append("")
     if reexported:
         lines += ["Also available here, documented where they are defined:", ""]
-        role = {"module": "mod", "class": "class", "exception": "exc", "function": "func", "data": "data"}
         lines += [f"- ``{module_name}.{entry.name}``: :py:{role[entry.kind]}:`{entry.target}`" for entry in reexported]
         lines.append("")
     return "\n".join(lines)
@@ -177,6 +190,33 @@ def index_page(modules: list[str]) -> str:
     ]
     lines += [f"   {module}" for module in modules]
     return "\n".join(lines) + "\n"
+
+
+def attribute_docs(module_name: str) -> dict[str, str]:
+    """The docstrings of a module's constants, by name (a string after the assignment, or ``#:`` comments above)."""
+    source = inspect.getsource(importlib.import_module(module_name))
+    lines = source.splitlines()
+    body = ast.parse(source).body
+    found: dict[str, str] = {}
+    for node, after in zip(body, [*body[1:], None], strict=True):
+        if isinstance(node, ast.Assign):
+            names = [target.id for target in node.targets if isinstance(target, ast.Name)]
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            names = [node.target.id]
+        else:
+            continue
+        comments = []
+        row = node.lineno - 2
+        while row >= 0 and lines[row].lstrip().startswith("#:"):
+            comments.insert(0, lines[row].lstrip()[2:].strip())
+            row -= 1
+        text = "\n".join(comments)
+        if isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant) and isinstance(after.value.value, str):
+            text = inspect.cleandoc(after.value.value)
+        for name in names:
+            if text:
+                found[name] = text
+    return found
 
 
 def write_pages(folder: Path, found: list[Entry] | None = None) -> int:
@@ -203,7 +243,7 @@ def write_pages(folder: Path, found: list[Entry] | None = None) -> int:
     (folder / "index.rst").write_text(index_page(modules))
     for module_name in modules:
         listed = [entry for entry in found if entry.module == module_name]
-        (folder / f"{module_name}.rst").write_text(module_page(module_name, listed))
+        (folder / f"{module_name}.rst").write_text(module_page(module_name, listed, attribute_docs(module_name)))
     own = [entry for entry in found if entry.defined_here]
     for entry in own:
         (folder / f"{page_name(entry.target)}.rst").write_text(name_page(entry))

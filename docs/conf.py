@@ -13,6 +13,7 @@ No intersphinx: the build runs without a network.
 from __future__ import annotations
 
 import fnmatch
+import inspect
 import re
 import sys
 from pathlib import Path
@@ -36,7 +37,6 @@ version = release
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
-    "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "sphinx_gallery.gen_gallery",
@@ -57,10 +57,22 @@ napoleon_use_rtype = False
 napoleon_use_ivar = True
 autodoc_typehints = "description"
 autodoc_typehints_format = "short"
+# The sources' array aliases by name, not expanded into numpy's unions (shapes are in the docstrings).
+autodoc_type_aliases = {
+    "ArrayLike": "numpy.typing.ArrayLike",
+    "FloatArray": "numpy.ndarray",
+    "ComplexArray": "numpy.ndarray",
+    "IndexArray": "numpy.ndarray",
+    "BoxLike": "uiest.system.BoxLike",
+    "InputLike": "uiest.simulate.InputLike",
+}
 autodoc_member_order = "bysource"
 autodoc_preserve_defaults = True
 autodoc_class_signature = "separated"
-autosummary_generate = False  # the pages are written by api_reference.write_pages
+# Types in numpy-style parameter lists are shapes such as "(N + 1, nx) array"; Sphinx links each word, and a
+# word that names attributes of several classes ("nx": System.nx, WindowModel.nx) is an ambiguous link, not an
+# error in the docs. (Type "ref.python" holds only that warning in Sphinx's Python domain.)
+suppress_warnings = ["ref.python"]
 
 html_theme = "furo"
 html_title = f"uiest {release}"
@@ -139,8 +151,27 @@ def _resolve_alias(app: Any, env: Any, node: Any, contnode: Any) -> Any:
     return domain.resolve_xref(env, node["refdoc"], app.builder, node["reftype"], target, node, contnode)
 
 
+def _own_docstring_only(app: Any, what: str, name: str, obj: Any, options: Any, lines: list[str]) -> None:
+    """Leave a constant without a docstring of its own undocumented rather than show its type's docstring."""
+    if what == "data" and not inspect.ismodule(obj):
+        own = inspect.getdoc(type(obj))
+        if own and "\n".join(lines).strip() == own.strip():
+            lines.clear()
+
+
+def _no_call_types_for_data(app: Any, domain: str, objtype: str, contentnode: Any) -> None:
+    """A constant that happens to be callable (the ``typer`` app) gets no parameter types of its ``__call__``."""
+    if domain != "py" or objtype != "data":
+        return
+    signature = contentnode.parent[0]
+    fullname = f"{signature['module']}.{signature['fullname']}" if signature.get("module") else signature["fullname"]
+    app.env.current_document.autodoc_annotations.pop(fullname, None)
+
+
 def setup(app: Any) -> dict[str, Any]:
-    """Register the index's toctree filter and the re-exports' reference resolver."""
+    """Register the index's toctree filter, the re-exports' reference resolver and the constants' docstrings."""
     app.connect("source-read", _existing_toctrees)
+    app.connect("autodoc-process-docstring", _own_docstring_only)
+    app.connect("object-description-transform", _no_call_types_for_data, priority=400)  # before autodoc's merge
     app.connect("missing-reference", _resolve_alias)
     return {"parallel_read_safe": True, "parallel_write_safe": True}

@@ -46,7 +46,7 @@ class AssumptionReport:
     Attributes
     ----------
     inverse_error : float
-        ``max |T_inv(T(x)) - x| / (|x| + scale_x)`` (relative to |x|, so a wide X with a small scale is fine).
+        ``max |T_inv(T(x)) - x| / (|x| + scale_x)`` (relative to ``|x|``, so a wide X with a small scale is fine).
     psi_error : float
         Eq. (17): ``max |psi(h(x, v), T_sharp(x), v) - T_flat(x)| / |T_flat|``.
     w_sensitivity : float

@@ -557,6 +557,8 @@ class System:
             ``x=``, ``u=``, ``w=``, ``v=``, ``y=``: explicit scales (positive; a scalar broadcasts),
             applied after the trajectory's (source ``ScaleSource.GIVEN``).
 
+        Notes
+        -----
         Use it when X is a wide safety box (say ``±1e9`` for "unbounded"): scales from X's width
         would make a solve resolve only about 1e-8 of that width. The estimators and designs do
         this themselves where the user gave no scales (:func:`uiest.scales.data_scales`).

@@ -4,6 +4,8 @@ Schiller, Muntwiler, Köhler, Zeilinger, Müller, "A Lyapunov function for robus
 moving horizon estimation", IEEE TAC 68(12), 2023. Their Assumption 1 (eq. (4)) asks for W with
 ``|x - x~|_P1^2 <= W <= |x - x~|_P2^2`` and
 
+::
+
     W(f(x,u,w), f(x~,u,w~)) <= eta W(x, x~) + |d - d~|_Q^2 + |y - y~|_R^2,
 
 the generalised disturbance ``d = (w, v)`` bounded (the standard MHE treats the unknown input as

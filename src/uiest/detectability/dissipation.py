@@ -5,9 +5,13 @@ trajectories) and a disturbance ``d`` made of named channels ``d = (d_1, ..., d_
 coordinates find ``P >= I`` with ``cond(P) <= max_condition``, channel weights ``q_c >= 0`` and an
 output weight ``r >= 0`` with
 
+::
+
     |F(z,u,d) - F(z~,u,d~)|_P^2 <= mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2.
 
 With ``J = dF/d(z, d)`` and ``G = dH/d(z, d)`` the pointwise condition is
+
+::
 
     M(J, G) = blkdiag(mu P, q_1 I, ..., q_c I) + r G^T G - J^T P J >= 0,
 

@@ -165,7 +165,7 @@ class Claim:
 def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
     """Per-run tables, index (case, run), one column per estimator: focus RMSE, error growth, time per sample.
 
-    RMSE after ``settle``; growth: mean |error| over the last quarter of the run over that of the
+    RMSE after ``settle``; growth: mean ``|error|`` over the last quarter of the run over that of the
     quarter after ``settle``; time: the mean CPU time per sample (s, whole steps).
     """
     scenario, frame = study.scenario, study.steps

@@ -31,8 +31,8 @@ TIMING_COLUMNS = (
 def accuracy(study: StudyResult) -> pd.DataFrame:
     """Accuracy per (case, estimator, state) over all runs.
 
-    RMSE and max |error| after ``settle``, the mean final |error|, and the error growth (mean
-    |error| over the last quarter of the run divided by the mean over the quarter after
+    RMSE and max ``|error|`` after ``settle``, the mean final ``|error|``, and the error growth (mean
+    ``|error|`` over the last quarter of the run divided by the mean over the quarter after
     ``settle``; > 1: the error grows over the run).
     """
     frame = study.steps

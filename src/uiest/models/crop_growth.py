@@ -40,7 +40,7 @@ radiation       100                    W/m^2            paper (the factor 100 in
 temperature     25                     degC             paper (u^d kept at 25 degC; U is this point)
 w_gain          45                     m^2/kg           paper (W(x^{d,2}) = 1 - exp(-45 x^{d,2}))
 w_range         (0.965, 1)             --               paper (known range, standard MHE only)
-noise_bound     3e-6                   as y             paper (|v^c|, |v^d| <= 3e-6, uniform)
+noise_bound     3e-6                   as y             paper (``|v^c|, |v^d| <= 3e-6``, uniform)
 x_lower         (0, 0.08, 0.08)        kg/m^3, kg/m^2   paper (X)
 x_upper         (0.0027, 0.1, 0.1)     kg/m^3, kg/m^2   paper (X)
 ==============  =====================  ===============  ===============================================
@@ -298,7 +298,7 @@ def study() -> Scenario:
 
     N = 30 and mu = 0.48 for all three schemes (the paper's values); ``x_hat^c_0 = y^c_0``;
     crop-weight priors at the centre of X; x0 drawn from ``CropScenario.x0_box``; 300 steps of
-    60 s; 20 runs; uniform noise |v| <= 3e-6 in the noisy case. Output weights 1e6 per scaled
+    60 s; 20 runs; uniform noise ``|v| <= 3e-6`` in the noisy case. Output weights 1e6 per scaled
     unit against prior and noise weights 1 (the paper does not give its weights). Beside them,
     the UISE with the weights and the horizon of its certificate (strong detectability holds at
     mu = 0.48 with N >= 3) and the two-stage UISE with the weights of the reduced model's

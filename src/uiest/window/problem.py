@@ -8,11 +8,15 @@ A window of ``L`` transitions covers the times ``s .. s+L`` (node ``i`` is time 
 decision variables, stacked stage by stage as ``[x_0, v_0, w_0, x_1, v_1, w_1, ..., x_L, v_L]``
 (``v_i`` only at measured nodes), are in **scaled coordinates**
 
+::
+
     x_i = c_x + S_x x~_i,   w_i = c_w + S_w w~_i,   v_i = c_v + S_v v~_i,
 
 with ``S = diag(signal.scale)`` and ``c`` the centre of the signal's domain (:func:`working_center`;
 for w the centre of the range the problem is given, else ``system.nominal_w``). Multiple
 shooting: the dynamics are equality constraints
+
+::
 
     g_i = (f(x_i, u_i, w_i, v_i, d_i) - x_{i+1}) / s_x = 0,        i = 0 .. L-1,
 
@@ -20,6 +24,8 @@ shooting: the dynamics are equality constraints
 
 so the state box X is a simple bound on every node. The cost is ``J = |r|^2`` with the
 residual vector
+
+::
 
     r = [ Wp^{1/2} (x_0 - prior) / s_x ;
           for each measured node m:  Wy_m^{1/2} (mask_m * (y_m - h(x_m, v_m)) / s_y) ;
