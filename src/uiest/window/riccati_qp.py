@@ -45,6 +45,20 @@ from uiest.errors import OptionError
 IntArray = npt.NDArray[np.int64]
 
 
+__all__ = [
+    ,
+]
+    "CROSSOVER_BELOW",
+    "DEFAULT_MAX_ITER",
+    "DEFAULT_TOL",
+    "QPStatus",
+    "StageKernel",
+    "StageLayout",
+    "StageQPSolution",
+    "solve_stage_qp",
+]
+
+
 class QPStatus(enum.IntEnum):
     """Outcome of :func:`solve_stage_qp`."""
 

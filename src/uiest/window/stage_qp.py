@@ -27,6 +27,8 @@ from uiest.errors import OptionError
 from uiest.window.problem import WindowProblem
 from uiest.window.riccati_qp import QPStatus, StageKernel, StageLayout
 
+__all__ = ["EQUALITY_TOL", "GUESS_FLOOR", "StageForm"]
+
 GUESS_FLOOR = 1e-9
 """Multipliers below this fraction of the largest are not taken as active in a guess: an interior point's
 inactive sides keep multipliers of about ``mu / s`` (1e-11 relative at its tolerance)."""
