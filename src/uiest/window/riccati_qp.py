@@ -46,8 +46,6 @@ IntArray = npt.NDArray[np.int64]
 
 
 __all__ = [
-    ,
-]
     "CROSSOVER_BELOW",
     "DEFAULT_MAX_ITER",
     "DEFAULT_TOL",
