@@ -1,7 +1,7 @@
 r"""A stage-wise convex QP solved by a primal-dual interior point whose Newton systems are a Riccati recursion.
 
 The QP has ``N + 1`` stages ``k = 0 .. N``; stage ``k`` owns the variables ``z_k`` (``n_k`` of them, contiguous
-in ``z``), whose first ``nx`` entries are the stage's state ``x_k``. It reads
+in ``z``), whose first ``nx`` entries are the stage's state ``x_k``. It reads::
 
     min   sum_k  1/2 z_k^T H_k z_k + q_k^T z_k
     s.t.  x_{k+1} = A_k z_k + b_k                         k = 0 .. N-1   (A_k: (nx, n_k))
