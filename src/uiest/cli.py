@@ -510,7 +510,7 @@ def reproduce(
     from uiest.experiments import Scenario, run_study, write_report
     from uiest.experiments.study_store import StudyStore
     from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
+    from uiest.window.backends import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
     _positive(runs, "--runs")
@@ -593,7 +593,7 @@ def sweep(
     from uiest.experiments.sweep import Sweep, SweepProgress
     from uiest.experiments.sweep import sweep as run_sweep
     from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
+    from uiest.window.backends import BACKENDS
 
     _choice(solver, BACKENDS, "--solver")
     _positive(workers, "--workers")

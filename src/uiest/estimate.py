@@ -282,8 +282,8 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     (or the EKF's ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the
     window explain the data by moving its oldest states.
     """
-    from uiest.checks import check_run_data
     from uiest.estimators import EKF, SmoothInputMHE, smooth_mhe
+    from uiest.run_data import check_run_data
     from uiest.tuning import arrival_covariance
 
     variance = factor * system.w.scale**2

@@ -43,18 +43,19 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, check_run_data, check_u_prev, check_y, user_stacklevel
+from uiest.checks import check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
+from uiest.window.backends import BACKENDS
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
 from uiest.window.size import check_horizon
-from uiest.window.solvers import BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 

@@ -37,7 +37,7 @@ import scipy.signal
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_run_data, check_u_prev, check_y, real_array
+from uiest.checks import real_array
 from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
@@ -46,6 +46,7 @@ from uiest.estimators.bounds import impulse_bound
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
 from uiest.results import EstimationResult, StepEstimate
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.theory import LINEAR_STRONG_DETECTABILITY
 

@@ -49,7 +49,7 @@ from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory, count_names
 from uiest.simulate import simulate
 from uiest.system import System
-from uiest.window.solvers import BACKENDS
+from uiest.window.backends import BACKENDS
 
 if TYPE_CHECKING:
     from uiest.estimators.base import WindowEstimator
