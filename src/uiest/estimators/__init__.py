@@ -20,6 +20,7 @@ covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 
 from typing import TYPE_CHECKING
 
+import uiest.design  # noqa: F401  (registers the functions the design() classmethods call: uiest.estimators.design_hook)
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
