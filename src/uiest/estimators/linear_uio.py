@@ -45,6 +45,7 @@ from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.estimators.bounds import impulse_bound
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
+from uiest.models.linear import linear_system
 from uiest.results import EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -198,8 +199,6 @@ class LinearUIO(StreamingEstimator):
         ``system_options`` go to :func:`uiest.models.linear.linear_system` (bounds, names, dt);
         further keywords to the constructor.
         """
-        from uiest.models.linear import linear_system
-
         return cls(linear_system(A, B, C, B_u=B_u, **(system_options or {})), **options)
 
     # ------------------------------------------------------------------ state

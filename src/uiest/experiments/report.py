@@ -16,14 +16,18 @@ from matplotlib.figure import Figure
 
 from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_real, shown
+from uiest.detectability import window_information
 from uiest.errors import OptionError
 from uiest.experiments import provenance
+from uiest.experiments.certificates import describe
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
+from uiest.noise import UniformNoise
+from uiest.plotting import robust_limits
 
 __all__ = ["guarantee_table", "write_report"]
 
@@ -75,8 +79,6 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     absolute error (Figure 1) and of the error norm (Figure 2), so 20 runs do not become a tangle
     of lines. Axis limits of Figure 3 are robust (a start-up transient is clipped; the legend says so).
     """
-    from uiest.plotting import robust_limits
-
     scenario = study.scenario
     system = study.model.system
     names = state_names(study)
@@ -204,9 +206,6 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
     standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
     """
-    from uiest.detectability import window_information
-    from uiest.noise import UniformNoise
-
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
@@ -396,7 +395,6 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         if not info.empty
         else []
     )
-    from uiest.experiments.certificates import describe
 
     guarantees = guarantee_table(study, acc)
     _csv(guarantees, out / "guarantees.csv")

@@ -44,6 +44,7 @@ from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
 from uiest.experiments.study_store import StudyStore
 from uiest.health import quiet_bound_warnings
+from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory, count_names
@@ -119,7 +120,6 @@ def _two_stage(
 
 
 def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
-    from uiest.kalman import EKF, UKF
 
     factor = spec.w_variance if spec.w_variance > 0 else study.tuned_variance(spec.kind)
     system = study.system

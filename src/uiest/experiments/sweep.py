@@ -311,8 +311,6 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
 def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Path) -> None:
     import matplotlib.pyplot as plt
 
-    from uiest import models
-
     names = models.load(scenario.model).build().x.names
     focus = f"rmse_{names[scenario.focus_state]}"
     for param in swept:
