@@ -39,7 +39,7 @@ reproduction: the report says so where it has no spread to measure.
 #
 # The study in Python
 # -------------------
-# `uiest.experiments.crop_growth_study()` is the paper's study with every choice the paper leaves
+# :py:func:`uiest.experiments.crop_growth_study` is the paper's study with every choice the paper leaves
 # open named (initial states, priors, noise): three states (the CO2 concentration ``x_c`` and two crop
 # weights), the paper's rate ``mu = 0.48`` and window ``N = 30`` for all three schemes, and, beside the
 # paper's estimators, the UISEs with certificate weights and a tuned EKF and UKF.

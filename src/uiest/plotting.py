@@ -21,10 +21,10 @@ if TYPE_CHECKING:
     from matplotlib.axes import Axes
     from matplotlib.figure import Figure
 
-__all__ = ["plot_estimates", "plot_record", "plot_trajectory", "robust_limits", "save_figure"]
+__all__ = ["plot_estimates", "plot_record", "plot_trajectory", "pyplot", "robust_limits", "save_figure"]
 
 
-def _pyplot() -> ModuleType:
+def pyplot() -> ModuleType:
     """``matplotlib.pyplot`` with the non-interactive backend (imported here: matplotlib is heavy and optional)."""
     import matplotlib
 
@@ -64,7 +64,7 @@ def plot_trajectory(traj: Trajectory, units: dict[str, tuple[str, ...]] | None =
     panels = [("x", i) for i in range(traj.x.shape[1])]
     panels += [("w", i) for i in range(traj.w.shape[1])]
     panels += [("y", i) for i in range(traj.y.shape[1])]
-    fig, axes = _pyplot().subplots(len(panels), 1, figsize=(7.5, 1.7 * len(panels) + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(len(panels), 1, figsize=(7.5, 1.7 * len(panels) + 0.6), sharex=True, squeeze=False)
     for ax, (kind, i) in zip(axes[:, 0], panels, strict=True):
         data = getattr(traj, kind)[:, i]
         t = traj.t[: data.shape[0]]
@@ -108,7 +108,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     x_names = traj.names.get("x") or tuple(f"x[{i}]" for i in range(nx))
     w_names = traj.names.get("w") or tuple(f"w[{i}]" for i in range(nw))
     rows = nx + nw
-    fig, axes = _pyplot().subplots(rows, 2, figsize=(11, 1.9 * rows + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(rows, 2, figsize=(11, 1.9 * rows + 0.6), sharex=True, squeeze=False)
     for i in range(rows):
         is_x = i < nx
         truth = traj.x[:, i] if is_x else traj.w[:, i - nx]
@@ -162,7 +162,7 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
     units = {sig.kind: sig.units for sig in system.signals}
     panels = [("y", i) for i in range(system.ny)] + [("x", i) for i in range(system.nx)]
     panels += [("w", i) for i in range(system.nw)]
-    fig, axes = _pyplot().subplots(len(panels), 1, figsize=(7.5, 1.6 * len(panels) + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(len(panels), 1, figsize=(7.5, 1.6 * len(panels) + 0.6), sharex=True, squeeze=False)
     for ax, (kind, i) in zip(axes[:, 0], panels, strict=True):
         drawn = []
         if kind == "y":
@@ -203,5 +203,5 @@ def save_figure(fig: Figure, path: Path | str) -> Path:
     try:
         write_file(path, lambda tmp: fig.savefig(tmp, dpi=130, format=path.suffix.lstrip(".").lower()))
     finally:
-        _pyplot().close(fig)
+        pyplot().close(fig)
     return path

@@ -33,7 +33,6 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
@@ -160,6 +159,8 @@ class LinearUIO(StreamingEstimator):
                     f"include them among the poles, got {np.round(wanted, 6).tolist()}"
                 )
             try:
+                import scipy.signal  # imported when used: it takes most of `import uiest.estimators`
+
                 K1 = scipy.signal.place_poles(E.T, self.C.T, wanted).gain_matrix.T
             except ValueError as exc:
                 raise OptionError(f"poles: pole placement on (T A, C) failed: {exc}") from exc

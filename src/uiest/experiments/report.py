@@ -8,11 +8,9 @@ import json
 import math
 import os
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
-from matplotlib.figure import Figure
 
 from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_real, shown
@@ -27,7 +25,11 @@ from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
 from uiest.noise import UniformNoise
-from uiest.plotting import robust_limits
+from uiest.plotting import pyplot, robust_limits
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 __all__ = ["guarantee_table", "write_report"]
 
@@ -67,7 +69,7 @@ def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
     paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
     for path in paths:
         write_file(path, functools.partial(fig.savefig, dpi=140, format=path.suffix.lstrip(".")))
-    plt.close(fig)
+    pyplot().close(fig)
     return paths
 
 
@@ -85,6 +87,7 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     focus, focus_unit = names[scenario.focus_state], system.x.units[scenario.focus_state]
     cases = list(scenario.cases)
     written: list[Path] = []
+    plt = pyplot()
     fig1, axes1 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     fig2, axes2 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     for col, case in enumerate(cases):
@@ -150,6 +153,8 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
 
 def timing_table(study: StudyResult) -> pd.DataFrame:
     """Table 1: t_max (ms) per case and estimator, measured (CPU of whole steps) and, for the paper's, the paper's."""
+    import pandas as pd
+
     frame = timing(study)
     rows = []
     for case in study.scenario.cases:
@@ -206,6 +211,8 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
     standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
     """
+    import pandas as pd
+
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
         return pd.DataFrame()
@@ -255,6 +262,8 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee`: its theorem's worst-case
     error bound per state for noise in V, or why the theorem does not apply.
     """
+    import pandas as pd
+
     scenario = study.scenario
     focus = scenario.focus_state
     name = state_names(study)[focus]
@@ -350,6 +359,8 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
 
 
 def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
+    import pandas as pd
+
     scenario = study.scenario
     written: list[Path] = []
     steps_path = out / "steps.parquet"

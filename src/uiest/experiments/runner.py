@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from uiest import models
 from uiest.augmented import augmented_system
@@ -53,6 +52,8 @@ from uiest.system import System
 from uiest.window.backends import BACKENDS
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from uiest.estimators.base import WindowEstimator
     from uiest.kalman import KalmanFilter
 
@@ -275,6 +276,8 @@ def run_study(
     an interrupted or killed study resumes; runs read back are not reported to ``progress``. It needs the
     model by name or file (``scenario.model``), not as an object: the model file's bytes key the runs.
     """
+    import pandas as pd
+
     if not isinstance(scenario, Scenario):
         raise OptionError(f"scenario: expected a Scenario, got {shown(scenario)}")
     if solver not in BACKENDS:
@@ -421,6 +424,8 @@ def _outcomes(
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
+    import pandas as pd
+
     x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
     w_names = truth.names.get("w") or tuple(f"w[{i}]" for i in range(truth.w.shape[1]))
     data: dict[str, object] = {"case": case, "run": run, "estimator": name, "k": np.arange(truth.x.shape[0]),
