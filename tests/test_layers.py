@@ -7,11 +7,15 @@ import a uiest module only when it is a package's module-level ``__getattr__`` (
 """
 
 import ast
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
 
 import uiest
+from uiest.estimators.design_hook import design_function
 
 SOURCES = Path(uiest.__file__).resolve().parent
 
@@ -135,6 +139,11 @@ def cycles(edges: set[tuple[str, str]]) -> list[list[str]]:
 GRAPH = imports(SOURCES)
 
 
+def fresh_environment() -> dict[str, str]:
+    """The environment of a fresh interpreter that imports these sources."""
+    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(SOURCES.parent), os.environ.get("PYTHONPATH", "")])}
+
+
 def test_the_graph_is_read():
     importers = {a for a, *_ in GRAPH}
     assert {"uiest.estimators.uise", "uiest.design", "uiest.cli"} <= importers
@@ -194,3 +203,17 @@ def test_layer_of(module, layer):
 def test_the_checks_catch_a_cycle_and_an_upward_import():
     assert cycles({("a", "b"), ("b", "c"), ("c", "a"), ("c", "d")}) == [["a", "b", "c"]]
     assert layer_of("uiest.experiments.scenario") > layer_of("uiest.models.crop_growth")
+
+
+def test_the_design_layer_is_registered_whenever_an_estimator_is_reachable():
+    code = (
+        "from uiest.estimators.uise import UISE; from uiest.estimators.design_hook import design_function as f; "
+        "assert f('design_uise').__module__ == 'uiest.design' and UISE.design"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=fresh_environment())
+    assert done.returncode == 0, done.stderr
+
+
+def test_an_unregistered_design_function_is_named():
+    with pytest.raises(LookupError, match="no_such_design"):
+        design_function("no_such_design")
