@@ -7,6 +7,7 @@ import functools
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -358,11 +359,34 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         return _write_files(study, stage, wall_time=wall_time)
 
 
+@dataclass(frozen=True, kw_only=True)
+class _Tables:
+    """The tables a report is written from (each also written as a CSV file), and the files written so far."""
+
+    accuracy: pd.DataFrame
+    timing: pd.DataFrame
+    health: pd.DataFrame
+    information: pd.DataFrame
+    guarantees: pd.DataFrame
+    written: list[Path]
+
+
 def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
+    tables = _write_tables(study, out)
+    written = [*tables.written, *figures(study, out)]
+    study.scenario.to_toml(out / "scenario.toml")
+    written.append(out / "scenario.toml")
+    write_text(out / "report.md", "\n".join(_report_lines(study, tables, wall_time)))
+    written.append(out / "report.md")
+    manifest = _manifest(study, out, written, wall_time)
+    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
+    return manifest
+
+
+def _write_tables(study: StudyResult, out: Path) -> _Tables:
+    """Write the data files and tables (steps, runs, accuracy, timing, health, Table 1, information, guarantees)."""
     import pandas as pd
 
-    scenario = study.scenario
-    written: list[Path] = []
     steps_path = out / "steps.parquet"
     write_file(steps_path, lambda tmp: study.steps.to_parquet(tmp, index=False))
     runs_path = out / "runs.csv"
@@ -372,46 +396,55 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     _csv(times, out / "timing.csv")
     step_health = health(study)
     _csv(step_health, out / "health.csv")
-    written.append(out / "health.csv")
     table = timing_table(study)
     _csv(table, out / "table1.csv")
     load = f"load average {os.getloadavg()[0]:.2f} at the end" if hasattr(os, "getloadavg") else "load unknown"
     write_text(out / "table1.md", _markdown(table) + f"\n\nMeasured on: {provenance.machine()}, {load}\n")
-    written += [steps_path, runs_path, out / "accuracy.csv", out / "timing.csv", out / "table1.csv", out / "table1.md"]
-    written += figures(study, out)
-    scenario.to_toml(out / "scenario.toml")
-    written.append(out / "scenario.toml")
-    focus = state_names(study)[scenario.focus_state]
-    failures = study.runs[study.runs["error"] != ""]
     try:
         info = information_table(study)
     except Exception as exc:  # an optional section: its failure is reported, the rest is written
         info = pd.DataFrame([{"information table unavailable": f"{type(exc).__name__}: {exc}"}])
     _csv(info, out / "information.csv")
-    written.append(out / "information.csv")
-    info_section = (
-        [
-            f"## Information in the data: is the noisy {focus} error a limit of the estimator or of the data?",
-            "",
-            _markdown(info),
-            "",
-            f"`bound_std` is the Cramer-Rao standard deviation of {focus} at the end of one window (N transitions, "
-            "the unknown input free, noise std b/sqrt(3)); `discounted_std` the same for a least-squares estimator "
-            "with the discount mu on its output weights (see `uiest.detectability.window_information`). Where "
-            "these are comparable to or larger than the measured RMSE (or to X's width), the data of a window "
-            "cannot resolve the state any better: the error is then held by the prior and the constraints of X, "
-            "not by the estimator.",
-            "",
-        ]
-        if not info.empty
-        else []
-    )
-
     guarantees = guarantee_table(study, acc)
     _csv(guarantees, out / "guarantees.csv")
-    written.append(out / "guarantees.csv")
+    names = ("health.csv", "accuracy.csv", "timing.csv", "table1.csv", "table1.md", "information.csv", "guarantees.csv")
+    return _Tables(
+        accuracy=acc,
+        timing=table,
+        health=step_health,
+        information=info,
+        guarantees=guarantees,
+        written=[steps_path, runs_path, *(out / name for name in names)],
+    )
+
+
+def _information_section(info: pd.DataFrame, focus: str) -> list[str]:
+    """The report's section on the information in the data (none when the table is empty)."""
+    if info.empty:
+        return []
+    return [
+        f"## Information in the data: is the noisy {focus} error a limit of the estimator or of the data?",
+        "",
+        _markdown(info),
+        "",
+        f"`bound_std` is the Cramer-Rao standard deviation of {focus} at the end of one window (N transitions, "
+        "the unknown input free, noise std b/sqrt(3)); `discounted_std` the same for a least-squares estimator "
+        "with the discount mu on its output weights (see `uiest.detectability.window_information`). Where "
+        "these are comparable to or larger than the measured RMSE (or to X's width), the data of a window "
+        "cannot resolve the state any better: the error is then held by the prior and the constraints of X, "
+        "not by the estimator.",
+        "",
+    ]
+
+
+def _report_lines(study: StudyResult, tables: _Tables, wall_time: float) -> list[str]:
+    """The lines of report.md."""
+    scenario = study.scenario
+    focus = state_names(study)[scenario.focus_state]
+    failures = study.runs[study.runs["error"] != ""]
     checked = paper_claims(study)
-    report = [
+    acc, table, step_health, guarantees = tables.accuracy, tables.timing, tables.health, tables.guarantees
+    return [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
         *headline(checked),
@@ -458,7 +491,7 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "All states: `accuracy.csv`; timing details (mean, median, p95, max per sample): `timing.csv`; every "
         "step of every run: `steps.parquet`.",
         "",
-        *info_section,
+        *_information_section(tables.information, focus),
         *filter_comparison(study, acc),
         "## Figures",
         "",
@@ -490,9 +523,12 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "noise. `window_at_bound`: steps whose window solution touched a side of its box.",
         "",
     ]
-    write_text(out / "report.md", "\n".join(report))
-    written.append(out / "report.md")
-    manifest = {
+
+
+def _manifest(study: StudyResult, out: Path, written: list[Path], wall_time: float) -> dict[str, object]:
+    """manifest.json's content: the scenario, the machine, the versions, the seeds and the files written."""
+    scenario = study.scenario
+    return {
         "scenario": scenario.to_dict(),
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": provenance.machine(),
@@ -506,5 +542,3 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "files": sorted(str(p.relative_to(out)) for p in written),
     }
-    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
-    return manifest
