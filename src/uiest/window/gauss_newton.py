@@ -866,8 +866,9 @@ class GaussNewtonSolver:
             Starting point, shape (n_var,), scaled variables.
         p : numpy.ndarray
             The window's parameters (data, prior, weights), shape (n_par,).
-        lam_x0, lam_g0 : numpy.ndarray, optional
-            Accepted for the solver interface; qrqp's warm start comes from the starting point's active set.
+        lam_x0, lam_g0 : None
+            Not taken (:class:`~uiest.errors.OptionError` otherwise): the first QP starts from the sides ``z0``
+            is on (see :data:`~uiest.window.solvers.MULTIPLIER_BACKENDS`).
 
         Returns
         -------
@@ -876,6 +877,12 @@ class GaussNewtonSolver:
 
         """
         start = time.perf_counter()
+        for name, multipliers in (("lam_x0", lam_x0), ("lam_g0", lam_g0)):
+            if multipliers is not None:
+                raise OptionError(
+                    f"{name}: expected None; the Gauss-Newton backend takes no multipliers (its first QP starts "
+                    "from the sides z0 is on)"
+                )
         state = self._state = self._start(z0, p)
         for state.iterations in range(1, self.max_iter + 1):
             if self._iterate(state):

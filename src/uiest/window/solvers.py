@@ -27,6 +27,7 @@ __all__ = [
     "FEASIBILITY_TOL",
     "IPOPT_DEFAULTS",
     "IPOPT_WARM_START",
+    "MULTIPLIER_BACKENDS",
     "IpoptSolver",
     "WindowSolution",
     "WindowSolver",
@@ -259,6 +260,10 @@ def largest_violation(problem: WindowProblem, z: FloatArray, g: FloatArray) -> f
 
 BACKENDS = ("ipopt", "gn", "rti", "gn-riccati")
 """Names accepted as ``solver=``."""
+
+MULTIPLIER_BACKENDS = ("ipopt",)
+"""The backends whose ``solve`` takes multipliers (``lam_x0``, ``lam_g0``) for a warm start; the Gauss-Newton
+ones refuse them (design notes: Gauss-Newton solver)."""
 
 DEFAULT_BACKEND = "gn"
 """The estimators' default backend: Gauss-Newton SQP, with IPOPT as its fallback for any sample it does not
