@@ -59,6 +59,8 @@ def test_qrqp_solves_a_two_variable_qp_with_one_active_bound(scale, start):
     assert solved.cost == pytest.approx(-1.875, rel=1e-12)
     np.testing.assert_allclose(solved.lam_x, [0.0, 1.5], rtol=0, atol=1e-12)
     np.testing.assert_allclose(solved.lam_a, [0.0], rtol=0, atol=1e-12)
+    # the start is qrqp's first active set: the right one takes one iteration, a wrong one more than none
+    assert form.qrqp.stats()["iter_count"] == {None: 2, "active": 1, "wrong": 3}[start]
 
 
 def test_an_infeasible_qp_is_reported_as_failed():
