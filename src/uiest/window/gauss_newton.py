@@ -47,7 +47,9 @@ is a QP).
 Failures: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or
 NaN) is retried with the dampings :data:`RETRY_DAMPINGS` (times ``max|J^T J|``); the status then ends in
 ``"(regularised)"``, and the problem keeps the smallest of the first two dampings above the one that
-failed as its least damping until :meth:`GaussNewtonSolver.reset`. If the damped QP fails too, or the
+failed as its least damping until :meth:`GaussNewtonSolver.reset`: the only state carried from one solve to
+the next (each solve's own is a :class:`SolveState`). The parts: :class:`Damping`, :func:`_retry_damped`,
+:func:`_corrected`, :func:`_stop_status` and :func:`_solve_qrqp`. If the damped QP fails too, or the
 iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and the status says so.
 Where the curvature Gauss-Newton leaves out is large and partly negative, ``J^T J + S_+`` (which drops
 the negative part) converges only linearly.
