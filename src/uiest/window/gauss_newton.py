@@ -47,7 +47,9 @@ is a QP).
 Failures: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or
 NaN) is retried with the dampings :data:`RETRY_DAMPINGS` (times ``max|J^T J|``); the status then ends in
 ``"(regularised)"``, and the problem keeps the smallest of the first two dampings above the one that
-failed as its least damping until :meth:`GaussNewtonSolver.reset`. If the damped QP fails too, or the
+failed as its least damping until :meth:`GaussNewtonSolver.reset`: the only state carried from one solve to
+the next (each solve's own is a :class:`SolveState`). The parts: :class:`Damping`, :func:`_retry_damped`,
+:func:`_corrected`, :func:`_stop_status` and :func:`_solve_qrqp`. If the damped QP fails too, or the
 iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and the status says so.
 Where the curvature Gauss-Newton leaves out is large and partly negative, ``J^T J + S_+`` (which drops
 the negative part) converges only linearly.
@@ -866,8 +868,9 @@ class GaussNewtonSolver:
             Starting point, shape (n_var,), scaled variables.
         p : numpy.ndarray
             The window's parameters (data, prior, weights), shape (n_par,).
-        lam_x0, lam_g0 : numpy.ndarray, optional
-            Accepted for the solver interface; qrqp's warm start comes from the starting point's active set.
+        lam_x0, lam_g0 : None
+            Not taken (:class:`~uiest.errors.OptionError` otherwise): the first QP starts from the sides ``z0``
+            is on (see :data:`~uiest.window.solvers.MULTIPLIER_BACKENDS`).
 
         Returns
         -------
@@ -876,6 +879,12 @@ class GaussNewtonSolver:
 
         """
         start = time.perf_counter()
+        for name, multipliers in (("lam_x0", lam_x0), ("lam_g0", lam_g0)):
+            if multipliers is not None:
+                raise OptionError(
+                    f"{name}: expected None; the Gauss-Newton backend takes no multipliers (its first QP starts "
+                    "from the sides z0 is on)"
+                )
         state = self._state = self._start(z0, p)
         for state.iterations in range(1, self.max_iter + 1):
             if self._iterate(state):
