@@ -870,7 +870,7 @@ class GaussNewtonSolver:
             The window's parameters (data, prior, weights), shape (n_par,).
         lam_x0, lam_g0 : None
             Not taken (:class:`~uiest.errors.OptionError` otherwise): the first QP starts from the sides ``z0``
-            is on (see :data:`~uiest.window.solvers.MULTIPLIER_BACKENDS`).
+            is on (see :data:`~uiest.window.backends.MULTIPLIER_BACKENDS`).
 
         Returns
         -------
