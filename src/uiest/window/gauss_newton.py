@@ -652,7 +652,10 @@ class GaussNewtonSolver:
 
     Notes
     -----
-    The measurements behind the defaults are in the design notes: Gauss-Newton solver.
+    Each solve builds its own :class:`SolveState`. Between solves the solver keeps only the least damping that
+    failed QPs left (``_kept_damping``, relative to ``max |J^T J|``; forgotten by :meth:`reset`), so that later
+    samples do not fail the same singular QP again. The measurements behind the defaults are in the design
+    notes: Gauss-Newton solver.
 
     """
 
