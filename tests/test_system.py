@@ -4,6 +4,7 @@ import pytest
 
 from uiest import DataError, ModelError, System
 from uiest.errors import OptionError
+from uiest.signal import SignalSpec
 
 
 def pendulum(**spec):
@@ -116,3 +117,44 @@ def test_system_is_frozen():
         system.dt = 2.0
     with pytest.raises(ValueError):
         system.x.scale[0] = 5.0
+
+
+def _scalar_functions():
+    x, u, w, v = (ca.SX.sym(name) for name in "xuwv")
+    return ca.Function("f", [x, u, w], [0.5 * x + u + w]), ca.Function("h", [x, v], [x + v])
+
+
+def test_signal_specs_build_the_same_system_as_the_flat_keywords():
+    f, h = _scalar_functions()
+    flat = System.from_functions(f, h, x_bounds=(-10, 10), x_names=["level"], x_units=["m"], u_bounds=(-1, 1),
+                                 v_bounds=(-0.1, 0.1), w_scale=2.0)  # fmt: skip
+    grouped = System.from_functions(
+        f,
+        h,
+        x=SignalSpec(bounds=(-10, 10), names=["level"], units=["m"]),
+        u=SignalSpec(bounds=(-1, 1)),
+        v=SignalSpec(bounds=(-0.1, 0.1)),
+        w=SignalSpec(scale=2.0),
+    )
+    for kind in "xuwvy":
+        a, b = getattr(flat, kind), getattr(grouped, kind)
+        assert (a.names, a.units, a.bounds, a.scale_source) == (b.names, b.units, b.bounds, b.scale_source)
+        np.testing.assert_array_equal(a.scale, b.scale)
+
+
+def test_signal_specs_refuse_mixed_forms_unknown_keywords_and_bad_fields():
+    f, h = _scalar_functions()
+    with pytest.raises(OptionError, match="x= and x_bounds given together"):
+        System.from_functions(f, h, x=SignalSpec(names=["a"]), x_bounds=(-1, 1))
+    with pytest.raises(OptionError, match=r"unexpected keyword.*x_bound\b"):
+        System.from_functions(f, h, x_bound=(-1, 1))
+    with pytest.raises(OptionError, match="x: expected a SignalSpec"):
+        System.from_functions(f, h, x=(-1, 1))
+    with pytest.raises(ModelError, match="w: the unknown input has no domain"):
+        System.from_functions(f, h, w=SignalSpec(bounds=(-1, 1)))
+    with pytest.raises(ModelError, match="x_scale: expected positive finite numbers"):
+        System.from_functions(f, h, x_scale=-1.0)
+    with pytest.raises(ModelError, match="scale: expected positive finite numbers"):
+        SignalSpec(scale=[1.0, float("nan")])
+    with pytest.raises(ModelError, match="names: expected a sequence of strings"):
+        SignalSpec(names="level")
