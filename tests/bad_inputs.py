@@ -595,9 +595,9 @@ def api_cases(tmp: Path) -> list[Case]:
         ),
         Case(
             "weights of an unproven certificate",
-            lambda: linear_strong_detectability(np.eye(2) * 1.5, [[1], [0]], [[1, 0]]).weights(),
+            lambda: UISEWeights.from_certificate(linear_strong_detectability(np.eye(2) * 1.5, [[1], [0]], [[1, 0]])),
             CertificationError,
-            "does not hold",
+            "not certified",
         ),
         Case(
             "a zero outside the unit disk",

@@ -10,6 +10,7 @@ from uiest import System, simulate
 from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 from uiest.estimators import EKF, FIE, UISE, DelayedUISE, Guarantee, LinearUIO, StandardMHE, TwoStageUISE, Verdict
 from uiest.estimators.bounds import SETTLED, box_quadratic_max, strong_bound
+from uiest.experiments import crop_growth_study
 from uiest.models import closed_form, linear
 from uiest.reduction import ReducedModel
 
@@ -71,10 +72,9 @@ def test_the_uise_bound_is_the_proofs_formula():
 def test_crop_certified_uise_holds_but_is_vacuous_in_kg_per_m2():
     from uiest.experiments.runner import BUILDERS
     from uiest.experiments.study_model import StudyModel
-    from uiest.models import crop_growth
 
     study = StudyModel.of("crop-growth")
-    (spec,) = [s for s in crop_growth.study().estimators if s.name == "UISE (certified)"]
+    (spec,) = [s for s in crop_growth_study().estimators if s.name == "UISE (certified)"]
     uise = BUILDERS["uise"](study, spec, study.setup.x0, "gn")  # the study's certified UISE
     g = uise.guarantee
     assert g.applies and not g.informative and g.verdict is Verdict.VACUOUS

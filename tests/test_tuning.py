@@ -327,7 +327,7 @@ def test_the_reactors_standard_mhe_fitted_by_likelihood_and_its_arrival_cost():
 
 
 def test_arrival_covariance_with_the_input_extends_that_of_x():
-    from uiest.checks import check_run_data
+    from uiest.run_data import check_run_data
     from uiest.tuning import arrival_covariance
 
     system = _system()

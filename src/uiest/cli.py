@@ -17,12 +17,41 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from uiest import models
+from uiest import __version__, models
+from uiest.analysis import analyse as analyse_model
 from uiest.atomic import staged_folder, write_file, write_text
+from uiest.box import as_vector
 from uiest.checks import check_samples
+from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
+from uiest.estimate import (
+    ALL,
+    build_all,
+    build_estimator,
+    check_lag,
+    default_prior,
+    errors_against_truth,
+    recommended,
+    run_estimators,
+    write_estimates,
+)
+from uiest.estimators import UISE, StandardMHE, TwoStageUISE
+from uiest.experiments import Scenario, run_study, write_report
+from uiest.experiments.paper_study import study_of
+from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
+from uiest.experiments.study_store import StudyStore
+from uiest.experiments.sweep import Sweep, SweepProgress
+from uiest.experiments.sweep import sweep as run_sweep
 from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
+from uiest.plotting import plot_trajectory, save_figure
+from uiest.progress_lines import ProgressLines
+from uiest.results import read_record
+from uiest.scales import data_scales
+from uiest.simulate import check_steps
+from uiest.simulate import simulate as run_simulation
+from uiest.window.backends import BACKENDS
+from uiest.window.size import check_horizon
 
 __all__ = ["app", "main"]
 
@@ -101,8 +130,6 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 def _print_version(value: bool) -> None:
     """``--version``: print ``uiest <version>`` (the installed package's metadata) and exit."""
     if value:
-        from uiest import __version__
-
         console.print(f"uiest {__version__}", highlight=False)
         raise typer.Exit()
 
@@ -146,10 +173,6 @@ def simulate(
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
-    from uiest.plotting import plot_trajectory, save_figure
-    from uiest.simulate import check_steps
-    from uiest.simulate import simulate as run_simulation
-
     _positive(steps, "--steps", allow_zero=True)
     _output_folder(out, "--out")
     entry = models.load(model)
@@ -228,11 +251,6 @@ def estimate(
     ] = None,
 ) -> None:
     """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
-    from uiest.estimate import check_lag, run_estimators, write_estimates
-    from uiest.results import read_record
-    from uiest.scales import data_scales
-    from uiest.window.size import check_horizon
-
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     check_lag(lag, horizon)
@@ -266,9 +284,6 @@ def estimate(
 
 def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
     """``--x0`` as a vector (nx,) in the states' units, or the model's prior when it is not given."""
-    from uiest.box import as_vector
-    from uiest.estimate import default_prior
-
     if x0 is None:
         return default_prior(entry, system)
     try:
@@ -285,8 +300,6 @@ def _build_estimators(
 
     Returns ``(built, notes, skipped)``: per kind the estimator, the note on its weights, and why it was skipped.
     """
-    from uiest.estimate import ALL, build_all, build_estimator, recommended
-
     if not kinds:
         status.update("analysing the model")
         kind, why = recommended(system, prior, options["horizon"])
@@ -308,8 +321,6 @@ def _print_estimates(
     title: str, record: Any, results: dict[str, Any], notes: dict[str, str], skipped: dict[str, str]
 ) -> None:
     """The estimators' table (weights, RMSE against the truth when the data hold it, guarantee) and step health."""
-    from uiest.estimate import errors_against_truth
-
     rmse = errors_against_truth(record, results)
     table = Table(title=title)
     for column in ("estimator", "weights", "state RMSE vs truth", "guarantee"):
@@ -350,9 +361,6 @@ def certify(
     """Certify a registered model: strong detectability, reduced-order e-IOSS, delta-IOSS."""
     import json
     import time
-
-    from uiest.detectability import certify_delta_ioss, certify_strong_detectability
-    from uiest.estimators import UISE, StandardMHE, TwoStageUISE
 
     check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
@@ -421,9 +429,6 @@ def analyse(
 ) -> None:
     """Which estimator suits a model, and why: structure, zeros, near-zeros, certificates, recommendation."""
     import json
-
-    from uiest.analysis import analyse as analyse_model
-    from uiest.window.size import check_horizon
 
     _positive(max_horizon, "--max-horizon")
     if json_file is not None:
@@ -522,11 +527,6 @@ def reproduce(
 
     from rich.progress import SpinnerColumn
 
-    from uiest.experiments import Scenario, run_study, write_report
-    from uiest.experiments.study_store import StudyStore
-    from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
-
     _choice(solver, BACKENDS, "--solver")
     _positive(runs, "--runs")
     _positive(steps, "--steps")
@@ -538,11 +538,12 @@ def reproduce(
             entry = models.load(study)
         except OptionError as exc:
             raise OptionError(f"study: {exc}") from None
-        if entry.study is None:
+        make_study = study_of(entry)
+        if make_study is None:
             raise OptionError(
                 f"study: the model {study!r} has no study(); give one in its file, or --scenario FILE.toml"
             )
-        setting = entry.study()
+        setting = make_study()
         if not isinstance(setting, Scenario):
             raise ModelError(f"study: {study!r}'s study() returned {type(setting).__name__}, expected a Scenario")
     try:
@@ -605,11 +606,6 @@ def sweep(
     retry_failed: Annotated[bool, typer.Option(help="Compute again the stored tasks that recorded an error.")] = False,
 ) -> None:
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
-    from uiest.experiments.sweep import Sweep, SweepProgress
-    from uiest.experiments.sweep import sweep as run_sweep
-    from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
-
     _choice(solver, BACKENDS, "--solver")
     _positive(workers, "--workers")
     _output_folder(out, "--out")
@@ -666,8 +662,6 @@ def bench(
 ) -> None:
     """Window solver backends (ipopt, gn, rti, gn-riccati) x estimators x N on the noisy crop scenario."""
     import json
-
-    from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
 
     if json_file is not None:
         writable_file(json_file, "--json")

@@ -44,11 +44,19 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import check_int, check_keywords, check_real, shown, user_stacklevel
+from uiest.detectability import certify_strong_detectability
+from uiest.detectability.certificate import horizon_condition
+from uiest.detectability.lmi import finite_box
 from uiest.errors import CertificationError, DataError, HorizonError, OptionError
+from uiest.estimators import design_hook
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
+from uiest.estimators.two_stage import TwoStageUISE, reduced_data_scales
+from uiest.estimators.uise import UISE
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
+from uiest.results import Trajectory
 from uiest.scales import data_scales
+from uiest.simulate import simulate
 from uiest.system import System
 from uiest.theory import REDUCED_IOSS
 from uiest.window.size import check_horizon
@@ -249,10 +257,6 @@ def design_uise(
     (2,)
 
     """
-    from uiest.detectability import certify_strong_detectability
-    from uiest.detectability.certificate import horizon_condition
-    from uiest.estimators import UISE
-
     certify = _certify_options(certify_options, certify_strong_detectability)
     system = data_scales(system, as_vector(x0, system.nx, "x0"))
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
@@ -302,9 +306,6 @@ def design_two_stage(
     ranked by Theorem 4.8's settled bound on ``z_sharp`` (:func:`~uiest.estimators.bounds.two_stage_z_bound`,
     the one the guarantee carries to the states).
     """
-    from uiest.estimators import TwoStageUISE
-    from uiest.estimators.two_stage import reduced_data_scales
-
     reduced = reduced_data_scales(reduced, as_vector(x0, reduced.system.nx, "x0"))
     system = reduced.system
     certify = dict(certify_options or {})
@@ -446,8 +447,6 @@ def _given_records(
     system: System, records: Sequence[Any]
 ) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
     """``(u, y, x, w)`` of the user's records; DataError for anything that is not a record of ``system`` with states."""
-    from uiest.results import Trajectory
-
     records = [] if isinstance(records, Trajectory) else list(records)
     if not records:
         raise DataError("records: expected a non-empty sequence of Trajectory records")
@@ -466,9 +465,6 @@ def _noise_records(
     system: System, x0: FloatArray, trials: int, steps: int, seed: int
 ) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
     """``(u, y, x, w)`` of noise-only runs: u at U's centre, w = nominal, v uniform in V (its scale where unbounded)."""
-    from uiest.detectability.lmi import finite_box
-    from uiest.simulate import simulate
-
     rng = np.random.default_rng(seed)
     V = finite_box(system.v.bounds, system.v.bounds.center, system.v.scale)
     u = np.tile(system.u.bounds.center, (steps, 1)) if system.nu else None
@@ -488,3 +484,6 @@ def _certify_options(options: Any, certify: Callable[..., Any]) -> dict[str, Any
     known = [name for name in inspect.signature(certify).parameters if name not in ("system", "mu")]
     check_keywords(options, known, "certify_options")
     return dict(options)
+
+
+design_hook.register(design_uise=design_uise, design_two_stage=design_two_stage, estimator_options=estimator_options)

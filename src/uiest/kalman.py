@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_real, check_run_data, check_u_prev, check_y
+from uiest.checks import check_real
 from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
@@ -57,6 +57,7 @@ from uiest.health import Outcome, at_bound, quiet_bound_warnings
 from uiest.input_model import InputModel
 from uiest.likelihood import LikelihoodProfile, ProfileShape, Score, check_grid, innovation_log_density
 from uiest.results import EstimationResult, StepEstimate, Trajectory
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 
 EDGE_GAIN = 1.01

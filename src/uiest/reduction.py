@@ -32,6 +32,8 @@ from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
 from uiest.theory import PSI_RECOVERY, QUASI_STATE_AFFINE_REDUCTION, W_FREE_REDUCED_DYNAMICS
+from uiest.window.model import box_scale
+from uiest.window.problem import working_center
 
 __all__ = ["ASSUMPTION_TOL", "AssumptionReport", "ReducedModel", "reduce_quasi_state_affine"]
 
@@ -154,9 +156,6 @@ class ReducedModel:
         From the state scales, not from T(X)'s widths alone, so that a wide X with small state
         scales gives small z scales (for a linear T and ``s_x`` = X's widths both are the same).
         """
-        from uiest.window.model import box_scale
-        from uiest.window.problem import working_center
-
         s = self.system
         x = ca.SX.sym("x", s.nx)
         jac = ca.Function("dT_sharp", [x], [ca.jacobian(self.T(x)[self.n_flat :], x)])

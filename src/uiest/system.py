@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from uiest import ode
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import (
     MAX_STAGE_SIZE,
@@ -465,8 +466,6 @@ class System:
         0.05 [ 0.0988 -0.0488]
 
         """
-        from uiest import ode
-
         nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
         _check_spec(spec, "System.from_ode")
         rhs_f = as_function(rhs, "rhs", [("x", nx), ("u", nu), ("w", nw)], nx)

@@ -239,10 +239,6 @@ class Certificate:
     def _horizon(self) -> int:
         raise NotImplementedError
 
-    def weights(self) -> Any:
-        """The estimator weights this certificate designs; raises when not certified."""
-        raise NotImplementedError
-
     def verify(self, n_pairs: int = 100_000, seed: int = 0) -> Verification:
         """Test the certificate's inequality with the nonlinear model on random pairs."""
         n_pairs, seed = check_samples(n_pairs, "n_pairs"), check_seed(seed)
@@ -341,13 +337,6 @@ class StrongDetectabilityBase(MuCertificate):
     def _horizon(self) -> int:
         """Eq. (13) in the scaled norm: :func:`strong_horizon`."""
         return strong_horizon(self.mu, self.condition)
-
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
-        from uiest.estimators.weights import UISEWeights
-
-        self.require("weights")
-        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)  # type: ignore[attr-defined]
 
 
 def _eig(matrix: FloatArray, index: int) -> float:

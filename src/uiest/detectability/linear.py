@@ -30,6 +30,7 @@ from uiest.detectability.certificate import (
     Verification,
     check_rate,
 )
+from uiest.detectability.strong import worst_case_ratio
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
@@ -108,8 +109,6 @@ class LinearStrongDetectability(StrongDetectabilityBase):
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """Eq. (5b) on random increments (the system is linear: pairs are increments)."""
-        from uiest.detectability.strong import worst_case_ratio
-
         rng = np.random.default_rng(seed)
         n, p = self.A.shape[0], self.C.shape[0]
         dx = rng.standard_normal((n_pairs, n)) * 10.0 ** rng.uniform(-3, 3, (n_pairs, 1))

@@ -125,12 +125,6 @@ class ReducedIOSS(MuCertificate):
         """Smallest N with ``N > -log_mu(4 c_x)`` (Eq. (31))."""
         return int(np.floor(np.log(4.0 * self.c_x) / np.log(1.0 / self.mu))) + 1
 
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.TwoStageWeights` from the constants of Eq. (27)."""
-        from uiest.estimators.weights import TwoStageWeights
-
-        return TwoStageWeights.from_certificate(self)
-
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """The one-step inequality of the module docstring on random pairs (nonlinear f, h)."""
         lam = self.alpha_1_scaled * self.mu

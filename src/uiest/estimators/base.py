@@ -43,18 +43,20 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, check_run_data, check_u_prev, check_y, user_stacklevel
+from uiest.checks import check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
+from uiest.window.backends import BACKENDS
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
 from uiest.window.size import check_horizon
-from uiest.window.solvers import BACKENDS
+from uiest.window.solvers import MULTIPLIER_BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 
@@ -71,7 +73,8 @@ class WindowOptions:
         Backend options (IPOPT options over :data:`uiest.window.IPOPT_DEFAULTS`, or keyword
         arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`).
     warm_start : bool
-        Primal-dual warm start from the shifted previous solution.
+        Pass the shifted previous solution's multipliers to the backend (IPOPT's primal-dual warm start; the
+        Gauss-Newton backends take none). Every backend starts from the shifted previous solution.
     strict : bool
         Raise :class:`~uiest.errors.SolverError` when a window problem is not solved.
     polish : bool
@@ -642,10 +645,14 @@ class WindowEstimator(StreamingEstimator):
             old_start, old_problem, old_solution = self._last
             shift = self._k - length - old_start
             shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
-                                    duals=self._options.warm_start, data=data)  # fmt: skip
+                                    duals=self._takes_multipliers(), data=data)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None
+
+    def _takes_multipliers(self) -> bool:
+        """Whether the shifted multipliers are passed to the backend (``warm_start``, a backend that takes them)."""
+        return self._options.warm_start and self._options.solver in MULTIPLIER_BACKENDS
 
     # ------------------------------------------------------------------ batch
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:

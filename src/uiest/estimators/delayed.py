@@ -27,6 +27,7 @@ from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.bounds import strong_bound
+from uiest.estimators.design_hook import design_function
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
@@ -80,7 +81,7 @@ class DelayedUISE(UISE):
     @classmethod
     def design(cls, system: System, *, x0_prior: ArrayLike, lag: int = 1, **design_options: Any) -> DelayedUISE:
         """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
-        from uiest.design import design_uise, estimator_options
+        design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
 
         if "records" in design_options:  # they would score a UISE of the delayed system, not this estimator
             raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")

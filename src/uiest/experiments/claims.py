@@ -14,13 +14,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from uiest.box import FloatArray
 from uiest.experiments.metrics import state_names
 from uiest.experiments.runner import StudyResult
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "FILTER_KINDS",
@@ -187,6 +190,8 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
 
 
 def _column(table: pd.DataFrame, case: str, name: str) -> pd.Series:
+    import pandas as pd
+
     if name not in table.columns or case not in table.index.get_level_values(0):
         return pd.Series(dtype=float)
     return table.loc[case, name].dropna()
@@ -194,6 +199,8 @@ def _column(table: pd.DataFrame, case: str, name: str) -> pd.Series:
 
 def _ratios(table: pd.DataFrame, case: str, ours: str, theirs: str) -> FloatArray:
     """Per-run ``ours / theirs`` over the runs that have both."""
+    import pandas as pd
+
     joined = pd.concat([_column(table, case, ours).rename("a"), _column(table, case, theirs).rename("b")],
                        axis=1).dropna()  # fmt: skip
     with np.errstate(divide="ignore", invalid="ignore"):

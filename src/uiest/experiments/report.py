@@ -9,22 +9,28 @@ import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
-from matplotlib.figure import Figure
 
 from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_real, shown
+from uiest.detectability import window_information
 from uiest.errors import OptionError
 from uiest.experiments import provenance
+from uiest.experiments.certificates import describe
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
+from uiest.noise import UniformNoise
+from uiest.plotting import pyplot, robust_limits
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 __all__ = ["guarantee_table", "write_report"]
 
@@ -64,7 +70,7 @@ def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
     paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
     for path in paths:
         write_file(path, functools.partial(fig.savefig, dpi=140, format=path.suffix.lstrip(".")))
-    plt.close(fig)
+    pyplot().close(fig)
     return paths
 
 
@@ -76,14 +82,13 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     absolute error (Figure 1) and of the error norm (Figure 2), so 20 runs do not become a tangle
     of lines. Axis limits of Figure 3 are robust (a start-up transient is clipped; the legend says so).
     """
-    from uiest.plotting import robust_limits
-
     scenario = study.scenario
     system = study.model.system
     names = state_names(study)
     focus, focus_unit = names[scenario.focus_state], system.x.units[scenario.focus_state]
     cases = list(scenario.cases)
     written: list[Path] = []
+    plt = pyplot()
     fig1, axes1 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     fig2, axes2 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     for col, case in enumerate(cases):
@@ -149,6 +154,8 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
 
 def timing_table(study: StudyResult) -> pd.DataFrame:
     """Table 1: t_max (ms) per case and estimator, measured (CPU of whole steps) and, for the paper's, the paper's."""
+    import pandas as pd
+
     frame = timing(study)
     rows = []
     for case in study.scenario.cases:
@@ -205,8 +212,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
     standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
     """
-    from uiest.detectability import window_information
-    from uiest.noise import UniformNoise
+    import pandas as pd
 
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
@@ -257,6 +263,8 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee`: its theorem's worst-case
     error bound per state for noise in V, or why the theorem does not apply.
     """
+    import pandas as pd
+
     scenario = study.scenario
     focus = scenario.focus_state
     name = state_names(study)[focus]
@@ -377,6 +385,8 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
 
 def _write_tables(study: StudyResult, out: Path) -> _Tables:
     """Write the data files and tables (steps, runs, accuracy, timing, health, Table 1, information, guarantees)."""
+    import pandas as pd
+
     steps_path = out / "steps.parquet"
     write_file(steps_path, lambda tmp: study.steps.to_parquet(tmp, index=False))
     runs_path = out / "runs.csv"
@@ -429,8 +439,6 @@ def _information_section(info: pd.DataFrame, focus: str) -> list[str]:
 
 def _report_lines(study: StudyResult, tables: _Tables, wall_time: float) -> list[str]:
     """The lines of report.md."""
-    from uiest.experiments.certificates import describe
-
     scenario = study.scenario
     focus = state_names(study)[scenario.focus_state]
     failures = study.runs[study.runs["error"] != ""]

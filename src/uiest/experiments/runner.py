@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from uiest import models
 from uiest.augmented import augmented_system
@@ -44,14 +43,17 @@ from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
 from uiest.experiments.study_store import StudyStore
 from uiest.health import quiet_bound_warnings
+from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory, count_names
 from uiest.simulate import simulate
 from uiest.system import System
-from uiest.window.solvers import BACKENDS
+from uiest.window.backends import BACKENDS
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from uiest.estimators.base import WindowEstimator
     from uiest.kalman import KalmanFilter
 
@@ -119,7 +121,6 @@ def _two_stage(
 
 
 def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
-    from uiest.kalman import EKF, UKF
 
     factor = spec.w_variance if spec.w_variance > 0 else study.tuned_variance(spec.kind)
     system = study.system
@@ -275,6 +276,8 @@ def run_study(
     an interrupted or killed study resumes; runs read back are not reported to ``progress``. It needs the
     model by name or file (``scenario.model``), not as an object: the model file's bytes key the runs.
     """
+    import pandas as pd
+
     if not isinstance(scenario, Scenario):
         raise OptionError(f"scenario: expected a Scenario, got {shown(scenario)}")
     if solver not in BACKENDS:
@@ -421,6 +424,8 @@ def _outcomes(
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
+    import pandas as pd
+
     x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
     w_names = truth.names.get("w") or tuple(f"w[{i}]" for i in range(truth.w.shape[1]))
     data: dict[str, object] = {"case": case, "run": run, "estimator": name, "k": np.arange(truth.x.shape[0]),

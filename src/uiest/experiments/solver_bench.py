@@ -43,6 +43,7 @@ from uiest.box import FloatArray
 from uiest.checks import check_flag
 from uiest.errors import OptionError
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
+from uiest.experiments.dompc_peer import run_dompc_standard_mhe
 from uiest.models import crop_growth
 from uiest.reduction import ReducedModel
 from uiest.results import Trajectory
@@ -200,8 +201,6 @@ def _dompc_record(
     system: Any, N: int, traj: Any, steps: int, reference: Any, reference_ms: float, reference_cpu: float
 ) -> dict[str, object]:
     """The do-mpc peer's record for the standard MHE (see :mod:`uiest.experiments.dompc_peer`)."""
-    from uiest.experiments.dompc_peer import run_dompc_standard_mhe
-
     weights = MHEWeights.from_scales(system, 0.48, output=1e6)
     peer = run_dompc_standard_mhe(system, weights, N, traj.u[:steps], traj.y[: steps + 1], reference.x_hat)
     return {

@@ -25,7 +25,7 @@ from uiest.errors import OptionError
 from uiest.experiments.provenance import code_version, model_digest
 from uiest.experiments.scenario import Scenario, model_beside, read_toml
 from uiest.window import DEFAULT_BACKEND
-from uiest.window.solvers import BACKENDS
+from uiest.window.backends import BACKENDS
 
 __all__ = ["SWEEPABLE", "Sweep", "Task", "apply"]
 
