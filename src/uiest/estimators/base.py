@@ -53,10 +53,9 @@ from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
-from uiest.window.backends import BACKENDS
+from uiest.window.backends import BACKENDS, MULTIPLIER_BACKENDS
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
 from uiest.window.size import check_horizon
-from uiest.window.solvers import MULTIPLIER_BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 

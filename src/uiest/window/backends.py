@@ -1,4 +1,7 @@
-"""The window solver backends by name: :data:`BACKENDS`, :data:`DEFAULT_BACKEND` and :func:`make_solver`."""
+"""The window solver backends by name: :data:`BACKENDS`, :data:`DEFAULT_BACKEND` and :func:`make_solver`.
+
+:data:`MULTIPLIER_BACKENDS` says which of them take multipliers for a warm start.
+"""
 
 from __future__ import annotations
 
@@ -10,10 +13,14 @@ from uiest.window.gauss_newton import GaussNewtonSolver
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import IpoptSolver, WindowSolver
 
-__all__ = ["BACKENDS", "DEFAULT_BACKEND", "make_solver"]
+__all__ = ["BACKENDS", "DEFAULT_BACKEND", "MULTIPLIER_BACKENDS", "make_solver"]
 
 BACKENDS = ("ipopt", "gn", "rti", "gn-riccati")
 """Names accepted as ``solver=``."""
+
+MULTIPLIER_BACKENDS = ("ipopt",)
+"""The backends whose ``solve`` takes multipliers (``lam_x0``, ``lam_g0``) for a warm start; the Gauss-Newton
+ones refuse them (design notes: Gauss-Newton solver)."""
 
 DEFAULT_BACKEND = "gn"
 """The estimators' default backend: Gauss-Newton SQP, with IPOPT as its fallback for any sample it does not

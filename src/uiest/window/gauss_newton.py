@@ -652,7 +652,10 @@ class GaussNewtonSolver:
 
     Notes
     -----
-    The measurements behind the defaults are in the design notes: Gauss-Newton solver.
+    Each solve builds its own :class:`SolveState`. Between solves the solver keeps only the least damping that
+    failed QPs left (``_kept_damping``, relative to ``max |J^T J|``; forgotten by :meth:`reset`), so that later
+    samples do not fail the same singular QP again. The measurements behind the defaults are in the design
+    notes: Gauss-Newton solver.
 
     """
 
@@ -870,7 +873,7 @@ class GaussNewtonSolver:
             The window's parameters (data, prior, weights), shape (n_par,).
         lam_x0, lam_g0 : None
             Not taken (:class:`~uiest.errors.OptionError` otherwise): the first QP starts from the sides ``z0``
-            is on (see :data:`~uiest.window.solvers.MULTIPLIER_BACKENDS`).
+            is on (see :data:`~uiest.window.backends.MULTIPLIER_BACKENDS`).
 
         Returns
         -------

@@ -25,7 +25,6 @@ __all__ = [
     "FEASIBILITY_TOL",
     "IPOPT_DEFAULTS",
     "IPOPT_WARM_START",
-    "MULTIPLIER_BACKENDS",
     "IpoptSolver",
     "WindowSolution",
     "WindowSolver",
@@ -253,8 +252,3 @@ def largest_violation(problem: WindowProblem, z: FloatArray, g: FloatArray) -> f
     if g.size:
         worst = max(worst, float(np.max(np.maximum(problem.lbg - g, g - problem.ubg), initial=0.0)))
     return worst
-
-
-MULTIPLIER_BACKENDS = ("ipopt",)
-"""The backends whose ``solve`` takes multipliers (``lam_x0``, ``lam_g0``) for a warm start; the Gauss-Newton
-ones refuse them (design notes: Gauss-Newton solver)."""
