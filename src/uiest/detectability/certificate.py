@@ -113,7 +113,7 @@ def horizon_condition(mu: float, N: int) -> float:
     return float(mu) ** -float(N) / 8.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Verification:
     """Outcome of ``certificate.verify(...)``.
 
@@ -243,7 +243,9 @@ class Certificate:
         """Test the certificate's inequality with the nonlinear model on random pairs."""
         n_pairs, seed = check_samples(n_pairs, "n_pairs"), check_seed(seed)
         if not self.certified:
-            return Verification(float("nan"), 0, 0, f"not certified: {self.reason}")
+            return Verification(
+                worst_ratio=float("nan"), pairs_used=0, pairs_drawn=0, note=f"not certified: {self.reason}"
+            )
         return self._verify(n_pairs, seed)
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:

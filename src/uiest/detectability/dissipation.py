@@ -128,7 +128,7 @@ class IncrementalModel:
         return ca.Function("J", [point], [J]), ca.Function("G", [point], [G])
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class DissipationSolution:
     """Outcome of :func:`solve`, in scaled coordinates.
 
@@ -265,8 +265,20 @@ def solve(
     nan = float("nan")
 
     def fail(outcome: str, reason: str, mu_min: float = nan) -> DissipationSolution:
-        return DissipationSolution(outcome, reason, nan, mu_min, np.full((n, n), nan), np.full(len(channels), nan),
-                                   nan, nan, covered, output_constant, kappa, "")  # fmt: skip
+        return DissipationSolution(
+            outcome=outcome,
+            reason=reason,
+            mu=nan,
+            mu_min=mu_min,
+            P=np.full((n, n), nan),
+            q=np.full(len(channels), nan),
+            r=nan,
+            margin=nan,
+            cover=covered,
+            output_constant=output_constant,
+            max_condition=kappa,
+            design="",
+        )
 
     bisection = lmi.bisect_rate(stage.probe, tol=tol)
     notes = [bisection.note] if bisection.note else []
@@ -313,9 +325,20 @@ def solve(
         else f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
         f"{check.schur.min():.2e}, direct {check.direct.min():.2e} (rounding {ROUNDING:.0e}){note}{source}"
     )
-    solution = DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min),
-                                   finished.P, finished.q, float(finished.r), check.margin, covered,
-                                   output_constant, kappa, finished.note)  # fmt: skip
+    solution = DissipationSolution(
+        outcome=lmi.FEASIBLE if ok else "re-check failed",
+        reason=reason,
+        mu=float(mu_used),
+        mu_min=float(mu_min),
+        P=finished.P,
+        q=finished.q,
+        r=float(finished.r),
+        margin=check.margin,
+        cover=covered,
+        output_constant=output_constant,
+        max_condition=kappa,
+        design=finished.note,
+    )
     return falsify_solution(model, solution, seed)
 
 
@@ -397,7 +420,7 @@ def _decided_at_samples(
                        "(parameters=, a smaller domain)"), float("nan")  # fmt: skip
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PairCheck:
     """Worst ratio of the dissipation inequality over sampled pairs (see :func:`check_pairs`)."""
 
@@ -442,4 +465,4 @@ def check_pairs(
     lhs = quad(dz_next, P)
     rhs = mu * quad(z - zt, P) + quad(d - dt, W) + quad(dy, R)
     used = rhs > 0.0
-    return PairCheck(float((lhs[used] / rhs[used]).max(initial=-np.inf)), int(used.sum()))
+    return PairCheck(worst_ratio=float((lhs[used] / rhs[used]).max(initial=-np.inf)), pairs=int(used.sum()))

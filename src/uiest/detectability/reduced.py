@@ -130,7 +130,12 @@ class ReducedIOSS(MuCertificate):
         lam = self.alpha_1_scaled * self.mu
         weights = [self.R_gamma * lam, self.R_v * lam]
         check = dissipation.check_pairs(self.model, self.P, self.mu, weights, self.R_y * lam, n_pairs, seed)
-        return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of V+ <= mu V + ...")
+        return Verification(
+            worst_ratio=check.worst_ratio,
+            pairs_used=check.pairs,
+            pairs_drawn=n_pairs,
+            note="ratio = LHS / RHS of V+ <= mu V + ...",
+        )
 
     def _details(self) -> dict[str, object]:
         ok = self.certified

@@ -46,7 +46,7 @@ DIRECTION_RTOL = 1e-12
 unbounded, so a direction dropped that is not rounding would make the elimination inexact without bound."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class InputStructure:
     """Scaled data of ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` for one system.
 

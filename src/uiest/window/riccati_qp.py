@@ -156,7 +156,7 @@ def _offsets(sizes: IntArray) -> IntArray:
     return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StageQPSolution:
     """The result of :func:`solve_stage_qp`.
 
