@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import enum
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, fields
 from typing import Any
 
@@ -86,21 +86,26 @@ class SignalSpec:
 _FLAT_FIELDS = ("bounds", "names", "units", "scale")
 
 
-def signal_specs(given: dict[str, SignalSpec | None], flat: dict[str, Any], caller: str) -> dict[str, SignalSpec]:
+def signal_specs(given: Mapping[str, Any] | None, flat: dict[str, Any], caller: str) -> dict[str, SignalSpec]:
     """One :class:`SignalSpec` per signal kind from ``given`` (kind -> spec) and flat keywords (``x_bounds``, ...).
 
     A kind's spec and its flat keywords may not both be given; w takes no ``w_bounds``. OptionError names a
-    keyword that is neither.
+    keyword or key that is neither.
     """
+    given = {} if given is None else given
+    if not isinstance(given, Mapping) or not set(given) <= set(SIGNAL_KINDS):
+        raise OptionError(f"signals: expected a mapping from some of {SIGNAL_KINDS} to SignalSpec, got {shown(given)}")
     specs: dict[str, SignalSpec] = {}
     for kind in SIGNAL_KINDS:
         spec = given.get(kind)
         if spec is not None and not isinstance(spec, SignalSpec):
-            raise OptionError(f"{kind}: expected a SignalSpec, got {shown(spec)}")
+            raise OptionError(f"signals[{kind!r}]: expected a SignalSpec, got {shown(spec)}")
         allowed = ("names", "units", "scale") if kind == "w" else _FLAT_FIELDS
         values = {name: flat.pop(f"{kind}_{name}") for name in allowed if f"{kind}_{name}" in flat}
         if spec is not None and values:
-            raise OptionError(f"{caller}: {kind}= and {', '.join(f'{kind}_{n}' for n in values)} given together")
+            raise OptionError(
+                f"{caller}: signals[{kind!r}] and {', '.join(f'{kind}_{n}' for n in values)} given together"
+            )
         try:
             specs[kind] = spec if spec is not None else SignalSpec(**values)
         except ModelError as exc:

@@ -12,7 +12,7 @@ import contextlib
 import dataclasses
 import inspect
 import warnings
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -249,11 +249,7 @@ class System:
         f: ca.Function,
         h: ca.Function,
         *,
-        x: SignalSpec | None = None,
-        u: SignalSpec | None = None,
-        w: SignalSpec | None = None,
-        v: SignalSpec | None = None,
-        y: SignalSpec | None = None,
+        signals: Mapping[str, SignalSpec] | None = None,
         w_range: BoxLike = None,
         dt: float = 1.0,
         time_unit: str = "s",
@@ -276,10 +272,10 @@ class System:
             ``w[k]`` act from time k to k+1.
         h : casadi.Function
             ``y[k] = h(x[k], v[k])``: two inputs of sizes (nx, nv), one output (ny >= 1).
-        x, u, w, v, y : SignalSpec, optional
-            Per signal: the domain (X, U, V, Y, in the signals' units; w has none), component names and units
-            (defaults ``x[0], x[1], ...`` and no unit), and nominal magnitudes (positive, in the signals' units)
-            that solvers and certificates divide by.
+        signals : mapping of str to SignalSpec, optional
+            Per signal (keys among ``"x", "u", "w", "v", "y"``): the domain (X, U, V, Y, in the signals' units;
+            w has none), component names and units (defaults ``x[0], x[1], ...`` and no unit), and nominal
+            magnitudes (positive, in the signals' units) that solvers and certificates divide by.
         w_range : Box or (lower, upper), optional
             A range the unknown input is known to keep to (only its scale and centre are used; the
             estimators do not bound w).
@@ -290,7 +286,7 @@ class System:
         name : str
             The model's name in reports.
         **flat
-            The signals' data as flat keywords, instead of a SignalSpec: ``x_bounds``, ``x_names``, ``x_units``,
+            The signals' data as flat keywords, instead of ``signals``: ``x_bounds``, ``x_names``, ``x_units``,
             ``x_scale`` and the same for u, v, y; ``w_names``, ``w_units``, ``w_scale``.
 
         Returns
@@ -324,7 +320,7 @@ class System:
         for label, fun, n_in in (("f", f, 3), ("h", h, 2)):
             if not isinstance(fun, ca.Function) or fun.n_in() != n_in:
                 raise ModelError(f"{label}: expected a casadi.Function with {n_in} inputs, got {fun!r}")
-        specs = signal_specs({"x": x, "u": u, "w": w, "v": v, "y": y}, dict(flat), "System.from_functions")
+        specs = signal_specs(signals, dict(flat), "System.from_functions")
         nx, nu, nw = (f.numel_in(i) for i in range(3))
         nv, ny = h.numel_in(1), h.numel_out(0)
         x_signal = Signal.from_spec("x", nx, specs["x"])
@@ -472,7 +468,7 @@ class System:
         h_f = as_function(h, "h", [("x", nx), ("v", nv)])
         w_range = spec.get("w_range")
         dt = _check_dt(dt)
-        signals = signal_specs({kind: spec.get(kind) for kind in "xuwvy"},
+        signals = signal_specs(spec.get("signals"),
                                {key: value for key, value in spec.items() if key in flat_signal_keywords()},
                                "System.from_ode")  # fmt: skip
         X = Box.coerce(signals["x"].bounds, nx, "x_bounds")
