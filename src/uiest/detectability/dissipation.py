@@ -48,7 +48,7 @@ from uiest.detectability.certificate import (
     verdict,
 )
 from uiest.detectability.cover import Cover
-from uiest.detectability.dissipation_design import ROUNDING, design_and_check
+from uiest.detectability.dissipation_design import ROUNDING, Finished, design_and_check
 from uiest.detectability.dissipation_lmi import Vertices
 from uiest.detectability.dissipation_rate import RateStage
 from uiest.detectability.tradeoff import check_condition
@@ -248,19 +248,9 @@ def solve(
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
     mu = check_rate(mu, "mu")
     kappa = check_condition(max_condition)
-    J_fun, G_fun = model.jacobians()
-    point = ca.SX.sym("p", J_fun.numel_in(0))
-    output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
-    stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
-    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
+    G_fun, covered, output_constant, vertices = _covered_vertices(model, parameters, cover, samples, seed)
     n = model.n
-    J = covered.vertices[:, :n, :]
-    if output_constant:
-        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
-    else:
-        G = covered.vertices[:, n:, :]
     channels = tuple(size for _, size in model.channels)
-    vertices = Vertices.build(J, G, channels, n)
     stage = RateStage(vertices, structure, kappa)
     nan = float("nan")
 
@@ -316,18 +306,9 @@ def solve(
                     f"(mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip
     check = finished.check
     ok = check.passed
-    condition = float(np.linalg.cond(finished.P))
-    source = "" if finished.note == "design" else f"; P from {finished.note}"
-    reason = (
-        f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g} with cond(P) <= {kappa:g}), cond(P) {condition:.3g}, "
-        f"re-check margins: kernel {check.kernel.min():.2e}, output {check.schur.min():.2e}{note}{source}"
-        if ok
-        else f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
-        f"{check.schur.min():.2e}, direct {check.direct.min():.2e} (rounding {ROUNDING:.0e}){note}{source}"
-    )
     solution = DissipationSolution(
         outcome=lmi.FEASIBLE if ok else "re-check failed",
-        reason=reason,
+        reason=_checked_reason(finished, mu_used, mu_min, kappa, note),
         mu=float(mu_used),
         mu_min=float(mu_min),
         P=finished.P,
@@ -340,6 +321,44 @@ def solve(
         design=finished.note,
     )
     return falsify_solution(model, solution, seed)
+
+
+def _covered_vertices(
+    model: IncrementalModel, parameters: ca.Function | None, cover: str, samples: int, seed: int
+) -> tuple[ca.Function, Cover, bool, Vertices]:
+    """The cover of J (and of G where the output map varies) and the LMI's vertices.
+
+    Returns ``(G_fun, cover, output_constant, vertices)``.
+    """
+    J_fun, G_fun = model.jacobians()
+    point = ca.SX.sym("p", J_fun.numel_in(0))
+    output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
+    stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
+    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
+    n = model.n
+    J = covered.vertices[:, :n, :]
+    if output_constant:
+        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
+    else:
+        G = covered.vertices[:, n:, :]
+    channels = tuple(size for _, size in model.channels)
+    return G_fun, covered, output_constant, Vertices.build(J, G, channels, n)
+
+
+def _checked_reason(finished: Finished, mu_used: float, mu_min: float, kappa: float, note: str) -> str:
+    """The reason of a solution whose weights were designed: certified with its margins, or the failed re-check."""
+    check = finished.check
+    condition = float(np.linalg.cond(finished.P))
+    source = "" if finished.note == "design" else f"; P from {finished.note}"
+    if check.passed:
+        return (
+            f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g} with cond(P) <= {kappa:g}), cond(P) {condition:.3g}, "
+            f"re-check margins: kernel {check.kernel.min():.2e}, output {check.schur.min():.2e}{note}{source}"
+        )
+    return (
+        f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
+        f"{check.schur.min():.2e}, direct {check.direct.min():.2e} (rounding {ROUNDING:.0e}){note}{source}"
+    )
 
 
 def falsify_solution(model: IncrementalModel, solution: DissipationSolution, seed: int) -> DissipationSolution:
