@@ -92,7 +92,7 @@ DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Rates certified by default (with the minimal rate), each kept when it is at least mu_min."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Candidate:
     """One (mu, N, output weight) weighed by the design.
 
@@ -430,7 +430,9 @@ def _design(
         guarantee = estimator.guarantee
         bound = np.full(system.nx, np.nan) if guarantee.error_bound is None else guarantee.error_bound
         output_weight = float(getattr(cert, "output_weight", 1.0))
-        return Candidate(cert.mu, N, bound, rms, output_weight, guarantee, w_rms), cert
+        return Candidate(
+            mu=cert.mu, N=N, bound=bound, rms=rms, output_weight=output_weight, guarantee=guarantee, w_rms=w_rms
+        ), cert
 
     def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
         """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best."""

@@ -44,7 +44,7 @@ __all__ = ["Linearization", "System", "as_function", "output_spread"]
 BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Linearization:
     """Jacobians of f and h at one point (x, u, w, v).
 
@@ -594,7 +594,8 @@ class System:
             self.nominal_w if w is None else as_vector(w, self.nw, "w"),
             np.zeros(self.nv) if v is None else as_vector(v, self.nv, "v"),
         ]
-        return Linearization(*(np.asarray(m, dtype=float) for m in self.jacobian_function(*args)))
+        A, B_u, B_w, C, D_v = (np.asarray(m, dtype=float) for m in self.jacobian_function(*args))
+        return Linearization(A=A, B_u=B_u, B_w=B_w, C=C, D_v=D_v)
 
     @cached_property
     def jacobian_function(self) -> ca.Function:

@@ -142,7 +142,7 @@ class Verification:
         return self.pairs_used > 0 and self.worst_ratio <= 1.0 + 1e-9
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Certificate:
     """A certificate's verdict, rate and quadratic storage ``V = |z - z~|_P^2``.
 
@@ -313,7 +313,7 @@ def state_labels(names: Sequence[str], units: Sequence[str]) -> tuple[str, ...]:
     return tuple(f"{n} [{u}]" if u else n for n, u in zip(names, units, strict=True))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class MuCertificate(Certificate):
     """A certificate whose rate the paper calls mu (strong detectability, reduced e-IOSS)."""
 
@@ -328,7 +328,7 @@ class MuCertificate(Certificate):
         return self.rate_min
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StrongDetectabilityBase(MuCertificate):
     """What the nonlinear and the linear strong-detectability certificates share.
 

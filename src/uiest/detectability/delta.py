@@ -37,7 +37,7 @@ from uiest.system import System
 __all__ = ["DeltaIOSS", "certify_delta_ioss"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class DeltaIOSS(Certificate):
     """A quadratic delta-IOSS Lyapunov function (Schiller et al. 2023, Assumption 1).
 

@@ -44,7 +44,7 @@ _MATCH_TOL = 1e-4  # two compressions agree on a candidate z within _MATCH_TOL *
 _CONFIRM_FACTOR = 100.0  # zero iff sigma_r(P(z)) <= 100 rtol |pencil|: weakly observable modes are no zeros
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LinearStrongDetectability(StrongDetectabilityBase):
     """Result of :func:`linear_strong_detectability` for ``A (n, n)``, ``B (n, q)``, ``C (p, n)``.
 

@@ -34,7 +34,7 @@ from uiest.errors import ModelError
 __all__ = ["ReducedIOSS", "certify_reduced_ioss"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ReducedIOSS(MuCertificate):
     """An exponential i-IOSS certificate of a reduced-order model (Assumption 4.7 of Guo et al.).
 

@@ -56,7 +56,7 @@ from uiest.theory import DECREASE_CONDITION
 __all__ = ["StrongDetectability", "certify_strong_detectability", "worst_case_ratio"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StrongDetectability(StrongDetectabilityBase):
     """A strong-detectability certificate (Theorem 3.2 of Guo et al.): ``V = |x - x~|_P^2``.
 
