@@ -34,9 +34,19 @@ def test_the_text_follows_the_numbers():
     assert str(partial) == "holds, bound h1 0.003 cm after 12 steps (informative there); no bound for h2: "
     none = Guarantee.none("UISE theorem (theo:MHE_full)", "N=2 < min_horizon()=18", [24.0], ("h",), ("cm",))
     assert none.verdict is Verdict.NONE and str(none) == "none: N=2 < min_horizon()=18" and not none.informative
-    unbounded = Guarantee("x", True, [np.inf], ("h",), ("cm",), error_bound=[np.inf], bound_note="V is unbounded")
+    unbounded = Guarantee(
+        theorem="x",
+        applies=True,
+        x_width=[np.inf],
+        names=("h",),
+        units=("cm",),
+        error_bound=[np.inf],
+        bound_note="V is unbounded",
+    )
     assert unbounded.verdict is Verdict.NO_BOUND and str(unbounded) == "holds, no finite bound: V is unbounded"
-    wide = Guarantee("x", True, [np.inf], ("h",), ("cm",), error_bound=[5.0], settling_steps=None)
+    wide = Guarantee(
+        theorem="x", applies=True, x_width=[np.inf], names=("h",), units=("cm",), error_bound=[5.0], settling_steps=None
+    )
     assert wide.informative and str(wide) == "holds, bound 5 cm once the initial error has decayed (informative)"
     for g in (vacuous, none, partial):  # the words never claim without the numbers
         assert "applies" not in str(g) and "guaranteed" not in str(g)

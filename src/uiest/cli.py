@@ -262,40 +262,67 @@ def estimate(
     if horizon is not None:
         check_horizon(horizon, "--horizon", system)
     record = read_record(data, system)
-    if x0 is None:
-        prior = default_prior(entry, system)
-    else:
-        try:
-            values = [float(part) for part in x0.split(",")]
-        except ValueError:
-            raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
-        prior = as_vector(values, system.nx, "--x0")
+    prior = _prior_option(x0, entry, system)
     system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
-    built: dict[str, Any] = {}
-    notes: dict[str, str] = {}
-    skipped: dict[str, str] = {}
     options = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "record": record}
     with console.status("building estimators") as status:
-        if not estimator:
-            status.update("analysing the model")
-            kind, why = recommended(system, prior, horizon)
-            console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
-                          highlight=False, soft_wrap=True)  # fmt: skip
-            estimator = [kind]
-        if ALL in estimator:
-            status.update("building every estimator the model admits")
-            built, notes, skipped = build_all(entry, system, prior, **options)
-        else:
-            for kind in estimator:
-                status.update(f"building {kind}")
-                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
-                                                           w_variance=w_variance, record=record)  # fmt: skip
+        built, notes, skipped = _build_estimators(status, estimator or [], entry, system, prior, options)
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
             results = run_estimators(built, record, prior)
+    _print_estimates(f"{entry.name}: {record.steps} steps from {data}", record, results, notes, skipped)
+    for caught_warning in caught:  # as messages, not as Python warnings with a source line
+        if issubclass(caught_warning.category, BoundWarning):
+            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
+        else:
+            warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
+                                   caught_warning.lineno)  # fmt: skip
+    written = write_estimates(out, system, record, results)
+    console.print(f"wrote {', '.join(str(p) for p in written)}")
+
+
+def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
+    """``--x0`` as a vector (nx,) in the states' units, or the model's prior when it is not given."""
+    if x0 is None:
+        return default_prior(entry, system)
+    try:
+        values = [float(part) for part in x0.split(",")]
+    except ValueError:
+        raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
+    return as_vector(values, system.nx, "--x0")
+
+
+def _build_estimators(
+    status: Any, kinds: list[str], entry: Any, system: Any, prior: Any, options: dict[str, Any]
+) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
+    """The estimators asked for (none: the recommended one; ``all``: every one the model admits).
+
+    Returns ``(built, notes, skipped)``: per kind the estimator, the note on its weights, and why it was skipped.
+    """
+    if not kinds:
+        status.update("analysing the model")
+        kind, why = recommended(system, prior, options["horizon"])
+        console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
+                      highlight=False, soft_wrap=True)  # fmt: skip
+        kinds = [kind]
+    if ALL in kinds:
+        status.update("building every estimator the model admits")
+        return build_all(entry, system, prior, **options)
+    built: dict[str, Any] = {}
+    notes: dict[str, str] = {}
+    for kind in kinds:
+        status.update(f"building {kind}")
+        built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+    return built, notes, {}
+
+
+def _print_estimates(
+    title: str, record: Any, results: dict[str, Any], notes: dict[str, str], skipped: dict[str, str]
+) -> None:
+    """The estimators' table (weights, RMSE against the truth when the data hold it, guarantee) and step health."""
     rmse = errors_against_truth(record, results)
-    table = Table(title=f"{entry.name}: {record.steps} steps from {data}")
+    table = Table(title=title)
     for column in ("estimator", "weights", "state RMSE vs truth", "guarantee"):
         table.add_column(column)
     for kind, result in results.items():
@@ -305,14 +332,6 @@ def estimate(
     for kind, why in skipped.items():
         console.print(f"{kind}: not applicable ({why})", markup=False, highlight=False, soft_wrap=True)
     console.print(_health_table(results))
-    for caught_warning in caught:  # as messages, not as Python warnings with a source line
-        if issubclass(caught_warning.category, BoundWarning):
-            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
-        else:
-            warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
-                                   caught_warning.lineno)  # fmt: skip
-    written = write_estimates(out, system, record, results)
-    console.print(f"wrote {', '.join(str(p) for p in written)}")
 
 
 def _health_table(results: dict[str, Any]) -> Table:

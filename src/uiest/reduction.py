@@ -41,7 +41,7 @@ ASSUMPTION_TOL = 1e-8
 """Largest relative violation of Eq. (17), Eq. (18) and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AssumptionReport:
     """Largest violations of Assumption ass found on sampled points of X x U x W x V.
 
@@ -304,7 +304,14 @@ def _assumption_report(
     jac = lmi.batched(dz_dw, [z_sharp, y, u, w, v])[0]
     w_sens = float((np.abs(jac) * system.w.scale[None, None, :] / sharp_scale[None, :, None]).max(initial=0.0))
     margin, outputs = _dominance(system, T_inv, z, v, n_flat)
-    return AssumptionReport(inverse, psi_error, w_sens, margin, outputs, count)
+    return AssumptionReport(
+        inverse_error=inverse,
+        psi_error=psi_error,
+        w_sensitivity=w_sens,
+        dominance_margin=margin,
+        dominance_outputs=outputs,
+        points=count,
+    )
 
 
 def _dominance(

@@ -59,9 +59,12 @@ from uiest.window.size import check_horizon
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WindowOptions:
     """How an estimator solves its window problems, and the lag of its smoothed estimate.
+
+    Every window estimator takes these either as keywords (``UISE(system, ..., solver="ipopt", lag=2)``) or as
+    one object (``UISE(system, ..., window=WindowOptions(solver="ipopt", lag=2))``); they are checked here.
 
     Attributes
     ----------
@@ -104,11 +107,19 @@ class WindowOptions:
 
     @classmethod
     def build(cls, values: Mapping[str, Any]) -> WindowOptions:
-        """Options from keyword arguments; unknown names raise OptionError."""
+        """Options from keyword arguments, or the one given as ``window``; unknown names raise OptionError."""
         known = [f.name for f in fields(cls)]
+        if "window" in values:
+            window = values["window"]
+            if not isinstance(window, WindowOptions):
+                raise OptionError(f"window: expected a WindowOptions, got {type(window).__name__}")
+            others = sorted(set(values) - {"window"})
+            if others:
+                raise OptionError(f"window: given together with {others}; put them in the WindowOptions")
+            return window
         unknown = sorted(set(values) - set(known))
         if unknown:
-            raise OptionError(f"options: unknown {unknown}; expected some of {known}")
+            raise OptionError(f"options: unknown {unknown}; expected some of {known} (or window=WindowOptions(...))")
         return cls(**values)
 
 
@@ -589,8 +600,20 @@ class WindowEstimator(StreamingEstimator):
             assert x_hat is not None
             data_k = np.where(np.isnan(y_vec), self.system.output(x_hat, self.v_prior), y_vec)[: self.model.nd]
             self._commit(k, u_vec, y_vec, node, data_k, x_hat, None)
-            return StepEstimate(k, x_hat.copy(), None, None, Outcome.ERROR, 0, 0.0, float("nan"), 0, np.isnan(y_vec),
-                                at_bound(self.system.x.bounds, x_hat, self.system.x.scale), reason=reason)  # fmt: skip
+            return StepEstimate(
+                k=k,
+                x_hat=x_hat.copy(),
+                w_hat=None,
+                w_index=None,
+                outcome=Outcome.ERROR,
+                iterations=0,
+                solve_time=0.0,
+                cost=float("nan"),
+                window=0,
+                missing=np.isnan(y_vec),
+                at_bound=at_bound(self.system.x.bounds, x_hat, self.system.x.scale),
+                reason=reason,
+            )
 
     def _propagate(self, u_prev: FloatArray) -> FloatArray:
         """The model's step from the last node (the prior at k = 0), clipped to its bounds; held if not finite."""

@@ -16,6 +16,7 @@ delayed_system(system).system)``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -76,6 +77,13 @@ class DelayedUISE(UISE):
             keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)
         self._fit = InputFit(system)
         self._a_last: FloatArray | None = None
+        window = keywords.get("window")
+        if isinstance(window, WindowOptions):  # the delayed estimate is the window's fixed-lag one
+            if window.lag not in (0, lag):
+                raise OptionError(f"window: its lag {window.lag} differs from lag = {lag}; the delayed UISE sets it")
+            keywords["window"] = dataclasses.replace(window, lag=lag)
+            super().__init__(system, **keywords)
+            return
         super().__init__(system, lag=lag, **keywords)
 
     @classmethod

@@ -60,7 +60,7 @@ class ClaimVerdict(StrEnum):
     DOES_NOT_HOLD = "does not hold"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Effect:
     """Per-run ratios of a claimed quantity (claimed: below 1) and what they decide.
 
@@ -107,7 +107,7 @@ def decide(
         verdict = ClaimVerdict.NO_DIFFERENCE
     else:
         verdict = ClaimVerdict.HOLDS if (high < 1.0) == claimed_below else ClaimVerdict.DOES_NOT_HOLD
-    return Effect(values, center, low, high, verdict)
+    return Effect(ratios=values, center=center, low=low, high=high, verdict=verdict)
 
 
 def relative(ratio: float, below: str, above: str) -> str:
@@ -120,7 +120,7 @@ def relative(ratio: float, below: str, above: str) -> str:
     return f"{abs(change):.2g} % {below if change < 0 else above}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Claim:
     """One claim of the paper on one case, and what the measurements say.
 
@@ -212,8 +212,10 @@ def _claim(case: str, statement: str, quantity: str, ratios: FloatArray, words: 
     try:
         effect = decide(ratios, claimed_below=claimed_below, min_effect=min_effect)
     except ValueError:
-        return Claim(case, statement, quantity, *words, None, "no run measured it")
-    return Claim(case, statement, quantity, *words, effect, detail)
+        effect, detail = None, "no run measured it"
+    below, above = words
+    return Claim(case=case, statement=statement, quantity=quantity, below=below, above=above, effect=effect,
+                 detail=detail)  # fmt: skip
 
 
 def paper_claims(study: StudyResult) -> list[Claim]:

@@ -89,7 +89,7 @@ FORMULATION_DIFFERENCES = (
 """Where the do-mpc problem or its use differs from :class:`~uiest.estimators.StandardMHE`."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DompcPeerResult:
     """do-mpc run of the standard-MHE window problem.
 

@@ -146,7 +146,7 @@ BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _sta
 """Estimator factories by ``EstimatorSpec.kind``."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StudyResult:
     """Everything a study produced, as tables (no pickles).
 
@@ -337,10 +337,19 @@ def run_study(
     run_rows.sort(key=lambda row: (scenario.cases.index(row["case"]), row["run"]))
     step_frames.sort(key=lambda frame: (scenario.cases.index(frame["case"].iat[0]), int(frame["run"].iat[0])))
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
-    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, study, solver, tuple(certificates))
+    return StudyResult(
+        scenario=scenario,
+        steps=steps,
+        runs=pd.DataFrame(run_rows),
+        truths=truths,
+        results=results,
+        model=study,
+        solver=solver,
+        certificates=tuple(certificates),
+    )
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RunOutcome:
     """What one (case, run) of a study produces: the truth, each estimator's result, step frames and run rows."""
 
@@ -383,7 +392,7 @@ def run_case(
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
                      "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
                      **counts})  # fmt: skip
-    return RunOutcome(case, run, truth, results, frames, rows)
+    return RunOutcome(case=case, run=run, truth=truth, results=results, frames=frames, rows=rows)
 
 
 def _outcomes(
