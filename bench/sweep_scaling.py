@@ -11,8 +11,8 @@ import time
 from dataclasses import replace
 from pathlib import Path
 
+from uiest.experiments import crop_growth_study
 from uiest.experiments.sweep import Sweep, sweep
-from uiest.models.crop_growth import study as crop_growth_study
 
 
 def main() -> None:

@@ -595,9 +595,9 @@ def api_cases(tmp: Path) -> list[Case]:
         ),
         Case(
             "weights of an unproven certificate",
-            lambda: linear_strong_detectability(np.eye(2) * 1.5, [[1], [0]], [[1, 0]]).weights(),
+            lambda: UISEWeights.from_certificate(linear_strong_detectability(np.eye(2) * 1.5, [[1], [0]], [[1, 0]])),
             CertificationError,
-            "does not hold",
+            "not certified",
         ),
         Case(
             "a zero outside the unit disk",
@@ -951,7 +951,12 @@ def _fuzz_cases(tmp: Path) -> list[Case]:
         Case(
             "Trajectory of disagreeing lengths",
             lambda: Trajectory(
-                np.arange(3.0), np.zeros((5, 2)), np.zeros((2, 1)), np.zeros((2, 1)), np.zeros((3, 1)), np.zeros((3, 1))
+                t=np.arange(3.0),
+                x=np.zeros((5, 2)),
+                u=np.zeros((2, 1)),
+                w=np.zeros((2, 1)),
+                v=np.zeros((3, 1)),
+                y=np.zeros((3, 1)),
             ),
             DataError,
             r"x: expected shape \(K\+1, nx\)",

@@ -32,13 +32,24 @@ def test_words_follow_the_size_and_sign_of_the_ratio():
     assert relative(0.78, "smaller", "larger") == "22 % smaller"
     assert relative(1.004, "smaller", "larger") == "0.4 % larger"
     assert relative(3.0, "decrease", "growth") == "3x growth"
-    claim = Claim("noisy", "the error grows over the run", "late/early mean |error|", "decrease", "growth",
-                  decide([0.84, 0.8, 0.82], claimed_below=False))  # fmt: skip
+    claim = Claim(
+        case="noisy",
+        statement="the error grows over the run",
+        quantity="late/early mean |error|",
+        below="decrease",
+        above="growth",
+        effect=decide([0.84, 0.8, 0.82], claimed_below=False),
+    )
     assert claim.verdict == ClaimVerdict.DOES_NOT_HOLD
     assert "does not hold (late/early mean |error| 0.82: 18 % decrease; 3 runs" in claim.text()
     assert headline([claim]) == ["**The paper's claims, checked here:**", "",
                                  "- **does not hold**: noisy: the error grows over the run"]  # fmt: skip
-    assert "not measured" in Claim("noisy", "x", "q", "a", "b", None, "no run measured it").text()
+    assert (
+        "not measured"
+        in Claim(
+            case="noisy", statement="x", quantity="q", below="a", above="b", effect=None, detail="no run measured it"
+        ).text()
+    )
 
 
 def test_paper_claims_rest_on_per_run_ratios_of_the_study():

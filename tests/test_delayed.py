@@ -7,7 +7,7 @@ import pytest
 from uiest import BoundWarning, ModelError, OptionError, System, simulate
 from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_strong_detectability
-from uiest.estimators import UISE, DelayedUISE, Outcome, UISEWeights
+from uiest.estimators import UISE, DelayedUISE, Outcome, UISEWeights, WindowOptions
 from uiest.models import linear
 
 V_MAX = 0.05
@@ -153,3 +153,13 @@ def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise()
 def test_the_delayed_design_refuses_records_it_could_not_score():
     with pytest.raises(OptionError, match=r"records: DelayedUISE\.design scores its candidates on noise trials only"):
         DelayedUISE.design(_chain(), x0_prior=np.zeros(3), records=[])
+
+
+def test_a_window_options_object_gets_the_delayed_uise_s_lag():
+    system = _chain()
+    weights = UISEWeights(mu=0.5, P=np.eye(2), R_y=np.eye(1), R_v=np.eye(1))
+    est = DelayedUISE(system, weights=weights, N=5, lag=2, window=WindowOptions(solver="ipopt"))
+    assert est.options == WindowOptions(solver="ipopt", lag=2)
+    assert est.options == DelayedUISE(system, weights=weights, N=5, lag=2, solver="ipopt").options
+    with pytest.raises(OptionError, match="window: its lag 1 differs from lag = 2"):
+        DelayedUISE(system, weights=weights, N=5, lag=2, window=WindowOptions(lag=1))

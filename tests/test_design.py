@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uiest import CertificationError, DataError, HorizonError, OptionError, simulate
-from uiest.design import ERROR_TOLERANCE, regret
+from uiest.design import ERROR_TOLERANCE, DesignOptions, design_uise, regret
 from uiest.detectability import certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
 from uiest.estimators import UISE, LinearUIO
@@ -290,3 +290,27 @@ def test_two_stage_design_on_the_chen_patton_benchmark_matches_the_linear_uio():
     result = designed.run(None, traj.y)
     assert result.failures == 0
     assert np.all(rmse(result) <= 1.2 * rmse(uio)), (rmse(result), rmse(uio))
+
+
+def test_design_options_are_checked_once_and_equal_to_the_keywords():
+    with pytest.raises(OptionError, match="rates: expected numbers in"):
+        DesignOptions(rates=(0.5, 1.5))
+    with pytest.raises(OptionError, match="steps \\(at least 14"):
+        DesignOptions(max_horizon=10, steps=13)
+    with pytest.raises(OptionError, match="budget: expected CPU seconds"):
+        DesignOptions(budget=-1.0)
+    with pytest.raises(OptionError, match="certify_options: expected a mapping"):
+        DesignOptions(certify_options=[("solver", "CLARABEL")])
+    with pytest.raises(OptionError, match="seed"):
+        DesignOptions(seed=-1)
+    options = DesignOptions(max_horizon=8, rates=(0.9, 0.5, 0.5), trials=1)
+    assert (options.rates, options.steps) == ((0.5, 0.9), 80)
+    system, _, _ = benchmark(0)
+    with pytest.raises(OptionError, match="design: given together with trials"):
+        design_uise(system, np.zeros(3), design=options, trials=2)
+    by_object = design_uise(system, np.zeros(3), design=options)
+    by_keywords = design_uise(system, np.zeros(3), max_horizon=8, rates=(0.5, 0.9), trials=1)
+    assert (by_object.certificate.mu, by_object.N) == (by_keywords.certificate.mu, by_keywords.N)
+    np.testing.assert_array_equal(by_object.bound, by_keywords.bound)
+    designed = UISE.design(system, x0_prior=np.zeros(3), design=options)
+    assert (designed.design_report.certificate.mu, designed.N) == (by_object.certificate.mu, by_object.N)

@@ -152,7 +152,8 @@ def test_certificates_share_one_interface():
     system = closed_form.system()
     delta = certify_delta_ioss(system, w_bounds=(-1, 1), **FAST)
     reduced = closed_form.reduction().certify(**FAST)
-    assert isinstance(delta.weights(), MHEWeights) and isinstance(reduced.weights(), TwoStageWeights)
+    assert isinstance(MHEWeights.from_certificate(delta), MHEWeights)
+    assert isinstance(TwoStageWeights.from_certificate(reduced), TwoStageWeights)
     for cert in (delta, reduced):
         assert cert.certified and cert.status == "certified" and cert.rate_min <= cert.rate < 1
         assert cert.min_horizon() >= 1 and cert.margin >= 0 and cert.sound and "exact by entries" in cert.coverage

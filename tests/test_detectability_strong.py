@@ -71,7 +71,7 @@ def test_closed_form_rate_over_a_domain_twenty_times_wider_in_one_state():
     assert not sampled.certified and sampled.status == "holds at the samples, not proved", sampled.reason
     assert sampled.mu_min == pytest.approx(known, abs=1e-3) and "the cover is sampled" in sampled.reason
     with pytest.raises(CertificationError):
-        sampled.weights()
+        UISEWeights.from_certificate(sampled)
 
 
 def test_parameter_map_gives_a_sound_cover_and_the_exact_rate():
@@ -174,7 +174,7 @@ def test_given_rate_below_the_smallest_is_refused_and_weights_follow_the_certifi
     low = certify_strong_detectability(system, mu=0.2)
     assert not low.certified and low.status == "below the smallest rate"
     cert = certify_strong_detectability(system, mu=0.48)
-    weights = cert.weights()
+    weights = UISEWeights.from_certificate(cert)
     assert isinstance(weights, UISEWeights) and weights.mu == 0.48
     np.testing.assert_allclose(weights.P, cert.P)
     np.testing.assert_allclose(cert.R_y, cert.sigma_y * np.diag(1 / system.y.scale**2))
@@ -182,7 +182,7 @@ def test_given_rate_below_the_smallest_is_refused_and_weights_follow_the_certifi
     assert data["kind"] == "strong_detectability" and data["status"] == "certified"
     assert data["min_horizon"] == cert.min_horizon()
     with pytest.raises(CertificationError):
-        low.weights()
+        UISEWeights.from_certificate(low)
 
 
 def test_an_input_direction_that_drifts_with_the_state_is_caught():
@@ -368,7 +368,7 @@ def test_a_certificate_the_search_refutes_is_not_returned_as_certified(monkeypat
     data = json.loads(json.dumps(cert.to_dict()))
     assert data["falsification"]["refuted"] and data["falsification"]["local_searches"] == found.searches
     with pytest.raises(CertificationError):
-        cert.weights()
+        UISEWeights.from_certificate(cert)
 
 
 def test_every_certificate_reports_its_adversarial_search():

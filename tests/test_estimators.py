@@ -17,6 +17,7 @@ from uiest.estimators import (
     Outcome,
     StandardMHE,
     UISEWeights,
+    WindowOptions,
 )
 from uiest.estimators import base as base_module
 from uiest.models import closed_form, crop_growth, get, linear
@@ -465,3 +466,21 @@ def test_fixed_lag_estimates_are_the_windows_older_nodes():
     np.testing.assert_allclose(lagged.x_lag[50:-2], clean.x[50:-2], atol=1e-7)
     with pytest.raises(OptionError, match="lag: expected 0 <= lag <= N = 12"):
         est.configure(lag=13)
+
+
+def test_window_options_object_or_keywords_build_the_same_estimator():
+    system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    weights = UISEWeights.from_scales(system, 0.5)
+    window = WindowOptions(solver="ipopt", strict=True, lag=1)
+    by_object = UISE(system, weights=weights, N=5, x0_prior=[0.5, 1.0], window=window)
+    by_keywords = UISE(system, weights=weights, N=5, x0_prior=[0.5, 1.0], solver="ipopt", strict=True, lag=1)
+    assert by_object.options == by_keywords.options == window
+    assert FIE(system, weights=weights, x0_prior=[0.5, 1.0], window=window).options == window
+    mhe_weights = MHEWeights.from_scales(system, 0.5)
+    assert StandardMHE(system, weights=mhe_weights, N=5, window=window).options == window
+    with pytest.raises(OptionError, match="window: given together with \\['polish'\\]"):
+        UISE(system, weights=weights, N=5, window=window, polish=True)
+    with pytest.raises(OptionError, match="window: expected a WindowOptions"):
+        UISE(system, weights=weights, N=5, window={"solver": "ipopt"})
+    with pytest.raises(OptionError, match="solver: unknown backend"):
+        WindowOptions(solver="newton")

@@ -17,13 +17,13 @@ from uiest.experiments import (
     EstimatorSpec,
     Scenario,
     accuracy,
+    crop_growth_study,
     run_study,
     timing,
     write_report,
 )
 from uiest.experiments import runner as runner_module
 from uiest.experiments.study_model import study_model
-from uiest.models import crop_growth
 
 
 def tiny():
@@ -46,7 +46,7 @@ def tiny():
 
 
 def test_scenario_round_trips_through_toml(tmp_path):
-    scenario = crop_growth.study()
+    scenario = crop_growth_study()
     path = scenario.to_toml(tmp_path / "s.toml")
     back = Scenario.from_toml(path)
     assert back.to_dict() == scenario.to_dict()
@@ -137,7 +137,7 @@ def test_the_crop_report_says_its_certified_uise_bound_is_vacuous_in_kg_per_m2()
     from uiest.experiments.metrics import accuracy
     from uiest.experiments.report import guarantee_table
 
-    study_spec = crop_growth.study()
+    study_spec = crop_growth_study()
     (certified,) = [spec for spec in study_spec.estimators if spec.name == "UISE (certified)"]
     study = run_study(study_spec.with_overrides(runs=1, steps=40, cases=("noisy",), estimators=(certified,)),
                       solver="gn")  # fmt: skip

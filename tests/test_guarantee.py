@@ -10,6 +10,7 @@ from uiest import System, simulate
 from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 from uiest.estimators import EKF, FIE, UISE, DelayedUISE, Guarantee, LinearUIO, StandardMHE, TwoStageUISE, Verdict
 from uiest.estimators.bounds import SETTLED, box_quadratic_max, strong_bound
+from uiest.experiments import crop_growth_study
 from uiest.models import closed_form, linear
 from uiest.reduction import ReducedModel
 
@@ -33,9 +34,19 @@ def test_the_text_follows_the_numbers():
     assert str(partial) == "holds, bound h1 0.003 cm after 12 steps (informative there); no bound for h2: "
     none = Guarantee.none("UISE theorem (theo:MHE_full)", "N=2 < min_horizon()=18", [24.0], ("h",), ("cm",))
     assert none.verdict is Verdict.NONE and str(none) == "none: N=2 < min_horizon()=18" and not none.informative
-    unbounded = Guarantee("x", True, [np.inf], ("h",), ("cm",), error_bound=[np.inf], bound_note="V is unbounded")
+    unbounded = Guarantee(
+        theorem="x",
+        applies=True,
+        x_width=[np.inf],
+        names=("h",),
+        units=("cm",),
+        error_bound=[np.inf],
+        bound_note="V is unbounded",
+    )
     assert unbounded.verdict is Verdict.NO_BOUND and str(unbounded) == "holds, no finite bound: V is unbounded"
-    wide = Guarantee("x", True, [np.inf], ("h",), ("cm",), error_bound=[5.0], settling_steps=None)
+    wide = Guarantee(
+        theorem="x", applies=True, x_width=[np.inf], names=("h",), units=("cm",), error_bound=[5.0], settling_steps=None
+    )
     assert wide.informative and str(wide) == "holds, bound 5 cm once the initial error has decayed (informative)"
     for g in (vacuous, none, partial):  # the words never claim without the numbers
         assert "applies" not in str(g) and "guaranteed" not in str(g)
@@ -71,10 +82,9 @@ def test_the_uise_bound_is_the_proofs_formula():
 def test_crop_certified_uise_holds_but_is_vacuous_in_kg_per_m2():
     from uiest.experiments.runner import BUILDERS
     from uiest.experiments.study_model import StudyModel
-    from uiest.models import crop_growth
 
     study = StudyModel.of("crop-growth")
-    (spec,) = [s for s in crop_growth.study().estimators if s.name == "UISE (certified)"]
+    (spec,) = [s for s in crop_growth_study().estimators if s.name == "UISE (certified)"]
     uise = BUILDERS["uise"](study, spec, study.setup.x0, "gn")  # the study's certified UISE
     g = uise.guarantee
     assert g.applies and not g.informative and g.verdict is Verdict.VACUOUS

@@ -1,4 +1,4 @@
-"""``import uiest`` and ``import uiest.estimators`` leave the heavy optional libraries unloaded.
+"""``import uiest``, ``import uiest.estimators`` and ``import uiest.cli`` leave the heavy optional libraries unloaded.
 
 pandas (records and tables), cvxpy (certificates), dask (clusters) and matplotlib (figures) are
 imported where they are used; each check runs a fresh interpreter, since this one has them loaded.
@@ -28,7 +28,7 @@ def loaded_after(statement: str) -> list[str]:
     return eval(done.stdout)  # a printed list of names
 
 
-@pytest.mark.parametrize("statement", ["import uiest", "import uiest.estimators"])
+@pytest.mark.parametrize("statement", ["import uiest", "import uiest.estimators", "import uiest.cli"])
 def test_import_loads_no_heavy_library(statement):
     assert loaded_after(statement) == []
 

@@ -4,6 +4,7 @@ import pytest
 
 from uiest import DataError, ModelError, System
 from uiest.errors import OptionError
+from uiest.signal import SignalSpec
 
 
 def pendulum(**spec):
@@ -116,3 +117,58 @@ def test_system_is_frozen():
         system.dt = 2.0
     with pytest.raises(ValueError):
         system.x.scale[0] = 5.0
+
+
+def _scalar_functions():
+    x, u, w, v = (ca.SX.sym(name) for name in "xuwv")
+    return ca.Function("f", [x, u, w], [0.5 * x + u + w]), ca.Function("h", [x, v], [x + v])
+
+
+def test_signal_specs_build_the_same_system_as_the_flat_keywords():
+    f, h = _scalar_functions()
+    flat = System.from_functions(f, h, x_bounds=(-10, 10), x_names=["level"], x_units=["m"], u_bounds=(-1, 1),
+                                 v_bounds=(-0.1, 0.1), w_scale=2.0)  # fmt: skip
+    grouped = System.from_functions(
+        f,
+        h,
+        signals={
+            "x": SignalSpec(bounds=(-10, 10), names=["level"], units=["m"]),
+            "u": SignalSpec(bounds=(-1, 1)),
+            "v": SignalSpec(bounds=(-0.1, 0.1)),
+            "w": SignalSpec(scale=2.0),
+        },
+    )
+    for kind in "xuwvy":
+        a, b = getattr(flat, kind), getattr(grouped, kind)
+        assert (a.names, a.units, a.bounds, a.scale_source) == (b.names, b.units, b.bounds, b.scale_source)
+        np.testing.assert_array_equal(a.scale, b.scale)
+
+
+def test_signal_specs_refuse_mixed_forms_unknown_keywords_and_bad_fields():
+    f, h = _scalar_functions()
+    with pytest.raises(OptionError, match=r"signals\['x'\] and x_bounds given together"):
+        System.from_functions(f, h, signals={"x": SignalSpec(names=["a"])}, x_bounds=(-1, 1))
+    with pytest.raises(OptionError, match=r"unexpected keyword.*x_bound\b"):
+        System.from_functions(f, h, x_bound=(-1, 1))
+    with pytest.raises(OptionError, match=r"signals\['x'\]: expected a SignalSpec"):
+        System.from_functions(f, h, signals={"x": (-1, 1)})
+    with pytest.raises(OptionError, match="signals: expected a mapping from some of"):
+        System.from_functions(f, h, signals={"z": SignalSpec()})
+    with pytest.raises(ModelError, match="w: the unknown input has no domain"):
+        System.from_functions(f, h, signals={"w": SignalSpec(bounds=(-1, 1))})
+    with pytest.raises(ModelError, match="x_scale: expected positive finite numbers"):
+        System.from_functions(f, h, x_scale=-1.0)
+    with pytest.raises(ModelError, match="scale: expected positive finite numbers"):
+        SignalSpec(scale=[1.0, float("nan")])
+    with pytest.raises(ModelError, match="names: expected a sequence of strings"):
+        SignalSpec(names="level")
+
+
+def test_signal_specs_pass_through_from_callables_and_from_ode():
+    spec = {"x": SignalSpec(bounds=(-10.0, 10.0), names=["level"]), "v": SignalSpec(bounds=(-0.01, 0.01))}
+    system = System.from_callables(lambda x, u, w: [0.9 * x[0] + w[0]], lambda x, v: [x[0] + v[0]],
+                                   nx=1, nu=0, nw=1, nv=1, signals=spec)  # fmt: skip
+    assert system.x.names == ("level",) and system.x.bounds.upper.tolist() == [10.0]
+    ode = System.from_ode(lambda x, u, w: [-x[0] + w[0]], lambda x, v: [x[0] + v[0]], nx=1, nu=0, nw=1, nv=1,
+                          dt=0.1, signals=spec)  # fmt: skip
+    assert ode.x.names == ("level",) and ode.v.bounds.upper.tolist() == [0.01]

@@ -73,7 +73,7 @@ def test_the_filters_log_likelihood_is_the_kalman_filters_with_missing_channels_
     for cls, tol in ((EKF, 1e-8), (UKF, 1e-5)):
         estimator = cls(system, **options)
         score = estimator.score(truth.u, y)
-        assert score == Score(estimator.log_likelihood, 0, 0) and score.admissible
+        assert score == Score(log_likelihood=estimator.log_likelihood, unscored=0, diverged=0) and score.admissible
         assert estimator.log_likelihood == pytest.approx(expected, rel=tol)
 
 
@@ -187,7 +187,7 @@ def _synthetic(peak):
 
     def score(q):
         calls.append(q)
-        return Score(0.0 if peak is None else -50.0 * (np.log10(q) - peak) ** 2)
+        return Score(log_likelihood=0.0 if peak is None else -50.0 * (np.log10(q) - peak) ** 2)
 
     return score, calls
 
@@ -224,22 +224,26 @@ def test_the_profile_says_where_the_likelihood_interval_lies(peak, shape):
 def test_runs_that_diverged_or_failed_are_never_chosen():
     def score(q):
         if q > 1e-3:  # a diverged run or an unscored update: its sum is not comparable, whatever its value
-            return Score(1e9, unscored=1) if q < 1.0 else Score(1e9, diverged=3)
-        return Score(-((np.log10(q) + 6.0) ** 2))
+            return Score(log_likelihood=1e9, unscored=1) if q < 1.0 else Score(log_likelihood=1e9, diverged=3)
+        return Score(log_likelihood=-((np.log10(q) + 6.0) ** 2))
 
     profile = maximise_likelihood(score, DEFAULT_GRID, name="w_variance", unit="w.scale^2", scale=np.ones(1))
     assert profile.chosen < 1e-3 and np.all(np.isneginf(profile.log_likelihood[profile.factors > 1e-3]))
     assert profile.unscored[profile.factors > 1.0].min() == 3
     with pytest.raises(OptionError, match=r"w_variance: every filter of the grid .* diverged or failed"):
-        maximise_likelihood(lambda q: Score(np.nan), DEFAULT_GRID, name="w_variance", unit="-", scale=np.ones(1))
+        maximise_likelihood(
+            lambda q: Score(log_likelihood=np.nan), DEFAULT_GRID, name="w_variance", unit="-", scale=np.ones(1)
+        )
 
 
 def test_a_model_whose_filters_all_fail_is_set_aside_and_the_ascent_never_loses_a_point_it_scored():
     def score(model, q, c):
         if model is InputModel.INTEGRATED_RANDOM_WALK:
-            return Score(1e9, diverged=2)  # every filter of this model diverged: not comparable, whatever its value
+            return Score(
+                log_likelihood=1e9, diverged=2
+            )  # every filter of this model diverged: not comparable, whatever its value
         # a ridge: the best q depends on c, so the second search of q runs at another optimum
-        return Score(-((np.log10(q) + 3.0 + 0.5 * np.log10(c)) ** 2) - 0.01 * (np.log10(c) + 4.0) ** 2)
+        return Score(log_likelihood=-((np.log10(q) + 3.0 + 0.5 * np.log10(c)) ** 2) - 0.01 * (np.log10(c) + 4.0) ** 2)
 
     grids = {"variances": DEFAULT_GRID, "prior_factors": np.logspace(-8, 2, 11), "scale": np.ones(1)}
     found = fit_filter(score, models=tuple(InputModel), **grids)
@@ -327,7 +331,7 @@ def test_the_reactors_standard_mhe_fitted_by_likelihood_and_its_arrival_cost():
 
 
 def test_arrival_covariance_with_the_input_extends_that_of_x():
-    from uiest.checks import check_run_data
+    from uiest.run_data import check_run_data
     from uiest.tuning import arrival_covariance
 
     system = _system()

@@ -39,7 +39,7 @@ reproduction: the report says so where it has no spread to measure.
 #
 # The study in Python
 # -------------------
-# :py:func:`uiest.models.crop_growth.study` is the paper's study with every choice the paper leaves
+# :py:func:`uiest.experiments.crop_growth_study` is the paper's study with every choice the paper leaves
 # open named (initial states, priors, noise): three states (the CO2 concentration ``x_c`` and two crop
 # weights), the paper's rate ``mu = 0.48`` and window ``N = 30`` for all three schemes, and, beside the
 # paper's estimators, the UISEs with certificate weights and a tuned EKF and UKF.
@@ -51,11 +51,11 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
-from uiest.experiments import run_study, write_report
+from uiest.experiments import crop_growth_study, run_study, write_report
 from uiest.models import crop_growth
 
 cpu_start = time.process_time()
-paper = crop_growth.study()
+paper = crop_growth_study()
 print(f"the paper's study: {paper.runs} runs x {paper.cases}, {paper.steps} steps of {crop_growth.system().dt:g} s")
 print("estimators:", [spec.name for spec in paper.estimators])
 

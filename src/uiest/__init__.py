@@ -21,7 +21,7 @@ from uiest.errors import (
 )
 from uiest.noise import GaussianNoise, UniformNoise
 from uiest.results import Trajectory
-from uiest.signal import ScaleSource, Signal
+from uiest.signal import ScaleSource, Signal, SignalSpec
 from uiest.simulate import simulate
 from uiest.system import Linearization, System
 
@@ -61,6 +61,7 @@ __all__ = [
     "OptionError",
     "ScaleSource",
     "Signal",
+    "SignalSpec",
     "SolverError",
     "System",
     "Trajectory",

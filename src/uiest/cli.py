@@ -17,12 +17,41 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from uiest import models
+from uiest import __version__, models
+from uiest.analysis import analyse as analyse_model
 from uiest.atomic import staged_folder, write_file, write_text
+from uiest.box import as_vector
 from uiest.checks import check_samples
+from uiest.detectability import certify_delta_ioss, certify_strong_detectability
 from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
+from uiest.estimate import (
+    ALL,
+    build_all,
+    build_estimator,
+    check_lag,
+    default_prior,
+    errors_against_truth,
+    recommended,
+    run_estimators,
+    write_estimates,
+)
+from uiest.estimators import UISE, StandardMHE, TwoStageUISE
+from uiest.experiments import Scenario, run_study, write_report
+from uiest.experiments.paper_study import study_of
+from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
+from uiest.experiments.study_store import StudyStore
+from uiest.experiments.sweep import Sweep, SweepProgress
+from uiest.experiments.sweep import sweep as run_sweep
 from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
+from uiest.plotting import plot_trajectory, save_figure
+from uiest.progress_lines import ProgressLines
+from uiest.results import read_record
+from uiest.scales import data_scales
+from uiest.simulate import check_steps
+from uiest.simulate import simulate as run_simulation
+from uiest.window.backends import BACKENDS
+from uiest.window.size import check_horizon
 
 __all__ = ["app", "main"]
 
@@ -101,8 +130,6 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
 def _print_version(value: bool) -> None:
     """``--version``: print ``uiest <version>`` (the installed package's metadata) and exit."""
     if value:
-        from uiest import __version__
-
         console.print(f"uiest {__version__}", highlight=False)
         raise typer.Exit()
 
@@ -146,10 +173,6 @@ def simulate(
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
 ) -> None:
     """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
-    from uiest.plotting import plot_trajectory, save_figure
-    from uiest.simulate import check_steps
-    from uiest.simulate import simulate as run_simulation
-
     _positive(steps, "--steps", allow_zero=True)
     _output_folder(out, "--out")
     entry = models.load(model)
@@ -228,22 +251,6 @@ def estimate(
     ] = None,
 ) -> None:
     """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
-    from uiest.box import as_vector
-    from uiest.estimate import (
-        ALL,
-        build_all,
-        build_estimator,
-        check_lag,
-        default_prior,
-        errors_against_truth,
-        recommended,
-        run_estimators,
-        write_estimates,
-    )
-    from uiest.results import read_record
-    from uiest.scales import data_scales
-    from uiest.window.size import check_horizon
-
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     check_lag(lag, horizon)
@@ -255,40 +262,67 @@ def estimate(
     if horizon is not None:
         check_horizon(horizon, "--horizon", system)
     record = read_record(data, system)
-    if x0 is None:
-        prior = default_prior(entry, system)
-    else:
-        try:
-            values = [float(part) for part in x0.split(",")]
-        except ValueError:
-            raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
-        prior = as_vector(values, system.nx, "--x0")
+    prior = _prior_option(x0, entry, system)
     system = data_scales(system, prior, record=record)  # where X's width is no scale: the data's magnitudes
-    built: dict[str, Any] = {}
-    notes: dict[str, str] = {}
-    skipped: dict[str, str] = {}
     options = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "record": record}
     with console.status("building estimators") as status:
-        if not estimator:
-            status.update("analysing the model")
-            kind, why = recommended(system, prior, horizon)
-            console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
-                          highlight=False, soft_wrap=True)  # fmt: skip
-            estimator = [kind]
-        if ALL in estimator:
-            status.update("building every estimator the model admits")
-            built, notes, skipped = build_all(entry, system, prior, **options)
-        else:
-            for kind in estimator:
-                status.update(f"building {kind}")
-                built[kind], notes[kind] = build_estimator(kind, entry, system, prior, lag=lag, horizon=horizon,
-                                                           w_variance=w_variance, record=record)  # fmt: skip
+        built, notes, skipped = _build_estimators(status, estimator or [], entry, system, prior, options)
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
             results = run_estimators(built, record, prior)
+    _print_estimates(f"{entry.name}: {record.steps} steps from {data}", record, results, notes, skipped)
+    for caught_warning in caught:  # as messages, not as Python warnings with a source line
+        if issubclass(caught_warning.category, BoundWarning):
+            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
+        else:
+            warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
+                                   caught_warning.lineno)  # fmt: skip
+    written = write_estimates(out, system, record, results)
+    console.print(f"wrote {', '.join(str(p) for p in written)}")
+
+
+def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
+    """``--x0`` as a vector (nx,) in the states' units, or the model's prior when it is not given."""
+    if x0 is None:
+        return default_prior(entry, system)
+    try:
+        values = [float(part) for part in x0.split(",")]
+    except ValueError:
+        raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
+    return as_vector(values, system.nx, "--x0")
+
+
+def _build_estimators(
+    status: Any, kinds: list[str], entry: Any, system: Any, prior: Any, options: dict[str, Any]
+) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
+    """The estimators asked for (none: the recommended one; ``all``: every one the model admits).
+
+    Returns ``(built, notes, skipped)``: per kind the estimator, the note on its weights, and why it was skipped.
+    """
+    if not kinds:
+        status.update("analysing the model")
+        kind, why = recommended(system, prior, options["horizon"])
+        console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
+                      highlight=False, soft_wrap=True)  # fmt: skip
+        kinds = [kind]
+    if ALL in kinds:
+        status.update("building every estimator the model admits")
+        return build_all(entry, system, prior, **options)
+    built: dict[str, Any] = {}
+    notes: dict[str, str] = {}
+    for kind in kinds:
+        status.update(f"building {kind}")
+        built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+    return built, notes, {}
+
+
+def _print_estimates(
+    title: str, record: Any, results: dict[str, Any], notes: dict[str, str], skipped: dict[str, str]
+) -> None:
+    """The estimators' table (weights, RMSE against the truth when the data hold it, guarantee) and step health."""
     rmse = errors_against_truth(record, results)
-    table = Table(title=f"{entry.name}: {record.steps} steps from {data}")
+    table = Table(title=title)
     for column in ("estimator", "weights", "state RMSE vs truth", "guarantee"):
         table.add_column(column)
     for kind, result in results.items():
@@ -298,14 +332,6 @@ def estimate(
     for kind, why in skipped.items():
         console.print(f"{kind}: not applicable ({why})", markup=False, highlight=False, soft_wrap=True)
     console.print(_health_table(results))
-    for caught_warning in caught:  # as messages, not as Python warnings with a source line
-        if issubclass(caught_warning.category, BoundWarning):
-            error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
-        else:
-            warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
-                                   caught_warning.lineno)  # fmt: skip
-    written = write_estimates(out, system, record, results)
-    console.print(f"wrote {', '.join(str(p) for p in written)}")
 
 
 def _health_table(results: dict[str, Any]) -> Table:
@@ -335,9 +361,6 @@ def certify(
     """Certify a registered model: strong detectability, reduced-order e-IOSS, delta-IOSS."""
     import json
     import time
-
-    from uiest.detectability import certify_delta_ioss, certify_strong_detectability
-    from uiest.estimators import UISE, StandardMHE, TwoStageUISE
 
     check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
@@ -406,9 +429,6 @@ def analyse(
 ) -> None:
     """Which estimator suits a model, and why: structure, zeros, near-zeros, certificates, recommendation."""
     import json
-
-    from uiest.analysis import analyse as analyse_model
-    from uiest.window.size import check_horizon
 
     _positive(max_horizon, "--max-horizon")
     if json_file is not None:
@@ -507,11 +527,6 @@ def reproduce(
 
     from rich.progress import SpinnerColumn
 
-    from uiest.experiments import Scenario, run_study, write_report
-    from uiest.experiments.study_store import StudyStore
-    from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
-
     _choice(solver, BACKENDS, "--solver")
     _positive(runs, "--runs")
     _positive(steps, "--steps")
@@ -523,11 +538,12 @@ def reproduce(
             entry = models.load(study)
         except OptionError as exc:
             raise OptionError(f"study: {exc}") from None
-        if entry.study is None:
+        make_study = study_of(entry)
+        if make_study is None:
             raise OptionError(
                 f"study: the model {study!r} has no study(); give one in its file, or --scenario FILE.toml"
             )
-        setting = entry.study()
+        setting = make_study()
         if not isinstance(setting, Scenario):
             raise ModelError(f"study: {study!r}'s study() returned {type(setting).__name__}, expected a Scenario")
     try:
@@ -590,11 +606,6 @@ def sweep(
     retry_failed: Annotated[bool, typer.Option(help="Compute again the stored tasks that recorded an error.")] = False,
 ) -> None:
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
-    from uiest.experiments.sweep import Sweep, SweepProgress
-    from uiest.experiments.sweep import sweep as run_sweep
-    from uiest.progress_lines import ProgressLines
-    from uiest.window.solvers import BACKENDS
-
     _choice(solver, BACKENDS, "--solver")
     _positive(workers, "--workers")
     _output_folder(out, "--out")
@@ -651,8 +662,6 @@ def bench(
 ) -> None:
     """Window solver backends (ipopt, gn, rti, gn-riccati) x estimators x N on the noisy crop scenario."""
     import json
-
-    from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
 
     if json_file is not None:
         writable_file(json_file, "--json")

@@ -85,7 +85,7 @@ def matching_ranks(system: System, *, samples: int = MATCHING_SAMPLES, seed: int
     return worst
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class DelayedSystem:
     """The delayed system of a relative-degree-2 unknown input (module docstring).
 
@@ -211,7 +211,9 @@ def delayed_system(system: System) -> DelayedSystem:
         w_scale=np.concatenate([system.w.scale, s_a]), dt=system.dt, time_unit=system.time_unit,
         name=f"{system.name} (delayed)",
     )  # fmt: skip
-    delayed = DelayedSystem(inner, system, T_a, T_b, M_a, M_b, a_bounds, nominal)
+    delayed = DelayedSystem(
+        system=inner, original=system, T_a=T_a, T_b=T_b, M_a=M_a, M_b=M_b, a_bounds=a_bounds, nominal_w=nominal
+    )
     _check_relative_degree_two(delayed, structure.rank_B)
     return delayed
 

@@ -36,19 +36,27 @@ import inspect
 import time
 import warnings
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_int, check_keywords, check_real, shown, user_stacklevel
+from uiest.checks import check_int, check_keywords, check_real, check_seed, shown, user_stacklevel
+from uiest.detectability import certify_strong_detectability
+from uiest.detectability.certificate import horizon_condition
+from uiest.detectability.lmi import finite_box
 from uiest.errors import CertificationError, DataError, HorizonError, OptionError
+from uiest.estimators import design_hook
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
+from uiest.estimators.two_stage import TwoStageUISE, reduced_data_scales
+from uiest.estimators.uise import UISE
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
+from uiest.results import Trajectory
 from uiest.scales import data_scales
+from uiest.simulate import simulate
 from uiest.system import System
 from uiest.theory import REDUCED_IOSS
 from uiest.window.size import check_horizon
@@ -84,7 +92,7 @@ DEFAULT_RATES = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
 """Rates certified by default (with the minimal rate), each kept when it is at least mu_min."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Candidate:
     """One (mu, N, output weight) weighed by the design.
 
@@ -135,7 +143,7 @@ def regret(errors: FloatArray) -> FloatArray:
     return np.exp(logs.mean(axis=1))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Design:
     """The chosen certificate and horizon, the bound they imply, and all candidates.
 
@@ -177,7 +185,92 @@ class Design:
 DEFAULT_STEPS = 80
 """Length of a design's noise trials unless ``max_horizon`` asks for longer ones."""
 
-DESIGN_KEYS = ("max_horizon", "rates", "budget", "trials", "steps", "seed", "certify_options", "records")
+
+@dataclass(frozen=True, kw_only=True)
+class DesignOptions:
+    """How :func:`design_uise` and :func:`design_two_stage` search; every field is checked here.
+
+    Attributes
+    ----------
+    max_horizon : int
+        Largest N considered (window cost grows with N), >= 1.
+    rates : tuple of float
+        Rates in (0, 1) to certify besides the minimal one (those below mu_min are skipped); stored sorted, without
+        repeats.
+    budget : float
+        CPU seconds >= 0 for the certifications (``inf``: no limit); the grid stops when it is spent.
+    trials : int
+        Noise records per candidate, >= 1.
+    steps : int
+        Their length. The first quarter is not scored, so at least ``ceil(4 max_horizon / 3)`` (a full window of
+        ``max_horizon`` in the rest); default :data:`DEFAULT_STEPS` or that least length.
+    seed : int
+        Seed of the noise records, >= 0.
+    certify_options : mapping, optional
+        Keywords of the certification (:func:`~uiest.detectability.certify_strong_detectability`, or the reduced
+        model's ``certify``).
+    records : sequence of Trajectory, optional
+        Simulated records (with their states) to score the candidates on instead of the noise trials: records of
+        the operating conditions, inside X, with the unknown inputs one expects. Their first quarter is not scored.
+
+    Examples
+    --------
+    >>> from uiest.design import DesignOptions
+    >>> DesignOptions(max_horizon=60, rates=(0.9, 0.5)).steps, DesignOptions(rates=(0.9, 0.5)).rates
+    (80, (0.5, 0.9))
+
+    """
+
+    max_horizon: int = 30
+    rates: tuple[float, ...] = DEFAULT_RATES
+    budget: float = 60.0
+    trials: int = 2
+    steps: int | None = None
+    seed: int = 0
+    certify_options: Mapping[str, Any] | None = None
+    records: Sequence[Any] | None = None
+
+    def __post_init__(self) -> None:
+        max_horizon = check_int(self.max_horizon, "max_horizon", low=1)
+        trials = check_int(self.trials, "trials", low=1)
+        # a trial scores from steps // 4 on: its scored part holds at least one full window of the longest horizon
+        shortest = -(-4 * max_horizon // 3)
+        steps = max(DEFAULT_STEPS, shortest) if self.steps is None else self.steps
+        steps = check_int(steps, f"steps (at least {shortest}: a full window of max_horizon = {max_horizon} in the "
+                                 "scored three quarters of a trial)", low=shortest)  # fmt: skip
+        budget = check_real(self.budget, "budget", "CPU seconds >= 0")
+        if not budget >= 0:
+            raise OptionError(f"budget: expected CPU seconds >= 0 (inf: no limit), got {self.budget!r}")
+        try:
+            grid = tuple(sorted({float(r) for r in self.rates}))
+        except (TypeError, ValueError):
+            raise OptionError(f"rates: expected numbers in (0, 1), got {self.rates!r}") from None
+        if any(not 0.0 < r < 1.0 for r in grid):
+            raise OptionError(f"rates: expected numbers in (0, 1), got {list(self.rates)}")
+        if self.certify_options is not None and not isinstance(self.certify_options, Mapping):
+            raise OptionError(f"certify_options: expected a mapping of keywords, got {shown(self.certify_options)}")
+        values = {"max_horizon": max_horizon, "trials": trials, "steps": steps, "budget": budget, "rates": grid,
+                  "seed": check_seed(self.seed)}  # fmt: skip
+        for name, value in values.items():
+            object.__setattr__(self, name, value)
+
+    @classmethod
+    def split(cls, design: DesignOptions | None, keywords: Mapping[str, Any]) -> tuple[DesignOptions, dict[str, Any]]:
+        """The design options (``design``, or keywords named as its fields; not both) and the other keywords."""
+        named = {key: value for key, value in keywords.items() if key in _DESIGN_FIELDS}
+        rest = {key: value for key, value in keywords.items() if key not in _DESIGN_FIELDS}
+        if design is None:
+            return cls(**named), rest
+        if not isinstance(design, DesignOptions):
+            raise OptionError(f"design: expected a DesignOptions, got {shown(design)}")
+        if named:
+            raise OptionError(f"design: given together with {', '.join(sorted(named))}; put them in the DesignOptions")
+        return design, rest
+
+
+_DESIGN_FIELDS = tuple(f.name for f in fields(DesignOptions))
+
+DESIGN_KEYS = ("design", *_DESIGN_FIELDS)
 """Keywords of :func:`design_uise` / :func:`design_two_stage`; the others go to the estimators."""
 
 
@@ -190,14 +283,7 @@ def design_uise(
     system: System,
     x0: ArrayLike,
     *,
-    max_horizon: int = 30,
-    rates: tuple[float, ...] = DEFAULT_RATES,
-    budget: float = 60.0,
-    trials: int = 2,
-    steps: int | None = None,
-    seed: int = 0,
-    certify_options: Mapping[str, Any] | None = None,
-    records: Sequence[Any] | None = None,
+    design: DesignOptions | None = None,
     **options: Any,
 ) -> Design:
     """Certify at several rates and keep the guaranteed (mu, N) with the smallest simulated noise error.
@@ -207,24 +293,11 @@ def design_uise(
     system : System
     x0 : array_like (nx,)
         A typical state (the estimator's prior): where the noise trials start.
-    max_horizon : int
-        Largest N considered (window cost grows with N).
-    rates : tuple of float
-        Rates in (0, 1) to certify besides the minimal one (those below mu_min are skipped).
-    budget : float
-        CPU seconds for the certifications; the grid stops when it is spent.
-    trials, steps, seed : int
-        Noise records per candidate, their length (the first quarter is not scored; default
-        :data:`DEFAULT_STEPS`, or longer to hold a window of ``max_horizon`` in the rest, the least
-        allowed), the seed.
-    certify_options : mapping, optional
-        Passed to :func:`~uiest.detectability.certify_strong_detectability`.
-    records : sequence of Trajectory, optional
-        Simulated records (with their states) to score the candidates on instead of the noise
-        trials: records of the operating conditions, inside X, with the unknown inputs one expects.
-        Their first quarter is not scored.
+    design : DesignOptions, optional
+        How to search (largest N, rates, budget, noise trials, records, certification keywords).
     **options
-        Window options of the candidate UISEs (``solver``, ...).
+        :class:`DesignOptions`' fields as keywords (``max_horizon=``, ``rates=``, ..., instead of ``design``), and
+        window options of the candidate UISEs (``solver``, ...).
 
     Returns
     -------
@@ -249,11 +322,9 @@ def design_uise(
     (2,)
 
     """
-    from uiest.detectability import certify_strong_detectability
-    from uiest.detectability.certificate import horizon_condition
-    from uiest.estimators import UISE
-
-    certify = _certify_options(certify_options, certify_strong_detectability)
+    search, options = DesignOptions.split(design, options)
+    certify = _certify_options(search.certify_options, certify_strong_detectability)
+    max_horizon = search.max_horizon
     system = data_scales(system, as_vector(x0, system.nx, "x0"))
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
     v_bar = _v_prior(system, options)
@@ -275,8 +346,7 @@ def design_uise(
     return _design(
         system, x0, certify_with_horizon, rank,
         lambda cert, n, prior: UISE(system, certificate=cert, N=n, x0_prior=prior, **options),
-        what="strong detectability", max_horizon=max_horizon, rates=rates, budget=budget,
-        trials=trials, steps=steps, seed=seed, records=records,
+        what="strong detectability", search=search,
         variants=lambda cert: [cert.with_output_weight(factor) for factor in OUTPUT_WEIGHTS if factor != 1.0],
     )  # fmt: skip
 
@@ -285,14 +355,7 @@ def design_two_stage(
     reduced: Any,
     x0: ArrayLike,
     *,
-    max_horizon: int = 30,
-    rates: tuple[float, ...] = DEFAULT_RATES,
-    budget: float = 60.0,
-    trials: int = 2,
-    steps: int | None = None,
-    seed: int = 0,
-    certify_options: Mapping[str, Any] | None = None,
-    records: Sequence[Any] | None = None,
+    design: DesignOptions | None = None,
     **options: Any,
 ) -> Design:
     """:func:`design_uise` for the two-stage UISE: reduced e-IOSS certificates and Theorem 4.8's bound.
@@ -302,12 +365,10 @@ def design_two_stage(
     ranked by Theorem 4.8's settled bound on ``z_sharp`` (:func:`~uiest.estimators.bounds.two_stage_z_bound`,
     the one the guarantee carries to the states).
     """
-    from uiest.estimators import TwoStageUISE
-    from uiest.estimators.two_stage import reduced_data_scales
-
+    search, options = DesignOptions.split(design, options)
     reduced = reduced_data_scales(reduced, as_vector(x0, reduced.system.nx, "x0"))
     system = reduced.system
-    certify = dict(certify_options or {})
+    certify = dict(search.certify_options or {})
     v_bar = _v_prior(system, options)
 
     def rank(cert: Any, n: int) -> float:
@@ -316,8 +377,7 @@ def design_two_stage(
     return _design(
         system, x0, lambda mu: reduced.certify(mu=mu, **certify), rank,
         lambda cert, n, prior: TwoStageUISE(reduced, certificate=cert, N=n, x0_prior=prior, **options),
-        what=REDUCED_IOSS, max_horizon=max_horizon, rates=rates, budget=budget,
-        trials=trials, steps=steps, seed=seed, records=records,
+        what=REDUCED_IOSS, search=search,
     )  # fmt: skip
 
 
@@ -330,33 +390,13 @@ def _design(
     build: Callable[[Any, int, FloatArray], Any],
     *,
     what: str,
-    max_horizon: int,
-    rates: tuple[float, ...],
-    budget: float,
-    trials: int,
-    steps: int | None,
-    seed: int,
-    records: Sequence[Any] | None,
+    search: DesignOptions,
     variants: Callable[[Any], list[Any]] = lambda cert: [],
 ) -> Design:
     """The design loop of the module docstring; ``rank(certificate, N)`` orders the horizons of a rate."""
-    max_horizon = check_horizon(max_horizon, "max_horizon", system)
-    trials = check_int(trials, "trials", low=1)
-    # a trial scores from steps // 4 on: its scored part holds at least one full window of the longest horizon
-    shortest = -(-4 * max_horizon // 3)
-    steps = max(DEFAULT_STEPS, shortest) if steps is None else steps
-    steps = check_int(steps, f"steps (at least {shortest}: a full window of max_horizon = {max_horizon} in the "
-                             "scored three quarters of a trial)", low=shortest)  # fmt: skip
-    budget = check_real(budget, "budget", "CPU seconds >= 0")
-    if not budget >= 0:
-        raise OptionError(f"budget: expected CPU seconds >= 0 (inf: no limit), got {budget!r}")
+    max_horizon = check_horizon(search.max_horizon, "max_horizon", system)
+    budget, grid, records = search.budget, search.rates, search.records
     prior = as_vector(x0, system.nx, "x0")
-    try:
-        grid = sorted({float(r) for r in rates})
-    except (TypeError, ValueError):
-        raise OptionError(f"rates: expected numbers in (0, 1), got {rates!r}") from None
-    if any(not 0.0 < r < 1.0 for r in grid):
-        raise OptionError(f"rates: expected numbers in (0, 1), got {list(rates)}")
     start = time.thread_time()
     first = certify(None)
     if not first.certified:
@@ -367,7 +407,11 @@ def _design(
             cert = certify(mu)
             if cert.certified:
                 certificates.append(cert)
-    scored = _noise_records(system, prior, trials, steps, seed) if records is None else _given_records(system, records)
+    if records is None:
+        assert search.steps is not None  # set by DesignOptions
+        scored = _noise_records(system, prior, search.trials, search.steps, search.seed)
+    else:
+        scored = _given_records(system, records)
     candidates: list[tuple[Candidate, Any]] = []
 
     def weigh(cert: Any, N: int) -> tuple[Candidate, Any]:
@@ -386,7 +430,9 @@ def _design(
         guarantee = estimator.guarantee
         bound = np.full(system.nx, np.nan) if guarantee.error_bound is None else guarantee.error_bound
         output_weight = float(getattr(cert, "output_weight", 1.0))
-        return Candidate(cert.mu, N, bound, rms, output_weight, guarantee, w_rms), cert
+        return Candidate(
+            mu=cert.mu, N=N, bound=bound, rms=rms, output_weight=output_weight, guarantee=guarantee, w_rms=w_rms
+        ), cert
 
     def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
         """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best."""
@@ -413,7 +459,13 @@ def _design(
     candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
     chosen, cert = choose(candidates)
     _warn_if_vacuous(chosen)
-    return Design(cert, chosen.N, chosen.bound, tuple(c for c, _ in candidates), time.thread_time() - start)
+    return Design(
+        certificate=cert,
+        N=chosen.N,
+        bound=chosen.bound,
+        candidates=tuple(c for c, _ in candidates),
+        seconds=time.thread_time() - start,
+    )
 
 
 def _warn_if_vacuous(chosen: Candidate) -> None:
@@ -446,8 +498,6 @@ def _given_records(
     system: System, records: Sequence[Any]
 ) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
     """``(u, y, x, w)`` of the user's records; DataError for anything that is not a record of ``system`` with states."""
-    from uiest.results import Trajectory
-
     records = [] if isinstance(records, Trajectory) else list(records)
     if not records:
         raise DataError("records: expected a non-empty sequence of Trajectory records")
@@ -466,9 +516,6 @@ def _noise_records(
     system: System, x0: FloatArray, trials: int, steps: int, seed: int
 ) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
     """``(u, y, x, w)`` of noise-only runs: u at U's centre, w = nominal, v uniform in V (its scale where unbounded)."""
-    from uiest.detectability.lmi import finite_box
-    from uiest.simulate import simulate
-
     rng = np.random.default_rng(seed)
     V = finite_box(system.v.bounds, system.v.bounds.center, system.v.scale)
     u = np.tile(system.u.bounds.center, (steps, 1)) if system.nu else None
@@ -483,8 +530,9 @@ def _certify_options(options: Any, certify: Callable[..., Any]) -> dict[str, Any
     """``certify_options`` as a dict of keywords ``certify`` takes (besides the system and mu), else OptionError."""
     if options is None:
         return {}
-    if not isinstance(options, Mapping):
-        raise OptionError(f"certify_options: expected a mapping of keywords, got {shown(options)}")
     known = [name for name in inspect.signature(certify).parameters if name not in ("system", "mu")]
     check_keywords(options, known, "certify_options")
     return dict(options)
+
+
+design_hook.register(design_uise=design_uise, design_two_stage=design_two_stage, estimator_options=estimator_options)

@@ -65,16 +65,24 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from uiest import estimators as est
+from uiest.analysis import Recommendation, analyse
 from uiest.atomic import staged_folder, write_file
 from uiest.box import FloatArray
-from uiest.delay import matching_ranks
+from uiest.delay import delayed_system, matching_ranks
+from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
+from uiest.estimators import EKF, SmoothInputMHE, StandardMHE, UISEWeights, smooth_mhe
 from uiest.input_model import InputModel
 from uiest.lock import holds_folder
 from uiest.models import ModelEntry
 from uiest.paths import plain_name
+from uiest.plotting import plot_record, save_figure
+from uiest.reduction import ReducedModel
 from uiest.results import EstimationResult, Trajectory
+from uiest.run_data import check_run_data
 from uiest.system import System
+from uiest.tuning import arrival_covariance, fit_standard_mhe, likelihood_weights
 
 if TYPE_CHECKING:
     from uiest.estimators import UISE, TwoStageUISE
@@ -108,8 +116,6 @@ LONGEST_HORIZON = 60
 
 def recommended(system: System, x0: FloatArray, horizon: int | None) -> tuple[str, str]:
     """The estimator kind :func:`uiest.analysis.analyse` recommends for ``system``, and its reason (one sentence)."""
-    from uiest.analysis import Recommendation, analyse
-
     kinds = {Recommendation.UISE: "uise", Recommendation.DELAYED_UISE: "delayed",
              Recommendation.SMOOTH_INPUT_MHE: "smooth", Recommendation.EKF_UKF: "ekf"}  # fmt: skip
     analysis = analyse(system, x0=x0, max_horizon=LONGEST_HORIZON if horizon is None else horizon)
@@ -160,6 +166,15 @@ def check_lag(lag: int, horizon: int | None) -> int:
     return lag
 
 
+def _reduction(entry: ModelEntry, built: ReducedModel | None = None) -> ReducedModel:
+    """``built``, else the model's reduced model (the two-stage UISE's); ModelError when the model registers none."""
+    if built is not None:
+        return built
+    if entry.reduction is None:
+        raise ModelError(f"the two-stage UISE: the model {entry.name!r} has no reduction() (T, psi)")
+    return entry.reduction()
+
+
 def build_estimator(
     kind: str,
     entry: ModelEntry,
@@ -175,17 +190,12 @@ def build_estimator(
 
     ``record``: the measurements the variances are fitted to (``ekf``, ``ukf`` and ``mhe`` without ``w_variance``).
     """
-    from uiest import estimators as est
-    from uiest.experiments.study_model import StudyModel
-
     if kind not in ESTIMATORS:
         raise OptionError(f"--estimator: expected one of {[*ESTIMATORS, ALL]}, got {kind!r}")
     check_lag(lag, horizon)
     N = max(DEFAULT_HORIZON, lag + 1) if horizon is None else horizon  # a window that holds x[k - lag]
     options: dict[str, Any] = {"lag": lag} if lag else {}
-    study = StudyModel(entry.name, system, entry)
-    if kind == "two-stage":
-        _ = study.reduction  # a model without a reduction is refused before any design work
+    reduced = _reduction(entry) if kind == "two-stage" else None  # refused before any design work when missing
     if kind in ("uise", "two-stage"):
         rank_CB, rank_B = matching_ranks(system)
         if rank_CB < rank_B:  # no fallback weights help: x[k] is not determined by y[..k]
@@ -206,7 +216,7 @@ def build_estimator(
                 elif kind == "delayed":
                     built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
                 else:
-                    built = est.TwoStageUISE.design(study.reduction, x0_prior=x0, **design_kw)
+                    built = est.TwoStageUISE.design(_reduction(entry, reduced), x0_prior=x0, **design_kw)
                 assert built.weights is not None  # a certified design has weights (n_sharp = 0 has no design)
                 return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
             except HorizonError as exc:  # certified, with a longer window: the next limit may admit it
@@ -224,8 +234,9 @@ def build_estimator(
             delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 1),
                                       x0_prior=x0, lag=max(lag, 1))  # fmt: skip
             return delayed, note
-        weights = est.TwoStageWeights.from_scales(study.reduction, FALLBACK_RATE)
-        return est.TwoStageUISE(study.reduction, weights=weights, N=N, x0_prior=x0, **options), note
+        reduced = _reduction(entry, reduced)
+        weights = est.TwoStageWeights.from_scales(reduced, FALLBACK_RATE)
+        return est.TwoStageUISE(reduced, weights=weights, N=N, x0_prior=x0, **options), note
     if kind == "mhe":
         return _standard_mhe(system, x0, N, horizon, options, record, w_variance)
     if kind == "uio":
@@ -282,10 +293,6 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     (or the EKF's ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the
     window explain the data by moving its oldest states.
     """
-    from uiest.checks import check_run_data
-    from uiest.estimators import EKF, SmoothInputMHE, smooth_mhe
-    from uiest.tuning import arrival_covariance
-
     variance = factor * system.w.scale**2
     lag = options.get("lag", 0)
     longest = max(DEFAULT_MAX_HORIZON, lag + 1) if horizon is None else horizon
@@ -317,10 +324,6 @@ def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, o
     The Gaussian weights' disturbance variance is ``w_variance`` or fitted to the record by likelihood
     (:mod:`uiest.tuning`).
     """
-    from uiest.detectability import certify_delta_ioss
-    from uiest.estimators import StandardMHE
-    from uiest.tuning import fit_standard_mhe, likelihood_weights
-
     baseline = "a baseline: the unknown input is penalised as a disturbance"
     longest = LONGEST_HORIZON if horizon is None else horizon
     reason = ""
@@ -361,8 +364,6 @@ def _record_data(kind: str, system: System, record: Trajectory | None) -> tuple[
 
 
 def _delayed_weights(system: System) -> Any:
-    from uiest.delay import delayed_system
-    from uiest.estimators import UISEWeights
 
     return UISEWeights.from_scales(delayed_system(system).system, FALLBACK_RATE)
 
@@ -380,8 +381,6 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
     The files replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`); the
     folder is held against other runs while they are written (:mod:`uiest.lock`).
     """
-    from uiest.plotting import plot_record, save_figure
-
     out = Path(out)
     names = {label: plain_name(label, "results") for label in results}
     figure = plot_record(system, record, results)

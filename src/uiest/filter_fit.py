@@ -33,7 +33,7 @@ PRIOR_GRID = np.logspace(-8, 2, 11)
 one ten times wider than given."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ModelFit:
     """One input model's maximum: its variance profile at the chosen prior factor and the prior factor's profile.
 
@@ -76,7 +76,7 @@ class ModelFit:
         }
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FilterFit:
     """What :func:`fit_filter` found: every input model's :class:`ModelFit`, in the order tried.
 
@@ -158,7 +158,7 @@ def fit_filter(
             failed.append((model, str(exc)))
     if not fits:
         raise OptionError("; ".join(f"{model.value}: {reason}" for model, reason in failed))
-    return FilterFit(tuple(fits), tuple(failed))
+    return FilterFit(fits=tuple(fits), failed=tuple(failed))
 
 
 def _fit_model(
@@ -175,14 +175,14 @@ def _fit_model(
 
     variance = maximise_likelihood(of_q(1.0), variances, name="w_variance", unit="w.scale^2", scale=scale)
     if prior_factors is None:
-        return ModelFit(model, variance, None)
+        return ModelFit(input_model=model, variance=variance, prior=None)
     q = variance.chosen
     prior = maximise_likelihood(lambda c: score(model, q, c), prior_factors, name="prior_factor",
                                 unit="x (P0, W0, W0_rate)", scale=np.ones(1))  # fmt: skip
     if prior.chosen != 1.0:  # q searched again at the chosen c, its grid holding the q already scored there
         again = np.union1d(variances, [q])
         variance = maximise_likelihood(of_q(prior.chosen), again, name="w_variance", unit="w.scale^2", scale=scale)
-    return ModelFit(model, variance, prior)
+    return ModelFit(input_model=model, variance=variance, prior=prior)
 
 
 def check_prior_factors(prior_factors: object | None) -> FloatArray | None:

@@ -41,7 +41,7 @@ class Verdict(enum.Enum):
     """It holds (the error converges under convergent noise), but no state has a finite bound for V."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Guarantee:
     """An estimator's guarantee: the theorem, whether it applies, and its error bound per state.
 

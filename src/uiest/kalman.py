@@ -47,7 +47,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_real, check_run_data, check_u_prev, check_y
+from uiest.checks import check_real
 from uiest.covariance import as_covariance, noise_variance, prior_variance
 from uiest.errors import DataError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
@@ -57,6 +57,7 @@ from uiest.health import Outcome, at_bound, quiet_bound_warnings
 from uiest.input_model import InputModel
 from uiest.likelihood import LikelihoodProfile, ProfileShape, Score, check_grid, innovation_log_density
 from uiest.results import EstimationResult, StepEstimate, Trajectory
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 
 EDGE_GAIN = 1.01
@@ -67,7 +68,7 @@ INSIDE_MARGIN = 1e-6
 finite sides (a square root or a logarithm at a side has an infinite derivative there)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Tuning:
     """What :meth:`KalmanFilter.tuned` tried (``w_variance = factor * w.scale^2``).
 
@@ -340,7 +341,7 @@ class KalmanFilter(StreamingEstimator):
                 f"P0: every {cls.__name__} of the variance grid diverged on the training record (an estimate beyond "
                 "X by more than its width, or not finite); give a smaller P0 (the default is X's uniform variance)"
             )
-        tuning = Tuning(grid, rms, failed, diverged)
+        tuning = Tuning(factors=grid, rms=rms, failed=failed, diverged=diverged)
         best = int(np.nanargmin(rms))
         if failed[best]:
             warnings.warn(f"{cls.__name__}.tuned: the chosen filter failed {failed[best]} of {len(training.y)} "
@@ -370,7 +371,9 @@ class KalmanFilter(StreamingEstimator):
         errors = np.count_nonzero(result.outcome == Outcome.ERROR)
         diverged = np.count_nonzero(result.outcome == Outcome.DIVERGED)
         diverged += np.count_nonzero(~np.all(np.isfinite(result.x_hat), axis=1))
-        return Score(self.log_likelihood, self.unscored_steps + int(errors), int(diverged))
+        return Score(
+            log_likelihood=self.log_likelihood, unscored=self.unscored_steps + int(errors), diverged=int(diverged)
+        )
 
     @classmethod
     def fit(

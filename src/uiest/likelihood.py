@@ -69,7 +69,7 @@ class ProfileShape(StrEnum):
     FLAT = "flat"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Score:
     """One filter run's log-likelihood, the steps it could not score and the steps at which it diverged."""
 
@@ -83,7 +83,7 @@ class Score:
         return bool(np.isfinite(self.log_likelihood)) and not self.unscored and not self.diverged
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class LikelihoodProfile:
     """The log-likelihood of a record against a variance: what :func:`maximise_likelihood` evaluated.
 

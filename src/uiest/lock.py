@@ -27,6 +27,7 @@ from typing import ParamSpec, TypeVar
 
 from uiest.atomic import STAGED_PREFIX, STAGED_SUFFIX
 from uiest.errors import StorageError
+from uiest.paths import writable_folder
 
 __all__ = ["LOCK_NAME", "folder_lock", "holds_folder"]
 
@@ -143,7 +144,6 @@ def holds_folder(argument: str) -> Callable[[Callable[Params, Result]], Callable
     The folder is created if missing. A value that is not a path is passed on unchecked (the
     function's own checks name it).
     """
-    from uiest.paths import writable_folder
 
     def decorate(function: Callable[Params, Result]) -> Callable[Params, Result]:
         signature = inspect.signature(function)

@@ -34,7 +34,6 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
-import scipy.linalg
 
 from uiest.box import Box
 from uiest.checks import check_int
@@ -156,6 +155,8 @@ def input_integral(A_ref: np.ndarray, G: np.ndarray, dt: float) -> np.ndarray:
     n, q = G.shape
     augmented = np.zeros((n + q, n + q))
     augmented[:n, :n], augmented[:n, n:] = A_ref, G
+    import scipy.linalg  # imported when used: `import uiest` (which loads this module) stays light
+
     return scipy.linalg.expm(augmented * dt)[:n, n:]
 
 

@@ -1,4 +1,4 @@
-"""Figures (matplotlib, non-interactive backend)."""
+"""Figures (matplotlib, non-interactive backend; matplotlib is imported by the first figure, not by this module)."""
 
 from __future__ import annotations
 
@@ -6,24 +6,32 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-import matplotlib
-
-__all__ = ["plot_estimates", "plot_record", "plot_trajectory", "robust_limits", "save_figure"]
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
-from matplotlib.figure import Figure
 
 from uiest.atomic import write_file
 from uiest.checks import check_flag, shown
 from uiest.errors import DataError, OptionError
 from uiest.paths import writable_file
-from uiest.results import Trajectory
+from uiest.results import EstimationResult, Trajectory
 from uiest.system import System
 
 if TYPE_CHECKING:
-    from uiest.results import EstimationResult
+    from types import ModuleType
+
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+
+__all__ = ["plot_estimates", "plot_record", "plot_trajectory", "pyplot", "robust_limits", "save_figure"]
+
+
+def pyplot() -> ModuleType:
+    """``matplotlib.pyplot`` with the non-interactive backend (imported here: matplotlib is heavy and optional)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
 
 
 def _check_trajectory(traj: object) -> None:
@@ -56,7 +64,7 @@ def plot_trajectory(traj: Trajectory, units: dict[str, tuple[str, ...]] | None =
     panels = [("x", i) for i in range(traj.x.shape[1])]
     panels += [("w", i) for i in range(traj.w.shape[1])]
     panels += [("y", i) for i in range(traj.y.shape[1])]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(7.5, 1.7 * len(panels) + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(len(panels), 1, figsize=(7.5, 1.7 * len(panels) + 0.6), sharex=True, squeeze=False)
     for ax, (kind, i) in zip(axes[:, 0], panels, strict=True):
         data = getattr(traj, kind)[:, i]
         t = traj.t[: data.shape[0]]
@@ -85,8 +93,6 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
         Plot ``|x - x_hat|`` on a log axis (else the signed error on a linear axis).
 
     """
-    from uiest.results import EstimationResult
-
     _check_trajectory(traj)
     log_error = check_flag(log_error, "log_error")
     if not isinstance(results, Mapping) or not all(isinstance(r, EstimationResult) for r in results.values()):
@@ -102,7 +108,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     x_names = traj.names.get("x") or tuple(f"x[{i}]" for i in range(nx))
     w_names = traj.names.get("w") or tuple(f"w[{i}]" for i in range(nw))
     rows = nx + nw
-    fig, axes = plt.subplots(rows, 2, figsize=(11, 1.9 * rows + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(rows, 2, figsize=(11, 1.9 * rows + 0.6), sharex=True, squeeze=False)
     for i in range(rows):
         is_x = i < nx
         truth = traj.x[:, i] if is_x else traj.w[:, i - nx]
@@ -129,7 +135,7 @@ def plot_estimates(traj: Trajectory, results: Mapping[str, EstimationResult], *,
     return fig
 
 
-def robust_limits(ax: plt.Axes, values: np.ndarray) -> bool:
+def robust_limits(ax: Axes, values: np.ndarray) -> bool:
     """Y limits from the 1st-99th percentiles widened by 20 % (a start-up transient does not set the scale).
 
     Returns whether some of ``values`` fall outside the limits (clipped from view).
@@ -156,7 +162,7 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
     units = {sig.kind: sig.units for sig in system.signals}
     panels = [("y", i) for i in range(system.ny)] + [("x", i) for i in range(system.nx)]
     panels += [("w", i) for i in range(system.nw)]
-    fig, axes = plt.subplots(len(panels), 1, figsize=(7.5, 1.6 * len(panels) + 0.6), sharex=True, squeeze=False)
+    fig, axes = pyplot().subplots(len(panels), 1, figsize=(7.5, 1.6 * len(panels) + 0.6), sharex=True, squeeze=False)
     for ax, (kind, i) in zip(axes[:, 0], panels, strict=True):
         drawn = []
         if kind == "y":
@@ -185,6 +191,8 @@ def plot_record(system: Any, record: Trajectory, results: Mapping[str, Estimatio
 
 def save_figure(fig: Figure, path: Path | str) -> Path:
     """Write ``fig`` to ``path`` (a Path or str; format from the suffix) whole or not at all, and close it."""
+    from matplotlib.figure import Figure
+
     if not isinstance(fig, Figure):
         raise DataError(f"fig: expected a matplotlib Figure, got {shown(fig)}")
     path = Path(path)
@@ -195,5 +203,5 @@ def save_figure(fig: Figure, path: Path | str) -> Path:
     try:
         write_file(path, lambda tmp: fig.savefig(tmp, dpi=130, format=path.suffix.lstrip(".").lower()))
     finally:
-        plt.close(fig)
+        pyplot().close(fig)
     return path

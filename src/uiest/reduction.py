@@ -32,6 +32,8 @@ from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
 from uiest.errors import ModelError
 from uiest.system import System, as_function
 from uiest.theory import PSI_RECOVERY, QUASI_STATE_AFFINE_REDUCTION, W_FREE_REDUCED_DYNAMICS
+from uiest.window.model import box_scale
+from uiest.window.problem import working_center
 
 __all__ = ["ASSUMPTION_TOL", "AssumptionReport", "ReducedModel", "reduce_quasi_state_affine"]
 
@@ -39,7 +41,7 @@ ASSUMPTION_TOL = 1e-8
 """Largest relative violation of Eq. (17), Eq. (18) and T_inv o T = id that :meth:`ReducedModel.from_maps` accepts."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AssumptionReport:
     """Largest violations of Assumption ass found on sampled points of X x U x W x V.
 
@@ -154,9 +156,6 @@ class ReducedModel:
         From the state scales, not from T(X)'s widths alone, so that a wide X with small state
         scales gives small z scales (for a linear T and ``s_x`` = X's widths both are the same).
         """
-        from uiest.window.model import box_scale
-        from uiest.window.problem import working_center
-
         s = self.system
         x = ca.SX.sym("x", s.nx)
         jac = ca.Function("dT_sharp", [x], [ca.jacobian(self.T(x)[self.n_flat :], x)])
@@ -305,7 +304,14 @@ def _assumption_report(
     jac = lmi.batched(dz_dw, [z_sharp, y, u, w, v])[0]
     w_sens = float((np.abs(jac) * system.w.scale[None, None, :] / sharp_scale[None, :, None]).max(initial=0.0))
     margin, outputs = _dominance(system, T_inv, z, v, n_flat)
-    return AssumptionReport(inverse, psi_error, w_sens, margin, outputs, count)
+    return AssumptionReport(
+        inverse_error=inverse,
+        psi_error=psi_error,
+        w_sensitivity=w_sens,
+        dominance_margin=margin,
+        dominance_outputs=outputs,
+        points=count,
+    )
 
 
 def _dominance(

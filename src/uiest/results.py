@@ -62,7 +62,7 @@ class _PicklableNames:
             object.__setattr__(self, key, MappingProxyType(value) if key == "names" else value)
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Trajectory(_PicklableNames):
     """A simulated trajectory of ``x[k+1] = f(x[k], u[k], w[k]), y[k] = h(x[k], v[k])``.
 
@@ -238,7 +238,7 @@ def _frozen(value: Any, dtype: Any) -> NDArray[Any]:
     return arr
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StepEstimate:
     """The result of one ``step(u_prev, y)`` at time k.
 
@@ -361,7 +361,7 @@ HEALTH_FIELDS: dict[str, Any] = {
 """The per-step fields of :class:`EstimationResult` beside the outcome and ``at_bound``, with their dtypes."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class EstimationResult(_PicklableNames):
     """A whole run of an estimator over ``u (K, nu)``, ``y (K+1, ny)``.
 

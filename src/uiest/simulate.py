@@ -18,6 +18,7 @@ from uiest.system import System
 __all__ = ["check_steps", "simulate"]
 
 InputLike = ArrayLike | Callable[[int, FloatArray], ArrayLike] | None
+InputSource = FloatArray | Callable[[int, FloatArray], ArrayLike]
 
 
 def _sequence(value: ArrayLike, rows: int, n: int, name: str) -> FloatArray:
@@ -138,49 +139,21 @@ def simulate(
     x_start = as_vector(x0, system.nx, "x0")
     if not system.x.bounds.contains(x_start):
         raise DataError(f"x0: expected a point in X = {system.x.bounds}, got {x_start.tolist()}")
+    u_source, w_source, v_arr = _inputs(system, u, w, v, steps, seed)
     try:
-        u_source = _known_input(system, u, steps)
-        w_source = (
-            np.zeros((steps, system.nw)) if w is None else (w if callable(w) else _sequence(w, steps, system.nw, "w"))
-        )
-        rng = np.random.default_rng(seed)
-        if v is None:
-            v_arr = np.zeros((steps + 1, system.nv))
-        elif isinstance(v, NoiseModel):
-            v_arr = np.asarray(v.sample(rng, steps + 1, system.nv), dtype=float)
-        else:
-            v_arr = _sequence(v, steps + 1, system.nv, "v")
         x_arr = np.empty((steps + 1, system.nx))
         u_arr = np.empty((steps, system.nu))
         w_arr = np.empty((steps, system.nw))
     except MemoryError:
         raise DataError(f"steps: {steps} steps of this system do not fit in memory") from None
     x_arr[0] = x_start
-    f = system.f
-    for k in range(steps):
-        u_arr[k] = _value_at(u_source, k, x_arr[k], system.nu, "u")
-        w_arr[k] = _value_at(w_source, k, x_arr[k], system.nw, "w")
-        x_next = np.asarray(f(x_arr[k], u_arr[k], w_arr[k]), dtype=float).reshape(-1)
-        if not np.all(np.isfinite(x_next)):
-            raise ModelError(f"f: non-finite state at step k={k + 1} (x[{k}]={x_arr[k].tolist()})")
-        x_arr[k + 1] = x_next
-        if progress is not None:
-            progress(k + 1)
+    _propagate(system, u_source, w_source, x_arr, u_arr, w_arr, progress)
     if not np.all(system.u.bounds.contains(u_arr, tol=DOMAIN_TOL)):
         raise DataError(f"u: expected values in U = {system.u.bounds}")
     y_arr = system.output(x_arr, v_arr)
     x_outside = ~np.asarray(system.x.bounds.contains(x_arr, tol=1e-12))
     v_outside = ~np.asarray(system.v.bounds.contains(v_arr, tol=1e-12))
-    for label, flags, domain in (("x", x_outside, "X"), ("v", v_outside, "V")):
-        if flags.any():
-            first = int(np.argmax(flags))
-            warnings.warn(
-                f"{label} left {domain} at {int(flags.sum())} of {steps + 1} samples (first at k={first}: "
-                f"{np.round(x_arr[first] if label == 'x' else v_arr[first], 6).tolist()}, {domain} = "
-                f"{system.x.bounds if label == 'x' else system.v.bounds}); recorded in Trajectory.{label}_outside",
-                DomainWarning,
-                stacklevel=2,
-            )
+    _warn_outside(system, x_arr, v_arr, x_outside, v_outside)
     return Trajectory(
         t=np.arange(steps + 1, dtype=float) * system.dt,
         x=x_arr,
@@ -197,9 +170,69 @@ def simulate(
     )
 
 
-def _value_at(
-    source: FloatArray | Callable[[int, FloatArray], ArrayLike], k: int, x: FloatArray, n: int, name: str
-) -> FloatArray:
+def _inputs(
+    system: System, u: InputLike, w: InputLike, v: ArrayLike | NoiseModel | None, steps: int, seed: int | None
+) -> tuple[InputSource, InputSource, FloatArray]:
+    """The known and unknown inputs' sources and the noise ``(steps + 1, nv)`` (see :func:`simulate`)."""
+    try:
+        u_source = _known_input(system, u, steps)
+        w_source = (
+            np.zeros((steps, system.nw)) if w is None else (w if callable(w) else _sequence(w, steps, system.nw, "w"))
+        )
+        return u_source, w_source, _noise(system, v, steps, seed)
+    except MemoryError:
+        raise DataError(f"steps: {steps} steps of this system do not fit in memory") from None
+
+
+def _noise(system: System, v: ArrayLike | NoiseModel | None, steps: int, seed: int | None) -> FloatArray:
+    """The measurement noise ``(steps + 1, nv)``: zero, drawn from a noise model with ``seed``, or given."""
+    if v is None:
+        return np.zeros((steps + 1, system.nv))
+    if isinstance(v, NoiseModel):
+        return np.asarray(v.sample(np.random.default_rng(seed), steps + 1, system.nv), dtype=float)
+    return _sequence(v, steps + 1, system.nv, "v")
+
+
+def _propagate(
+    system: System,
+    u_source: InputSource,
+    w_source: InputSource,
+    x_arr: FloatArray,
+    u_arr: FloatArray,
+    w_arr: FloatArray,
+    progress: Callable[[int], None] | None,
+) -> None:
+    """Fill ``x_arr[1:]`` (K+1, nx), ``u_arr`` and ``w_arr`` (K, .) from ``x_arr[0]`` by the model ``f``."""
+    f = system.f
+    for k in range(u_arr.shape[0]):
+        u_arr[k] = _value_at(u_source, k, x_arr[k], system.nu, "u")
+        w_arr[k] = _value_at(w_source, k, x_arr[k], system.nw, "w")
+        x_next = np.asarray(f(x_arr[k], u_arr[k], w_arr[k]), dtype=float).reshape(-1)
+        if not np.all(np.isfinite(x_next)):
+            raise ModelError(f"f: non-finite state at step k={k + 1} (x[{k}]={x_arr[k].tolist()})")
+        x_arr[k + 1] = x_next
+        if progress is not None:
+            progress(k + 1)
+
+
+def _warn_outside(
+    system: System, x_arr: FloatArray, v_arr: FloatArray, x_outside: np.ndarray, v_outside: np.ndarray
+) -> None:
+    """A DomainWarning (pointing at simulate's caller) for x outside X and for v outside V."""
+    samples = x_arr.shape[0]
+    for label, flags, domain in (("x", x_outside, "X"), ("v", v_outside, "V")):
+        if flags.any():
+            first = int(np.argmax(flags))
+            warnings.warn(
+                f"{label} left {domain} at {int(flags.sum())} of {samples} samples (first at k={first}: "
+                f"{np.round(x_arr[first] if label == 'x' else v_arr[first], 6).tolist()}, {domain} = "
+                f"{system.x.bounds if label == 'x' else system.v.bounds}); recorded in Trajectory.{label}_outside",
+                DomainWarning,
+                stacklevel=3,
+            )
+
+
+def _value_at(source: InputSource, k: int, x: FloatArray, n: int, name: str) -> FloatArray:
     if callable(source):
         try:
             value = source(k, x.copy())

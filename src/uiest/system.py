@@ -12,7 +12,7 @@ import contextlib
 import dataclasses
 import inspect
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -21,6 +21,7 @@ import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
+from uiest import ode
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import (
     MAX_STAGE_SIZE,
@@ -33,7 +34,7 @@ from uiest.checks import (
     real_array,
 )
 from uiest.errors import DataError, ModelError, OptionError
-from uiest.signal import ScaleSource, Signal
+from uiest.signal import ScaleSource, Signal, SignalSpec, flat_signal_keywords, signal_specs
 
 if TYPE_CHECKING:
     from uiest.ode import ContinuousModel
@@ -43,7 +44,7 @@ __all__ = ["Linearization", "System", "as_function", "output_spread"]
 BoxLike = Box | tuple[ArrayLike, ArrayLike] | None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Linearization:
     """Jacobians of f and h at one point (x, u, w, v).
 
@@ -248,29 +249,12 @@ class System:
         f: ca.Function,
         h: ca.Function,
         *,
-        x_bounds: BoxLike = None,
-        u_bounds: BoxLike = None,
-        v_bounds: BoxLike = None,
-        y_bounds: BoxLike = None,
+        signals: Mapping[str, SignalSpec] | None = None,
         w_range: BoxLike = None,
-        x_names: Sequence[str] | None = None,
-        u_names: Sequence[str] | None = None,
-        w_names: Sequence[str] | None = None,
-        v_names: Sequence[str] | None = None,
-        y_names: Sequence[str] | None = None,
-        x_units: Sequence[str] | None = None,
-        u_units: Sequence[str] | None = None,
-        w_units: Sequence[str] | None = None,
-        v_units: Sequence[str] | None = None,
-        y_units: Sequence[str] | None = None,
-        x_scale: ArrayLike | None = None,
-        u_scale: ArrayLike | None = None,
-        w_scale: ArrayLike | None = None,
-        v_scale: ArrayLike | None = None,
-        y_scale: ArrayLike | None = None,
         dt: float = 1.0,
         time_unit: str = "s",
         name: str = "system",
+        **flat: Any,
     ) -> System:
         """Build a system from CasADi Functions ``f(x, u, w)`` and ``h(x, v)``.
 
@@ -288,21 +272,22 @@ class System:
             ``w[k]`` act from time k to k+1.
         h : casadi.Function
             ``y[k] = h(x[k], v[k])``: two inputs of sizes (nx, nv), one output (ny >= 1).
-        x_bounds, u_bounds, v_bounds, y_bounds : Box or (lower, upper), optional
-            The domains X, U, V and Y, in the signals' units.
+        signals : mapping of str to SignalSpec, optional
+            Per signal (keys among ``"x", "u", "w", "v", "y"``): the domain (X, U, V, Y, in the signals' units;
+            w has none), component names and units (defaults ``x[0], x[1], ...`` and no unit), and nominal
+            magnitudes (positive, in the signals' units) that solvers and certificates divide by.
         w_range : Box or (lower, upper), optional
             A range the unknown input is known to keep to (only its scale and centre are used; the
             estimators do not bound w).
-        x_names, u_names, w_names, v_names, y_names, x_units, ... : sequence of str, optional
-            Component names and units (defaults ``x1, x2, ...`` and no unit).
-        x_scale, u_scale, w_scale, v_scale, y_scale : array_like, optional
-            Nominal magnitudes (positive, in the signals' units) that solvers and certificates divide by.
         dt : float
             Sampling interval in ``time_unit``.
         time_unit : str
             Unit of ``dt`` and of the time column of records.
         name : str
             The model's name in reports.
+        **flat
+            The signals' data as flat keywords, instead of ``signals``: ``x_bounds``, ``x_names``, ``x_units``,
+            ``x_scale`` and the same for u, v, y; ``w_names``, ``w_units``, ``w_scale``.
 
         Returns
         -------
@@ -313,6 +298,8 @@ class System:
         ModelError
             ``f`` or ``h`` not a Function with 3 and 2 inputs, no output, repeated names, or ``f``, ``h`` not
             finite at the domain centre.
+        OptionError
+            An unknown keyword, or a signal's SignalSpec and its flat keywords given together.
 
         Examples
         --------
@@ -333,24 +320,19 @@ class System:
         for label, fun, n_in in (("f", f, 3), ("h", h, 2)):
             if not isinstance(fun, ca.Function) or fun.n_in() != n_in:
                 raise ModelError(f"{label}: expected a casadi.Function with {n_in} inputs, got {fun!r}")
+        specs = signal_specs(signals, dict(flat), "System.from_functions")
         nx, nu, nw = (f.numel_in(i) for i in range(3))
         nv, ny = h.numel_in(1), h.numel_out(0)
-        x = Signal.build("x", nx, bounds=x_bounds, names=x_names, units=x_units, scale=x_scale)
-        u = Signal.build("u", nu, bounds=u_bounds, names=u_names, units=u_units, scale=u_scale)
-        v = Signal.build("v", nv, bounds=v_bounds, names=v_names, units=v_units, scale=v_scale)
+        x_signal = Signal.from_spec("x", nx, specs["x"])
+        u_signal = Signal.from_spec("u", nu, specs["u"])
+        v_signal = Signal.from_spec("v", nv, specs["v"])
         known_w = None if w_range is None else Box.coerce(w_range, nw, "w_range")
-        w = Signal.build(
-            "w",
-            nw,
-            names=w_names,
-            units=w_units,
-            scale=w_scale,
-            fallback_scale=None if known_w is None else _usable_width(known_w),
-        )
-        y_fallback = output_spread(h, x, v)
-        y = Signal.build("y", ny, bounds=y_bounds, names=y_names, units=y_units, scale=y_scale,
-                         fallback_scale=y_fallback, fallback_source=ScaleSource.OUTPUT)  # fmt: skip
-        return cls(f=f, h=h, x=x, u=u, w=w, v=v, y=y, w_range=known_w, dt=dt, time_unit=time_unit, name=name)
+        w_fallback = None if known_w is None else _usable_width(known_w)
+        w_signal = Signal.from_spec("w", nw, specs["w"], fallback_scale=w_fallback)
+        y_signal = Signal.from_spec("y", ny, specs["y"], fallback_scale=output_spread(h, x_signal, v_signal),
+                                    fallback_source=ScaleSource.OUTPUT)  # fmt: skip
+        return cls(f=f, h=h, x=x_signal, u=u_signal, w=w_signal, v=v_signal, y=y_signal, w_range=known_w, dt=dt,
+                   time_unit=time_unit, name=name)  # fmt: skip
 
     @classmethod
     def from_expressions(
@@ -480,16 +462,17 @@ class System:
         0.05 [ 0.0988 -0.0488]
 
         """
-        from uiest import ode
-
         nx, nu, nw, nv = _check_sizes(nx, nu, nw, nv)
         _check_spec(spec, "System.from_ode")
         rhs_f = as_function(rhs, "rhs", [("x", nx), ("u", nu), ("w", nw)], nx)
         h_f = as_function(h, "h", [("x", nx), ("v", nv)])
         w_range = spec.get("w_range")
         dt = _check_dt(dt)
-        X = Box.coerce(spec.get("x_bounds"), nx, "x_bounds")
-        u_ref = Box.coerce(spec.get("u_bounds"), nu, "u_bounds").center
+        signals = signal_specs(spec.get("signals"),
+                               {key: value for key, value in spec.items() if key in flat_signal_keywords()},
+                               "System.from_ode")  # fmt: skip
+        X = Box.coerce(signals["x"].bounds, nx, "x_bounds")
+        u_ref = Box.coerce(signals["u"].bounds, nu, "u_bounds").center
         w_ref = np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center
         f, channel = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel=input_channel, method=method,
                                     x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
@@ -613,7 +596,8 @@ class System:
             self.nominal_w if w is None else as_vector(w, self.nw, "w"),
             np.zeros(self.nv) if v is None else as_vector(v, self.nv, "v"),
         ]
-        return Linearization(*(np.asarray(m, dtype=float) for m in self.jacobian_function(*args)))
+        A, B_u, B_w, C, D_v = (np.asarray(m, dtype=float) for m in self.jacobian_function(*args))
+        return Linearization(A=A, B_u=B_u, B_w=B_w, C=C, D_v=D_v)
 
     @cached_property
     def jacobian_function(self) -> ca.Function:
@@ -694,7 +678,8 @@ def _check_sizes(nx: Any, nu: Any, nw: Any, nv: Any) -> tuple[int, int, int, int
 
 def _check_spec(spec: dict[str, Any], caller: str) -> None:
     """OptionError naming the keywords of ``spec`` that :meth:`System.from_functions` does not take."""
-    known = [p for p in inspect.signature(System.from_functions).parameters if p not in ("f", "h")]
+    parameters = inspect.signature(System.from_functions).parameters
+    known = [p for p in parameters if p not in ("f", "h", "flat")] + list(flat_signal_keywords())
     check_keywords(spec, known, caller)
 
 

@@ -30,7 +30,7 @@ from uiest.system import System
 __all__ = ["EstimatorDesign", "delayed_design", "strong_design"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class EstimatorDesign:
     """A certificate and the guarantee of the estimator it designs.
 
@@ -114,16 +114,18 @@ def _design(name: str, system: System, certified_system: System, build: Callable
     try:
         cert = _certify(certified_system, max_horizon)
     except (ModelError, CertificationError) as exc:
-        return EstimatorDesign(name, None, str(exc), None, None)
+        return EstimatorDesign(estimator=name, certificate=None, not_applicable=str(exc), N=None, guarantee=None)
     if not cert.certified:
-        return EstimatorDesign(name, cert, "", None, None)
+        return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=None, guarantee=None)
     horizons = range(max(cert.min_horizon(), shortest), max_horizon + 1)
     if not horizons:
         N = max(max_horizon, shortest)
-        return EstimatorDesign(name, cert, "", N, build(cert, N).guarantee)
+        return EstimatorDesign(
+            estimator=name, certificate=cert, not_applicable="", N=N, guarantee=build(cert, N).guarantee
+        )
     guarantees = {N: build(cert, N).guarantee for N in horizons}
     N = min(horizons, key=lambda n: _largest_relative(guarantees[n], system.x.scale))
-    return EstimatorDesign(name, cert, "", N, guarantees[N])
+    return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=N, guarantee=guarantees[N])
 
 
 def strong_design(system: System, x0: FloatArray, max_horizon: int) -> EstimatorDesign:
@@ -137,7 +139,9 @@ def delayed_design(system: System, x0: FloatArray, max_horizon: int) -> Estimato
     try:
         inner = delayed_system(system).system
     except ModelError as exc:
-        return EstimatorDesign("DelayedUISE", None, str(exc), None, None)
+        return EstimatorDesign(
+            estimator="DelayedUISE", certificate=None, not_applicable=str(exc), N=None, guarantee=None
+        )
     return _design(
         "DelayedUISE", system, inner,
         lambda cert, N: DelayedUISE(system, certificate=cert, N=N, lag=1, x0_prior=x0),

@@ -40,7 +40,7 @@ RADII = 6
 """Circles between ``sqrt(mu)`` and 1 searched for the ring's minimum."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FrequencyMinimum:
     """Where ``sigma(z)`` (module docstring) is smallest over a region.
 
@@ -63,7 +63,7 @@ class FrequencyMinimum:
         return {"z": [self.z.real, self.z.imag], "sigma": self.sigma, "point": self.point.tolist()}
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class NearZeros:
     """The near-zeros of a model (module docstring).
 
@@ -180,7 +180,7 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
     A, Q, C = lin.A[point], bases[point], lin.C[point]
     theta = _refine(lambda t: float(sigma(A, Q, C, np.array([np.exp(1j * t)]))[0]), angles, int(k))
     z = complex(np.exp(1j * theta))
-    unit = FrequencyMinimum(z, float(sigma(A, Q, C, np.array([z]))[0]), lin.x[point] * 1.0)
+    unit = FrequencyMinimum(z=z, sigma=float(sigma(A, Q, C, np.array([z]))[0]), point=lin.x[point] * 1.0)
 
     ring = radius = None
     if rate is not None and np.isfinite(rate) and 0.0 < rate < 1.0:
@@ -188,7 +188,7 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         grid = (np.linspace(radius, 1.0, RADII)[:, None] * np.exp(1j * angles[::4])[None, :]).ravel()
         values = np.array([sigma(lin.A[i], bases[i], lin.C[i], grid) for i in range(lin.count)])
         p, j = np.unravel_index(int(np.argmin(values)), values.shape)
-        ring = FrequencyMinimum(complex(grid[j]), float(values[p, j]), lin.x[p] * 1.0)
+        ring = FrequencyMinimum(z=complex(grid[j]), sigma=float(values[p, j]), point=lin.x[p] * 1.0)
 
     eps = output_noise(system, lin.D[0])
     floor = np.full(system.nx, np.nan)
@@ -210,4 +210,12 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         refined = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
         floor = np.maximum(np.max(floors, axis=(0, 1)), refined)
         floor_point = lin.x[p] * 1.0
-    return NearZeros(unit, ring, radius, eps, floor, floor_z, floor_point)
+    return NearZeros(
+        unit_circle=unit,
+        ring=ring,
+        ring_radius=radius,
+        noise=eps,
+        error_floor=floor,
+        floor_z=floor_z,
+        floor_point=floor_point,
+    )

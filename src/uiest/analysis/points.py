@@ -32,7 +32,7 @@ POINTS = 32
 """Points of X x U at which the model is linearised (the reference point included)."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Linearisations:
     """Jacobians at m points, scaled (module docstring); the first point is the reference point.
 

@@ -29,7 +29,7 @@ UNIT_TOL = 1e-9
 """Eigenvalues of A with modulus above ``1 - UNIT_TOL`` are tested."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RandomWalkDetectability:
     """The Hautus test of the augmented model (module docstring) at every linearisation point.
 
@@ -66,11 +66,11 @@ def random_walk_detectability(lin: Linearisations) -> RandomWalkDetectability:
         n = A.shape[0]
         for lam in np.linalg.eigvals(A):
             if abs(lam) >= 1.0 - UNIT_TOL and _deficient(np.vstack([A - lam * np.eye(n), C])):
-                return RandomWalkDetectability(False, complex(lam), lin.x[i] * 1.0)
+                return RandomWalkDetectability(detectable=False, mode=complex(lam), point=lin.x[i] * 1.0)
         Q = scipy.linalg.orth(B) if B.size else np.zeros((n, 0))  # redundant input columns are one direction
         if Q.shape[1]:
             top = np.hstack([A - np.eye(n), Q])
             bottom = np.hstack([C, np.zeros((C.shape[0], Q.shape[1]))])
             if _deficient(np.vstack([top, bottom])):
-                return RandomWalkDetectability(False, 1.0 + 0.0j, lin.x[i] * 1.0)
-    return RandomWalkDetectability(True)
+                return RandomWalkDetectability(detectable=False, mode=1.0 + 0.0j, point=lin.x[i] * 1.0)
+    return RandomWalkDetectability(detectable=True)

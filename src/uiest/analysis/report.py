@@ -25,7 +25,7 @@ from uiest.box import FloatArray
 __all__ = ["ModelAnalysis"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ModelAnalysis:
     """Which estimator a model admits and why: structure, zeros, near-zeros, certificates, recommendation.
 

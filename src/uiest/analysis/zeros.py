@@ -32,7 +32,7 @@ __all__ = ["Channel", "Zero", "Zeros", "find_zeros"]
 ComplexArray = NDArray[np.complex128]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Zero:
     """One invariant zero.
 
@@ -62,7 +62,7 @@ class Zero:
                 "from_sampling": self.from_sampling, "limit": self.limit}  # fmt: skip
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Channel:
     """The channel from unknown input ``w_j`` to output ``y_i`` at the reference point.
 
@@ -92,7 +92,7 @@ class Channel:
                 "continuous_degree": self.continuous_degree, "zeros": [z.to_dict() for z in self.zeros]}  # fmt: skip
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Zeros:
     """The linearised model's invariant zeros over the points, and its channels' zeros.
 
@@ -155,7 +155,7 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     """
     found = invariant_zeros(A, B, C)
     if A_c is None or G is None:
-        return tuple(Zero(complex(z)) for z in found)
+        return tuple(Zero(value=complex(z)) for z in found)
     sampling = created_by_sampling(found, invariant_zeros(A_c, G, C), dt)
     limits: dict[int, float] = {}
     roots = euler_frobenius_roots(degree) if degree else np.zeros(0)
@@ -163,7 +163,9 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     if len(created) and len(roots):
         rows, cols = linear_sum_assignment(np.abs(found[created][:, None] - roots[None, :]))
         limits = {int(created[r]): float(roots[c]) for r, c in zip(rows, cols, strict=True)}
-    return tuple(Zero(complex(z), bool(sampling[i]), limits.get(i)) for i, z in enumerate(found))
+    return tuple(
+        Zero(value=complex(z), from_sampling=bool(sampling[i]), limit=limits.get(i)) for i, z in enumerate(found)
+    )
 
 
 def find_zeros(system: System, lin: Linearisations) -> Zeros:
@@ -192,5 +194,16 @@ def find_zeros(system: System, lin: Linearisations) -> Zeros:
             A_c, G = continuous(0)
             zeros = _zeros_at(lin.A[0], lin.B[0][:, j : j + 1], lin.C[0][i : i + 1], A_c,
                               None if G is None else G[:, j : j + 1], dt, degree)  # fmt: skip
-            channels.append(Channel(w_name, y_name, int(steps[i, j]) or None, degree, zeros))
-    return Zeros(reference, largest, largest_at, lin.count, tuple(channels), lin.dropped)
+            channels.append(
+                Channel(
+                    input=w_name, output=y_name, steps=int(steps[i, j]) or None, continuous_degree=degree, zeros=zeros
+                )
+            )
+    return Zeros(
+        reference=reference,
+        largest=largest,
+        largest_at=largest_at,
+        points=lin.count,
+        channels=tuple(channels),
+        dropped=lin.dropped,
+    )

@@ -1,7 +1,8 @@
 """Detectability certificates: the paper's conditions turned into numbers a user can check.
 
-Every certificate is a :class:`Certificate` (verdict and status, rate, quadratic storage P,
-``weights()`` for its estimator, ``min_horizon()``, ``verify()``, ``to_dict()``):
+Every certificate is a :class:`Certificate` (verdict and status, rate, quadratic storage P and gains,
+``min_horizon()``, ``verify()``, ``to_dict()``); the estimators turn it into their weights
+(``UISEWeights.from_certificate`` and its siblings in :mod:`uiest.estimators`):
 
 - :func:`certify_strong_detectability` (Theorem 3.2 of Guo et al.; see the theory map): the unknown input and
   the current-output

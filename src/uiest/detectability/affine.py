@@ -208,7 +208,7 @@ class Forms:
         return out
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Expressed:
     """Entries written in a basis of functions (see :func:`express`).
 
@@ -263,4 +263,4 @@ def express(basis_forms: list[Form], entry_forms: list[Form]) -> Expressed:
             remainders[e] = row
         else:  # 0 = entry + combination
             coefficients[e] = {j: -c for j, c in combination.items() if c}
-    return Expressed(tuple(basis), coefficients, remainders)
+    return Expressed(basis=tuple(basis), coefficients=coefficients, remainders=remainders)

@@ -113,7 +113,7 @@ def horizon_condition(mu: float, N: int) -> float:
     return float(mu) ** -float(N) / 8.0
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Verification:
     """Outcome of ``certificate.verify(...)``.
 
@@ -142,7 +142,7 @@ class Verification:
         return self.pairs_used > 0 and self.worst_ratio <= 1.0 + 1e-9
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Certificate:
     """A certificate's verdict, rate and quadratic storage ``V = |z - z~|_P^2``.
 
@@ -239,15 +239,13 @@ class Certificate:
     def _horizon(self) -> int:
         raise NotImplementedError
 
-    def weights(self) -> Any:
-        """The estimator weights this certificate designs; raises when not certified."""
-        raise NotImplementedError
-
     def verify(self, n_pairs: int = 100_000, seed: int = 0) -> Verification:
         """Test the certificate's inequality with the nonlinear model on random pairs."""
         n_pairs, seed = check_samples(n_pairs, "n_pairs"), check_seed(seed)
         if not self.certified:
-            return Verification(float("nan"), 0, 0, f"not certified: {self.reason}")
+            return Verification(
+                worst_ratio=float("nan"), pairs_used=0, pairs_drawn=0, note=f"not certified: {self.reason}"
+            )
         return self._verify(n_pairs, seed)
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
@@ -315,7 +313,7 @@ def state_labels(names: Sequence[str], units: Sequence[str]) -> tuple[str, ...]:
     return tuple(f"{n} [{u}]" if u else n for n, u in zip(names, units, strict=True))
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class MuCertificate(Certificate):
     """A certificate whose rate the paper calls mu (strong detectability, reduced e-IOSS)."""
 
@@ -330,7 +328,7 @@ class MuCertificate(Certificate):
         return self.rate_min
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StrongDetectabilityBase(MuCertificate):
     """What the nonlinear and the linear strong-detectability certificates share.
 
@@ -341,13 +339,6 @@ class StrongDetectabilityBase(MuCertificate):
     def _horizon(self) -> int:
         """Eq. (13) in the scaled norm: :func:`strong_horizon`."""
         return strong_horizon(self.mu, self.condition)
-
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.UISEWeights` ``(mu, P, R_y, R_v)``."""
-        from uiest.estimators.weights import UISEWeights
-
-        self.require("weights")
-        return UISEWeights(mu=self.mu, P=self.P, R_y=self.R_y, R_v=self.R_v)  # type: ignore[attr-defined]
 
 
 def _eig(matrix: FloatArray, index: int) -> float:

@@ -59,7 +59,7 @@ WHAT_TO_DO = "give parameters= (a few functions of x and u it is affine in), a s
 "at samples, not a proof)"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Cover:
     """Vertices whose convex hull contains ``M(z)`` over a box.
 
@@ -151,7 +151,14 @@ def cover(
     rows, cols = fun.size_out(0)
     if not mask.any():
         value = np.asarray(fun(box.center), dtype=float).reshape(1, rows, cols)
-        return Cover(value, CONSTANT, True, 0, "the matrix is constant over the domain (structurally)", value)
+        return Cover(
+            vertices=value,
+            kind=CONSTANT,
+            sound=True,
+            dimension=0,
+            description="the matrix is constant over the domain (structurally)",
+            samples=value,
+        )
     unbounded = [names[i] for i in np.flatnonzero(mask & ~(np.isfinite(box.lower) & np.isfinite(box.upper)))]
     if unbounded:
         raise ModelError(
@@ -164,7 +171,14 @@ def cover(
     if method == "sampled":
         values = _evaluate(fun, points)
         vertices, r, description = sampled_vertices(fun, values, points, domain, rows, cols)
-        return Cover(vertices, SAMPLED, False, r, description, _unvec(values, rows, cols))
+        return Cover(
+            vertices=vertices,
+            kind=SAMPLED,
+            sound=False,
+            dimension=r,
+            description=description,
+            samples=_unvec(values, rows, cols),
+        )
     return _exact(fun, domain, use, points, seed, names)
 
 
@@ -189,8 +203,14 @@ def _exact(
     if not varying:
         value = np.array([float(constant_of(form)) for form in entries])
         vertex = _unvec(value[None], rows, cols)
-        return Cover(vertex, CONSTANT, True, 0, "every entry of the matrix is constant over the domain (exact forms)",
-                     vertex)  # fmt: skip
+        return Cover(
+            vertices=vertex,
+            kind=CONSTANT,
+            sound=True,
+            dimension=0,
+            description="every entry of the matrix is constant over the domain (exact forms)",
+            samples=vertex,
+        )
     if parameters is None:
         basis_forms = [entries[e] for e in varying]
         reduction = express(basis_forms, basis_forms)
@@ -228,7 +248,16 @@ def _exact(
     )
     extremes = np.vstack([found.lower_at, found.upper_at])
     samples = _unvec(_evaluate(fun, np.vstack([points, extremes])), rows, cols)
-    return Cover(_unvec(flat, rows, cols), kind, True, r, description, samples, rounding, extremes)
+    return Cover(
+        vertices=_unvec(flat, rows, cols),
+        kind=kind,
+        sound=True,
+        dimension=r,
+        description=description,
+        samples=samples,
+        rounding=rounding,
+        extremes=extremes,
+    )
 
 
 def _coefficients(

@@ -39,7 +39,7 @@ from uiest.system import System
 __all__ = ["DeltaIOSS", "certify_delta_ioss"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class DeltaIOSS(Certificate):
     """A quadratic delta-IOSS Lyapunov function (Schiller et al. 2023, Assumption 1).
 
@@ -120,16 +120,15 @@ class DeltaIOSS(Certificate):
         """Smallest M with ``4 eta^M lambda_max(P2, P1) < 1`` (Schiller et al., eq. (16)); ``P1 = P2``."""
         return int(np.floor(np.log(4.0) / np.log(1.0 / self.eta))) + 1
 
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.MHEWeights` ``(eta, P, Q_w, Q_v, R)``."""
-        from uiest.estimators.weights import MHEWeights
-
-        return MHEWeights.from_certificate(self)
-
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """Assumption 1's inequality on random pairs in X x w_box x V with the nonlinear f and h."""
         check = dissipation.check_pairs(self.model, self.P, self.eta, [self.Q_w, self.Q_v], self.R, n_pairs, seed)
-        return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of Schiller et al. eq. (4)")
+        return Verification(
+            worst_ratio=check.worst_ratio,
+            pairs_used=check.pairs,
+            pairs_drawn=n_pairs,
+            note="ratio = LHS / RHS of Schiller et al. eq. (4)",
+        )
 
     def _details(self) -> dict[str, object]:
         ok = self.certified

@@ -52,7 +52,7 @@ from uiest.detectability.certificate import (
     verdict,
 )
 from uiest.detectability.cover import Cover
-from uiest.detectability.dissipation_design import ROUNDING, design_and_check
+from uiest.detectability.dissipation_design import ROUNDING, Finished, design_and_check
 from uiest.detectability.dissipation_lmi import Vertices
 from uiest.detectability.dissipation_rate import RateStage
 from uiest.detectability.tradeoff import check_condition
@@ -132,7 +132,7 @@ class IncrementalModel:
         return ca.Function("J", [point], [J]), ca.Function("G", [point], [G])
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class DissipationSolution:
     """Outcome of :func:`solve`, in scaled coordinates.
 
@@ -252,25 +252,27 @@ def solve(
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
     mu = check_rate(mu, "mu")
     kappa = check_condition(max_condition)
-    J_fun, G_fun = model.jacobians()
-    point = ca.SX.sym("p", J_fun.numel_in(0))
-    output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
-    stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
-    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
+    G_fun, covered, output_constant, vertices = _covered_vertices(model, parameters, cover, samples, seed)
     n = model.n
-    J = covered.vertices[:, :n, :]
-    if output_constant:
-        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
-    else:
-        G = covered.vertices[:, n:, :]
     channels = tuple(size for _, size in model.channels)
-    vertices = Vertices.build(J, G, channels, n)
     stage = RateStage(vertices, structure, kappa)
     nan = float("nan")
 
     def fail(outcome: str, reason: str, mu_min: float = nan) -> DissipationSolution:
-        return DissipationSolution(outcome, reason, nan, mu_min, np.full((n, n), nan), np.full(len(channels), nan),
-                                   nan, nan, covered, output_constant, kappa, "")  # fmt: skip
+        return DissipationSolution(
+            outcome=outcome,
+            reason=reason,
+            mu=nan,
+            mu_min=mu_min,
+            P=np.full((n, n), nan),
+            q=np.full(len(channels), nan),
+            r=nan,
+            margin=nan,
+            cover=covered,
+            output_constant=output_constant,
+            max_condition=kappa,
+            design="",
+        )
 
     bisection = lmi.bisect_rate(stage.probe, tol=tol)
     notes = [bisection.note] if bisection.note else []
@@ -308,19 +310,59 @@ def solve(
                     f"(mu_min={mu_min:.6g}){note}", mu_min)  # fmt: skip
     check = finished.check
     ok = check.passed
+    solution = DissipationSolution(
+        outcome=lmi.FEASIBLE if ok else "re-check failed",
+        reason=_checked_reason(finished, mu_used, mu_min, kappa, note),
+        mu=float(mu_used),
+        mu_min=float(mu_min),
+        P=finished.P,
+        q=finished.q,
+        r=float(finished.r),
+        margin=check.margin,
+        cover=covered,
+        output_constant=output_constant,
+        max_condition=kappa,
+        design=finished.note,
+    )
+    return falsify_solution(model, solution, seed)
+
+
+def _covered_vertices(
+    model: IncrementalModel, parameters: ca.Function | None, cover: str, samples: int, seed: int
+) -> tuple[ca.Function, Cover, bool, Vertices]:
+    """The cover of J (and of G where the output map varies) and the LMI's vertices.
+
+    Returns ``(G_fun, cover, output_constant, vertices)``.
+    """
+    J_fun, G_fun = model.jacobians()
+    point = ca.SX.sym("p", J_fun.numel_in(0))
+    output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
+    stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
+    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
+    n = model.n
+    J = covered.vertices[:, :n, :]
+    if output_constant:
+        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
+    else:
+        G = covered.vertices[:, n:, :]
+    channels = tuple(size for _, size in model.channels)
+    return G_fun, covered, output_constant, Vertices.build(J, G, channels, n)
+
+
+def _checked_reason(finished: Finished, mu_used: float, mu_min: float, kappa: float, note: str) -> str:
+    """The reason of a solution whose weights were designed: certified with its margins, or the failed re-check."""
+    check = finished.check
     condition = float(np.linalg.cond(finished.P))
     source = "" if finished.note == "design" else f"; P from {finished.note}"
-    reason = (
-        f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g} with cond(P) <= {kappa:g}), cond(P) {condition:.3g}, "
-        f"re-check margins: kernel {check.kernel.min():.2e}, output {check.schur.min():.2e}{note}{source}"
-        if ok
-        else f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
+    if check.passed:
+        return (
+            f"certified: mu={mu_used:.6g} (mu_min={mu_min:.6g} with cond(P) <= {kappa:g}), cond(P) {condition:.3g}, "
+            f"re-check margins: kernel {check.kernel.min():.2e}, output {check.schur.min():.2e}{note}{source}"
+        )
+    return (
+        f"re-check failed at mu={mu_used:.6g}: kernel margin {check.kernel.min():.2e}, output margin "
         f"{check.schur.min():.2e}, direct {check.direct.min():.2e} (rounding {ROUNDING:.0e}){note}{source}"
     )
-    solution = DissipationSolution(lmi.FEASIBLE if ok else "re-check failed", reason, float(mu_used), float(mu_min),
-                                   finished.P, finished.q, float(finished.r), check.margin, covered,
-                                   output_constant, kappa, finished.note)  # fmt: skip
-    return falsify_solution(model, solution, seed)
 
 
 def falsify_solution(model: IncrementalModel, solution: DissipationSolution, seed: int) -> DissipationSolution:
@@ -401,7 +443,7 @@ def _decided_at_samples(
                        "(parameters=, a smaller domain)"), float("nan")  # fmt: skip
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PairCheck:
     """Worst ratio of the dissipation inequality over sampled pairs (see :func:`check_pairs`)."""
 
@@ -446,4 +488,4 @@ def check_pairs(
     lhs = quad(dz_next, P)
     rhs = mu * quad(z - zt, P) + quad(d - dt, W) + quad(dy, R)
     used = rhs > 0.0
-    return PairCheck(float((lhs[used] / rhs[used]).max(initial=-np.inf)), int(used.sum()))
+    return PairCheck(worst_ratio=float((lhs[used] / rhs[used]).max(initial=-np.inf)), pairs=int(used.sum()))

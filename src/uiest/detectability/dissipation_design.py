@@ -37,7 +37,7 @@ ROUNDING = 1e-13
 """The direct check of M_i passes within this fraction of its largest entry (double-precision rounding)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Design:
     """(P, q) of stage 2 or of a fallback, and how it was found."""
 
@@ -130,7 +130,7 @@ def design_solve(
     if bounded and np.linalg.cond(P_val) > kappa * (1.0 + CONDITION_RTOL):
         return f"cond(P) {np.linalg.cond(P_val):.6g} above max_condition ({status})", None
     q_val = np.maximum(np.asarray(q.value, dtype=float).reshape(-1), 0.0) * sigma
-    return status, Design(P_val / lowest, q_val / lowest, "design")
+    return status, Design(P=P_val / lowest, q=q_val / lowest, note="design")
 
 
 def output_weight(vertices: Vertices, P: FloatArray, q: FloatArray, mu: float) -> float:
@@ -140,7 +140,7 @@ def output_weight(vertices: Vertices, P: FloatArray, q: FloatArray, mu: float) -
     return r * (1.0 + R_SAFETY) if np.isfinite(r) else np.inf
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Recheck:
     """Stage 4's margins per vertex, each relative to its own scale (shape (m,) each).
 
@@ -199,10 +199,10 @@ def recheck(vertices: Vertices, P: FloatArray, q: FloatArray, r: float, mu: floa
             schur[i] = -np.inf
         M = Qi + r * Gi.T @ Gi
         direct[i] = float(np.linalg.eigvalsh(M)[0]) / max(float(np.abs(M).max()), 1e-300)
-    return Recheck(kernel, schur, direct)
+    return Recheck(kernel=kernel, schur=schur, direct=direct)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Finished:
     """Stages 2-4 at one rate: the storage, the weights, the re-check and how P was found."""
 
@@ -236,11 +236,11 @@ def design_and_check(
         r = output_weight(vertices, designed.P, designed.q, mu)
         check = recheck(vertices, designed.P, designed.q, r, mu)
         if check.passed:
-            return Finished(designed.P, designed.q, r, check, "design")
+            return Finished(P=designed.P, q=designed.q, r=r, check=check, note="design")
         if not active.add_worst(check.per_vertex):
             status = f"re-check failed at an imposed vertex (margin {check.margin:.2e})"
             break
     q = np.full(vertices.n_channels, sigma * (1.0 + R_SAFETY))
     r = output_weight(vertices, P_rate, q, mu)
     note = f"the rate problem's storage with one closed-form weight for every channel (design: {status})"
-    return Finished(P_rate, q, r, recheck(vertices, P_rate, q, r, mu), note)
+    return Finished(P=P_rate, q=q, r=r, check=recheck(vertices, P_rate, q, r, mu), note=note)

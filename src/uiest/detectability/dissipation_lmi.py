@@ -51,7 +51,7 @@ CONDITION_RTOL = 1e-6
 """A design's cond(P) may exceed max_condition by this fraction (the solver's tolerance); more is a failed solve."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Vertices:
     """The matrices of the LMI at the cover's vertices (scaled), with the kernels of the state output maps.
 
@@ -84,7 +84,7 @@ class Vertices:
         channel_of = np.repeat(np.arange(len(channels)), channels).astype(np.intp)
         used = np.any(J[:, :, n:] != 0.0, axis=(0, 1)) | np.any(G[:, :, n:] != 0.0, axis=(0, 1))
         keep = np.concatenate([np.ones(n, dtype=bool), used])
-        return cls(J[:, :, keep], G[:, :, keep], channel_of[used], len(channels), n)
+        return cls(J=J[:, :, keep], G=G[:, :, keep], channel_of=channel_of[used], n_channels=len(channels), n=n)
 
     @property
     def nd(self) -> int:
@@ -107,7 +107,13 @@ class Vertices:
 
     def subset(self, index: Sequence[int]) -> Vertices:
         """The vertices ``index``."""
-        return Vertices(self.J[list(index)], self.G[list(index)], self.channel_of, self.n_channels, self.n)
+        return Vertices(
+            J=self.J[list(index)],
+            G=self.G[list(index)],
+            channel_of=self.channel_of,
+            n_channels=self.n_channels,
+            n=self.n,
+        )
 
     @property
     def A(self) -> FloatArray:

@@ -55,7 +55,7 @@ MIN_SEPARATION = 1e-7
 of the model's evaluation (two states one unit in the last place apart gave ratios of 4)."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Falsification:
     """What the adversarial search tried and the worst pair it found.
 
@@ -193,8 +193,17 @@ def search(
             started += 1
             if value > worst[0]:
                 worst = (value, point[:n], point[n : 2 * n], point[2 * n :])
-    return Falsification(len(a), started, evaluations, worst[0], worst[1].copy(), worst[2].copy(), worst[3].copy(),
-                         labels, time.thread_time() - start)  # fmt: skip
+    return Falsification(
+        pairs=len(a),
+        searches=started,
+        evaluations=evaluations,
+        worst_ratio=worst[0],
+        first=worst[1].copy(),
+        second=worst[2].copy(),
+        shared=worst[3].copy(),
+        labels=labels,
+        seconds=time.thread_time() - start,
+    )
 
 
 def _starts(ratio: FloatArray, a: FloatArray, b: FloatArray, count: int) -> list[int]:

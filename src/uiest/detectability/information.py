@@ -32,7 +32,7 @@ from uiest.system import System
 __all__ = ["InformationBound", "window_information"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class InformationBound:
     """Resolution of the window ending at ``k`` (see the module docstring).
 
@@ -146,4 +146,10 @@ def window_information(
         A_pinv = np.linalg.pinv(A, rcond=1e-13, hermitian=True)
         middle = J.T @ ((weights**2 / inv_sigma)[:, None] * J)
         discounted = np.sqrt(np.clip(np.diag(G @ A_pinv @ middle @ A_pinv @ G.T), 0.0, None))
-    return InformationBound(k, N, np.sqrt(np.clip(np.diag(bound), 0.0, None)), discounted, rank_deficient)
+    return InformationBound(
+        k=k,
+        N=N,
+        std_bound=np.sqrt(np.clip(np.diag(bound), 0.0, None)),
+        std_discounted=discounted,
+        rank_deficient=rank_deficient,
+    )

@@ -313,7 +313,7 @@ def _natural(fun: ca.Function, lower: FloatArray, upper: FloatArray) -> Interval
     return out_lo, out_hi
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Bounds:
     """Sound bounds of each output of a function over a box (see :func:`bounds`).
 
@@ -369,7 +369,15 @@ def bounds(fun: ca.Function, box: Box, *, rtol: float = 1e-3, max_boxes: int = 4
     best = np.nanmax(np.where(np.isnan(sides), -np.inf, sides), axis=0)
     at = points[np.argmax(np.where(np.isnan(sides), -np.inf, sides), axis=0)]
     bound, best, at, used = _branch_and_bound(fun, box, best, at, rtol, max_boxes)
-    return Bounds(-bound[k:], bound[:k], -best[k:], best[:k], used, at[k:], at[:k])
+    return Bounds(
+        lower=-bound[k:],
+        upper=bound[:k],
+        attained_lower=-best[k:],
+        attained_upper=best[:k],
+        boxes=used,
+        lower_at=at[k:],
+        upper_at=at[:k],
+    )
 
 
 def _branch_and_bound(

@@ -25,10 +25,12 @@ from uiest.detectability.certificate import (
     INFEASIBLE,
     SOLVER_FAILED,
     STATUS_OF,
+    CertificateStatus,
     StrongDetectabilityBase,
     Verification,
     check_rate,
 )
+from uiest.detectability.strong import worst_case_ratio
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
@@ -42,7 +44,7 @@ _MATCH_TOL = 1e-4  # two compressions agree on a candidate z within _MATCH_TOL *
 _CONFIRM_FACTOR = 100.0  # zero iff sigma_r(P(z)) <= 100 rtol |pencil|: weakly observable modes are no zeros
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LinearStrongDetectability(StrongDetectabilityBase):
     """Result of :func:`linear_strong_detectability` for ``A (n, n)``, ``B (n, q)``, ``C (p, n)``.
 
@@ -107,8 +109,6 @@ class LinearStrongDetectability(StrongDetectabilityBase):
 
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """Eq. (5b) on random increments (the system is linear: pairs are increments)."""
-        from uiest.detectability.strong import worst_case_ratio
-
         rng = np.random.default_rng(seed)
         n, p = self.A.shape[0], self.C.shape[0]
         dx = rng.standard_normal((n_pairs, n)) * 10.0 ** rng.uniform(-3, 3, (n_pairs, 1))
@@ -295,21 +295,7 @@ def linear_strong_detectability(
     else:
         Y = np.linalg.pinv(C_ @ B_tilde)
         E = A_ - B_tilde @ Y @ C_ @ A_
-        radius = float(np.max(np.abs(zeros), initial=0.0))
-        mu_min, ok = radius**2, radius < 1.0
-        head = f"rank(CB) = rank(B) = {rank_B} (matching holds)"
-        if not zeros.size:
-            reason = f"{head} and there are no invariant zeros, so the system is strongly detectable with mu_min = 0."
-        elif ok:
-            reason = (
-                f"{head} and all {zeros.size} invariant zeros lie inside the unit disk (largest modulus "
-                f"{radius:.6g}), so the system is strongly detectable with mu_min = {mu_min:.6g}."
-            )
-        else:
-            reason = (
-                f"{head} but the invariant zero {_fmt(zeros[0])} has modulus {radius:.6g} >= 1, so the system is "
-                f"not strongly detectable (mu_min = {mu_min:.6g})."
-            )
+        mu_min, ok, reason = _zeros_verdict(zeros, rank_B)
         if ok:
             try:
                 K = _observer_gain(E, C_)
@@ -318,16 +304,11 @@ def linear_strong_detectability(
     n, p = A_.shape[0], C_.shape[0]
     nan = float("nan")
     P, sigma_y, rate, margin, status = np.full((n, n), nan), nan, nan, nan, INFEASIBLE
-    if ok and p == 0:
-        status = SOLVER_FAILED
-        reason += " No output: the quadratic certificate needs at least one."
-    elif ok:
-        solution = StrongLMI(A_[None], B_tilde, C_).solve(mu, mu_min=mu_min)
-        status = STATUS_OF.get(solution.outcome, SOLVER_FAILED)
-        if status == CERTIFIED:
-            P, sigma_y, rate, margin = solution.P, solution.sigma_y, solution.mu, solution.margin
-        else:
-            reason += f" The quadratic certificate was not found ({status}): {solution.reason}."
+    if ok:
+        status, found, why = _quadratic_certificate(A_, B_tilde, C_, mu, mu_min)
+        if found is not None:
+            P, sigma_y, rate, margin = found
+        reason += why
     return LinearStrongDetectability(
         certified=status == CERTIFIED,
         status=status,
@@ -357,6 +338,53 @@ def linear_strong_detectability(
         A=A_,
         C=C_,
     )
+
+
+def _zeros_verdict(zeros: np.ndarray, rank_B: int) -> tuple[float, bool, str]:
+    """With matching: ``(mu_min, strongly_detectable, reason)`` from the invariant zeros' largest modulus."""
+    radius = float(np.max(np.abs(zeros), initial=0.0))
+    mu_min, ok = radius**2, radius < 1.0
+    head = f"rank(CB) = rank(B) = {rank_B} (matching holds)"
+    if not zeros.size:
+        return (
+            mu_min,
+            ok,
+            f"{head} and there are no invariant zeros, so the system is strongly detectable with mu_min = 0.",
+        )
+    if ok:
+        return (
+            mu_min,
+            ok,
+            (
+                f"{head} and all {zeros.size} invariant zeros lie inside the unit disk (largest modulus "
+                f"{radius:.6g}), so the system is strongly detectable with mu_min = {mu_min:.6g}."
+            ),
+        )
+    return (
+        mu_min,
+        ok,
+        (
+            f"{head} but the invariant zero {_fmt(zeros[0])} has modulus {radius:.6g} >= 1, so the system is "
+            f"not strongly detectable (mu_min = {mu_min:.6g})."
+        ),
+    )
+
+
+def _quadratic_certificate(
+    A: FloatArray, B_tilde: FloatArray, C: FloatArray, mu: float | None, mu_min: float
+) -> tuple[CertificateStatus, tuple[FloatArray, float, float, float] | None, str]:
+    """The LMI certificate of a strongly detectable system.
+
+    Returns ``(status, (P, sigma_y, rate, margin) or None, note)``, the note to append to the reason when none
+    was found.
+    """
+    if C.shape[0] == 0:
+        return SOLVER_FAILED, None, " No output: the quadratic certificate needs at least one."
+    solution = StrongLMI(A[None], B_tilde, C).solve(mu, mu_min=mu_min)
+    status = STATUS_OF.get(solution.outcome, SOLVER_FAILED)
+    if status == CERTIFIED:
+        return status, (solution.P, solution.sigma_y, solution.mu, solution.margin), ""
+    return status, None, f" The quadratic certificate was not found ({status}): {solution.reason}."
 
 
 def _fmt(z: complex) -> str:

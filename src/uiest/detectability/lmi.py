@@ -158,7 +158,7 @@ def solve(problem: cp.Problem) -> str:
     return str(problem.status)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Bisection:
     """Outcome of :func:`bisect_rate`.
 
@@ -219,9 +219,9 @@ def bisect_rate(
         if first == INFEASIBLE:  # infeasible below the rate whose probe failed: nothing is decided at 1 - gap
             first = FAILED
     if first != FEASIBLE:
-        return Bisection(None, first, tuple(failed), probes)
+        return Bisection(rate=None, outcome=first, failed_at=tuple(failed), probes=probes)
     if run(floor) == FEASIBLE:
-        return Bisection(floor, FEASIBLE, tuple(failed), probes)
+        return Bisection(rate=floor, outcome=FEASIBLE, failed_at=tuple(failed), probes=probes)
     hi, lo = np.log(1.0 - top), np.log(1.0 - floor)  # log(1 - rate): hi feasible, lo not
     while abs(np.exp(hi) - np.exp(lo)) > tol or hi - lo < -0.01:
         mid = 0.5 * (lo + hi)
@@ -235,7 +235,7 @@ def bisect_rate(
             hi = mid
         else:
             lo = mid
-    return Bisection(1.0 - float(np.exp(hi)), FEASIBLE, tuple(failed), probes)
+    return Bisection(rate=1.0 - float(np.exp(hi)), outcome=FEASIBLE, failed_at=tuple(failed), probes=probes)
 
 
 Solution = TypeVar("Solution")

@@ -34,7 +34,7 @@ from uiest.errors import ModelError
 __all__ = ["ReducedIOSS", "certify_reduced_ioss"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ReducedIOSS(MuCertificate):
     """An exponential i-IOSS certificate of a reduced-order model (Assumption 4.7 of Guo et al.).
 
@@ -125,18 +125,17 @@ class ReducedIOSS(MuCertificate):
         """Smallest N with ``N > -log_mu(4 c_x)`` (Eq. (31))."""
         return int(np.floor(np.log(4.0 * self.c_x) / np.log(1.0 / self.mu))) + 1
 
-    def weights(self) -> Any:
-        """:class:`~uiest.estimators.TwoStageWeights` from the constants of Eq. (27)."""
-        from uiest.estimators.weights import TwoStageWeights
-
-        return TwoStageWeights.from_certificate(self)
-
     def _verify(self, n_pairs: int, seed: int) -> Verification:
         """The one-step inequality of the module docstring on random pairs (nonlinear f, h)."""
         lam = self.alpha_1_scaled * self.mu
         weights = [self.R_gamma * lam, self.R_v * lam]
         check = dissipation.check_pairs(self.model, self.P, self.mu, weights, self.R_y * lam, n_pairs, seed)
-        return Verification(check.worst_ratio, check.pairs, n_pairs, "ratio = LHS / RHS of V+ <= mu V + ...")
+        return Verification(
+            worst_ratio=check.worst_ratio,
+            pairs_used=check.pairs,
+            pairs_drawn=n_pairs,
+            note="ratio = LHS / RHS of V+ <= mu V + ...",
+        )
 
     def _details(self) -> dict[str, object]:
         ok = self.certified

@@ -56,7 +56,7 @@ from uiest.theory import DECREASE_CONDITION
 __all__ = ["StrongDetectability", "certify_strong_detectability", "worst_case_ratio"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class StrongDetectability(StrongDetectabilityBase):
     """A strong-detectability certificate (Theorem 3.2 of Guo et al.): ``V = |x - x~|_P^2``.
 
@@ -418,8 +418,13 @@ def _verify(cert: StrongDetectability, n_pairs: int, seed: int) -> Verification:
     dv2 = np.sum(((v - vt) / sv) ** 2, axis=1) + np.sum(((vp - vtp) / sv) ** 2, axis=1)
     leak = _input_leak(cert, x, u, rng)
     if leak > STRUCTURE_RTOL:
-        return Verification(float("inf"), n_pairs, n_pairs, f"the unknown input moves the state outside the span of "
-                            f"B by {leak:.2e} of its effect: the elimination does not hold")  # fmt: skip
+        return Verification(
+            worst_ratio=float("inf"),
+            pairs_used=n_pairs,
+            pairs_drawn=n_pairs,
+            note=f"the unknown input moves the state outside the span of "
+            f"B by {leak:.2e} of its effect: the elimination does not hold",
+        )
     return worst_case_ratio(
         a=(system.step(x, u, w0) - system.step(xt, u, w0)) / sx,
         dx=(x - xt) / sx,
@@ -486,14 +491,14 @@ def worst_case_ratio(
         H = B.T @ (P - sigma_y * C.T @ C) @ B
         if np.linalg.eigvalsh(0.5 * (H + H.T))[-1] >= 0.0:
             note = "unbounded: B'(P - sigma_y C'C)B is not negative definite, so some w violates it"
-            return Verification(float("inf"), n_pairs, n_pairs, note)
+            return Verification(worst_ratio=float("inf"), pairs_used=n_pairs, pairs_drawn=n_pairs, note=note)
         g = a @ P @ B - sigma_y * (a @ C.T + noise_next) @ C @ B
         value = value - np.einsum("mi,ij,mj->m", g, np.linalg.inv(H), g)
     rhs = mu * quad(dx, P) + sigma_y * np.sum(dy**2, axis=1) + sigma_v * dv2
     used = rhs > 0.0
     return Verification(
-        float((value[used] / rhs[used]).max(initial=-np.inf)),
-        int(used.sum()),
-        n_pairs,
-        f"ratio = LHS / RHS of {DECREASE_CONDITION} with the worst unknown-input increment (closed form)",
+        worst_ratio=float((value[used] / rhs[used]).max(initial=-np.inf)),
+        pairs_used=int(used.sum()),
+        pairs_drawn=n_pairs,
+        note=f"ratio = LHS / RHS of {DECREASE_CONDITION} with the worst unknown-input increment (closed form)",
     )

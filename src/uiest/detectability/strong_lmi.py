@@ -71,7 +71,7 @@ S1_SAFETY = 1e-3
 """The closed-form s1 is multiplied by 1 + S1_SAFETY, so the measured block keeps a margin."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StrongSolution:
     """A solution of the LMI of the module docstring, in scaled coordinates.
 
@@ -281,9 +281,11 @@ class StrongLMI:
         """
         g = self.geometry
         if g.k == 0:  # every state is measured: any rate works
-            bisection = lmi.Bisection(lmi.RATE_FLOOR, lmi.FEASIBLE, (), 0)
+            bisection = lmi.Bisection(rate=lmi.RATE_FLOOR, outcome=lmi.FEASIBLE, failed_at=(), probes=0)
         elif mu_min is not None:
-            bisection = lmi.Bisection(max(float(mu_min), lmi.RATE_FLOOR), lmi.FEASIBLE, (), 0)
+            bisection = lmi.Bisection(
+                rate=max(float(mu_min), lmi.RATE_FLOOR), outcome=lmi.FEASIBLE, failed_at=(), probes=0
+            )
         else:
             bisection = lmi.bisect_rate(self.probe, tol=tol)
         if bisection.rate is None:
@@ -405,9 +407,19 @@ class StrongLMI:
         if note != "design":  # the rate problem's P: larger gains than a design's
             reason += f"; P from the {note}"
         return StrongSolution(
-            lmi.FEASIBLE if ok else "re-check failed", reason, float(mu), float(mu_min), P, Y2, float(s1),
-            float(s2 / g.eps**2), g.eps, float(margin), note, bisection,
-        )  # fmt: skip
+            outcome=lmi.FEASIBLE if ok else "re-check failed",
+            reason=reason,
+            mu=float(mu),
+            mu_min=float(mu_min),
+            P=P,
+            Y2=Y2,
+            s1=float(s1),
+            s2=float(s2 / g.eps**2),
+            eps=g.eps,
+            margin=float(margin),
+            design=note,
+            bisection=bisection,
+        )
 
     def _direct_margin(self, mu: float, P: FloatArray, s1: float, s2: float) -> tuple[float, float]:
         """The core inequality checked directly, without Schur complements: (margin, rounding), over ``||P||``.
@@ -432,5 +444,17 @@ class StrongLMI:
         if bisection is not None and bisection.note:
             reason += f" ({bisection.note})"
         nan = float("nan")
-        return StrongSolution(outcome, reason, nan, mu_min, np.full((n, n), nan), np.full((n, p), nan), nan, nan,
-                              self.geometry.eps, nan, "", bisection)  # fmt: skip
+        return StrongSolution(
+            outcome=outcome,
+            reason=reason,
+            mu=nan,
+            mu_min=mu_min,
+            P=np.full((n, n), nan),
+            Y2=np.full((n, p), nan),
+            s1=nan,
+            s2=nan,
+            eps=self.geometry.eps,
+            margin=nan,
+            design="",
+            bisection=bisection,
+        )

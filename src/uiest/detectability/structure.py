@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from fractions import Fraction
+from typing import NoReturn
 
 import casadi as ca
 import numpy as np
@@ -45,7 +46,7 @@ DIRECTION_RTOL = 1e-12
 unbounded, so a direction dropped that is not rounding would make the elimination inexact without bound."""
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class InputStructure:
     """Scaled data of ``x+ = f1(x, u) + B d``, ``y = C x + g(v)`` for one system.
 
@@ -119,8 +120,49 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
         raise ModelError("h: a certificate needs at least one output")
     nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
     x, u, w, v = (ca.SX.sym(s, n) for s, n in (("x", nx), ("u", nu), ("w", nw), ("v", nv)))
-    fx, hx = system.f(x, u, w), system.h(x, v)
-    C_expr, D_expr, B_expr = ca.jacobian(hx, x), ca.jacobian(hx, v), ca.jacobian(fx, w)
+    C, D_all, noise_constant = _output_map(system, x, v, seed)
+    D_norm = float(max(np.linalg.norm(Di, 2) for Di in D_all)) if nv else 0.0
+    U = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+    B, pointwise, evidence = _input_directions(system, x, u, w, U, samples, seed)
+    rank_B = B.shape[1]
+    rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
+    if matching and rank_CB < rank_B:
+        _fail_matching(rank_B, rank_CB, pointwise)
+    projector = np.eye(nx) - B @ B.T
+    A_expr = ca.jacobian(system.f(x, u, ca.DM(system.nominal_w)), x)
+    A_scaled = ca.mtimes([ca.DM(projector @ np.diag(1.0 / system.x.scale)), A_expr, ca.DM(np.diag(system.x.scale))])
+    state_jacobian = ca.Function("A", [ca.vertcat(x, u)], [A_scaled])
+    box = Box(np.concatenate([system.x.bounds.lower, U.lower]), np.concatenate([system.x.bounds.upper, U.upper]))
+    if not np.all(np.isfinite(system.u.bounds.lower) & np.isfinite(system.u.bounds.upper)) and _depends(A_expr, [u]):
+        raise ModelError(
+            f"U: the state Jacobian depends on the known input, whose domain is unbounded ({system.u.bounds}); "
+            "give finite u_bounds"
+        )
+    return InputStructure(
+        B=B,
+        C=C,
+        D_norm=D_norm,
+        D=D_all[0],
+        noise_constant=noise_constant,
+        rank_B=rank_B,
+        rank_CB=rank_CB,
+        pointwise_rank=pointwise,
+        evidence=evidence,
+        state_jacobian=state_jacobian,
+        box=box,
+        names=tuple(system.x.names) + tuple(system.u.names),
+    )
+
+
+def _output_map(system: System, x: ca.SX, v: ca.SX, seed: int) -> tuple[FloatArray, FloatArray, bool]:
+    """``C`` (ny, nx), ``D = dg/dv`` (m, ny, nv) and whether D is constant, all scaled.
+
+    D at V's centre, then (where g is nonlinear) at V's corners and sampled points. ModelError when h is not
+    ``C x + g(v)``.
+    """
+    nx, nv = system.nx, system.nv
+    hx = system.h(x, v)
+    C_expr, D_expr = ca.jacobian(hx, x), ca.jacobian(hx, v)
     if _depends(C_expr, [x, v]):
         raise ModelError(
             "h: the output must be affine in the state, y = C x + g(v) (dh/dx varies over the domain); bring the "
@@ -128,20 +170,31 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
         )
     if _depends(D_expr, [x]):
         raise ModelError("h: the noise must enter the output independently of the state, y = C x + g(v)")
-    sx, sy, sv, sw = system.x.scale, system.y.scale, system.v.scale, system.w.scale
+    sx, sy, sv = system.x.scale, system.y.scale, system.v.scale
     C = np.asarray(ca.DM(ca.substitute(C_expr, ca.vertcat(x, v), ca.DM.zeros(nx + nv))), dtype=float)
     C = C * sx[None, :] / sy[:, None]
     V = finite_box(system.v.bounds, system.v.bounds.center, sv)
-    D_fun = ca.Function("D", [v], [D_expr])
     v_points = V.center[None]
-    if _depends(D_expr, [v]):  # g(v) nonlinear: the largest gain over V, sampled
+    noise_constant = not _depends(D_expr, [v])
+    if not noise_constant:  # g(v) nonlinear: the largest gain over V, sampled
         v_points = np.vstack(
             [v_points, V.corners() if nv <= 10 else v_points, V.sample(np.random.default_rng(seed), 256)]
         )
-    D_all = batched(D_fun, [v_points])[0] * sv[None, None, :] / sy[None, :, None]
-    D_norm = float(max(np.linalg.norm(Di, 2) for Di in D_all)) if nv else 0.0
+    D_all = batched(ca.Function("D", [v], [D_expr]), [v_points])[0] * sv[None, None, :] / sy[None, :, None]
+    return C, D_all, noise_constant
 
-    U = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
+
+def _input_directions(
+    system: System, x: ca.SX, u: ca.SX, w: ca.SX, U: Box, samples: int, seed: int
+) -> tuple[FloatArray, int, str]:
+    """An orthonormal basis B (nx, r) of the span of df/dw's columns (scaled), and how it was found.
+
+    Returns ``(B, pointwise, evidence)``: the largest rank of df/dw at a sampled point, and the evidence
+    (structural: constant; exact forms).
+    """
+    nx, nu, nw = system.nx, system.nu, system.nw
+    sx, sw = system.x.scale, system.w.scale
+    B_expr = ca.jacobian(system.f(x, u, w), w)
     rng = np.random.default_rng(seed)
     if not _depends(B_expr, [x, u, w]):
         B_samples = np.asarray(ca.DM(ca.substitute(B_expr, ca.vertcat(x, u, w), ca.DM.zeros(nx + nu + nw))))[None]
@@ -160,55 +213,30 @@ def input_structure(system: System, *, samples: int = 2000, seed: int = 0, match
     biggest = float(np.abs(B_scaled).max()) if B_scaled.size else 0.0
     pointwise = max((_rank(Bi, np.linalg.norm(Bi, 2)) for Bi in B_scaled), default=0) if biggest > 0 else 0
     if evidence.startswith("structural"):
-        B = _orthonormal(list(B_scaled[0].T), nx, None)
-    else:
-        directions, terms = _form_directions(ca.Function("Bw", [ca.vertcat(x, u, w)], [B_expr]), nx, nw)
-        B = _orthonormal([d / sx for d in directions], nx, len(directions))
-        evidence = (f"exact forms (df/dw is a combination of {terms} constant matrices; {pointwise} direction(s) "
-                    f"at a sampled point)")  # fmt: skip
-    rank_B = B.shape[1]
-    rank_CB = _rank(C @ B, np.linalg.norm(C, 2)) if rank_B else 0
-    if matching and rank_CB < rank_B:
-        varying = (
-            f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
-            f"dimension {rank_B} while df/dw has rank "
-            f"{pointwise} at a point: w does not enter through a constant input matrix, e.g. an RK4 step of an ODE; "
-            "keep the input channel's direction constant, as System.from_ode(..., input_channel='integral') does)"
-            if pointwise < rank_B
-            else ""
-        )
-        consequence = (
-            ""
-            if varying
-            else ": the unknown input can move the state without changing the next output, so the "
-            "system is not strongly detectable (x[k] cannot be estimated from y[..k]; a delayed estimate may exist)"
-        )
-        raise ModelError(f"matching fails: rank(C B) = {rank_CB} < rank(B) = {rank_B}{consequence}{varying}")
-    projector = np.eye(nx) - B @ B.T
-    A_expr = ca.jacobian(system.f(x, u, ca.DM(system.nominal_w)), x)
-    A_scaled = ca.mtimes([ca.DM(projector @ np.diag(1.0 / sx)), A_expr, ca.DM(np.diag(sx))])
-    z = ca.vertcat(x, u)
-    state_jacobian = ca.Function("A", [z], [A_scaled])
-    box = Box(np.concatenate([system.x.bounds.lower, U.lower]), np.concatenate([system.x.bounds.upper, U.upper]))
-    if not np.all(np.isfinite(system.u.bounds.lower) & np.isfinite(system.u.bounds.upper)) and _depends(A_expr, [u]):
-        raise ModelError(
-            f"U: the state Jacobian depends on the known input, whose domain is unbounded ({system.u.bounds}); "
-            "give finite u_bounds"
-        )
-    return InputStructure(
-        B=B,
-        C=C,
-        D_norm=D_norm,
-        D=D_all[0],
-        noise_constant=not _depends(D_expr, [v]),
-        rank_B=rank_B,
-        rank_CB=rank_CB,
-        pointwise_rank=pointwise,
-        evidence=evidence,
-        state_jacobian=state_jacobian,
-        box=box,
-        names=tuple(system.x.names) + tuple(system.u.names),
+        return _orthonormal(list(B_scaled[0].T), nx, None), pointwise, evidence
+    directions, terms = _form_directions(ca.Function("Bw", [ca.vertcat(x, u, w)], [B_expr]), nx, nw)
+    evidence = (f"exact forms (df/dw is a combination of {terms} constant matrices; {pointwise} direction(s) "
+                f"at a sampled point)")  # fmt: skip
+    return _orthonormal([d / sx for d in directions], nx, len(directions)), pointwise, evidence
+
+
+def _fail_matching(rank_B: int, rank_CB: int, pointwise: int) -> NoReturn:
+    """ModelError: the matching condition rank(C B) = rank(B) fails; why, and what to do."""
+    varying = (
+        f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
+        f"dimension {rank_B} while df/dw has rank "
+        f"{pointwise} at a point: w does not enter through a constant input matrix, e.g. an RK4 step of an ODE; "
+        "keep the input channel's direction constant, as System.from_ode(..., input_channel='integral') does)"
+        if pointwise < rank_B
+        else ""
     )
+    consequence = (
+        ""
+        if varying
+        else ": the unknown input can move the state without changing the next output, so the "
+        "system is not strongly detectable (x[k] cannot be estimated from y[..k]; a delayed estimate may exist)"
+    )
+    raise ModelError(f"matching fails: rank(C B) = {rank_CB} < rank(B) = {rank_B}{consequence}{varying}")
 
 
 def _form_directions(fun: ca.Function, nx: int, nw: int) -> tuple[list[FloatArray], int]:

@@ -27,7 +27,7 @@ DEFAULT_LEVELS = (1e6, 1e8, 1e10, 1e12)
 """Bounds on cond(P) tabulated by default."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TradeoffRow:
     """One bound on cond(P) and what the certificate made with it gives.
 
@@ -64,7 +64,7 @@ class TradeoffRow:
     output_gain: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Tradeoff:
     """Rate, horizon and noise gain of a certificate at several bounds on cond(P).
 
@@ -162,4 +162,4 @@ def tabulate(
             noise_gain=np.asarray(cert.noise_gain, dtype=float) if ok else nan,
             output_gain=float(cert.output_gain) if ok else float("nan"),
         ))  # fmt: skip
-    return Tradeoff(kind, states, tuple(rows))
+    return Tradeoff(kind=kind, states=states, rows=tuple(rows))

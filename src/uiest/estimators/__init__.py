@@ -18,8 +18,7 @@ the UISE, the FIE and the smooth-input MHE use ``y[0..k]``, the standard MHE ``y
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
-from typing import TYPE_CHECKING
-
+import uiest.design  # noqa: F401  (registers the functions the design() classmethods call: uiest.estimators.design_hook)
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
@@ -30,20 +29,8 @@ from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 from uiest.guarantee import Guarantee, Verdict
+from uiest.kalman import EKF, UKF
 from uiest.results import EstimationResult, Outcome, StepEstimate
-
-if TYPE_CHECKING:  # their types for the checker; at run time they come from __getattr__ below
-    from uiest.kalman import EKF, UKF
-
-
-def __getattr__(name: str) -> object:
-    """``EKF`` and ``UKF`` from :mod:`uiest.kalman` (imported on first use: it imports this package)."""
-    if name in ("EKF", "UKF"):
-        from uiest import kalman
-
-        return getattr(kalman, name)
-    raise AttributeError(f"module 'uiest.estimators' has no attribute {name!r}")
-
 
 __all__ = [
     "EKF",

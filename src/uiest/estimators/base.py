@@ -43,24 +43,28 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, check_run_data, check_u_prev, check_y, user_stacklevel
+from uiest.checks import check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.window import DEFAULT_BACKEND, WindowModel, WindowProblem, WindowSolution, WindowSolver, make_solver
+from uiest.window.backends import BACKENDS, MULTIPLIER_BACKENDS
 from uiest.window.problem import WIDE, WindowTrajectory, WindowWeights
 from uiest.window.size import check_horizon
-from uiest.window.solvers import BACKENDS
 from uiest.window.warmstart import predicted_guess, shifted_guess
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WindowOptions:
     """How an estimator solves its window problems, and the lag of its smoothed estimate.
+
+    Every window estimator takes these either as keywords (``UISE(system, ..., solver="ipopt", lag=2)``) or as
+    one object (``UISE(system, ..., window=WindowOptions(solver="ipopt", lag=2))``); they are checked here.
 
     Attributes
     ----------
@@ -71,7 +75,8 @@ class WindowOptions:
         Backend options (IPOPT options over :data:`uiest.window.IPOPT_DEFAULTS`, or keyword
         arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`).
     warm_start : bool
-        Primal-dual warm start from the shifted previous solution.
+        Pass the shifted previous solution's multipliers to the backend (IPOPT's primal-dual warm start; the
+        Gauss-Newton backends take none). Every backend starts from the shifted previous solution.
     strict : bool
         Raise :class:`~uiest.errors.SolverError` when a window problem is not solved.
     polish : bool
@@ -102,11 +107,19 @@ class WindowOptions:
 
     @classmethod
     def build(cls, values: Mapping[str, Any]) -> WindowOptions:
-        """Options from keyword arguments; unknown names raise OptionError."""
+        """Options from keyword arguments, or the one given as ``window``; unknown names raise OptionError."""
         known = [f.name for f in fields(cls)]
+        if "window" in values:
+            window = values["window"]
+            if not isinstance(window, WindowOptions):
+                raise OptionError(f"window: expected a WindowOptions, got {type(window).__name__}")
+            others = sorted(set(values) - {"window"})
+            if others:
+                raise OptionError(f"window: given together with {others}; put them in the WindowOptions")
+            return window
         unknown = sorted(set(values) - set(known))
         if unknown:
-            raise OptionError(f"options: unknown {unknown}; expected some of {known}")
+            raise OptionError(f"options: unknown {unknown}; expected some of {known} (or window=WindowOptions(...))")
         return cls(**values)
 
 
@@ -587,8 +600,20 @@ class WindowEstimator(StreamingEstimator):
             assert x_hat is not None
             data_k = np.where(np.isnan(y_vec), self.system.output(x_hat, self.v_prior), y_vec)[: self.model.nd]
             self._commit(k, u_vec, y_vec, node, data_k, x_hat, None)
-            return StepEstimate(k, x_hat.copy(), None, None, Outcome.ERROR, 0, 0.0, float("nan"), 0, np.isnan(y_vec),
-                                at_bound(self.system.x.bounds, x_hat, self.system.x.scale), reason=reason)  # fmt: skip
+            return StepEstimate(
+                k=k,
+                x_hat=x_hat.copy(),
+                w_hat=None,
+                w_index=None,
+                outcome=Outcome.ERROR,
+                iterations=0,
+                solve_time=0.0,
+                cost=float("nan"),
+                window=0,
+                missing=np.isnan(y_vec),
+                at_bound=at_bound(self.system.x.bounds, x_hat, self.system.x.scale),
+                reason=reason,
+            )
 
     def _propagate(self, u_prev: FloatArray) -> FloatArray:
         """The model's step from the last node (the prior at k = 0), clipped to its bounds; held if not finite."""
@@ -642,10 +667,14 @@ class WindowEstimator(StreamingEstimator):
             old_start, old_problem, old_solution = self._last
             shift = self._k - length - old_start
             shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
-                                    duals=self._options.warm_start, data=data)  # fmt: skip
+                                    duals=self._takes_multipliers(), data=data)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None
+
+    def _takes_multipliers(self) -> bool:
+        """Whether the shifted multipliers are passed to the backend (``warm_start``, a backend that takes them)."""
+        return self._options.warm_start and self._options.solver in MULTIPLIER_BACKENDS
 
     # ------------------------------------------------------------------ batch
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:

@@ -16,6 +16,7 @@ delayed_system(system).system)``.
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -27,6 +28,7 @@ from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.bounds import strong_bound
+from uiest.estimators.design_hook import design_function
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
@@ -75,12 +77,19 @@ class DelayedUISE(UISE):
             keywords["N"] = max(certificate.min_horizon(), int(lag) + 1)
         self._fit = InputFit(system)
         self._a_last: FloatArray | None = None
+        window = keywords.get("window")
+        if isinstance(window, WindowOptions):  # the delayed estimate is the window's fixed-lag one
+            if window.lag not in (0, lag):
+                raise OptionError(f"window: its lag {window.lag} differs from lag = {lag}; the delayed UISE sets it")
+            keywords["window"] = dataclasses.replace(window, lag=lag)
+            super().__init__(system, **keywords)
+            return
         super().__init__(system, lag=lag, **keywords)
 
     @classmethod
     def design(cls, system: System, *, x0_prior: ArrayLike, lag: int = 1, **design_options: Any) -> DelayedUISE:
         """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
-        from uiest.design import design_uise, estimator_options
+        design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
 
         if "records" in design_options:  # they would score a UISE of the delayed system, not this estimator
             raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")

@@ -32,7 +32,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike
 
-from uiest.checks import check_int, check_run_data
+from uiest.checks import check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import strong_bound
@@ -40,6 +40,7 @@ from uiest.estimators.uise import check_system
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.guarantee import Guarantee
 from uiest.results import EstimationResult, StepEstimate
+from uiest.run_data import check_run_data
 from uiest.scales import data_scales
 from uiest.system import System
 from uiest.theory import FIE_GUARANTEE

@@ -33,11 +33,10 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg
-import scipy.signal
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import check_run_data, check_u_prev, check_y, real_array
+from uiest.checks import real_array
 from uiest.detectability import lmi
 from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
 from uiest.errors import DataError, ModelError, OptionError
@@ -45,7 +44,9 @@ from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.estimators.bounds import impulse_bound
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound
+from uiest.models.linear import linear_system
 from uiest.results import EstimationResult, StepEstimate
+from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
 from uiest.theory import LINEAR_STRONG_DETECTABILITY
 
@@ -158,6 +159,8 @@ class LinearUIO(StreamingEstimator):
                     f"include them among the poles, got {np.round(wanted, 6).tolist()}"
                 )
             try:
+                import scipy.signal  # imported when used: it takes most of `import uiest.estimators`
+
                 K1 = scipy.signal.place_poles(E.T, self.C.T, wanted).gain_matrix.T
             except ValueError as exc:
                 raise OptionError(f"poles: pole placement on (T A, C) failed: {exc}") from exc
@@ -197,8 +200,6 @@ class LinearUIO(StreamingEstimator):
         ``system_options`` go to :func:`uiest.models.linear.linear_system` (bounds, names, dt);
         further keywords to the constructor.
         """
-        from uiest.models.linear import linear_system
-
         return cls(linear_system(A, B, C, B_u=B_u, **(system_options or {})), **options)
 
     # ------------------------------------------------------------------ state

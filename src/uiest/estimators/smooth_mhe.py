@@ -50,7 +50,7 @@ from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, DataError, ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import mhe_bound
-from uiest.estimators.standard_mhe import SPAN
+from uiest.estimators.standard_mhe import span_normalised
 from uiest.estimators.uise import check_system
 from uiest.estimators.weights import DeltaCertificate, MHEWeights, resolve_weights
 from uiest.guarantee import Guarantee
@@ -184,7 +184,7 @@ class SmoothInputMHE(WindowEstimator):
     normalise : bool, optional
         As for :class:`~uiest.estimators.StandardMHE` (raise a tiny eta to ``SPAN^(-1/N)``).
     **options
-        Window options (:class:`~uiest.estimators.WindowOptions`).
+        Window options (:class:`~uiest.estimators.WindowOptions`), as keywords or one ``window=WindowOptions(...)``.
 
     """
 
@@ -228,8 +228,7 @@ class SmoothInputMHE(WindowEstimator):
         if certificate is not None:
             self.weights = certified_weights(certificate, variance_weights(aug, self.dw_variance, self.weights.eta))
         self.eta_given = self.weights.eta
-        if (certificate is not None if normalise is None else normalise) and self.weights.eta < SPAN ** (-1.0 / N):
-            self.weights = replace(self.weights, eta=SPAN ** (-1.0 / N))
+        self.weights = span_normalised(self.weights, N, certificate is not None if normalise is None else normalise)
         W = Box(aug.x.bounds.lower[system.nx :], aug.x.bounds.upper[system.nx :])
         self.w0_prior = W.center if w0_prior is None else as_vector(w0_prior, system.nw, "w0_prior")
         if not W.contains(self.w0_prior):

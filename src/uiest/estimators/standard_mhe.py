@@ -44,10 +44,16 @@ from uiest.scales import data_scales
 from uiest.system import System
 from uiest.window import WindowModel
 
-__all__ = ["SPAN", "StandardMHE"]
+__all__ = ["SPAN", "StandardMHE", "span_normalised"]
 
 SPAN = 1e8
 """Largest ratio between the window's newest and oldest discount the standard MHE keeps (``normalise``)."""
+
+
+def span_normalised(weights: MHEWeights, N: int, normalise: bool) -> MHEWeights:
+    """``weights`` with eta raised to ``SPAN^(-1/N)`` when ``normalise`` and it is smaller (see StandardMHE)."""
+    floor = SPAN ** (-1.0 / N)
+    return replace(weights, eta=floor) if normalise and weights.eta < floor else weights
 
 
 class StandardMHE(WindowEstimator):
@@ -119,8 +125,7 @@ class StandardMHE(WindowEstimator):
             MHEWeights, certificate, weights, N, lambda w: w.check(system)
         )
         self.eta_given = self.weights.eta
-        if (certificate is not None if normalise is None else normalise) and self.weights.eta < SPAN ** (-1.0 / N):
-            self.weights = replace(self.weights, eta=SPAN ** (-1.0 / N))
+        self.weights = span_normalised(self.weights, N, certificate is not None if normalise is None else normalise)
         self.w_range = system.w_range if use_w_range else None
         w_bar = system.nominal_w if w_prior is None else as_vector(w_prior, system.nw, "w_prior")
         if self.w_range is not None and not self.w_range.contains(w_bar):

@@ -80,6 +80,7 @@ from uiest.checks import check_flag, check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import noise_quadratic, reduction_bound, two_stage_rate, two_stage_z_bound
+from uiest.estimators.design_hook import design_function
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certificate_z_scale, resolve_weights
@@ -194,7 +195,7 @@ class TwoStageUISE(WindowEstimator):
 
         As :meth:`UISE.design <uiest.estimators.UISE.design>`; the chosen design is :attr:`design_report`.
         """
-        from uiest.design import design_two_stage, estimator_options
+        design_two_stage, estimator_options = design_function("design_two_stage"), design_function("estimator_options")
 
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")

@@ -40,6 +40,7 @@ from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import strong_bound
+from uiest.estimators.design_hook import design_function
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
@@ -87,7 +88,8 @@ class UISE(WindowEstimator):
         (for relative degree 2, :class:`~uiest.estimators.DelayedUISE` estimates x[k-1]).
     **options
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
-        ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``.
+        ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``; or all of them as one
+        ``window=WindowOptions(...)``.
 
     Raises
     ------
@@ -177,7 +179,7 @@ class UISE(WindowEstimator):
         ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
         the guaranteed bound and the simulated error of every candidate) is :attr:`design_report`.
         """
-        from uiest.design import design_uise, estimator_options
+        design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
 
         system = data_scales(check_system(system), x0_prior)
         design = design_uise(system, x0_prior, **design_options)

@@ -14,13 +14,16 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import TYPE_CHECKING
 
 import numpy as np
-import pandas as pd
 
 from uiest.box import FloatArray
 from uiest.experiments.metrics import state_names
 from uiest.experiments.runner import StudyResult
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = [
     "FILTER_KINDS",
@@ -57,7 +60,7 @@ class ClaimVerdict(StrEnum):
     DOES_NOT_HOLD = "does not hold"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Effect:
     """Per-run ratios of a claimed quantity (claimed: below 1) and what they decide.
 
@@ -104,7 +107,7 @@ def decide(
         verdict = ClaimVerdict.NO_DIFFERENCE
     else:
         verdict = ClaimVerdict.HOLDS if (high < 1.0) == claimed_below else ClaimVerdict.DOES_NOT_HOLD
-    return Effect(values, center, low, high, verdict)
+    return Effect(ratios=values, center=center, low=low, high=high, verdict=verdict)
 
 
 def relative(ratio: float, below: str, above: str) -> str:
@@ -117,7 +120,7 @@ def relative(ratio: float, below: str, above: str) -> str:
     return f"{abs(change):.2g} % {below if change < 0 else above}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Claim:
     """One claim of the paper on one case, and what the measurements say.
 
@@ -187,6 +190,8 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
 
 
 def _column(table: pd.DataFrame, case: str, name: str) -> pd.Series:
+    import pandas as pd
+
     if name not in table.columns or case not in table.index.get_level_values(0):
         return pd.Series(dtype=float)
     return table.loc[case, name].dropna()
@@ -194,6 +199,8 @@ def _column(table: pd.DataFrame, case: str, name: str) -> pd.Series:
 
 def _ratios(table: pd.DataFrame, case: str, ours: str, theirs: str) -> FloatArray:
     """Per-run ``ours / theirs`` over the runs that have both."""
+    import pandas as pd
+
     joined = pd.concat([_column(table, case, ours).rename("a"), _column(table, case, theirs).rename("b")],
                        axis=1).dropna()  # fmt: skip
     with np.errstate(divide="ignore", invalid="ignore"):
@@ -205,8 +212,10 @@ def _claim(case: str, statement: str, quantity: str, ratios: FloatArray, words: 
     try:
         effect = decide(ratios, claimed_below=claimed_below, min_effect=min_effect)
     except ValueError:
-        return Claim(case, statement, quantity, *words, None, "no run measured it")
-    return Claim(case, statement, quantity, *words, effect, detail)
+        effect, detail = None, "no run measured it"
+    below, above = words
+    return Claim(case=case, statement=statement, quantity=quantity, below=below, above=above, effect=effect,
+                 detail=detail)  # fmt: skip
 
 
 def paper_claims(study: StudyResult) -> list[Claim]:

@@ -89,7 +89,7 @@ FORMULATION_DIFFERENCES = (
 """Where the do-mpc problem or its use differs from :class:`~uiest.estimators.StandardMHE`."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DompcPeerResult:
     """do-mpc run of the standard-MHE window problem.
 
@@ -173,27 +173,8 @@ def build_dompc_mhe(
 
     if system.w_range is None:
         raise ValueError("system: the standard MHE's do-mpc peer needs a known range of w (system.w_range)")
-    nx, nu, nw, nv, ny = system.nx, system.nu, system.nw, system.nv, system.ny
-    w_bar = system.nominal_w if w_prior is None else np.asarray(w_prior, dtype=float).reshape(nw)
-    s_v, s_w, s_y = system.v.scale, system.w.scale, system.y.scale
-    eta = weights.eta
-
-    model = do_mpc.model.Model("discrete", "SX")
-    x = model.set_variable("_x", "x", (nx, 1))
-    x_prev = model.set_variable("_x", "x_prev", (nx, 1))
-    w_in = model.set_variable("_x", "w_in", (nw, 1))
-    v_in = model.set_variable("_x", "v_in", (nv, 1))  # scaled noise v / s_v of the previous node
-    u = model.set_variable("_tvp", "u", (nu, 1))
-    d_v = model.set_variable("_tvp", "discount_v", (1, 1))
-    d_w = model.set_variable("_tvp", "discount_w", (1, 1))
-    prior = model.set_variable("_p", "prior", (nx, 1))
-    model.set_rhs("x", system.f(x, u, w_in))
-    model.set_rhs("x_prev", x)
-    model.set_rhs("w_in", ca.SX(ca.DM(w_bar)), process_noise=True)  # w_in+ = w_bar + e_w
-    model.set_rhs("v_in", ca.SX.zeros(nv), process_noise=True)  # v_in+ = e_v
-    model.set_meas("y", system.h(x_prev, ca.DM(s_v) * v_in) / ca.DM(s_y), meas_noise=True)
-    model.setup()
-
+    w_bar = system.nominal_w if w_prior is None else np.asarray(w_prior, dtype=float).reshape(system.nw)
+    model = _dompc_model(do_mpc, system, w_bar)
     mhe = do_mpc.estimator.MHE(model, p_est_list=[])
     opts = {"ipopt." + key: value for key, value in {**IPOPT_DEFAULTS, **(ipopt_options or {})}.items()}
     opts.update({"print_time": False, "ipopt.print_level": 0, "ipopt.sb": "yes"})
@@ -202,7 +183,46 @@ def build_dompc_mhe(
     mhe.settings.meas_from_data = False
     mhe.settings.nlpsol_opts = opts
     mhe.settings.store_full_solution = False
+    _set_objective(mhe, model, system, weights, N, w_bar)
+    _set_bounds(mhe, system)
+    inputs = _attach_data(mhe, system, weights.eta, N)
+    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)  # casadi's numpy-mode notice, raised inside do-mpc
+        mhe.setup()
+    return mhe, inputs
 
+
+def _dompc_model(do_mpc: Any, system: System, w_bar: FloatArray) -> Any:
+    """The do-mpc model of the window.
+
+    States x, x_prev, w_in, v_in (scaled v of the previous node); time-varying u and discounts; the prior as a
+    parameter; y measured from x_prev.
+    """
+    nx, nu, nw, nv = system.nx, system.nu, system.nw, system.nv
+    s_v, s_y = system.v.scale, system.y.scale
+    model = do_mpc.model.Model("discrete", "SX")
+    x = model.set_variable("_x", "x", (nx, 1))
+    x_prev = model.set_variable("_x", "x_prev", (nx, 1))
+    w_in = model.set_variable("_x", "w_in", (nw, 1))
+    v_in = model.set_variable("_x", "v_in", (nv, 1))  # scaled noise v / s_v of the previous node
+    u = model.set_variable("_tvp", "u", (nu, 1))
+    model.set_variable("_tvp", "discount_v", (1, 1))
+    model.set_variable("_tvp", "discount_w", (1, 1))
+    model.set_variable("_p", "prior", (nx, 1))
+    model.set_rhs("x", system.f(x, u, w_in))
+    model.set_rhs("x_prev", x)
+    model.set_rhs("w_in", ca.SX(ca.DM(w_bar)), process_noise=True)  # w_in+ = w_bar + e_w
+    model.set_rhs("v_in", ca.SX.zeros(nv), process_noise=True)  # v_in+ = e_v
+    model.set_meas("y", system.h(x_prev, ca.DM(s_v) * v_in) / ca.DM(s_y), meas_noise=True)
+    model.setup()
+    return model
+
+
+def _set_objective(mhe: Any, model: Any, system: System, weights: MHEWeights, N: int, w_bar: FloatArray) -> None:
+    """The standard MHE's cost: discounted stage terms and the arrival cost on the first node (scaled units)."""
+    s_v, s_y = system.v.scale, system.y.scale
+    eta = weights.eta
+    d_v, d_w, prior = model.tvp["discount_v"], model.tvp["discount_w"], model.p["prior"]
     R_scaled = np.outer(s_y, s_y) * weights.R  # weight of e_y = (y - h(x, v)) / s_y
     Q_v_scaled = np.outer(s_v, s_v) * weights.Q_v  # weight of v~ = v / s_v
     Q_w = weights.Q_w
@@ -226,6 +246,11 @@ def build_dompc_mhe(
     )
     mhe.set_objective(stage, arrival)
 
+
+def _set_bounds(mhe: Any, system: System) -> None:
+    """X on x and x_prev, the range of w on w_in, V (scaled) on v_in; the variables' scales."""
+    assert system.w_range is not None  # checked by build_dompc_mhe
+    s_v = system.v.scale
     x_lo, x_hi = system.x.bounds.lower, system.x.bounds.upper
     for name in ("x", "x_prev"):
         mhe.bounds["lower", "_x", name] = x_lo
@@ -236,9 +261,20 @@ def build_dompc_mhe(
     mhe.bounds["upper", "_x", "v_in"] = system.v.bounds.upper / s_v
     mhe.scaling["_x", "x"] = system.x.scale
     mhe.scaling["_x", "x_prev"] = system.x.scale
-    mhe.scaling["_x", "w_in"] = s_w
+    mhe.scaling["_x", "w_in"] = system.w.scale
 
-    inputs: dict[str, Any] = {"prior": np.zeros(nx), "u": np.zeros((N, nu)), "y": np.zeros((N, ny))}
+
+def _attach_data(mhe: Any, system: System, eta: float, N: int) -> dict[str, Any]:
+    """Connect the MHE's time-varying parameters, parameters and measurements to a mutable dict, returned.
+
+    Its entries: ``"prior"`` (nx,), ``"u"`` (N, nu), ``"y"`` (N, ny); the discounts are ``eta^(N-1-j)``.
+    """
+    s_y = system.y.scale
+    inputs: dict[str, Any] = {
+        "prior": np.zeros(system.nx),
+        "u": np.zeros((N, system.nu)),
+        "y": np.zeros((N, system.ny)),
+    }
     discount_v = eta ** (N - np.arange(N) - 1.0)
     discount_w = np.append(eta ** (N - np.arange(N - 1) - 2.0), 1.0)
 
@@ -267,10 +303,7 @@ def build_dompc_mhe(
     mhe.set_tvp_fun(tvp_fun)
     mhe.set_p_fun(p_fun)
     mhe.set_y_fun(y_fun)
-    with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)  # casadi's numpy-mode notice, raised inside do-mpc
-        mhe.setup()
-    return mhe, inputs
+    return inputs
 
 
 def run_dompc_standard_mhe(

@@ -28,16 +28,17 @@ from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wai
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from multiprocessing.process import BaseProcess
-from typing import Any
-
-import pandas as pd
+from typing import TYPE_CHECKING, Any, TypeAlias
 
 from uiest.errors import OptionError
 from uiest.experiments.sweep_design import Task
 
+if TYPE_CHECKING:
+    import pandas as pd
+
 __all__ = ["processes", "results", "single_threaded_children", "spawn_pool", "stop_pool"]
 
-Outcome = tuple[Task, pd.DataFrame | None, str]
+Outcome: TypeAlias = "tuple[Task, pd.DataFrame | None, str]"
 """A task, its rows (None when it could not be computed here) and why not ('' otherwise)."""
 
 WORKER_DIED = (
@@ -48,6 +49,8 @@ WORKER_DIED = (
 
 def died_rows(task: Task) -> pd.DataFrame:
     """The row recording a task that kills its worker."""
+    import pandas as pd
+
     return pd.DataFrame([{"key": task.key, **dict(task.params), "case": task.case, "run": task.run,
                           "solver": task.solver, "estimator": "", "error": WORKER_DIED}])  # fmt: skip
 

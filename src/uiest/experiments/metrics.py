@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
-import pandas as pd
 
 from uiest.experiments.runner import StudyResult
 from uiest.results import count_names
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 __all__ = ["accuracy", "health", "state_names", "timing"]
 
@@ -35,6 +39,8 @@ def accuracy(study: StudyResult) -> pd.DataFrame:
     ``|error|`` over the last quarter of the run divided by the mean over the quarter after
     ``settle``; > 1: the error grows over the run).
     """
+    import pandas as pd
+
     frame = study.steps
     if frame.empty:
         return pd.DataFrame(columns=list(ACCURACY_COLUMNS))
@@ -76,6 +82,8 @@ def timing(study: StudyResult) -> pd.DataFrame:
     whole step (what a shared machine's load does not inflate), the others from the solver's
     wall-clock time.
     """
+    import pandas as pd
+
     frame = study.steps
     if frame.empty:
         return pd.DataFrame(columns=list(TIMING_COLUMNS))
@@ -113,6 +121,8 @@ def health(study: StudyResult) -> pd.DataFrame:
     held), ``propagated`` (no data in the window), ``on_boundary`` (at a side against the data),
     ``window_at_bound`` (a window node at a side of its box).
     """
+    import pandas as pd
+
     runs = study.runs
     columns = ["case", "estimator", "runs", *count_names(state_names(study) if study.truths else [])]
     if runs.empty or "steps" not in runs:

@@ -7,23 +7,30 @@ import functools
 import json
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-import matplotlib.pyplot as plt
 import numpy as np
-import pandas as pd
-from matplotlib.figure import Figure
 
 from uiest.atomic import staged_folder, write_file, write_text
 from uiest.checks import check_real, shown
+from uiest.detectability import window_information
 from uiest.errors import OptionError
 from uiest.experiments import provenance
+from uiest.experiments.certificates import describe
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
+from uiest.noise import UniformNoise
+from uiest.plotting import pyplot, robust_limits
+
+if TYPE_CHECKING:
+    import pandas as pd
+    from matplotlib.figure import Figure
 
 __all__ = ["guarantee_table", "write_report"]
 
@@ -63,7 +70,7 @@ def _save(fig: Figure, out: Path, stem: str) -> list[Path]:
     paths = [out / f"{stem}.png", out / f"{stem}.pdf"]
     for path in paths:
         write_file(path, functools.partial(fig.savefig, dpi=140, format=path.suffix.lstrip(".")))
-    plt.close(fig)
+    pyplot().close(fig)
     return paths
 
 
@@ -75,14 +82,13 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
     absolute error (Figure 1) and of the error norm (Figure 2), so 20 runs do not become a tangle
     of lines. Axis limits of Figure 3 are robust (a start-up transient is clipped; the legend says so).
     """
-    from uiest.plotting import robust_limits
-
     scenario = study.scenario
     system = study.model.system
     names = state_names(study)
     focus, focus_unit = names[scenario.focus_state], system.x.units[scenario.focus_state]
     cases = list(scenario.cases)
     written: list[Path] = []
+    plt = pyplot()
     fig1, axes1 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     fig2, axes2 = plt.subplots(1, len(cases), figsize=(6 * len(cases), 3.6), squeeze=False)
     for col, case in enumerate(cases):
@@ -148,6 +154,8 @@ def figures(study: StudyResult, out: Path, run: int = 0) -> list[Path]:
 
 def timing_table(study: StudyResult) -> pd.DataFrame:
     """Table 1: t_max (ms) per case and estimator, measured (CPU of whole steps) and, for the paper's, the paper's."""
+    import pandas as pd
+
     frame = timing(study)
     rows = []
     for case in study.scenario.cases:
@@ -204,8 +212,7 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
     the discounted weighted-least-squares one (:func:`uiest.detectability.window_information`, noise
     standard deviation of the model's uniform noise ``b / sqrt(3)``), and the measured RMSE.
     """
-    from uiest.detectability import window_information
-    from uiest.noise import UniformNoise
+    import pandas as pd
 
     scenario = study.scenario
     if "noisy" not in scenario.cases or ("noisy", run) not in study.truths:
@@ -256,6 +263,8 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee`: its theorem's worst-case
     error bound per state for noise in V, or why the theorem does not apply.
     """
+    import pandas as pd
+
     scenario = study.scenario
     focus = scenario.focus_state
     name = state_names(study)[focus]
@@ -350,9 +359,34 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         return _write_files(study, stage, wall_time=wall_time)
 
 
+@dataclass(frozen=True, kw_only=True)
+class _Tables:
+    """The tables a report is written from (each also written as a CSV file), and the files written so far."""
+
+    accuracy: pd.DataFrame
+    timing: pd.DataFrame
+    health: pd.DataFrame
+    information: pd.DataFrame
+    guarantees: pd.DataFrame
+    written: list[Path]
+
+
 def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
-    scenario = study.scenario
-    written: list[Path] = []
+    tables = _write_tables(study, out)
+    written = [*tables.written, *figures(study, out)]
+    study.scenario.to_toml(out / "scenario.toml")
+    written.append(out / "scenario.toml")
+    write_text(out / "report.md", "\n".join(_report_lines(study, tables, wall_time)))
+    written.append(out / "report.md")
+    manifest = _manifest(study, out, written, wall_time)
+    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
+    return manifest
+
+
+def _write_tables(study: StudyResult, out: Path) -> _Tables:
+    """Write the data files and tables (steps, runs, accuracy, timing, health, Table 1, information, guarantees)."""
+    import pandas as pd
+
     steps_path = out / "steps.parquet"
     write_file(steps_path, lambda tmp: study.steps.to_parquet(tmp, index=False))
     runs_path = out / "runs.csv"
@@ -362,47 +396,55 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     _csv(times, out / "timing.csv")
     step_health = health(study)
     _csv(step_health, out / "health.csv")
-    written.append(out / "health.csv")
     table = timing_table(study)
     _csv(table, out / "table1.csv")
     load = f"load average {os.getloadavg()[0]:.2f} at the end" if hasattr(os, "getloadavg") else "load unknown"
     write_text(out / "table1.md", _markdown(table) + f"\n\nMeasured on: {provenance.machine()}, {load}\n")
-    written += [steps_path, runs_path, out / "accuracy.csv", out / "timing.csv", out / "table1.csv", out / "table1.md"]
-    written += figures(study, out)
-    scenario.to_toml(out / "scenario.toml")
-    written.append(out / "scenario.toml")
-    focus = state_names(study)[scenario.focus_state]
-    failures = study.runs[study.runs["error"] != ""]
     try:
         info = information_table(study)
     except Exception as exc:  # an optional section: its failure is reported, the rest is written
         info = pd.DataFrame([{"information table unavailable": f"{type(exc).__name__}: {exc}"}])
     _csv(info, out / "information.csv")
-    written.append(out / "information.csv")
-    info_section = (
-        [
-            f"## Information in the data: is the noisy {focus} error a limit of the estimator or of the data?",
-            "",
-            _markdown(info),
-            "",
-            f"`bound_std` is the Cramer-Rao standard deviation of {focus} at the end of one window (N transitions, "
-            "the unknown input free, noise std b/sqrt(3)); `discounted_std` the same for a least-squares estimator "
-            "with the discount mu on its output weights (see `uiest.detectability.window_information`). Where "
-            "these are comparable to or larger than the measured RMSE (or to X's width), the data of a window "
-            "cannot resolve the state any better: the error is then held by the prior and the constraints of X, "
-            "not by the estimator.",
-            "",
-        ]
-        if not info.empty
-        else []
-    )
-    from uiest.experiments.certificates import describe
-
     guarantees = guarantee_table(study, acc)
     _csv(guarantees, out / "guarantees.csv")
-    written.append(out / "guarantees.csv")
+    names = ("health.csv", "accuracy.csv", "timing.csv", "table1.csv", "table1.md", "information.csv", "guarantees.csv")
+    return _Tables(
+        accuracy=acc,
+        timing=table,
+        health=step_health,
+        information=info,
+        guarantees=guarantees,
+        written=[steps_path, runs_path, *(out / name for name in names)],
+    )
+
+
+def _information_section(info: pd.DataFrame, focus: str) -> list[str]:
+    """The report's section on the information in the data (none when the table is empty)."""
+    if info.empty:
+        return []
+    return [
+        f"## Information in the data: is the noisy {focus} error a limit of the estimator or of the data?",
+        "",
+        _markdown(info),
+        "",
+        f"`bound_std` is the Cramer-Rao standard deviation of {focus} at the end of one window (N transitions, "
+        "the unknown input free, noise std b/sqrt(3)); `discounted_std` the same for a least-squares estimator "
+        "with the discount mu on its output weights (see `uiest.detectability.window_information`). Where "
+        "these are comparable to or larger than the measured RMSE (or to X's width), the data of a window "
+        "cannot resolve the state any better: the error is then held by the prior and the constraints of X, "
+        "not by the estimator.",
+        "",
+    ]
+
+
+def _report_lines(study: StudyResult, tables: _Tables, wall_time: float) -> list[str]:
+    """The lines of report.md."""
+    scenario = study.scenario
+    focus = state_names(study)[scenario.focus_state]
+    failures = study.runs[study.runs["error"] != ""]
     checked = paper_claims(study)
-    report = [
+    acc, table, step_health, guarantees = tables.accuracy, tables.timing, tables.health, tables.guarantees
+    return [
         f"# {scenario.name}: {', '.join(s.name for s in scenario.estimators)}",
         "",
         *headline(checked),
@@ -449,7 +491,7 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "All states: `accuracy.csv`; timing details (mean, median, p95, max per sample): `timing.csv`; every "
         "step of every run: `steps.parquet`.",
         "",
-        *info_section,
+        *_information_section(tables.information, focus),
         *filter_comparison(study, acc),
         "## Figures",
         "",
@@ -481,9 +523,12 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "noise. `window_at_bound`: steps whose window solution touched a side of its box.",
         "",
     ]
-    write_text(out / "report.md", "\n".join(report))
-    written.append(out / "report.md")
-    manifest = {
+
+
+def _manifest(study: StudyResult, out: Path, written: list[Path], wall_time: float) -> dict[str, object]:
+    """manifest.json's content: the scenario, the machine, the versions, the seeds and the files written."""
+    scenario = study.scenario
+    return {
         "scenario": scenario.to_dict(),
         "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
         "machine": provenance.machine(),
@@ -497,5 +542,3 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "files": sorted(str(p.relative_to(out)) for p in written),
     }
-    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
-    return manifest

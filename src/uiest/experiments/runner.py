@@ -19,7 +19,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
 
 from uiest import models
 from uiest.augmented import augmented_system
@@ -44,14 +43,17 @@ from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
 from uiest.experiments.study_store import StudyStore
 from uiest.health import quiet_bound_warnings
+from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory, count_names
 from uiest.simulate import simulate
 from uiest.system import System
-from uiest.window.solvers import BACKENDS
+from uiest.window.backends import BACKENDS
 
 if TYPE_CHECKING:
+    import pandas as pd
+
     from uiest.estimators.base import WindowEstimator
     from uiest.kalman import KalmanFilter
 
@@ -119,7 +121,6 @@ def _two_stage(
 
 
 def _kalman(study: StudyModel, spec: EstimatorSpec, prior: FloatArray, solver: str) -> WindowEstimator | KalmanFilter:
-    from uiest.kalman import EKF, UKF
 
     factor = spec.w_variance if spec.w_variance > 0 else study.tuned_variance(spec.kind)
     system = study.system
@@ -145,7 +146,7 @@ BUILDERS: dict[str, Builder] = {"uise": _uise, "fie": _fie, "standard-mhe": _sta
 """Estimator factories by ``EstimatorSpec.kind``."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StudyResult:
     """Everything a study produced, as tables (no pickles).
 
@@ -275,6 +276,8 @@ def run_study(
     an interrupted or killed study resumes; runs read back are not reported to ``progress``. It needs the
     model by name or file (``scenario.model``), not as an object: the model file's bytes key the runs.
     """
+    import pandas as pd
+
     if not isinstance(scenario, Scenario):
         raise OptionError(f"scenario: expected a Scenario, got {shown(scenario)}")
     if solver not in BACKENDS:
@@ -334,10 +337,19 @@ def run_study(
     run_rows.sort(key=lambda row: (scenario.cases.index(row["case"]), row["run"]))
     step_frames.sort(key=lambda frame: (scenario.cases.index(frame["case"].iat[0]), int(frame["run"].iat[0])))
     steps = pd.concat(step_frames, ignore_index=True) if step_frames else pd.DataFrame()
-    return StudyResult(scenario, steps, pd.DataFrame(run_rows), truths, results, study, solver, tuple(certificates))
+    return StudyResult(
+        scenario=scenario,
+        steps=steps,
+        runs=pd.DataFrame(run_rows),
+        truths=truths,
+        results=results,
+        model=study,
+        solver=solver,
+        certificates=tuple(certificates),
+    )
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RunOutcome:
     """What one (case, run) of a study produces: the truth, each estimator's result, step frames and run rows."""
 
@@ -380,7 +392,7 @@ def run_case(
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
                      "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
                      **counts})  # fmt: skip
-    return RunOutcome(case, run, truth, results, frames, rows)
+    return RunOutcome(case=case, run=run, truth=truth, results=results, frames=frames, rows=rows)
 
 
 def _outcomes(
@@ -421,6 +433,8 @@ def _outcomes(
 
 
 def _step_frame(case: str, run: int, name: str, truth: Trajectory, result: EstimationResult) -> pd.DataFrame:
+    import pandas as pd
+
     x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
     w_names = truth.names.get("w") or tuple(f"w[{i}]" for i in range(truth.w.shape[1]))
     data: dict[str, object] = {"case": case, "run": run, "estimator": name, "k": np.arange(truth.x.shape[0]),

@@ -43,7 +43,11 @@ from uiest.box import FloatArray
 from uiest.checks import check_flag
 from uiest.errors import OptionError
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
+from uiest.experiments.dompc_peer import run_dompc_standard_mhe
 from uiest.models import crop_growth
+from uiest.reduction import ReducedModel
+from uiest.results import Trajectory
+from uiest.system import System
 from uiest.window import IpoptSolver, WindowSolution, WindowSolver
 from uiest.window.size import check_horizon
 
@@ -197,8 +201,6 @@ def _dompc_record(
     system: Any, N: int, traj: Any, steps: int, reference: Any, reference_ms: float, reference_cpu: float
 ) -> dict[str, object]:
     """The do-mpc peer's record for the standard MHE (see :mod:`uiest.experiments.dompc_peer`)."""
-    from uiest.experiments.dompc_peer import run_dompc_standard_mhe
-
     weights = MHEWeights.from_scales(system, 0.48, output=1e6)
     peer = run_dompc_standard_mhe(system, weights, N, traj.u[:steps], traj.y[: steps + 1], reference.x_hat)
     return {
@@ -302,12 +304,11 @@ def bench_window_solvers(
         for N in horizons:
             check_horizon(N, "horizons (--horizon, -N)", system)
     horizons = horizons or ((30,) if quick else (10, 30, 100, 300))
-    reduced = crop_growth.reduction()
     scenario = crop_growth.DEFAULT_SCENARIO
     lengths = {N: 100 if quick else (300 if N <= 30 else N + 50) for N in horizons}
     traj = simulate(system, scenario.x0, max(lengths.values()), w=crop_growth.UnknownInputLaw(),
                     v=scenario.noise(), seed=1)  # fmt: skip
-    prior = scenario.prior(traj.y[0])
+    builders = _builders(system, crop_growth.reduction(), scenario.prior(traj.y[0]))
     records: list[dict[str, object]] = []
 
     def emit(record: dict[str, object]) -> None:
@@ -316,78 +317,92 @@ def bench_window_solvers(
             report(record)
 
     for N in horizons:
-        steps = lengths[N]
-        long = N >= long_horizon  # noqa: SIM300 (reads as the docstring's N >= LONG_HORIZON)
-
-        def uise(solver: str, N: int = N) -> UISE:
-            weights = UISEWeights.from_scales(system, 0.48, output=1e6)
-            return UISE(system, weights=weights, N=N, x0_prior=prior, solver=solver)
-
-        def two_stage(solver: str, N: int = N) -> TwoStageUISE:
-            weights = TwoStageWeights.from_scales(reduced, 0.48, output=1e6)
-            return TwoStageUISE(reduced, weights=weights, N=N, x0_prior=prior, solver=solver)
-
-        def standard(solver: str, N: int = N) -> StandardMHE:
-            weights = MHEWeights.from_scales(system, 0.48, output=1e6)
-            return StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver=solver)
-
-        builders: dict[str, Callable[[str], Any]] = {
-            "UISE": uise,
-            "two-stage UISE": two_stage,
-            "standard MHE": standard,
-        }
-        for name, build in ((name, builders[name]) for name in chosen):
-            reference, reference_ms, reference_cpu = None, 0.0, 0.0
-            ipopt_times = _IpoptTimes()
-            for solver in ("gn", "rti", "gn-riccati") if long else SOLVERS:
-                estimator = build(solver)
-                recorder = _record_full_windows(estimator, N) if solver != "ipopt" else None
-                clock = _StepClock(estimator)
-                result = estimator.run(traj.u[:steps], traj.y[: steps + 1])
-                ms, cpu = 1e3 * np.array(clock.wall[N:]), 1e3 * np.array(clock.cpu[N:])
-                if recorder is None:
-                    agreement = _IPOPT_ITSELF
-                elif long:
-                    agreement = same_window_deviation(
-                        recorder, SAME_WINDOW_CAP, ipopt_times if solver == "gn" else None
-                    )
-                    if solver == "gn":
-                        reference_ms, reference_cpu = (
-                            1e3 * float(np.median(t)) for t in (ipopt_times.wall, ipopt_times.cpu)
-                        )
-                else:
-                    agreement = same_window_deviation(recorder)
-                if reference is None and not long:
-                    reference, reference_ms, reference_cpu = result, float(np.median(ms)), float(np.median(cpu))
-                if reference is None:
-                    closed_loop = float("nan")
-                else:
-                    both = result.success & reference.success
-                    closed_loop = float(
-                        np.abs((result.x_hat - reference.x_hat)[both] / system.x.scale).max(initial=0.0)
-                    )
-                emit({
-                    "estimator": name,
-                    "solver": solver,
-                    "N": N,
-                    "protocol": "closed loop",
-                    "samples": int(ms.size),
-                    **_timing(cpu, ms, reference_cpu, reference_ms),
-                    "median_solve_ms": float(np.median(1e3 * result.solve_time[N:])),
-                    "iterations": float(result.iterations[N:].mean()),
-                    **agreement,
-                    "closed_loop_dev_vs_ipopt": closed_loop,
-                    "failures": int(result.failures),
-                    "fallbacks": result.fallbacks,
-                    "qp_fallbacks": getattr(recorder.solver if recorder else None, "qp_fallbacks", 0),
-                    "load": os.getloadavg()[0],
-                })  # fmt: skip
-            if long:
-                emit(_ipopt_on_windows(name, N, ipopt_times))
-            elif name == "standard MHE" and _dompc_available():
-                assert reference is not None
-                emit(_dompc_record(system, N, traj, steps, reference, reference_ms, reference_cpu))
+        for name in chosen:
+            long = N >= long_horizon  # noqa: SIM300 (reads as the docstring's N >= LONG_HORIZON)
+            _bench_estimator(name, builders[name], system, traj, N, lengths[N], long, emit)
     return records
+
+
+def _builders(system: System, reduced: ReducedModel, prior: FloatArray) -> dict[str, Callable[[str, int], Any]]:
+    """Per estimator name, ``build(solver, N)``: the estimator with the bench's weights and prior.
+
+    The weights: discount 0.48, output weight 1e6.
+    """
+
+    def uise(solver: str, N: int) -> UISE:
+        weights = UISEWeights.from_scales(system, 0.48, output=1e6)
+        return UISE(system, weights=weights, N=N, x0_prior=prior, solver=solver)
+
+    def two_stage(solver: str, N: int) -> TwoStageUISE:
+        weights = TwoStageWeights.from_scales(reduced, 0.48, output=1e6)
+        return TwoStageUISE(reduced, weights=weights, N=N, x0_prior=prior, solver=solver)
+
+    def standard(solver: str, N: int) -> StandardMHE:
+        weights = MHEWeights.from_scales(system, 0.48, output=1e6)
+        return StandardMHE(system, weights=weights, N=N, x0_prior=prior, solver=solver)
+
+    return {"UISE": uise, "two-stage UISE": two_stage, "standard MHE": standard}
+
+
+def _bench_estimator(
+    name: str,
+    build: Callable[[str, int], Any],
+    system: System,
+    traj: Trajectory,
+    N: int,
+    steps: int,
+    long: bool,
+    emit: Callable[[dict[str, object]], None],
+) -> None:
+    """Emit one estimator's records at horizon N.
+
+    Each backend in closed loop (at long horizons: gn, rti and gn-riccati, with IPOPT timed on gn's windows),
+    then IPOPT's own record on those windows or do-mpc's peer.
+    """
+    reference, reference_ms, reference_cpu = None, 0.0, 0.0
+    ipopt_times = _IpoptTimes()
+    for solver in ("gn", "rti", "gn-riccati") if long else SOLVERS:
+        estimator = build(solver, N)
+        recorder = _record_full_windows(estimator, N) if solver != "ipopt" else None
+        clock = _StepClock(estimator)
+        result = estimator.run(traj.u[:steps], traj.y[: steps + 1])
+        ms, cpu = 1e3 * np.array(clock.wall[N:]), 1e3 * np.array(clock.cpu[N:])
+        if recorder is None:
+            agreement = _IPOPT_ITSELF
+        elif long:
+            agreement = same_window_deviation(recorder, SAME_WINDOW_CAP, ipopt_times if solver == "gn" else None)
+            if solver == "gn":
+                reference_ms, reference_cpu = (1e3 * float(np.median(t)) for t in (ipopt_times.wall, ipopt_times.cpu))
+        else:
+            agreement = same_window_deviation(recorder)
+        if reference is None and not long:
+            reference, reference_ms, reference_cpu = result, float(np.median(ms)), float(np.median(cpu))
+        if reference is None:
+            closed_loop = float("nan")
+        else:
+            both = result.success & reference.success
+            closed_loop = float(np.abs((result.x_hat - reference.x_hat)[both] / system.x.scale).max(initial=0.0))
+        emit({
+            "estimator": name,
+            "solver": solver,
+            "N": N,
+            "protocol": "closed loop",
+            "samples": int(ms.size),
+            **_timing(cpu, ms, reference_cpu, reference_ms),
+            "median_solve_ms": float(np.median(1e3 * result.solve_time[N:])),
+            "iterations": float(result.iterations[N:].mean()),
+            **agreement,
+            "closed_loop_dev_vs_ipopt": closed_loop,
+            "failures": int(result.failures),
+            "fallbacks": result.fallbacks,
+            "qp_fallbacks": getattr(recorder.solver if recorder else None, "qp_fallbacks", 0),
+            "load": os.getloadavg()[0],
+        })  # fmt: skip
+    if long:
+        emit(_ipopt_on_windows(name, N, ipopt_times))
+    elif name == "standard MHE" and _dompc_available():
+        assert reference is not None
+        emit(_dompc_record(system, N, traj, steps, reference, reference_ms, reference_cpu))
 
 
 TABLE_HEADER = (

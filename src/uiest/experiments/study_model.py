@@ -25,6 +25,7 @@ from uiest.checks import check_real
 from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
 from uiest.errors import CertificationError, ModelError, OptionError
 from uiest.estimators.smooth_mhe import DW_SIGMAS
+from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
@@ -181,7 +182,6 @@ class StudyModel:
         return default
 
     def _tune(self, kind: str) -> float:
-        from uiest.kalman import EKF, UKF
 
         setup = self.setup
         training = simulate(self.system, setup.x0, setup.steps, u=setup.u, w=setup.w, v=setup.noise, seed=TUNING_SEED)

@@ -28,11 +28,9 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import pandas as pd
-import pyarrow.parquet as pq
 
 from uiest import models
 from uiest.atomic import storage_error, write_file, write_text
@@ -46,7 +44,11 @@ from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
 from uiest.health import quiet_bound_warnings
 from uiest.lock import holds_folder
 from uiest.paths import writable_file, writable_folder
+from uiest.plotting import pyplot
 from uiest.window import DEFAULT_BACKEND
+
+if TYPE_CHECKING:
+    import pandas as pd
 
 OUTPUT_FILES = ("results.parquet", "summary.csv", "manifest.json", "lost_tasks.log")
 """Files a sweep writes into ``out`` (besides ``runs/`` and the plots); each is checked to be writable first."""
@@ -63,6 +65,8 @@ def run_task(task: Task) -> pd.DataFrame:
 
     Raises :class:`CodeMismatchError` when this process runs other code than the task was made for.
     """
+    import pandas as pd
+
     if provenance.code_version() != task.code:
         raise CodeMismatchError(f"this worker runs code {provenance.code_version()}, the sweep {task.code}")
     if provenance.model_digest(task.scenario.model) != task.model_sha256:
@@ -111,6 +115,8 @@ def _set_aside(path: Path) -> None:
 
 def _read(path: Path) -> pd.DataFrame | None:
     """A stored task's rows, or None after moving an unreadable or mislabelled file to ``corrupt/``."""
+    import pyarrow.parquet as pq
+
     try:
         frame = pq.read_table(path).to_pandas()
         if "key" not in frame or not (frame["key"] == path.stem).all():
@@ -275,6 +281,8 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
     ``solver`` defaults to the one ``out/manifest.json`` records (else the default backend). A
     stored file that cannot be read is set aside (its task is computed by the next sweep).
     """
+    import pandas as pd
+
     out = Path(out)
     if solver is None:
         try:
@@ -309,16 +317,14 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
 
 
 def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    from uiest import models
+    import pandas as pd
 
     names = models.load(scenario.model).build().x.names
     focus = f"rmse_{names[scenario.focus_state]}"
     for param in swept:
         if param in ("estimator", "solver") or not pd.api.types.is_numeric_dtype(summary[param]):
             continue
-        fig, axes = plt.subplots(1, 2, figsize=(10, 3.6))
+        fig, axes = pyplot().subplots(1, 2, figsize=(10, 3.6))
         for (case, name), group in summary.groupby(["case", "estimator"]):
             line = group.groupby(param)[[focus, "mean_ms"]].mean()
             axes[0].plot(line.index, line[focus], marker="o", label=f"{name}, {case}")
@@ -334,4 +340,4 @@ def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Pat
         try:
             write_file(out / f"sweep_{param}.png", functools.partial(fig.savefig, dpi=130, format="png"))
         finally:
-            plt.close(fig)
+            pyplot().close(fig)

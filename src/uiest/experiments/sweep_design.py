@@ -25,7 +25,7 @@ from uiest.errors import OptionError
 from uiest.experiments.provenance import code_version, model_digest
 from uiest.experiments.scenario import Scenario, model_beside, read_toml
 from uiest.window import DEFAULT_BACKEND
-from uiest.window.solvers import BACKENDS
+from uiest.window.backends import BACKENDS
 
 __all__ = ["SWEEPABLE", "Sweep", "Task", "apply"]
 
@@ -181,7 +181,15 @@ class Sweep:
             for case in scenario.cases:
                 for run in range(scenario.runs):
                     params = tuple(sorted(point.items()))
-                    task = Task(scenario, params, case, run, point.get("solver", solver), code, model)
+                    task = Task(
+                        scenario=scenario,
+                        params=params,
+                        case=case,
+                        run=run,
+                        solver=point.get("solver", solver),
+                        code=code,
+                        model_sha256=model,
+                    )
                     tasks.setdefault(task.key, task)
         return list(tasks.values())
 
@@ -236,7 +244,7 @@ def apply(scenario: Scenario, point: dict[str, Any]) -> Scenario:
     return replace(scenario, estimators=estimators, **fields)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Task:
     """One (design point, case, run): plain data, rebuilt into a system and estimators by a worker."""
 

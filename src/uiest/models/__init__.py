@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 
 from uiest.box import FloatArray
-from uiest.errors import ModelError, OptionError
+from uiest.errors import ModelError, OptionError, UiestError
 from uiest.models import closed_form, crop_growth, linear
 from uiest.noise import NoiseModel, UniformNoise
 from uiest.reduction import ReducedModel
@@ -115,7 +115,6 @@ _REGISTRY: dict[str, ModelEntry] = {
             _crop_setup,
             crop_growth.reduction,
             crop_growth.jacobian_parameters,
-            crop_growth.study,
         ),
         ModelEntry(
             closed_form.NAME,
@@ -253,8 +252,6 @@ def _checked_build(build: Callable[[], Any], path: Path) -> Callable[[], System]
 
 def _user_call(fun: Callable[[], Any], label: str, path: Path) -> Any:
     """Call a model file's function; its exception (other than uiest's typed ones) becomes a ModelError naming it."""
-    from uiest.errors import UiestError
-
     try:
         return fun()
     except (UiestError, KeyboardInterrupt):

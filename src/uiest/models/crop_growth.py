@@ -54,9 +54,8 @@ length, priors); :data:`DEFAULT_SCENARIO` holds this project's choices.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field, fields, replace
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -68,9 +67,6 @@ from uiest.noise import UniformNoise
 from uiest.reduction import ReducedModel
 from uiest.system import System
 
-if TYPE_CHECKING:
-    from uiest.experiments.scenario import Scenario
-
 __all__ = [
     "DEFAULT_SCENARIO",
     "NAME",
@@ -80,7 +76,6 @@ __all__ = [
     "jacobian_parameters",
     "photosynthesis",
     "reduction",
-    "study",
     "system",
     "unknown_input_value",
 ]
@@ -291,41 +286,3 @@ class CropScenario:
 
 DEFAULT_SCENARIO = CropScenario()
 """This project's choices for what the paper leaves open (see :class:`CropScenario`)."""
-
-
-def study() -> Scenario:
-    """The paper's study (Section "Numerical example") with every open choice named.
-
-    N = 30 and mu = 0.48 for all three schemes (the paper's values); ``x_hat^c_0 = y^c_0``;
-    crop-weight priors at the centre of X; x0 drawn from ``CropScenario.x0_box``; 300 steps of
-    60 s; 20 runs; uniform noise ``|v| <= 3e-6`` in the noisy case. Output weights 1e6 per scaled
-    unit against prior and noise weights 1 (the paper does not give its weights). Beside them,
-    the UISE with the weights and the horizon of its certificate (strong detectability holds at
-    mu = 0.48 with N >= 3) and the two-stage UISE with the weights of the reduced model's
-    e-IOSS certificate (which holds only near mu = 1, so its N = 30 is below the theorem's).
-    """
-    from uiest.experiments.scenario import EstimatorSpec, Scenario
-
-    crop = DEFAULT_SCENARIO
-    return Scenario(
-        name="crop-growth",
-        model=NAME,
-        steps=crop.steps,
-        runs=20,
-        x0=crop.x0,
-        x0_lower=crop.x0_box[0],
-        x0_upper=crop.x0_box[1],
-        prior=(math.nan, *crop.prior_d),
-        prior_from_output=((0, 0),),
-        settle=30,
-        focus_state=1,
-        estimators=(
-            EstimatorSpec("UISE", "uise"),
-            EstimatorSpec("two-stage UISE", "two-stage"),
-            EstimatorSpec("standard MHE", "standard-mhe"),
-            EstimatorSpec("UISE (certified)", "uise", N=0, weights="certificate"),
-            EstimatorSpec("two-stage UISE (certified)", "two-stage", weights="certificate"),
-            EstimatorSpec("EKF (tuned)", "ekf"),
-            EstimatorSpec("UKF (tuned)", "ukf"),
-        ),
-    )

@@ -11,17 +11,15 @@
 - :func:`shifted_guess`, :func:`predicted_guess`: warm starts (previous solution shifted in time).
 """
 
+from uiest.window.backends import BACKENDS, DEFAULT_BACKEND, make_solver
 from uiest.window.model import WindowModel
 from uiest.window.problem import WindowProblem, WindowTrajectory, WindowWeights, sqrt_psd
 from uiest.window.solvers import (
-    BACKENDS,
-    DEFAULT_BACKEND,
     IPOPT_DEFAULTS,
     IPOPT_WARM_START,
     IpoptSolver,
     WindowSolution,
     WindowSolver,
-    make_solver,
 )
 from uiest.window.warmstart import predicted_guess, shifted_guess
 

@@ -47,7 +47,9 @@ is a QP).
 Failures: a QP that fails undamped (singular ``J^T J`` on the null space of the active constraints, or
 NaN) is retried with the dampings :data:`RETRY_DAMPINGS` (times ``max|J^T J|``); the status then ends in
 ``"(regularised)"``, and the problem keeps the smallest of the first two dampings above the one that
-failed as its least damping until :meth:`GaussNewtonSolver.reset`. If the damped QP fails too, or the
+failed as its least damping until :meth:`GaussNewtonSolver.reset`: the only state carried from one solve to
+the next (each solve's own is a :class:`SolveState`). The parts: :class:`Damping`, :func:`_retry_damped`,
+:func:`_corrected`, :func:`_stop_status` and :func:`_solve_qrqp`. If the damped QP fails too, or the
 iterations do not converge, and ``fallback=True``, the sample is solved by IPOPT and the status says so.
 Where the curvature Gauss-Newton leaves out is large and partly negative, ``J^T J + S_+`` (which drops
 the negative part) converges only linearly.
@@ -59,6 +61,8 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import casadi as ca
@@ -201,13 +205,17 @@ def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> Float
 class _QPForm(NamedTuple):
     """A QP's Hessian sparsity: qrqp, the QP's gradient at a solution with its rounding, the diagonal's positions.
 
-    ``stage``: the QP in stage form for the Riccati interior point (``qp="riccati"``), else None.
+    ``stage``: the QP in stage form for the Riccati interior point (``qp="riccati"``), else None. ``zeros``:
+    qrqp's start when none is given (the primal point, the multipliers of the bounds and of the rows); ``unused``:
+    its inputs ``q`` and ``p``.
     """
 
     qrqp: BufferedFunction
     gradient: BufferedFunction
     diagonal: IndexArray
     stage: StageForm | None
+    zeros: tuple[FloatArray, FloatArray, FloatArray]
+    unused: tuple[FloatArray, FloatArray]
 
     @classmethod
     def build(cls, h_sparsity: ca.Sparsity, a_sparsity: ca.Sparsity, staged: WindowProblem | None = None) -> _QPForm:
@@ -224,7 +232,72 @@ class _QPForm(NamedTuple):
         function = ca.Function("gn_qp_gradient", [h, q, a, dz, lam], [gradient, ROUNDING * magnitude])
         rows, cols = (np.asarray(index) for index in h_sparsity.get_triplet())
         stage = None if staged is None else StageForm(staged, h_sparsity, a_sparsity)
-        return cls(qrqp, BufferedFunction(function), np.flatnonzero(rows == cols), stage)
+        n_var, n_con = h_sparsity.size1(), a_sparsity.size1()
+        zeros = np.zeros(n_var), np.zeros(n_var), np.zeros(n_con)
+        unused = np.zeros(0), np.zeros(0)
+        return cls(qrqp, BufferedFunction(function), np.flatnonzero(rows == cols), stage, zeros, unused)
+
+
+class _QPSolution(NamedTuple):
+    """A QP's minimiser ``dz``, its cost and multipliers (``|r|^2 / 2`` units), and whether held sides were released."""
+
+    dz: FloatArray
+    cost: float
+    lam_x: FloatArray
+    lam_a: FloatArray
+    released: bool
+
+
+def _solve_qrqp(
+    form: _QPForm,
+    h: FloatArray,
+    q: FloatArray,
+    a: FloatArray,
+    bounds: tuple[FloatArray, ...],
+    start: tuple[FloatArray, FloatArray] | None,
+    scale: float,
+    release_tol: float,
+) -> _QPSolution | None:
+    """``min 1/2 dz^T H dz + q^T dz`` s.t. ``lba <= A dz <= uba``, ``lbx <= dz <= ubx`` by qrqp; None if it fails.
+
+    Parameters
+    ----------
+    form : _QPForm
+    h, a : ndarray
+        The nonzeros of ``H`` and ``A`` in their sparsities' order; ``q`` (n_var,).
+    bounds : (lba, uba, lbx, ubx)
+    start : (lam_x, lam_a), optional
+        Multipliers whose signs are the active set qrqp starts from (else none active).
+    scale : float
+        The cost is scaled by this for qrqp (:data:`QP_SCALE`); the results are in the unscaled QP's units.
+    release_tol : float
+        Sides qrqp holds at a zero multiplier are released (multiplier 0) where :func:`_released` says so.
+
+    """
+    c, qrqp = scale, form.qrqp
+    x0, unused = form.zeros[0], form.unused
+    lam_x0, lam_a0 = (c * start[0], c * start[1]) if start is not None else form.zeros[1:]
+    # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
+    x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, x0, lam_x0, lam_a0, *unused)
+    stats = qrqp.stats()
+    for _ in range(QP_CONTINUATIONS):
+        if stats.get("return_status") != QP_ITERATION_LIMIT:
+            break
+        active_set = lam_x.copy(), lam_a.copy()  # on from the active set the limit stopped it at
+        x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, x0, *active_set, *unused)
+        stats = qrqp.stats()
+    if not (stats.get("success", False) and np.all(np.isfinite(x))):
+        return None
+    lam_x, lam_a = lam_x / c, lam_a / c
+    held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
+    released = False
+    if held.any():
+        # the QP's gradient at its solution is -(the bounds' exact multipliers)
+        gradient, rounding = form.gradient(h, q, a, x, lam_a)
+        release = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
+        lam_x = np.where(release, 0.0, lam_x)
+        released = bool(release.any())
+    return _QPSolution(x.copy(), float(cost[0]) / c, lam_x, lam_a, released)
 
 
 class _Point(NamedTuple):
@@ -245,6 +318,10 @@ class _Point(NamedTuple):
     h: FloatArray
     g: FloatArray
     a: FloatArray
+
+
+_Step = tuple[FloatArray, float]
+"""A QP step ``dz`` and the decrease of ``|r|^2`` it predicts."""
 
 
 def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX) -> list[ca.SX]:
@@ -329,6 +406,207 @@ def _ratio(point: _Point, trial: _Point, predicted: float, nu: float) -> float:
     return actual_merit / predicted_merit if predicted_merit > 0.0 else (1.0 if actual_merit >= 0 else -1.0)
 
 
+class Damping:
+    """The Levenberg-Marquardt damping of one solve and its update (see the module docstring).
+
+    In absolute units: the relative constants (:data:`DAMPING_FLOOR`, ...) times ``scale``.
+
+    Parameters
+    ----------
+    least : float
+        The solve's least damping, relative to ``scale`` (``min_damping``, or the damping failed QPs left).
+    scale : float
+        ``max(max |J^T J|, 1)`` at the solve's starting point.
+
+    Attributes
+    ----------
+    value : float
+        The damping the next QP adds to its Hessian's diagonal (starts at the least).
+    least : float
+        The least damping (absolute); a regularised retry may raise it (:func:`_retry_damped`).
+    growth : float
+        The factor of the next rejection.
+    distrusted : bool
+        A step was rejected since ``value`` was last at ``least``.
+
+    """
+
+    def __init__(self, least: float, scale: float) -> None:
+        self.scale = scale
+        self.least = least * scale
+        self.value = self.least
+        self.growth = DAMPING_GROWTH
+        self.distrusted = False
+
+    @property
+    def floor(self) -> float:
+        """:data:`DAMPING_FLOOR` in absolute units: the least damping after a poor or rejected step."""
+        return DAMPING_FLOOR * self.scale
+
+    def accept(self, ratio: float) -> None:
+        """Update after an accepted step whose actual decrease is ``ratio`` times the predicted one.
+
+        Above 0.75 the damping falls (by :data:`DAMPING_DECAY` per step while distrusted, else at once from
+        the floor or by 10); below 0.25 it grows fourfold (at least to the floor); in between it stays.
+        """
+        self.growth = DAMPING_GROWTH
+        if ratio > 0.75:
+            if self.distrusted:  # back to the least gradually (see DAMPING_DECAY)
+                decayed = self.value / DAMPING_DECAY
+                self.value = max(decayed, self.least) if decayed >= SINGULAR_DAMPING * self.scale else self.least
+            else:
+                self.value = self.least if self.value <= self.floor else max(self.value / 10.0, self.least)
+            self.distrusted = self.distrusted and self.value > self.least
+        elif ratio < 0.25:
+            self.value = max(4.0 * self.value, self.floor)
+
+    def reject(self) -> None:
+        """Update after a rejected step: times ``growth`` (at least the floor, at most :data:`DAMPING_CAP`)."""
+        self.value = min(max(self.growth * self.value, self.floor), DAMPING_CAP * self.scale)
+        self.distrusted = True
+        self.growth *= DAMPING_ACCELERATION
+
+
+def _retry_damped(
+    solve_qp: Callable[[float], _Step | None], damping: Damping, keep: bool
+) -> tuple[_Step | None, float]:
+    """A QP that failed solved again with the dampings :data:`RETRY_DAMPINGS` above ``damping.value``.
+
+    Parameters
+    ----------
+    solve_qp : callable
+        ``solve_qp(damping)``: the step with that (absolute) damping, None if its QP fails.
+    damping : Damping
+        Its value becomes the last damping tried; with ``keep``, its least rises to each one tried
+        below :data:`REGULARISED_DAMPING`.
+    keep : bool
+        Whether the dampings tried are to be kept (False once the solve's QPs hold ``S_+``).
+
+    Returns
+    -------
+    (step or None, kept)
+        The first step whose QP solved, and the largest relative damping kept (0 if none).
+
+    """
+    kept = 0.0
+    for relative in RETRY_DAMPINGS:
+        if relative * damping.scale > damping.value:
+            if keep and relative < REGULARISED_DAMPING:  # later ones start this damped
+                kept = relative
+                damping.least = max(damping.least, relative * damping.scale)
+            damping.value = relative * damping.scale
+            step = solve_qp(damping.value)
+            if step is not None:
+                return step, kept
+    return None, kept
+
+
+class _Correction(NamedTuple):
+    """A second-order correction: its step, its evaluated point and its QP's multipliers ``(lam_x, lam_a)``."""
+
+    dz: FloatArray
+    point: _Point
+    multipliers: tuple[FloatArray, FloatArray]
+
+
+def _corrected(
+    correct: Callable[[FloatArray, _Point], _Correction | None],
+    ratio_of: Callable[[_Point], float],
+    dz: FloatArray,
+    trial: _Point,
+) -> tuple[_Correction, float] | None:
+    """The second-order correction to take for a rejected step ``dz`` (trial point ``trial``), with its ratio.
+
+    Corrections are tried in a row, each of the last (``correct(dz, trial)``, None if its QP fails), up to
+    :data:`MAX_CORRECTIONS` while none has a ratio (``ratio_of(point)``) above :data:`SOC_RATIO` and each lowers
+    the violation by :data:`SOC_CONTRACTION`. The last one tried is taken if its ratio exceeds
+    :data:`LAST_CORRECTION_RATIO`; None otherwise.
+    """
+    last = None
+    for _ in range(MAX_CORRECTIONS):
+        correction = correct(dz, trial)
+        if correction is None:  # a failed QP evaluates nothing: the last correction's arrays stand
+            break
+        last = correction, ratio_of(correction.point)
+        if last[1] > SOC_RATIO or correction.point.violation > SOC_CONTRACTION * trial.violation:
+            break
+        dz, trial = correction.dz, correction.point
+    return last if last is not None and last[1] > LAST_CORRECTION_RATIO else None
+
+
+def _stop_status(small_step: bool, settled: bool, worst: float) -> str | None:
+    """The status that ends the solve after a step, or None to go on.
+
+    Parameters
+    ----------
+    small_step : bool
+        ``|dz|_inf <= step_tol``.
+    settled : bool
+        The step was accepted, and its point has no decrease left (:func:`_no_decrease_left`) or is
+        KKT-stationary (False after a rejected step).
+    worst : float
+        The largest violation of ``lbg <= g <= ubg`` where the solve stands.
+
+    Returns
+    -------
+    str or None
+        ``"Converged"`` (feasible to :data:`~uiest.window.solvers.FEASIBILITY_TOL`),
+        ``"Infeasible_Stationary_Point"`` (a small step at an infeasible point), or None.
+
+    """
+    if not (small_step or settled):
+        return None
+    if worst <= FEASIBILITY_TOL:
+        return "Converged"
+    return "Infeasible_Stationary_Point" if small_step else None
+
+
+@dataclass
+class SolveState:
+    """The state of one :meth:`GaussNewtonSolver.solve`, built at its start and dropped at its end.
+
+    Attributes
+    ----------
+    p : ndarray (n_par,)
+        The window's parameters.
+    point : _Point
+        The current iterate, evaluated.
+    damping : Damping
+    qp_scale : float
+        The QP's cost scale (:data:`QP_SCALE` over ``max |J^T J|`` at the start).
+    lam_x, lam_a : ndarray (n_var,), (n_con,)
+        The last QP's multipliers (``|r|^2 / 2`` units); before the first QP, marks (``+-ACTIVE_TOL``) of the
+        sides its active set starts with.
+    warm : bool
+        The next QP starts from ``lam_x, lam_a``.
+    curved : bool
+        The QPs hold the curvature ``S_+`` (since a rejected or poorly corrected step).
+    hessian : (z, H) or None
+        ``J^T J + S_+`` at ``z``, once computed there.
+    released : bool
+        The last QP released held sides (see :func:`_released`).
+    regularised : bool
+        A QP of this solve (or of an earlier one, see ``GaussNewtonSolver``) needed damping.
+    iterations : int
+    status : str
+
+    """
+
+    p: FloatArray
+    point: _Point
+    damping: Damping
+    qp_scale: float
+    lam_x: FloatArray
+    lam_a: FloatArray
+    regularised: bool
+    warm: bool = True
+    curved: bool = False
+    hessian: tuple[FloatArray, FloatArray] | None = None
+    released: bool = False
+    iterations: int = 0
+    status: str = "Maximum_Iterations_Exceeded"
+
+
 class GaussNewtonSolver:
     """Gauss-Newton SQP on a window problem, built once (see the module docstring).
 
@@ -374,7 +652,10 @@ class GaussNewtonSolver:
 
     Notes
     -----
-    The measurements behind the defaults are in the design notes: Gauss-Newton solver.
+    Each solve builds its own :class:`SolveState`. Between solves the solver keeps only the least damping that
+    failed QPs left (``_kept_damping``, relative to ``max |J^T J|``; forgotten by :meth:`reset`), so that later
+    samples do not fail the same singular QP again. The measurements behind the defaults are in the design
+    notes: Gauss-Newton solver.
 
     """
 
@@ -421,41 +702,42 @@ class GaussNewtonSolver:
             "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
+        self._no_multipliers = np.zeros(problem.n_con)
         self._staged = problem if qp == "riccati" else None
         self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._staged)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
         self._curvature: tuple[BlockCurvature, _QPForm] | None = None
-        self._curved = False  # this solve's QPs hold the curvature (since a rejected or poorly corrected step)
-        self._hessian: tuple[FloatArray, FloatArray] | None = None  # (z, J^T J + S_+ at z) in this solve
-        self._p = np.zeros(0)  # the solve's parameters
-        self._zeros = np.zeros(problem.n_var), np.zeros(problem.n_con)
-        self._empty = np.zeros(0), np.zeros(0)  # qrqp's unused inputs q and p
         self._ipopt: IpoptSolver | None = None
-        self._qp_scale = 1.0
-        self._kept_damping = 0.0  # least damping (relative) after failed QPs, kept across solves until reset()
-        self._lam_x = np.zeros(problem.n_var)
-        self._lam_a = np.zeros(problem.n_con)
-        self._released_any = False  # the last QP released held sides (see _released)
+        self._kept_damping = 0.0  # least damping (relative) after failed QPs, carried from solve to solve
+        self._state: SolveState | None = None  # the running (or last) solve's state
 
     def reset(self) -> None:
         """Forget the least damping that failed QPs left (kept from solve to solve, see the module docstring)."""
         self._kept_damping = 0.0
         self.qp_fallbacks = 0
 
+    @property
+    def _curved(self) -> bool:
+        """The running solve's QPs hold the curvature ``S_+``."""
+        return self._state is not None and self._state.curved
+
     # ------------------------------------------------------------------ evaluations
-    def _evaluate(self, z: FloatArray, p: FloatArray, keep: _Point | None = None) -> _Point:
-        """The point ``z``, with the stationarity measure for the current QP multipliers.
+    def _evaluate(
+        self, z: FloatArray, p: FloatArray, keep: _Point | None = None, lam_g: FloatArray | None = None
+    ) -> _Point:
+        """The point ``z``, with the stationarity measure for the constraint multipliers ``lam_g`` (default 0).
 
         Evaluated into the buffer that ``keep`` (a point still in use) does not occupy; the
         arrays of the returned point are overwritten by the evaluation after next.
         """
         slot = 1 - keep.slot if keep is not None else 0
-        cost, violation, worst, stationarity, q, h, g, a = self._buffers[slot](z, p, self._lam_a)
+        lam = self._no_multipliers if lam_g is None else lam_g
+        cost, violation, worst, stationarity, q, h, g, a = self._buffers[slot](z, p, lam)
         return _Point(z, slot, float(cost[0]), float(violation[0]), float(worst[0]), float(stationarity[0]),
                       q, h, g[: self.problem.n_con], a)  # fmt: skip
 
-    def _stationary(self, point: _Point) -> bool:
-        """KKT stationarity at ``point`` with the last QP's constraint multipliers, to ``kkt_tol``.
+    def _stationary(self, point: _Point, lam_a: FloatArray) -> bool:
+        """KKT stationarity at ``point`` with the constraint multipliers ``lam_a`` it was evaluated with.
 
         ``s = J^T r + G^T lam_g`` must vanish at free variables and point outwards at active
         bounds (where the bound's multiplier takes it); the test is
@@ -463,7 +745,7 @@ class GaussNewtonSolver:
         of the QP are those of the window problem to second order, so this stops without
         solving one more QP to see a zero step.
         """
-        return point.stationarity <= self.kkt_tol * (1.0 + float(np.abs(self._lam_a).max(initial=0.0)))
+        return point.stationarity <= self.kkt_tol * (1.0 + float(np.abs(lam_a).max(initial=0.0)))
 
     # ------------------------------------------------------------------ QP
     def _qp(
@@ -478,42 +760,24 @@ class GaussNewtonSolver:
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units), or None.
 
-        By the form's stage-wise interior point if it has one, else (or if that fails) by qrqp.
-        ``warm``: qrqp starts from the last QP's active set. Sides qrqp holds at a zero multiplier are
-        released where the QP's own multiplier has the wrong sign and leaving the side could lower
-        ``|r|^2`` by more than ``release_tol`` (see :func:`_released`).
+        By the form's stage-wise interior point if it has one, else (or if that fails) by qrqp
+        (:func:`_solve_qrqp`). ``warm``: start from the running solve's multipliers.
         """
-        c = self._qp_scale
+        state = self._state
+        assert state is not None
+        c, start = state.qp_scale, (state.lam_x, state.lam_a) if warm else None
         if form.stage is not None:
-            staged = form.stage.solve(c * h, c * q, a, bounds, (self._lam_x, self._lam_a) if warm else None)
+            staged = form.stage.solve(c * h, c * q, a, bounds, start)
             if staged is not None:
-                self._released_any = False
+                state.released = False
                 staged_dz, staged_cost, staged_lam_x, staged_lam_a = staged
                 return staged_dz, staged_cost / c, staged_lam_x / c, staged_lam_a / c
             self.qp_fallbacks += 1
-        lam_x0, lam_a0 = (c * self._lam_x, c * self._lam_a) if warm else self._zeros
-        # inputs h, g, a, lba, uba, lbx, ubx, x0, lam_x0, lam_a0, q, p; outputs x, cost, lam_a, lam_x
-        qrqp = form.qrqp
-        x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, self._zeros[0], lam_x0, lam_a0, *self._empty)
-        stats = qrqp.stats()
-        for _ in range(QP_CONTINUATIONS):
-            if stats.get("return_status") != QP_ITERATION_LIMIT:
-                break
-            active_set = lam_x.copy(), lam_a.copy()  # on from the active set the limit stopped it at
-            x, cost, lam_a, lam_x = qrqp(c * h, c * q, a, *bounds, self._zeros[0], *active_set, *self._empty)
-            stats = qrqp.stats()
-        if not (stats.get("success", False) and np.all(np.isfinite(x))):
+        solved = _solve_qrqp(form, h, q, a, bounds, start, c, release_tol)
+        if solved is None:
             return None
-        lam_x, lam_a = lam_x / c, lam_a[: self.problem.n_con] / c
-        held = (np.abs(lam_x) * c <= np.finfo(float).tiny) & (lam_x != 0.0)  # qrqp's marks, +-DBL_MIN
-        self._released_any = False
-        if held.any():
-            # the QP's gradient at its solution is -(the bounds' exact multipliers)
-            gradient, rounding = form.gradient(h, q, a, x, lam_a)
-            released = _released(held, lam_x, gradient, rounding, bounds[3] - bounds[2], release_tol)
-            lam_x = np.where(released, 0.0, lam_x)
-            self._released_any = bool(released.any())
-        return x.copy(), float(cost[0]) / c, lam_x, lam_a
+        state.released = solved.released
+        return solved.dz, solved.cost, solved.lam_x, solved.lam_a
 
     def _model(self, point: _Point) -> tuple[_QPForm, FloatArray]:
         """The QP's form and Hessian at ``point``: ``J^T J``, or once the solve is curved ``J^T J + S_+``.
@@ -522,30 +786,35 @@ class GaussNewtonSolver:
         step the merit rejected there, or of the QP whose step led to the point), so the corrections and damped
         retries that follow solve QPs with the same Hessian.
         """
-        if not self._curved:
+        state = self._state
+        assert state is not None
+        if not state.curved:
             return self._gauss_newton_form, point.h
         assert self._curvature is not None
         curvature, form = self._curvature
-        if self._hessian is None or self._hessian[0] is not point.z:
-            self._hessian = point.z, curvature(point.z, self._p, self._lam_a, point.h)
-        return form, self._hessian[1]
+        if state.hessian is None or state.hessian[0] is not point.z:
+            state.hessian = point.z, curvature(point.z, state.p, state.lam_a, point.h)
+        return form, state.hessian[1]
 
     def _curve(self) -> bool:
-        """Switch the solve to QPs with the curvature Gauss-Newton leaves out; False if the model has none."""
+        """Switch the running solve to QPs with the curvature Gauss-Newton leaves out; False if the model has none."""
         if self._curvature is None:
             curvature = BlockCurvature(self.problem, self._h_sparsity)
             form = _QPForm.build(curvature.sparsity, self._a_sparsity, self._staged)
             self._curvature = curvature, form
-        self._curved = self._curvature[0].curved
-        return self._curved
+        curved = self._curvature[0].curved
+        if self._state is not None:
+            self._state.curved = curved
+        return curved
 
-    def _step(self, point: _Point, damping: float, warm: bool) -> tuple[FloatArray, float] | None:
+    def _step(self, point: _Point, damping: float, warm: bool) -> _Step | None:
         """The QP step ``dz`` with ``damping`` added to the model's Hessian, and the decrease of ``|r|^2`` it predicts.
 
-        ``warm``: qrqp starts from the previous QP's active set, and from scratch if that fails.
-        None if the QP fails.
+        ``warm``: the QP starts from the running solve's multipliers, and from scratch if that fails; they
+        become the QP's. None if the QP fails.
         """
-        prob = self.problem
+        prob, state = self.problem, self._state
+        assert state is not None
         form, h = self._model(point)
         if damping:
             h = h.copy()
@@ -557,7 +826,7 @@ class GaussNewtonSolver:
         )
         if not solved:
             return None
-        dz, model, self._lam_x, self._lam_a = solved
+        dz, model, state.lam_x, state.lam_a = solved
         # decrease of |r|^2 predicted by the undamped model (H = J^T J, or J^T J + S_+), -2 (q^T dz + dz^T H dz / 2),
         # from the QP's cost q^T dz + dz^T (H + damping I) dz / 2
         with np.errstate(over="ignore", invalid="ignore"):
@@ -567,8 +836,8 @@ class GaussNewtonSolver:
 
     def _second_order_correction(
         self, point: _Point, trial: _Point, dz: FloatArray, damping: float, p: FloatArray
-    ) -> tuple[FloatArray, _Point] | None:
-        """The step re-solved with the constraints' curvature seen at the rejected trial point, and its point.
+    ) -> _Correction | None:
+        """The step re-solved with the constraints' curvature seen at the rejected trial point.
 
         A full step along a direction the cost barely sees can be long, and the constraints'
         curvature then leaves the trial point infeasible, so the merit rejects it (Maratos
@@ -576,14 +845,15 @@ class GaussNewtonSolver:
         correction solves the same QP (same Hessian and damping) with ``G dz' = -(g(z + dz) - G dz)``,
         i.e. the linearised constraints shifted by what the step left violated. None if that QP fails.
         """
+        state = self._state
+        assert state is not None
         g_dz = np.bincount(self._a_rows, weights=point.a * dz[self._a_cols], minlength=self.problem.n_con)
         step = self._step(point._replace(g=trial.g - g_dz), damping, warm=True)
         if step is None:
             return None
         corrected = step[0]
-        return corrected, self._evaluate(
-            np.clip(point.z + corrected, self.problem.lbx, self.problem.ubx), p, keep=point
-        )
+        z = np.clip(point.z + corrected, self.problem.lbx, self.problem.ubx)
+        return _Correction(corrected, self._evaluate(z, p, point, state.lam_a), (state.lam_x, state.lam_a))
 
     # ------------------------------------------------------------------ the solve
     def solve(
@@ -601,8 +871,9 @@ class GaussNewtonSolver:
             Starting point, shape (n_var,), scaled variables.
         p : numpy.ndarray
             The window's parameters (data, prior, weights), shape (n_par,).
-        lam_x0, lam_g0 : numpy.ndarray, optional
-            Accepted for the solver interface; qrqp's warm start comes from the starting point's active set.
+        lam_x0, lam_g0 : None
+            Not taken (:class:`~uiest.errors.OptionError` otherwise): the first QP starts from the sides ``z0``
+            is on (see :data:`~uiest.window.backends.MULTIPLIER_BACKENDS`).
 
         Returns
         -------
@@ -610,126 +881,143 @@ class GaussNewtonSolver:
             The solution, its status, iterations and solve time; ``fallback=True`` when IPOPT solved it.
 
         """
-        prob = self.problem
         start = time.perf_counter()
+        for name, multipliers in (("lam_x0", lam_x0), ("lam_g0", lam_g0)):
+            if multipliers is not None:
+                raise OptionError(
+                    f"{name}: expected None; the Gauss-Newton backend takes no multipliers (its first QP starts "
+                    "from the sides z0 is on)"
+                )
+        state = self._state = self._start(z0, p)
+        for state.iterations in range(1, self.max_iter + 1):
+            if self._iterate(state):
+                break
+        return self._finish(state, z0, start)
+
+    def _start(self, z0: FloatArray, p: FloatArray) -> SolveState:
+        """A solve's state at ``z0`` (clipped into the bounds): the first QP's active set is the sides ``z0`` is on."""
+        prob = self.problem
         p = np.asarray(p, dtype=float)
-        self._p, self._curved, self._hessian = p, False, None
-        status, converged, iterations = "Maximum_Iterations_Exceeded", False, 0
-        regularised = self._kept_damping > 0.0
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
         largest = float(np.abs(point.h).max(initial=0.0))
-        h_max = max(largest, 1.0)
-        self._qp_scale = QP_SCALE / (largest or 1.0)
-        damping_floor = DAMPING_FLOOR * h_max
-        damping_min = max(self.min_damping, self._kept_damping) * h_max
-        damping, warm, growth = damping_min, True, DAMPING_GROWTH
-        distrusted = False  # a step was rejected since the damping was last at its minimum
-        # the first QP starts with the bounds and inequalities the starting point sits on active
-        self._lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
-        self._lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
-        for iterations in range(1, self.max_iter + 1):  # noqa: B007 (iterations is reported)
-            step = self._step(point, damping, warm)
-            if step is None and damping <= damping_min:  # a singular or failed QP: Levenberg-Marquardt steps
-                for relative in RETRY_DAMPINGS:
-                    if relative * h_max > damping:
-                        if relative < REGULARISED_DAMPING and not self._curved:  # later ones start this damped
-                            self._kept_damping = max(self._kept_damping, relative)
-                            damping_min = max(damping_min, relative * h_max)
-                        damping, regularised = relative * h_max, True
-                        step = self._step(point, damping, warm=False)
-                        if step is not None:
-                            break
-            if step is None:
-                status = "QP_failed"
-                break
-            dz, predicted = step
-            warm = True
-            stop_here = damping <= damping_floor and not self._released_any and self.max_iter > 1
-            if stop_here and _only_restores_rounding(predicted, point):
-                status, converged = "Converged", True
-                break
-            nu = _penalty(float(np.abs(self._lam_a).max(initial=0.0)))
-            trial = self._evaluate(np.clip(point.z + dz, prob.lbx, prob.ubx), p, keep=point)
-            ratio = _ratio(point, trial, predicted, nu)
-            maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
-            if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
-                multipliers = self._lam_x, self._lam_a  # the step's, kept unless a correction is taken
-                soc_dz, soc_trial = dz, trial  # the latter's arrays are overwritten by the next evaluation
-                last = None  # the last correction evaluated, its ratio and its QP's multipliers
-                for _ in range(MAX_CORRECTIONS):
-                    corrected = self._second_order_correction(point, soc_trial, soc_dz, damping, p)
-                    if corrected is None:  # a failed QP evaluates nothing: the last correction's arrays stand
-                        break
-                    last = corrected, _ratio(point, corrected[1], predicted, nu), (self._lam_x, self._lam_a)
-                    if last[1] > SOC_RATIO or corrected[1].violation > SOC_CONTRACTION * soc_trial.violation:
-                        break
-                    soc_dz, soc_trial = corrected
-                if last is not None and last[1] > LAST_CORRECTION_RATIO:
-                    (dz, trial), ratio, (self._lam_x, self._lam_a) = last
-                    if ratio <= CURVATURE_RATIO:  # the model misses the constraints' curvature
-                        self._curve()
-                else:
-                    self._lam_x, self._lam_a = multipliers
-            small_step = np.abs(dz).max(initial=0.0) <= self.step_tol
-            if ratio > ACCEPT_RATIO or self.max_iter == 1:
-                cost, point, growth = point.cost, trial, DAMPING_GROWTH
-                if ratio > 0.75:
-                    if distrusted:  # back to the minimum gradually (see DAMPING_DECAY)
-                        decayed = damping / DAMPING_DECAY
-                        damping = max(decayed, damping_min) if decayed >= SINGULAR_DAMPING * h_max else damping_min
-                    else:
-                        damping = damping_min if damping <= damping_floor else max(damping / 10.0, damping_min)
-                    distrusted = distrusted and damping > damping_min
-                elif ratio < 0.25:
-                    damping = max(4.0 * damping, damping_floor)
-                if small_step or _no_decrease_left(predicted, cost, self.cost_tol) or self._stationary(point):
-                    if point.worst <= FEASIBILITY_TOL:
-                        status, converged = "Converged", True
-                        break
-                    if small_step:
-                        status = "Infeasible_Stationary_Point"
-                        break
-            else:  # rejected: the curvature, then damp more; same linearisation
-                if small_step:
-                    converged = point.worst <= FEASIBILITY_TOL
-                    status = "Converged" if converged else "Infeasible_Stationary_Point"
-                    break
-                if self._curved or not (maratos and self._curve()):  # the curvature first, then more damping
-                    damping = min(max(growth * damping, damping_floor), DAMPING_CAP * h_max)
-                    distrusted = True
-                    growth *= DAMPING_ACCELERATION
+        damping = Damping(max(self.min_damping, self._kept_damping), max(largest, 1.0))
+        lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
+        lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
+        return SolveState(p, point, damping, QP_SCALE / (largest or 1.0), lam_x, lam_a, self._kept_damping > 0.0)
+
+    def _iterate(self, state: SolveState) -> bool:
+        """One Gauss-Newton iteration: a QP step, its corrections, acceptance and the damping; True to stop."""
+        point, damping = state.point, state.damping
+        step = self._step(point, damping.value, state.warm)
+        if step is None and damping.value <= damping.least:  # a singular or failed QP: Levenberg-Marquardt steps
+            step = self._regularised_step(state)
+        if step is None:
+            state.status = "QP_failed"
+            return True
+        dz, predicted = step
+        state.warm = True
+        at_least_damping = damping.value <= damping.floor and not state.released and self.max_iter > 1
+        if at_least_damping and _only_restores_rounding(predicted, point):
+            state.status = "Converged"
+            return True
+        nu = _penalty(float(np.abs(state.lam_a).max(initial=0.0)))
+        trial = self._evaluate(np.clip(point.z + dz, self.problem.lbx, self.problem.ubx), state.p, point, state.lam_a)
+        ratio = _ratio(point, trial, predicted, nu)
+        maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
+        if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
+            dz, trial, ratio = self._correct(state, dz, trial, predicted, nu)
+        small_step = bool(np.abs(dz).max(initial=0.0) <= self.step_tol)
+        if ratio > ACCEPT_RATIO or self.max_iter == 1:
+            state.point = trial
+            damping.accept(ratio)
+            settled = _no_decrease_left(predicted, point.cost, self.cost_tol) or self._stationary(trial, state.lam_a)
+            status = _stop_status(small_step, settled, trial.worst)
+        else:  # rejected: the curvature, then damp more; same linearisation
+            status = _stop_status(small_step, False, point.worst)
+            if status is None and (state.curved or not (maratos and self._curve())):
+                damping.reject()
+        if status is None:
+            return False
+        state.status = status
+        return True
+
+    def _regularised_step(self, state: SolveState) -> _Step | None:
+        """The step of a QP that failed undamped, retried damped (:func:`_retry_damped`).
+
+        The dampings below :data:`REGULARISED_DAMPING` tried are kept for later solves unless the QPs hold ``S_+``.
+        """
+        tried = state.damping.value
+        step, kept = _retry_damped(lambda damping: self._step(state.point, damping, False), state.damping,
+                                   not state.curved)  # fmt: skip
+        state.regularised = state.regularised or state.damping.value != tried
+        self._kept_damping = max(self._kept_damping, kept)
+        return step
+
+    def _correct(
+        self, state: SolveState, dz: FloatArray, trial: _Point, predicted: float, nu: float
+    ) -> tuple[FloatArray, _Point, float]:
+        """A rejected step's second-order correction if one is taken (:func:`_corrected`), else the step itself.
+
+        Returns the step, its point and its ratio; a taken correction's multipliers become the solve's, and one
+        that was not good (:data:`CURVATURE_RATIO`) switches the solve to ``S_+``.
+        """
+        point, damping = state.point, state.damping.value
+        multipliers = state.lam_x, state.lam_a  # the step's, kept unless a correction is taken
+        taken = _corrected(
+            lambda step, at: self._second_order_correction(point, at, step, damping, state.p),
+            lambda corrected: _ratio(point, corrected, predicted, nu),
+            dz,
+            trial,
+        )
+        if taken is None:
+            state.lam_x, state.lam_a = multipliers
+            return dz, trial, _ratio(point, trial, predicted, nu)
+        correction, ratio = taken
+        state.lam_x, state.lam_a = correction.multipliers
+        if ratio <= CURVATURE_RATIO:  # the model misses the constraints' curvature
+            self._curve()
+        return correction.dz, correction.point, ratio
+
+    def _finish(self, state: SolveState, z0: FloatArray, start: float) -> WindowSolution:
+        """The solution at the solve's last point: RTI's status, polishing, IPOPT's fallback if not converged."""
+        status, converged = state.status, state.status == "Converged"
+        point = state.point
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
-        if regularised and converged:
+        if state.regularised and converged:
             status += " (regularised)"
         z, cost = point.z, point.cost
         if converged and self.polish and self.max_iter > 1:
-            z, cost, _ = refine(prob, z, p)
+            z, cost, _ = refine(self.problem, z, state.p)
         elapsed = time.perf_counter() - start
         if not converged and self.fallback:
-            if self._ipopt is None:
-                self._ipopt = IpoptSolver(prob, polish=self.polish)
-            fallback = self._ipopt.solve(z0, p)
-            return WindowSolution(
-                fallback.z,
-                fallback.lam_x,
-                fallback.lam_g,
-                fallback.cost,
-                fallback.status,
-                fallback.success,
-                iterations + fallback.iterations,
-                elapsed + fallback.solve_time,
-                fallback=True,
-                primary_status=f"gn {status}",
-            )
+            return self._fallback(z0, state.p, f"gn {status}", state.iterations, elapsed)
         return WindowSolution(
             z=z,
-            lam_x=self._lam_x.copy(),
-            lam_g=self._lam_a.copy(),
+            lam_x=state.lam_x.copy(),
+            lam_g=state.lam_a.copy(),
             cost=cost,
             status=status,
             success=bool(converged and np.all(np.isfinite(z))),
-            iterations=iterations,
+            iterations=state.iterations,
             solve_time=elapsed,
+        )
+
+    def _fallback(self, z0: FloatArray, p: FloatArray, why: str, iterations: int, elapsed: float) -> WindowSolution:
+        """IPOPT's solution from ``z0``, with the Gauss-Newton iterations and time before it and ``why``."""
+        if self._ipopt is None:
+            self._ipopt = IpoptSolver(self.problem, polish=self.polish)
+        fallback = self._ipopt.solve(z0, p)
+        return WindowSolution(
+            fallback.z,
+            fallback.lam_x,
+            fallback.lam_g,
+            fallback.cost,
+            fallback.status,
+            fallback.success,
+            iterations + fallback.iterations,
+            elapsed + fallback.solve_time,
+            fallback=True,
+            primary_status=why,
         )

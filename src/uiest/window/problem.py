@@ -54,7 +54,7 @@ from functools import cached_property
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import Box, FloatArray
 from uiest.errors import DataError, OptionError
@@ -164,6 +164,33 @@ class WindowTrajectory:
     v: FloatArray
 
 
+IntArray = NDArray[np.int_]
+
+
+def _index_layout(L: int, nodes: IntArray, nx: int, nv: int, nw: int) -> tuple[IntArray, IntArray, IntArray, int]:
+    """The decision vector's layout, stage-wise ``[x_i, v_i (if measured), w_i (if i < L)]``.
+
+    Returns the indices of ``x`` (L+1, nx), ``w`` (L, nw) and ``v`` (M, nv, one row per measured node) and the
+    number of variables.
+    """
+    M = nodes.size
+    x_index = np.empty((L + 1, nx), dtype=int)
+    w_index = np.empty((L, nw), dtype=int)
+    v_index = np.empty((M, nv), dtype=int)
+    pos, m = 0, 0
+    for i in range(L + 1):
+        x_index[i] = np.arange(pos, pos + nx)
+        pos += nx
+        if m < M and nodes[m] == i:
+            v_index[m] = np.arange(pos, pos + nv)
+            pos += nv
+            m += 1
+        if i < L:
+            w_index[i] = np.arange(pos, pos + nw)
+            pos += nw
+    return x_index, w_index, v_index, pos
+
+
 class WindowProblem:
     """One window's weighted nonlinear least-squares problem, built once with data as parameters.
 
@@ -231,7 +258,7 @@ class WindowProblem:
             raise OptionError(f"measured: expected increasing node indices in 0..{L}, got {nodes.tolist()}")
         self.measured = nodes
         self.n_meas = M = int(nodes.size)
-        nx, nu, nw, nv, ny, nd = model.nx, model.nu, model.nw, model.nv, model.ny, model.nd
+        nx, nw, nv, ny = model.nx, model.nw, model.nv, model.ny
         self.f_uses_v = model.f_uses_v
         missing = sorted(set(range(L)) - set(nodes.tolist()))
         if self.f_uses_v and missing:
@@ -256,23 +283,7 @@ class WindowProblem:
         self.w_scale = model.w_scale
         self.y_center, self.y_scale = working_center(model.y_bounds, model.y_scale), model.y_scale
 
-        # index layout, stage-wise [x_i, v_i (if measured), w_i (if i < L)]
-        x_index = np.empty((L + 1, nx), dtype=int)
-        w_index = np.empty((L, nw), dtype=int)
-        v_index = np.empty((M, nv), dtype=int)
-        pos, m = 0, 0
-        for i in range(L + 1):
-            x_index[i] = np.arange(pos, pos + nx)
-            pos += nx
-            if m < M and nodes[m] == i:
-                v_index[m] = np.arange(pos, pos + nv)
-                pos += nv
-                m += 1
-            if i < L:
-                w_index[i] = np.arange(pos, pos + nw)
-                pos += nw
-        self.x_index, self.w_index, self.v_index = x_index, w_index, v_index
-        self.n_var = pos
+        self.x_index, self.w_index, self.v_index, self.n_var = _index_layout(L, nodes, nx, nv, nw)
         y_lo, y_hi = model.y_bounds.lower, model.y_bounds.upper
         self.has_output_constraints = bool(
             output_constraints and M > 0 and (np.isfinite(y_lo).any() or np.isfinite(y_hi).any())
@@ -286,6 +297,15 @@ class WindowProblem:
         self.n_out_con = M * ny if self.has_output_constraints else 0
         self.n_node_con = M * self.node_rows.size
         self.n_con = self.n_dyn + self.n_out_con + self.n_node_con
+        self.parameter_slices = self._parameter_layout()
+        self.n_par = max((part.stop for part in self.parameter_slices.values()), default=0)
+        self._build()
+        self.default_weights = None if weights is None else self.weight_vector(weights)
+
+    def _parameter_layout(self) -> dict[str, slice]:
+        """Where each part of the parameter vector ``p`` sits: prior, u, y, mask, v_bar, w_bar, data, weights."""
+        model, L, M = self.model, self.length, self.n_meas
+        nx, nu, nw, nv, ny, nd = model.nx, model.nu, model.nw, model.nv, model.ny, model.nd
         sizes = {
             "prior": nx,
             "u": L * nu,
@@ -296,14 +316,12 @@ class WindowProblem:
             "data": (L + 1) * nd,
             "weights": nx * nx + M * (ny * ny + nv * nv) + (L * nw * nw if self.weighted_w else 0),
         }
-        self.parameter_slices: dict[str, slice] = {}
+        slices: dict[str, slice] = {}
         start = 0
         for key, size in sizes.items():
-            self.parameter_slices[key] = slice(start, start + size)
+            slices[key] = slice(start, start + size)
             start += size
-        self.n_par = start
-        self._build()
-        self.default_weights = None if weights is None else self.weight_vector(weights)
+        return slices
 
     # ------------------------------------------------------------------ construction
     def weight_vector(self, weights: WindowWeights) -> FloatArray:

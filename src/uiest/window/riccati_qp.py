@@ -168,7 +168,7 @@ def _offsets(sizes: IntArray) -> IntArray:
     return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StageQPSolution:
     """The result of :func:`solve_stage_qp`.
 
@@ -384,10 +384,10 @@ _BIG = 1e20
 """Iterates or multipliers beyond this (relative to the data's size) mean an infeasible or unbounded QP."""
 
 _PENALTY = 1e6
-"""The active rows' penalty in :func:`_crossover`, relative to the largest Hessian entry."""
+"""The active rows' penalty in :func:`_solve_active`, relative to the largest Hessian entry."""
 
 _MULTIPLIER_ROUNDS = 5
-"""Multiplier updates :func:`_crossover` tries before it gives up on an active set."""
+"""Multiplier updates :func:`_solve_active` tries before it gives up on an active set."""
 
 _START_SLACK = 0.1
 """Smallest starting slack of a bound (scaled units); the interior point starts from ``z = 0``, multipliers 1."""
@@ -639,6 +639,134 @@ def _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, out):  # pragma: no c
                 out[z0 + r] -= pi[(k - 1) * nx + r]
 
 
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _largest_abs(x, count, floor):  # pragma: no cover (compiled)
+    """``max(floor, |x_0|, ..., |x_{count-1}|)``."""
+    s = floor
+    for i in range(count):
+        s = max(s, abs(x[i]))
+    return s
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _factor_workspace(nx, N1, nz, h_size):  # pragma: no cover (compiled)
+    """The arrays :func:`_factor` and :func:`_riccati_solve` work in: ``M, L, K, P, Lx, W, p``."""
+    nmax = 0
+    for k in range(N1):
+        nmax = max(nmax, nz[k])
+    return (
+        np.empty(h_size),
+        np.empty(h_size),
+        np.empty(h_size),
+        np.empty(N1 * nx * nx),
+        np.empty(nx * nx),
+        np.empty(nx * nmax + nmax + nx),
+        np.empty(N1 * nx),
+    )
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _stacked_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz, out):  # pragma: no cover (compiled)
+    """``out = [z; C z]``, the inequality rows' values (the boxes, then the general rows); ``cz`` is work."""
+    n = zo[N1]
+    _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
+    for i in range(n):
+        out[i] = z[i]
+    for i in range(cz.size):
+        out[n + i] = cz[i]
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _active_targets(side, lo, hi, lam, target):  # pragma: no cover (compiled)
+    """``target``: the bound each active row is held at; ``lam`` zeroed on free rows. Returns whether any is active."""
+    any_active = False
+    for i in range(side.size):
+        if side[i] > 0.0:
+            target[i] = hi[i]
+            any_active = True
+        elif side[i] < 0.0:
+            target[i] = lo[i]
+            any_active = True
+        else:
+            target[i] = 0.0
+            lam[i] = 0.0
+    return any_active
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _hold_active_rows(nx, N1, nz, zo, ho, ao, ncs, co, cro, q, A, b, C, rho, tol, side, target, lam, z, pi, Dz,
+                      factors):  # pragma: no cover (compiled)  # fmt: skip
+    """Hold the active rows at their targets by the method of multipliers; returns whether they hold to ``tol``.
+
+    Each round is one solve with the penalised factorisation ``factors`` (at most :data:`_MULTIPLIER_ROUNDS`
+    rounds); ``lam`` is updated, ``Dz`` receives the rows' values.
+    """
+    Mw, Lw, Kw, Pw, Lx, W, pw = factors
+    n = zo[N1]
+    m = side.size
+    rq = np.empty(n)
+    w = np.empty(m)
+    cz = np.empty(m - n)
+    for _ in range(_MULTIPLIER_ROUNDS):
+        for i in range(m):
+            w[i] = (lam[i] - rho * target[i]) if side[i] != 0.0 else 0.0
+        for i in range(n):
+            rq[i] = q[i] + w[i]
+        _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
+        _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, b, z, pi, W, pw)
+        _stacked_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz, Dz)
+        held = True
+        for i in range(m):
+            if side[i] != 0.0:
+                err = Dz[i] - target[i]
+                lam[i] += rho * err
+                if abs(err) > tol * (1.0 + abs(target[i])):
+                    held = False
+        if held:
+            return True
+    return False
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _box_multipliers(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, C, reg, side, lam, z, pi):  # pragma: no cover
+    """The active boxes' multipliers read off stationarity; the general rows' multipliers are kept.
+
+    (``rho`` times the rows' rounding would otherwise stay in them.)
+    """
+    n = zo[N1]
+    m = side.size
+    w = np.empty(m)
+    grad = np.empty(n)
+    for i in range(m):
+        w[i] = lam[i] if (i >= n and side[i] != 0.0) else 0.0
+    _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, grad)
+    _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], grad)
+    for i in range(n):
+        if side[i] != 0.0:
+            lam[i] = -grad[i]
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _active_set_step(side, lam, Dz, lo, hi, tol, scale):  # pragma: no cover (compiled)
+    """One primal-dual active-set step on ``side``; returns whether none changed (optimal to ``tol``).
+
+    Violated rows are made active, wrong-signed ones released.
+    """
+    optimal = True
+    for i in range(side.size):
+        if side[i] != 0.0:
+            if side[i] * lam[i] < -tol * scale:
+                side[i] = 0.0
+                optimal = False
+        elif lo[i] > -math.inf and Dz[i] < lo[i] - tol * (1.0 + abs(lo[i])):
+            side[i] = -1.0
+            optimal = False
+        elif hi[i] < math.inf and Dz[i] > hi[i] + tol * (1.0 + abs(hi[i])):
+            side[i] = 1.0
+            optimal = False
+    return optimal
+
+
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
 def _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, scale,
                   side, lam, z, pi):  # pragma: no cover (compiled)  # fmt: skip
@@ -653,153 +781,50 @@ def _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, r
     updated as a primal-dual active-set step (violated rows made active, wrong-signed ones released); 2 when
     the active set's QP is singular or its rows inconsistent.
     """
-    n = zo[N1]
-    nc = cro[N1]
-    m = n + nc
-    target = np.zeros(m)
-    any_active = False
+    m = side.size
+    target = np.empty(m)
+    any_active = _active_targets(side, lo, hi, lam, target)
+    rho = _PENALTY * _largest_abs(H, H.size, 1.0) if any_active else 0.0
+    penalty = np.empty(m)
     for i in range(m):
-        if side[i] > 0.0:
-            target[i] = hi[i]
-            any_active = True
-        elif side[i] < 0.0:
-            target[i] = lo[i]
-            any_active = True
-        else:
-            lam[i] = 0.0
-    h_scale = 1.0
-    for i in range(H.size):
-        h_scale = max(h_scale, abs(H[i]))
-    rho = _PENALTY * h_scale if any_active else 0.0
+        penalty[i] = rho if side[i] != 0.0 else 0.0
     Hm = np.empty(H.size)
-    for k in range(N1):
-        nk = nz[k]
-        h0 = ho[k]
-        z0 = zo[k]
-        for i in range(nk * nk):
-            Hm[h0 + i] = H[h0 + i]
-        for r in range(nk):
-            Hm[h0 + r * nk + r] += reg + (rho if side[z0 + r] != 0.0 else 0.0)
-        for j in range(ncs[k]):
-            if side[n + cro[k] + j] != 0.0:
-                c0 = co[k] + j * nk
-                for r in range(nk):
-                    for c in range(nk):
-                        Hm[h0 + r * nk + c] += rho * C[c0 + r] * C[c0 + c]
-    nmax = 0
-    for k in range(N1):
-        nmax = max(nmax, nz[k])
-    Mw = np.empty(H.size)
-    Lw = np.empty(H.size)
-    Kw = np.empty(H.size)
-    Pw = np.empty(N1 * nx * nx)
-    Lx = np.empty(nx * nx)
-    W = np.empty(nx * nmax + nmax + nx)
-    pw = np.empty(N1 * nx)
+    _barrier_hessian(N1, nz, zo, ho, ncs, co, cro, H, C, reg, penalty, Hm)
+    factors = _factor_workspace(nx, N1, nz, H.size)
+    Mw, Lw, Kw, Pw, Lx, W, _ = factors
     if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
         return 2
-    rq = np.empty(n)
-    w = np.empty(m)
     Dz = np.empty(m)
-    cz = np.empty(nc)
-    held = False
-    for _ in range(_MULTIPLIER_ROUNDS):
-        for i in range(m):
-            w[i] = (lam[i] - rho * target[i]) if side[i] != 0.0 else 0.0
-        for i in range(n):
-            rq[i] = q[i] + w[i]
-        _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
-        _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, b, z, pi, W, pw)
-        _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
-        for i in range(n):
-            Dz[i] = z[i]
-        for i in range(nc):
-            Dz[n + i] = cz[i]
-        held = True
-        for i in range(m):
-            if side[i] != 0.0:
-                err = Dz[i] - target[i]
-                lam[i] += rho * err
-                if abs(err) > tol * (1.0 + abs(target[i])):
-                    held = False
-        if held:
-            break
-    if not held:
+    if not _hold_active_rows(nx, N1, nz, zo, ho, ao, ncs, co, cro, q, A, b, C, rho, tol, side, target, lam, z, pi,
+                             Dz, factors):  # fmt: skip
         return 2
-    # the bounds' multipliers from stationarity (rho times the rows' rounding would otherwise stay in them)
-    grad = np.empty(n)
-    for i in range(m):
-        w[i] = lam[i] if (i >= n and side[i] != 0.0) else 0.0
-    _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, grad)
-    _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], grad)
-    for i in range(n):
-        if side[i] != 0.0:
-            lam[i] = -grad[i]
-    optimal = True
-    for i in range(m):
-        if side[i] != 0.0:
-            if side[i] * lam[i] < -tol * scale:
-                side[i] = 0.0
-                optimal = False
-        elif lo[i] > -math.inf and Dz[i] < lo[i] - tol * (1.0 + abs(lo[i])):
-            side[i] = -1.0
-            optimal = False
-        elif hi[i] < math.inf and Dz[i] > hi[i] + tol * (1.0 + abs(hi[i])):
-            side[i] = 1.0
-            optimal = False
-    return 0 if optimal else 1
+    _box_multipliers(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, C, reg, side, lam, z, pi)
+    return 0 if _active_set_step(side, lam, Dz, lo, hi, tol, scale) else 1
 
 
 @numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
-def _ipm(
-    nx,
-    nz,
-    zo,
-    ho,
-    ao,
-    ncs,
-    co,
-    cro,
-    H,
-    q,
-    A,
-    b,
-    lb,
-    ub,
-    C,
-    lc,
-    uc,
-    reg,
-    tol,
-    max_iter,
-    guess,
-    z_out,
-    lam_x_out,
-    lam_dyn_out,
-    lam_c_out,
-    side_out,
-    info,
-):  # pragma: no cover
-    """Mehrotra predictor-corrector interior point; returns a :class:`QPStatus` code. See :func:`solve_stage_qp`.
-
-    ``guess`` (empty, or -1/0/+1 per inequality row, the boxes first): an active set to try first, with up to
-    :data:`_ACTIVE_SET_ROUNDS` primal-dual active-set steps (:func:`_solve_active`); the interior point runs only
-    if they do not reach the optimum. ``side_out``: the active set found (-1/0/+1 per row).
-    """
-    N1 = nz.size
-    n = zo[N1]
-    nc = cro[N1]
-    m = n + nc  # inequality rows: the boxes, then the general rows
-    ndyn = (N1 - 1) * nx
-    lo = np.empty(m)
-    hi = np.empty(m)
+def _inequality_rows(lb, ub, lc, uc):  # pragma: no cover (compiled)
+    """The inequality rows' bounds ``lo, hi`` (the boxes, then the general rows)."""
+    n = lb.size
+    nc = lc.size
+    lo = np.empty(n + nc)
+    hi = np.empty(n + nc)
     for i in range(n):
         lo[i] = lb[i]
         hi[i] = ub[i]
     for i in range(nc):
         lo[n + i] = lc[i]
         hi[n + i] = uc[i]
-    for i in range(m):
+    return lo, hi
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _check_data(lo, hi, H, q, A, b, C, info):  # pragma: no cover (compiled)
+    """0 when the data are usable; else the :class:`QPStatus` code, with ``info`` written.
+
+    3: crossed bounds; 5: NaN bounds or NaN or infinite data.
+    """
+    for i in range(lo.size):
         if lo[i] > hi[i] or math.isnan(lo[i]) or math.isnan(hi[i]):
             info[1] = 0
             info[2] = math.inf
@@ -809,30 +834,46 @@ def _ipm(
             if not math.isfinite(arr[i]):
                 info[2] = math.inf
                 return 5
-    has_lo = np.empty(m, dtype=np.bool_)
-    has_hi = np.empty(m, dtype=np.bool_)
+    return 0
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _warm_active_set(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo, has_hi, reg, tol,
+                     scale, guess, side, lam, z, pi):  # pragma: no cover (compiled)  # fmt: skip
+    """Active-set steps from the guessed active set (its sides without a bound dropped).
+
+    At most :data:`_ACTIVE_SET_ROUNDS`, fewer once a step changes as many rows as the one before. Returns
+    ``(code, rounds)``, ``code`` that of the last :func:`_solve_active`; ``z``, ``pi`` zeroed unless it is 0.
+    """
+    m = side.size
     for i in range(m):
-        has_lo[i] = lo[i] > -math.inf
-        has_hi[i] = hi[i] < math.inf
-    # scales for the stopping tests
-    q_scale = 1.0
-    for i in range(n):
-        q_scale = max(q_scale, abs(q[i]))
-    h_scale = 1.0
-    for i in range(H.size):
-        h_scale = max(h_scale, abs(H[i]))
-    b_scale = 1.0
-    for i in range(ndyn):
-        b_scale = max(b_scale, abs(b[i]))
-    # iterates
-    z = np.zeros(n)
-    pi = np.zeros(ndyn)
-    sl = np.ones(m)
-    su = np.ones(m)
-    yl = np.zeros(m)
-    yu = np.zeros(m)
-    # start: z = 0 moved inside finite boxes, slacks at least 1, multipliers 1 where a side exists
-    for i in range(n):
+        side[i] = guess[i] if (guess[i] < 0.0 and has_lo[i]) or (guess[i] > 0.0 and has_hi[i]) else 0.0
+    before = np.empty(m)
+    changed = m + 1
+    code = 2
+    rounds = 0
+    for rounds in range(1, _ACTIVE_SET_ROUNDS + 1):  # noqa: B007 (reported)
+        before[:] = side
+        code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, scale,
+                             side, lam, z, pi)  # fmt: skip
+        if code != 1:
+            break
+        previous = changed
+        changed = 0
+        for i in range(m):
+            changed += int(side[i] != before[i])
+        if changed >= previous:  # the steps do not settle: leave it to the interior point
+            break
+    if code != 0:
+        z[:] = 0.0
+        pi[:] = 0.0
+    return code, rounds
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _start_point(lo, hi, has_lo, has_hi, z, yl, yu):  # pragma: no cover (compiled)
+    """``z`` (zero) moved inside the finite boxes; the multipliers 1 where a side exists, else 0."""
+    for i in range(z.size):
         if has_lo[i] and has_hi[i]:
             if z[i] < lo[i] or z[i] > hi[i]:
                 z[i] = 0.5 * (lo[i] + hi[i])
@@ -840,251 +881,219 @@ def _ipm(
             z[i] = lo[i]
         elif has_hi[i] and z[i] > hi[i]:
             z[i] = hi[i]
-    Dz = np.empty(m)
-    cz = np.empty(nc)
-    for i in range(m):
+    for i in range(yl.size):
         yl[i] = 1.0 if has_lo[i] else 0.0
         yu[i] = 1.0 if has_hi[i] else 0.0
-    # work
-    Hm = np.empty(H.size)
-    Mw = np.empty(H.size)
-    Lw = np.empty(H.size)
-    Kw = np.empty(H.size)
-    Pw = np.empty(N1 * nx * nx)
-    Lx = np.empty(nx * nx)
-    nmax = 0
-    for k in range(N1):
-        nmax = max(nmax, nz[k])
-    W = np.empty(nx * nmax + nmax + nx)
-    pw = np.empty(N1 * nx)
-    rd = np.empty(n)
-    re = np.empty(ndyn)
-    rl = np.zeros(m)
-    ru = np.zeros(m)
-    rq = np.empty(n)
-    dz = np.empty(n)
-    dpi = np.empty(ndyn)
-    Ddz = np.empty(m)
-    dsl = np.zeros(m)
-    dsu = np.zeros(m)
-    dyl = np.zeros(m)
-    dyu = np.zeros(m)
-    corr_l = np.zeros(m)
-    corr_u = np.zeros(m)
-    w = np.empty(m)
-    cdz = np.empty(nc)
-    tmpn = np.empty(n)
-    n_sides = 0
-    for i in range(m):
-        n_sides += int(has_lo[i]) + int(has_hi[i])
-    status = 1
-    it = 0
-    res = math.inf
-    crossed = False
-    lam = np.zeros(m)
-    side = np.zeros(m)
-    zt = np.empty(n)
-    pit = np.empty(ndyn)
-    rounds = 0
-    code = 2
-    tried = False
-    if guess.size == m:
-        for i in range(m):
-            side[i] = guess[i] if (guess[i] < 0.0 and has_lo[i]) or (guess[i] > 0.0 and has_hi[i]) else 0.0
-        before = np.empty(m)
-        changed = m + 1
-        for rounds in range(1, _ACTIVE_SET_ROUNDS + 1):  # noqa: B007 (reported)
-            before[:] = side
-            code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, q_scale,
-                                 side, lam, z, pi)  # fmt: skip
-            if code != 1:
-                break
-            previous = changed
-            changed = 0
-            for i in range(m):
-                changed += int(side[i] != before[i])
-            if changed >= previous:  # the steps do not settle: leave it to the interior point
-                break
-        if code == 0:
-            crossed = True
-            status = 0
-            res = 0.0
-        else:
-            for i in range(n):
-                z[i] = 0.0
-            for i in range(ndyn):
-                pi[i] = 0.0
-    # slacks from the starting point
-    _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
-    for i in range(n):
-        Dz[i] = z[i]
-    for i in range(nc):
-        Dz[n + i] = cz[i]
-    for i in range(m):
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _start_slacks(lo, hi, has_lo, has_hi, Dz, sl, su):  # pragma: no cover (compiled)
+    """Slacks from the rows' values ``Dz``, at least :data:`_START_SLACK` (1 where a side is absent)."""
+    for i in range(Dz.size):
         sl[i] = max(Dz[i] - lo[i], _START_SLACK) if has_lo[i] else 1.0
         su[i] = max(hi[i] - Dz[i], _START_SLACK) if has_hi[i] else 1.0
-    for it in range(0 if crossed else max_iter + 1):
-        # residuals
-        _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz)
-        for i in range(n):
-            Dz[i] = z[i]
-        for i in range(nc):
-            Dz[n + i] = cz[i]
-        _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, rd)
-        for k in range(N1 - 1):
-            nk = nz[k]
-            a0 = ao[k]
-            for r in range(nx):
-                s = b[k * nx + r] - z[zo[k + 1] + r]
-                for c in range(nk):
-                    s += A[a0 + r * nk + c] * z[zo[k] + c]
-                re[k * nx + r] = s
-        for i in range(m):
-            w[i] = yu[i] - yl[i]
-        for i in range(n):
-            rd[i] += w[i]
-        _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rd)
-        gap = 0.0
-        pres = 0.0
-        for i in range(m):
-            if has_lo[i]:
-                rl[i] = Dz[i] - sl[i] - lo[i]
-                gap += sl[i] * yl[i]
-                pres = max(pres, abs(rl[i]) / (1.0 + abs(lo[i])))
-            if has_hi[i]:
-                ru[i] = Dz[i] + su[i] - hi[i]
-                gap += su[i] * yu[i]
-                pres = max(pres, abs(ru[i]) / (1.0 + abs(hi[i])))
-        mu = gap / n_sides if n_sides > 0 else 0.0
-        dres = 0.0
-        for i in range(n):
-            dres = max(dres, abs(rd[i]))
-        eres = 0.0
-        for i in range(ndyn):
-            eres = max(eres, abs(re[i]))
-        ymax = 0.0
-        zmax = 0.0
-        for i in range(m):
-            ymax = max(ymax, yl[i], yu[i])
-        for i in range(n):
-            zmax = max(zmax, abs(z[i]))
-        if not (math.isfinite(dres) and math.isfinite(eres) and math.isfinite(pres) and math.isfinite(mu)):
-            status = 5
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _dual_residual(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, C, reg, z, pi, yl, yu, w,
+                   rd):  # pragma: no cover (compiled)  # fmt: skip
+    """Stationarity's residual ``rd = (H + reg I) z + q + E^T pi + D^T (yu - yl)``, ``D = [I; C]`` (``w`` work)."""
+    n = zo[N1]
+    _gradient(nx, N1, nz, zo, ho, ao, H, q, A, reg, z, pi, rd)
+    for i in range(w.size):
+        w[i] = yu[i] - yl[i]
+    for i in range(n):
+        rd[i] += w[i]
+    _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rd)
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _dynamics_residual(nx, N1, nz, zo, ao, A, b, z, re):  # pragma: no cover (compiled)
+    """``re_k = A_k z_k + b_k - x_{k+1}``."""
+    for k in range(N1 - 1):
+        nk = nz[k]
+        a0 = ao[k]
+        for r in range(nx):
+            s = b[k * nx + r] - z[zo[k + 1] + r]
+            for c in range(nk):
+                s += A[a0 + r * nk + c] * z[zo[k] + c]
+            re[k * nx + r] = s
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _bound_residuals(lo, hi, has_lo, has_hi, Dz, sl, su, yl, yu, rl, ru):  # pragma: no cover (compiled)
+    """``rl = Dz - sl - lo``, ``ru = Dz + su - hi`` on the sides that exist.
+
+    Returns the complementarity gap ``sum s y`` and the largest relative bound residual.
+    """
+    gap = 0.0
+    pres = 0.0
+    for i in range(Dz.size):
+        if has_lo[i]:
+            rl[i] = Dz[i] - sl[i] - lo[i]
+            gap += sl[i] * yl[i]
+            pres = max(pres, abs(rl[i]) / (1.0 + abs(lo[i])))
+        if has_hi[i]:
+            ru[i] = Dz[i] + su[i] - hi[i]
+            gap += su[i] * yu[i]
+            pres = max(pres, abs(ru[i]) / (1.0 + abs(hi[i])))
+    return gap, pres
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _crossover(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo, has_hi, reg, tol, scale,
+               sl, su, yl, yu, side, lam, z, pi):  # pragma: no cover (compiled)  # fmt: skip
+    """The exact solution of the interior point's active set; returns whether it is the optimum.
+
+    A side is active where ``y > s``; then up to :data:`_ACTIVE_SET_ROUNDS` active-set steps. On success ``z``,
+    ``pi``, ``lam`` hold the optimum (else ``z``, ``pi`` are scratch).
+    """
+    for i in range(side.size):
+        side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
+        lam[i] = yu[i] - yl[i]
+    code = 2
+    for _ in range(_ACTIVE_SET_ROUNDS):
+        code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol, scale,
+                             side, lam, z, pi)  # fmt: skip
+        if code != 1:
             break
-        res = max(dres / (q_scale + ymax), eres / b_scale, pres, mu / (q_scale + ymax))
-        if (res <= CROSSOVER_BELOW and not tried) or res <= tol:
-            # the exact solution of the active set (a side is active where y > s), then active-set steps
-            tried = True
-            for i in range(m):
-                side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
-                lam[i] = yu[i] - yl[i]
-            for _ in range(_ACTIVE_SET_ROUNDS):
-                code = _solve_active(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, reg, tol,
-                                     q_scale + ymax, side, lam, zt, pit)  # fmt: skip
-                if code != 1:
-                    break
-            if code == 0:
-                for i in range(n):
-                    z[i] = zt[i]
-                for i in range(ndyn):
-                    pi[i] = pit[i]
-                status = 0
-                crossed = True
+    return code == 0
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _barrier_weights(has_lo, has_hi, sl, su, yl, yu, sigma):  # pragma: no cover (compiled)
+    """``sigma = yl / sl + yu / su`` on the sides that exist: the barrier's curvature per row."""
+    for i in range(sigma.size):
+        sig = 0.0
+        if has_lo[i]:
+            sig += yl[i] / sl[i]
+        if has_hi[i]:
+            sig += yu[i] / su[i]
+        sigma[i] = sig
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _complementarity_targets(has_lo, has_hi, sl, su, yl, yu, dsl, dsu, dyl, dyu, target_mu, corrector, corr_l,
+                             corr_u):  # pragma: no cover (compiled)  # fmt: skip
+    """Predictor: ``s y -> 0``; corrector: ``s y + ds dy - target_mu`` (the affine step's ``ds, dy``)."""
+    for i in range(sl.size):
+        if not corrector:
+            corr_l[i] = sl[i] * yl[i] if has_lo[i] else 0.0
+            corr_u[i] = su[i] * yu[i] if has_hi[i] else 0.0
+        else:
+            corr_l[i] = sl[i] * yl[i] + dsl[i] * dyl[i] - target_mu if has_lo[i] else 0.0
+            corr_u[i] = su[i] * yu[i] + dsu[i] * dyu[i] - target_mu if has_hi[i] else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _bound_steps(has_lo, has_hi, sl, su, yl, yu, rl, ru, Ddz, corr_l, corr_u, dsl, dsu, dyl,
+                 dyu):  # pragma: no cover (compiled)  # fmt: skip
+    """The slacks' and multipliers' steps from the rows' step ``Ddz``.
+
+    Returns the largest primal and dual step lengths (at most 1) that keep them nonnegative.
+    """
+    alpha_p = 1.0
+    alpha_d = 1.0
+    for i in range(sl.size):
+        if has_lo[i]:
+            dsl[i] = Ddz[i] + rl[i]
+            dyl[i] = (-corr_l[i] - yl[i] * dsl[i]) / sl[i]
+            if dsl[i] < 0.0:
+                alpha_p = min(alpha_p, -sl[i] / dsl[i])
+            if dyl[i] < 0.0:
+                alpha_d = min(alpha_d, -yl[i] / dyl[i])
+        if has_hi[i]:
+            dsu[i] = -ru[i] - Ddz[i]
+            dyu[i] = (-corr_u[i] - yu[i] * dsu[i]) / su[i]
+            if dsu[i] < 0.0:
+                alpha_p = min(alpha_p, -su[i] / dsu[i])
+            if dyu[i] < 0.0:
+                alpha_d = min(alpha_d, -yu[i] / dyu[i])
+    return alpha_p, alpha_d
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _affine_gap(has_lo, has_hi, sl, su, yl, yu, dsl, dsu, dyl, dyu, alpha_p, alpha_d):  # pragma: no cover
+    """The complementarity gap after the predictor's step."""
+    gap = 0.0
+    for i in range(sl.size):
+        if has_lo[i]:
+            gap += (sl[i] + alpha_p * dsl[i]) * (yl[i] + alpha_d * dyl[i])
+        if has_hi[i]:
+            gap += (su[i] + alpha_p * dsu[i]) * (yu[i] + alpha_d * dyu[i])
+    return gap
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _predictor_corrector(nx, N1, nz, zo, ho, ao, ncs, co, cro, A, C, factors, has_lo, has_hi, n_sides, mu, rd,
+                         re, rl, ru, it, st, work):  # pragma: no cover (compiled)  # fmt: skip
+    """Mehrotra's step on the factorised Newton matrix ``factors``.
+
+    A predictor (affine) direction, then the corrector with centring ``sigma = (gap_aff / gap)^3``.
+    ``it = (z, pi, sl, su, yl, yu)``: the iterates; ``st = (dz, dpi, dsl, dsu, dyl, dyu)`` receives the
+    direction; ``work = (corr_l, corr_u, w, Ddz, rq, cdz)`` is scratch. Returns the step lengths to the boundary
+    ``(alpha_p, alpha_d)``.
+    """
+    Mw, Lw, Kw, Pw, Lx, W, pw = factors
+    _, _, sl, su, yl, yu = it
+    dz, dpi, dsl, dsu, dyl, dyu = st
+    n = zo[N1]
+    m = sl.size
+    corr_l, corr_u, w, Ddz, rq, cdz = work
+    sigma = 0.0
+    alpha_p = 1.0
+    alpha_d = 1.0
+    for phase in range(2):
+        _complementarity_targets(has_lo, has_hi, sl, su, yl, yu, dsl, dsu, dyl, dyu, sigma * mu, phase == 1,
+                                 corr_l, corr_u)  # fmt: skip
+        # rq = rd + D^T [(-corr_u + yu ru)/su + (corr_l + yl rl)/sl]
+        for i in range(m):
+            t = 0.0
+            if has_lo[i]:
+                t += (corr_l[i] + yl[i] * rl[i]) / sl[i]
+            if has_hi[i]:
+                t += (-corr_u[i] + yu[i] * ru[i]) / su[i]
+            w[i] = t
+        for i in range(n):
+            rq[i] = rd[i] + w[i]
+        _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
+        _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, re, dz, dpi, W, pw)
+        _stacked_rows(nx, N1, nz, zo, ncs, co, cro, C, dz, cdz, Ddz)
+        alpha_p, alpha_d = _bound_steps(has_lo, has_hi, sl, su, yl, yu, rl, ru, Ddz, corr_l, corr_u, dsl, dsu,
+                                        dyl, dyu)  # fmt: skip
+        if phase == 0:
+            if n_sides == 0:
                 break
-        if res <= tol:
-            status = 0
-            break
-        if ymax > _BIG * (q_scale + h_scale) or zmax > _BIG * (1.0 + b_scale):
-            status = 4
-            break
-        if it == max_iter:
-            status = 1
-            break
-        # Newton matrix: Hm = H + reg I + diag(Sigma_box) + C^T Sigma_c C
-        for i in range(m):
-            sig = 0.0
-            if has_lo[i]:
-                sig += yl[i] / sl[i]
-            if has_hi[i]:
-                sig += yu[i] / su[i]
-            w[i] = sig
-        _barrier_hessian(N1, nz, zo, ho, ncs, co, cro, H, C, reg, w, Hm)
-        if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
-            status = 2
-            break
-        sigma = 0.0
-        alpha_p = 0.0
-        alpha_d = 0.0
-        for phase in range(2):
-            # complementarity targets: predictor (phase 0) sl yl -> 0; corrector: + dsl dyl - sigma mu
-            for i in range(m):
-                if phase == 0:
-                    corr_l[i] = sl[i] * yl[i] if has_lo[i] else 0.0
-                    corr_u[i] = su[i] * yu[i] if has_hi[i] else 0.0
-                else:
-                    corr_l[i] = sl[i] * yl[i] + dsl[i] * dyl[i] - sigma * mu if has_lo[i] else 0.0
-                    corr_u[i] = su[i] * yu[i] + dsu[i] * dyu[i] - sigma * mu if has_hi[i] else 0.0
-            # rq = rd + D^T [(-corr_u + yu ru)/su + (corr_l + yl rl)/sl]
-            for i in range(m):
-                t = 0.0
-                if has_lo[i]:
-                    t += (corr_l[i] + yl[i] * rl[i]) / sl[i]
-                if has_hi[i]:
-                    t += (-corr_u[i] + yu[i] * ru[i]) / su[i]
-                w[i] = t
-            for i in range(n):
-                rq[i] = rd[i] + w[i]
-            _constraint_rows_t(nx, N1, nz, zo, ncs, co, cro, C, w[n:], rq)
-            _riccati_solve(nx, N1, nz, zo, ho, ao, A, Mw, Lw, Kw, Pw, Lx, rq, re, dz, dpi, W, pw)
-            _constraint_rows(nx, N1, nz, zo, ncs, co, cro, C, dz, cdz)
-            for i in range(n):
-                Ddz[i] = dz[i]
-            for i in range(nc):
-                Ddz[n + i] = cdz[i]
-            alpha_p = 1.0
-            alpha_d = 1.0
-            for i in range(m):
-                if has_lo[i]:
-                    dsl[i] = Ddz[i] + rl[i]
-                    dyl[i] = (-corr_l[i] - yl[i] * dsl[i]) / sl[i]
-                    if dsl[i] < 0.0:
-                        alpha_p = min(alpha_p, -sl[i] / dsl[i])
-                    if dyl[i] < 0.0:
-                        alpha_d = min(alpha_d, -yl[i] / dyl[i])
-                if has_hi[i]:
-                    dsu[i] = -ru[i] - Ddz[i]
-                    dyu[i] = (-corr_u[i] - yu[i] * dsu[i]) / su[i]
-                    if dsu[i] < 0.0:
-                        alpha_p = min(alpha_p, -su[i] / dsu[i])
-                    if dyu[i] < 0.0:
-                        alpha_d = min(alpha_d, -yu[i] / dyu[i])
-            if phase == 0:
-                if n_sides == 0:
-                    break
-                gap_aff = 0.0
-                for i in range(m):
-                    if has_lo[i]:
-                        gap_aff += (sl[i] + alpha_p * dsl[i]) * (yl[i] + alpha_d * dyl[i])
-                    if has_hi[i]:
-                        gap_aff += (su[i] + alpha_p * dsu[i]) * (yu[i] + alpha_d * dyu[i])
-                ratio = gap_aff / (n_sides * mu) if mu > 0.0 else 0.0
-                sigma = ratio * ratio * ratio
-        # take the step, a fraction short of the boundary
-        if n_sides > 0:
-            alpha_p = min(1.0, 0.995 * alpha_p)
-            alpha_d = min(1.0, 0.995 * alpha_d)
-        for i in range(n):
-            z[i] += alpha_p * dz[i]
-        for i in range(ndyn):
-            pi[i] += alpha_d * dpi[i]
-        for i in range(m):
-            if has_lo[i]:
-                sl[i] += alpha_p * dsl[i]
-                yl[i] += alpha_d * dyl[i]
-            if has_hi[i]:
-                su[i] += alpha_p * dsu[i]
-                yu[i] += alpha_d * dyu[i]
-    # outputs
+            gap_aff = _affine_gap(has_lo, has_hi, sl, su, yl, yu, dsl, dsu, dyl, dyu, alpha_p, alpha_d)
+            ratio = gap_aff / (n_sides * mu) if mu > 0.0 else 0.0
+            sigma = ratio * ratio * ratio
+    return alpha_p, alpha_d
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH, inline="always")
+def _take_step(has_lo, has_hi, n_sides, alpha_p, alpha_d, it, st):  # pragma: no cover (compiled)
+    """Move the iterates ``it`` along ``st`` (see :func:`_predictor_corrector`), a fraction short of the boundary."""
+    z, pi, sl, su, yl, yu = it
+    dz, dpi, dsl, dsu, dyl, dyu = st
+    if n_sides > 0:
+        alpha_p = min(1.0, 0.995 * alpha_p)
+        alpha_d = min(1.0, 0.995 * alpha_d)
+    for i in range(z.size):
+        z[i] += alpha_p * dz[i]
+    for i in range(pi.size):
+        pi[i] += alpha_d * dpi[i]
+    for i in range(sl.size):
+        if has_lo[i]:
+            sl[i] += alpha_p * dsl[i]
+            yl[i] += alpha_d * dyl[i]
+        if has_hi[i]:
+            su[i] += alpha_p * dsu[i]
+            yu[i] += alpha_d * dyu[i]
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _quadratic_cost(N1, nz, zo, ho, H, q, reg, z):  # pragma: no cover (compiled)
+    """``z^T (H + reg I) z / 2 + q^T z``."""
     cost = 0.0
     for k in range(N1):
         nk = nz[k]
@@ -1094,23 +1103,140 @@ def _ipm(
             s = reg * z[z0 + r]
             for c in range(nk):
                 s += H[h0 + r * nk + c] * z[z0 + c]
-            tmpn[z0 + r] = s
+            cost += z[z0 + r] * (0.5 * s + q[z0 + r])
+    return cost
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _interior_point(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo, has_hi, reg, tol, max_iter,
+                    q_scale, it, side, lam):  # pragma: no cover (compiled)  # fmt: skip
+    """The interior point's iterations from ``it = (z, pi, sl, su, yl, yu)`` (slacks set here from ``z``).
+
+    One :func:`_crossover` is tried once the residual is below :data:`CROSSOVER_BELOW`. Returns ``(status,
+    iterations, residual, crossed)``; when crossed, ``z``, ``pi``, ``side``, ``lam`` hold the active set's exact
+    solution.
+    """
+    n = zo[N1]
+    nc = cro[N1]
+    m = n + nc
+    ndyn = (N1 - 1) * nx
+    z, pi, sl, su, yl, yu = it
+    st = (np.empty(n), np.empty(ndyn), np.zeros(m), np.zeros(m), np.zeros(m), np.zeros(m))  # the step
+    n_sides = int(has_lo.sum() + has_hi.sum())
+    h_scale = _largest_abs(H, H.size, 1.0)
+    b_scale = _largest_abs(b, ndyn, 1.0)
+    status = 1
+    res = math.inf
+    crossed = False
+    # work
+    Hm = np.empty(H.size)
+    factors = _factor_workspace(nx, N1, nz, H.size)
+    Mw, Lw, Kw, Pw, Lx, W, _ = factors
+    pc_work = (np.zeros(m), np.zeros(m), np.empty(m), np.empty(m), np.empty(n), np.empty(nc))
+    rd = np.empty(n)
+    re = np.empty(ndyn)
+    rl = np.zeros(m)
+    ru = np.zeros(m)
+    Dz = np.empty(m)
+    cz = np.empty(nc)
+    w = np.empty(m)
+    zt = np.empty(n)
+    pit = np.empty(ndyn)
+    tried = False
+    _stacked_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz, Dz)
+    _start_slacks(lo, hi, has_lo, has_hi, Dz, sl, su)
+    k = 0
+    for k in range(max_iter + 1):
+        # residuals: stationarity rd, dynamics re, bounds rl/ru
+        _stacked_rows(nx, N1, nz, zo, ncs, co, cro, C, z, cz, Dz)
+        _dual_residual(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, C, reg, z, pi, yl, yu, w, rd)
+        _dynamics_residual(nx, N1, nz, zo, ao, A, b, z, re)
+        gap, pres = _bound_residuals(lo, hi, has_lo, has_hi, Dz, sl, su, yl, yu, rl, ru)
+        mu = gap / n_sides if n_sides > 0 else 0.0
+        dres = _largest_abs(rd, n, 0.0)
+        eres = _largest_abs(re, ndyn, 0.0)
+        ymax = max(_largest_abs(yl, m, 0.0), _largest_abs(yu, m, 0.0))  # y >= 0
+        zmax = _largest_abs(z, n, 0.0)
+        if not (math.isfinite(dres) and math.isfinite(eres) and math.isfinite(pres) and math.isfinite(mu)):
+            status = 5
+            break
+        res = max(dres / (q_scale + ymax), eres / b_scale, pres, mu / (q_scale + ymax))
+        if (res <= CROSSOVER_BELOW and not tried) or res <= tol:
+            tried = True
+            if _crossover(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo, has_hi, reg, tol,
+                          q_scale + ymax, sl, su, yl, yu, side, lam, zt, pit):  # fmt: skip
+                z[:] = zt
+                pi[:] = pit
+                status = 0
+                crossed = True
+                break
+        if res <= tol:
+            status = 0
+            break
+        if ymax > _BIG * (q_scale + h_scale) or zmax > _BIG * (1.0 + b_scale):
+            status = 4
+            break
+        if k == max_iter:
+            status = 1
+            break
+        # the Newton matrix H + reg I + diag(Sigma_box) + C^T Sigma_c C, then Mehrotra's step
+        _barrier_weights(has_lo, has_hi, sl, su, yl, yu, w)
+        _barrier_hessian(N1, nz, zo, ho, ncs, co, cro, H, C, reg, w, Hm)
+        if not _factor(nx, N1, nz, ho, ao, A, Hm, Mw, Lw, Kw, Pw, Lx, W):
+            status = 2
+            break
+        alpha_p, alpha_d = _predictor_corrector(nx, N1, nz, zo, ho, ao, ncs, co, cro, A, C, factors, has_lo, has_hi,
+                                                n_sides, mu, rd, re, rl, ru, it, st, pc_work)  # fmt: skip
+        _take_step(has_lo, has_hi, n_sides, alpha_p, alpha_d, it, st)
+    return status, k, res, crossed
+
+
+@numba.njit(cache=True, error_model="numpy", fastmath=_FASTMATH)
+def _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, lb, ub, C, lc, uc, reg, tol, max_iter, guess,
+         z_out, lam_x_out, lam_dyn_out, lam_c_out, side_out, info):  # pragma: no cover (compiled)  # fmt: skip
+    """Mehrotra predictor-corrector interior point; returns a :class:`QPStatus` code. See :func:`solve_stage_qp`.
+
+    ``guess`` (empty, or -1/0/+1 per inequality row, the boxes first): an active set to try first, with up to
+    :data:`_ACTIVE_SET_ROUNDS` primal-dual active-set steps (:func:`_solve_active`); the interior point runs only
+    if they do not reach the optimum. ``side_out``: the active set found (-1/0/+1 per row).
+    """
+    N1 = nz.size
+    n = zo[N1]
+    m = n + cro[N1]  # inequality rows: the boxes, then the general rows
+    ndyn = (N1 - 1) * nx
+    lo, hi = _inequality_rows(lb, ub, lc, uc)
+    bad = _check_data(lo, hi, H, q, A, b, C, info)
+    if bad != 0:
+        return bad
+    has_lo = lo > -math.inf
+    has_hi = hi < math.inf
+    q_scale = _largest_abs(q, n, 1.0)
+    # the iterates z, pi, sl, su, yl, yu
+    it = (np.zeros(n), np.zeros(ndyn), np.ones(m), np.ones(m), np.zeros(m), np.zeros(m))
+    z, pi, sl, su, yl, yu = it
+    _start_point(lo, hi, has_lo, has_hi, z, yl, yu)
+    lam = np.zeros(m)
+    side = np.zeros(m)
+    status, k, res, crossed, rounds = 1, 0, math.inf, False, 0
+    if guess.size == m:
+        code, rounds = _warm_active_set(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo, has_hi,
+                                        reg, tol, q_scale, guess, side, lam, z, pi)  # fmt: skip
+        if code == 0:
+            status, res, crossed = 0, 0.0, True
+    if not crossed:
+        status, k, res, crossed = _interior_point(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo,
+                                                  has_hi, reg, tol, max_iter, q_scale, it, side, lam)  # fmt: skip
     if not crossed:
         for i in range(m):
             lam[i] = yu[i] - yl[i]
             side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
-    for i in range(m):
-        side_out[i] = side[i]
-    for i in range(n):
-        cost += z[i] * (0.5 * tmpn[i] + q[i])
-        z_out[i] = z[i]
-        lam_x_out[i] = lam[i]
-    for i in range(ndyn):
-        lam_dyn_out[i] = pi[i]
-    for i in range(nc):
-        lam_c_out[i] = lam[n + i]
-    info[0] = cost
-    info[1] = it
+    side_out[:] = side
+    z_out[:] = z
+    lam_x_out[:] = lam[:n]
+    lam_dyn_out[:] = pi
+    lam_c_out[:] = lam[n:]
+    info[0] = _quadratic_cost(N1, nz, zo, ho, H, q, reg, z)
+    info[1] = k
     info[2] = res
     info[3] = 1.0 if crossed else 0.0
     info[4] = rounds

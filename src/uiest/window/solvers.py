@@ -22,15 +22,12 @@ from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 
 __all__ = [
-    "BACKENDS",
-    "DEFAULT_BACKEND",
     "FEASIBILITY_TOL",
     "IPOPT_DEFAULTS",
     "IPOPT_WARM_START",
     "IpoptSolver",
     "WindowSolution",
     "WindowSolver",
-    "make_solver",
 ]
 
 SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level"})
@@ -255,37 +252,3 @@ def largest_violation(problem: WindowProblem, z: FloatArray, g: FloatArray) -> f
     if g.size:
         worst = max(worst, float(np.max(np.maximum(problem.lbg - g, g - problem.ubg), initial=0.0)))
     return worst
-
-
-BACKENDS = ("ipopt", "gn", "rti", "gn-riccati")
-"""Names accepted as ``solver=``."""
-
-DEFAULT_BACKEND = "gn"
-"""The estimators' default backend: Gauss-Newton SQP, with IPOPT as its fallback for any sample it does not
-solve (its cost against IPOPT's: the performance page and the design notes, window solvers)."""
-
-
-def make_solver(
-    name: str,
-    problem: WindowProblem,
-    *,
-    warm_start: bool = False,
-    options: Mapping[str, Any] | None = None,
-    polish: bool = False,
-) -> WindowSolver:
-    """Build the backend ``name`` for ``problem``; unknown names raise :class:`OptionError`."""
-    if name == "ipopt":
-        return IpoptSolver(problem, warm_start=warm_start, options=options, polish=polish)
-    if name in ("gn", "rti", "gn-riccati"):
-        from uiest.window.gauss_newton import GaussNewtonSolver
-
-        settings = {"polish": polish, **(options or {})}
-        if name == "rti":
-            settings["max_iter"] = 1
-        if name == "gn-riccati":
-            settings["qp"] = "riccati"
-        try:
-            return GaussNewtonSolver(problem, **settings)
-        except TypeError as exc:
-            raise OptionError(f"solver_options: {exc}") from exc
-    raise OptionError(f"solver: unknown backend {name!r}; expected one of {list(BACKENDS)}")
