@@ -21,7 +21,7 @@ def crop_growth_study() -> Scenario:
 
     N = 30 and mu = 0.48 for all three schemes (the paper's values); ``x_hat^c_0 = y^c_0``;
     crop-weight priors at the centre of X; x0 drawn from ``CropScenario.x0_box``; 300 steps of
-    60 s; 20 runs; uniform noise |v| <= 3e-6 in the noisy case. Output weights 1e6 per scaled
+    60 s; 20 runs; uniform noise ``|v| <= 3e-6`` in the noisy case. Output weights 1e6 per scaled
     unit against prior and noise weights 1 (the paper does not give its weights). Beside them,
     the UISE with the weights and the horizon of its certificate (strong detectability holds at
     mu = 0.48 with N >= 3) and the two-stage UISE with the weights of the reduced model's
