@@ -253,8 +253,10 @@ def test_reproduce_interrupted_by_ctrl_c_keeps_its_finished_runs_and_the_rerun_c
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1] / "src")}
     args = [sys.executable, "-m", "uiest", "reproduce", "crop-growth", "--quick", "--steps", "35", "--solver", "gn",
             "--workers", "2", "--out", str(out)]  # fmt: skip
+    # a Ctrl-C's default action in the job, even where this test runs with SIGINT ignored (a shell's background job)
     job = subprocess.Popen(args, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                           start_new_session=True)  # fmt: skip
+                           start_new_session=True,
+                           preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))  # fmt: skip
     while job.poll() is None and not list((out / "runs").glob("*.pickle")):
         time.sleep(0.1)
     os.killpg(job.pid, signal.SIGINT)  # Ctrl-C: to the job's process group, its workers included
