@@ -6,6 +6,7 @@ import pytest
 
 from uiest import BoundWarning, ModelError, OptionError, System, simulate
 from uiest.delay import delayed_system, matching_ranks
+from uiest.design import DesignOptions
 from uiest.detectability import certify_strong_detectability
 from uiest.estimators import UISE, DelayedUISE, Outcome, UISEWeights, WindowOptions
 from uiest.models import linear
@@ -153,6 +154,8 @@ def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise()
 def test_the_delayed_design_refuses_records_it_could_not_score():
     with pytest.raises(OptionError, match=r"records: DelayedUISE\.design scores its candidates on noise trials only"):
         DelayedUISE.design(_chain(), x0_prior=np.zeros(3), records=[])
+    with pytest.raises(OptionError, match=r"records: DelayedUISE\.design scores its candidates on noise trials only"):
+        DelayedUISE.design(_chain(), x0_prior=np.zeros(3), design=DesignOptions(records=[]))
 
 
 def test_a_window_options_object_gets_the_delayed_uise_s_lag():

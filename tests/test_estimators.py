@@ -484,3 +484,7 @@ def test_window_options_object_or_keywords_build_the_same_estimator():
         UISE(system, weights=weights, N=5, window={"solver": "ipopt"})
     with pytest.raises(OptionError, match="solver: unknown backend"):
         WindowOptions(solver="newton")
+    by_keywords.configure(window=WindowOptions(solver="gn", polish=True))  # a whole WindowOptions, as at construction
+    assert by_keywords.options == WindowOptions(solver="gn", polish=True)
+    with pytest.raises(OptionError, match="window: given together with \\['strict'\\]"):
+        by_keywords.configure(window=window, strict=False)

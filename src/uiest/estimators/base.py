@@ -291,7 +291,10 @@ class WindowEstimator(StreamingEstimator):
 
         The cached solvers are dropped, so the change applies from the next step on.
         """
-        self._options = self._checked(WindowOptions.build({**_as_dict(self._options), **changes}))
+        if "window" in changes:  # a whole WindowOptions replaces the current one (given alone, as in build)
+            self._options = self._checked(WindowOptions.build(changes))
+        else:
+            self._options = self._checked(WindowOptions.build({**_as_dict(self._options), **changes}))
         self._cache.clear()
         self._last = None
 

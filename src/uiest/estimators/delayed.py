@@ -91,7 +91,9 @@ class DelayedUISE(UISE):
         """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
         design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
 
-        if "records" in design_options:  # they would score a UISE of the delayed system, not this estimator
+        given = design_options.get("design")
+        if "records" in design_options or getattr(given, "records", None) is not None:
+            # records would score a UISE of the delayed system, not this estimator
             raise OptionError("records: DelayedUISE.design scores its candidates on noise trials only")
         system = data_scales(check_system(system), x0_prior)
         delayed = delayed_system(system)
