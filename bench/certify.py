@@ -20,6 +20,7 @@ from uiest import Box, System
 from uiest.detectability import (
     Certificate,
     certify_delta_ioss,
+    certify_reduced_model,
     certify_strong_detectability,
     linear_strong_detectability,
 )
@@ -77,10 +78,14 @@ def jobs() -> dict[str, Callable[[], Certificate]]:
         "crop strong, mu=0.48 (parameter box)": lambda: certify_strong_detectability(crop, 0.48, parameters=theta),
         "crop strong (exact by entries)": lambda: certify_strong_detectability(crop),
         "crop strong (sampled cover)": lambda: certify_strong_detectability(crop, cover="sampled"),
-        "crop reduced e-IOSS": lambda: crop_growth.reduction().certify(),
+        "crop reduced e-IOSS": lambda: certify_reduced_model(crop_growth.reduction()),
         "crop delta-IOSS (P full)": lambda: certify_delta_ioss(crop),
-        "crop reduced e-IOSS, cond(P) <= 1e12": lambda: crop_growth.reduction().certify(max_condition=1e12),
-        "chen-patton reduced e-IOSS, X = +-1e9": lambda: reduce_quasi_state_affine(chen_patton()).certify(),
+        "crop reduced e-IOSS, cond(P) <= 1e12": lambda: certify_reduced_model(
+            crop_growth.reduction(), max_condition=1e12
+        ),
+        "chen-patton reduced e-IOSS, X = +-1e9": lambda: certify_reduced_model(
+            reduce_quasi_state_affine(chen_patton())
+        ),
         "closed-form +-3/+-60 (exact by entries)": lambda: certify_strong_detectability(wide),
         "closed-form +-3/+-60 (parameters)": lambda: certify_strong_detectability(
             wide, parameters=closed_form.jacobian_parameters()

@@ -25,6 +25,7 @@ from uiest.analysis import analyse
 from uiest.detectability import (
     certify_delta_ioss,
     certify_reduced_ioss,
+    certify_reduced_model,
     certify_strong_detectability,
     linear_strong_detectability,
     window_information,
@@ -563,8 +564,13 @@ def api_cases(tmp: Path) -> list[Case]:
             ModelError,
             "f_sharp",
         ),
-        Case("reduced: unknown option", lambda: closed_form.reduction().certify(grid=3), OptionError, "grid"),
-        Case("reduced: mu = 2", lambda: closed_form.reduction().certify(mu=2.0), OptionError, "mu"),
+        Case(
+            "reduced: unknown option",
+            lambda: certify_reduced_model(closed_form.reduction(), grid=3),
+            OptionError,
+            "grid",
+        ),
+        Case("reduced: mu = 2", lambda: certify_reduced_model(closed_form.reduction(), mu=2.0), OptionError, "mu"),
         Case(
             "Hautus: rtol = 0",
             lambda: linear_strong_detectability(np.eye(2), [[1], [0]], [[1, 0]], rtol=0),

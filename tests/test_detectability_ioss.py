@@ -8,7 +8,7 @@ import pytest
 from exact_rates import contraction_rate, kernel_rate
 
 from uiest import CertificationError, ModelError, OptionError, System
-from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, lmi
+from uiest.detectability import certify_delta_ioss, certify_reduced_ioss, certify_reduced_model, lmi
 from uiest.estimators import MHEWeights, TwoStageWeights
 from uiest.models import closed_form, crop_growth, linear
 
@@ -116,7 +116,7 @@ def test_crop_certificates_hold_with_discounts_near_one():
     assert delta.certified, delta.reason
     assert 0.99 < delta.eta < 1.0 and delta.w_box == system.w_range
     assert delta.verify(5000).holds
-    reduced = crop_growth.reduction().certify()
+    reduced = certify_reduced_model(crop_growth.reduction())
     assert reduced.certified, reduced.reason
     assert 0.99 < reduced.mu < 1.0
     assert reduced.verify(5000).holds
@@ -151,7 +151,7 @@ def test_bisect_rate_never_reports_a_solver_failure_as_infeasible():
 def test_certificates_share_one_interface():
     system = closed_form.system()
     delta = certify_delta_ioss(system, w_bounds=(-1, 1), **FAST)
-    reduced = closed_form.reduction().certify(**FAST)
+    reduced = certify_reduced_model(closed_form.reduction(), **FAST)
     assert isinstance(MHEWeights.from_certificate(delta), MHEWeights)
     assert isinstance(TwoStageWeights.from_certificate(reduced), TwoStageWeights)
     for cert in (delta, reduced):
@@ -192,7 +192,7 @@ def test_a_dissipation_certificate_the_search_refutes_is_not_certified(monkeypat
 def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p():
     from uiest.detectability.cover import cover
 
-    cert = crop_growth.reduction().certify()
+    cert = certify_reduced_model(crop_growth.reduction())
     table = cert.tradeoff()
     assert [row.max_condition for row in table.rows] == [1e6, 1e8, 1e10, 1e12]
     assert all(row.status == "certified" for row in table.rows), str(table)

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from uiest import System, simulate
-from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
 from uiest.estimators import EKF, FIE, UISE, DelayedUISE, Guarantee, LinearUIO, StandardMHE, TwoStageUISE, Verdict
 from uiest.estimators.bounds import SETTLED, box_quadratic_max, strong_bound
 from uiest.experiments import crop_growth_study
@@ -179,7 +179,7 @@ def test_the_fie_the_standard_mhe_and_the_filters():
 
 def test_the_two_stage_bound_is_per_state_and_nan_where_the_map_is_nonlinear():
     reduced = closed_form.reduction()
-    two_stage = TwoStageUISE(reduced, certificate=reduced.certify())
+    two_stage = TwoStageUISE(reduced, certificate=certify_reduced_model(reduced))
     g = two_stage.guarantee
     # x1 = y - v: its error is v_bar - v, at most 0.01, at every step; x2 carries theo:stab's loose bound
     assert g.error_bound[0] == pytest.approx(SETTLED * 0.01) and g.informative_states.tolist()[0]
@@ -192,10 +192,10 @@ def test_the_two_stage_bound_is_per_state_and_nan_where_the_map_is_nonlinear():
             nx=2, nu=1, nw=1, nv=1, x_bounds=((-10, 0.1), (10, 10)), u_bounds=(0.1, 1.0), v_bounds=(-0.01, 0.01)),
         lambda x: [x[0], np.log(x[1])], lambda z: [z[0], np.exp(z[1])], lambda y, z, v: [y[0] - v[0]], n_flat=1,
     )  # fmt: skip
-    g = TwoStageUISE(logs, certificate=logs.certify()).guarantee
+    g = TwoStageUISE(logs, certificate=certify_reduced_model(logs)).guarantee
     assert g.applies and np.isfinite(g.error_bound[0]) and np.isnan(g.error_bound[1])
     assert "no bound for x[1]: x depends nonlinearly on (z_sharp, v)" in str(g) and g.verdict is not Verdict.NONE
-    exact = TwoStageUISE(reduced, certificate=reduced.certify(), projection="exact").guarantee
+    exact = TwoStageUISE(reduced, certificate=certify_reduced_model(reduced), projection="exact").guarantee
     assert np.all(np.isnan(exact.error_bound)) and "exact projection" in exact.bound_note
 
 

@@ -1,9 +1,11 @@
 """The layer contract: imports between uiest modules run one way, from a layer to its own or lower ones.
 
 The graph is read with ``ast`` from the sources, imports inside functions included (a lazy import is still a
-dependency). Imports under ``if TYPE_CHECKING:`` are left out: they are for the type checker only. A function may
-import a uiest module only when it is a package's module-level ``__getattr__`` (a lazy attribute that keeps
-``import uiest`` light); its edge still counts for cycles and layers.
+dependency), and so are the packages Python imports on the way to a module (``import uiest.a.b`` runs
+``uiest/a/__init__.py`` first; the root package ``uiest`` is left out: every import runs it, and it imports only
+the base and system layers). Imports under ``if TYPE_CHECKING:`` are left out: they are for the type checker
+only. A function may import a uiest module only when it is a package's module-level ``__getattr__`` (a lazy
+attribute that keeps ``import uiest`` light); its edge still counts for cycles and layers.
 """
 
 import ast
@@ -15,7 +17,6 @@ from pathlib import Path
 import pytest
 
 import uiest
-from uiest.estimators.design_hook import design_function
 
 SOURCES = Path(uiest.__file__).resolve().parent
 
@@ -26,15 +27,14 @@ LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
                 "filter_fit", "scales", "augmented", "plotting")),
     ("window and certificates", ("window", "detectability", "delay")),
     ("models", ("reduction", "models")),
-    ("estimators", ("estimators.*", "kalman", "tuning")),
-    ("design", ("design", "estimators")),
+    ("estimators", ("estimators", "tuning")),
+    ("design", ("design",)),
     ("analysis", ("analysis", "estimate")),
     ("experiments", ("experiments",)),
     ("interface", ("cli", "__main__", "")),
 )  # fmt: skip
 """Layers from the lowest up; names relative to ``uiest``. A name covers its submodules; ``pkg.*`` covers only the
-submodules of ``pkg`` (``estimators.*`` are the estimators, the package ``uiest.estimators`` is the facade that
-also loads the design layer); ``""`` is the package ``uiest`` itself."""
+submodules of ``pkg``; ``""`` is the package ``uiest`` itself."""
 
 
 def module_names(root: Path) -> dict[str, Path]:
@@ -96,8 +96,19 @@ def imports(root: Path) -> list[tuple[str, str, bool, bool]]:
                 targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
             else:
                 targets = [a.name for a in node.names]
-            found += [(module, t, bool(functions), lazy) for t in targets if t in modules and t != module]
+            own = packages_on_the_way(module) + ([module] if path.name == "__init__.py" else [])
+            targets += [p for t in targets for p in packages_on_the_way(t) if p in modules and p not in own]
+            targets = [t for t in dict.fromkeys(targets) if t in modules and t != module]
+            found += [(module, t, bool(functions), lazy) for t in targets]
     return found
+
+
+def packages_on_the_way(module: str) -> list[str]:
+    """The packages Python imports before ``module`` (``uiest.a.b.c`` -> ``uiest.a``, ``uiest.a.b``), not ``uiest``.
+
+    A module's own packages are not its dependencies: they are being imported when it runs."""
+    parts = module.split(".")
+    return [".".join(parts[:i]) for i in range(2, len(parts))]
 
 
 def cycles(edges: set[tuple[str, str]]) -> list[list[str]]:
@@ -139,11 +150,6 @@ def cycles(edges: set[tuple[str, str]]) -> list[list[str]]:
 GRAPH = imports(SOURCES)
 
 
-def fresh_environment() -> dict[str, str]:
-    """The environment of a fresh interpreter that imports these sources."""
-    return {**os.environ, "PYTHONPATH": os.pathsep.join([str(SOURCES.parent), os.environ.get("PYTHONPATH", "")])}
-
-
 def test_the_graph_is_read():
     importers = {a for a, *_ in GRAPH}
     assert {"uiest.estimators.uise", "uiest.design", "uiest.cli"} <= importers
@@ -161,11 +167,24 @@ def test_function_level_type_checking_and_lazy_imports_are_told_apart(tmp_path):
     assert sorted(imports(package)) == [
         ("uiest", "uiest.a", True, True),
         ("uiest.a", "uiest.b", False, False),
+        ("uiest.a", "uiest.sub", True, False),
         ("uiest.a", "uiest.sub.c", True, False),
         ("uiest.sub.c", "uiest.a", False, False),
         ("uiest.sub.c", "uiest.b", False, False),
     ]
     assert cycles({(a, b) for a, b, *_ in imports(package)}) == [["uiest.a", "uiest.sub.c"]]
+
+
+def test_a_cycle_through_a_package_init_is_found(tmp_path):
+    package = tmp_path / "uiest"
+    (package / "sub").mkdir(parents=True)
+    (package / "__init__.py").write_text("")
+    (package / "sub" / "__init__.py").write_text("from uiest.sub.d import y\n")  # the facade loads d
+    (package / "sub" / "d.py").write_text("from uiest import e\n")
+    (package / "sub" / "c.py").write_text("")
+    (package / "e.py").write_text("from uiest.sub.c import z\n")  # runs uiest/sub/__init__.py first
+    assert ("uiest.e", "uiest.sub", False, False) in imports(package)
+    assert cycles({(a, b) for a, b, *_ in imports(package)}) == [["uiest.e", "uiest.sub", "uiest.sub.d"]]
 
 
 def test_no_import_cycles():
@@ -193,7 +212,8 @@ def test_every_module_has_a_layer():
 
 @pytest.mark.parametrize(
     ("module", "layer"),
-    [("uiest", "interface"), ("uiest.estimators", "design"), ("uiest.estimators.uise", "estimators"),
+    [("uiest", "interface"), ("uiest.estimators", "estimators"), ("uiest.estimators.uise", "estimators"),
+     ("uiest.design", "design"),
      ("uiest.window.gauss_newton", "window and certificates"), ("uiest.box", "base")],
 )  # fmt: skip
 def test_layer_of(module, layer):
@@ -205,15 +225,24 @@ def test_the_checks_catch_a_cycle_and_an_upward_import():
     assert layer_of("uiest.experiments.scenario") > layer_of("uiest.models.crop_growth")
 
 
-def test_the_design_layer_is_registered_whenever_an_estimator_is_reachable():
-    code = (
-        "from uiest.estimators.uise import UISE; from uiest.estimators.design_hook import design_function as f; "
-        "assert f('design_uise').__module__ == 'uiest.design' and UISE.design"
-    )
-    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=fresh_environment())
+FIRST_IMPORTS = """
+import importlib, pkgutil, sys
+import uiest
+names = sorted(m.name for m in pkgutil.walk_packages(uiest.__path__, "uiest.") if m.name != "uiest.__main__")
+for name in names:
+    for loaded in [m for m in sys.modules if m == "uiest" or m.startswith("uiest.")]:
+        del sys.modules[loaded]
+    try:
+        importlib.import_module(name)
+    except Exception as exc:
+        print(name, repr(exc))
+"""
+
+
+@pytest.mark.slow
+def test_every_module_imports_first():
+    """Each module imported before any other uiest module (a cycle through a package's __init__ breaks this)."""
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(SOURCES.parent), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", FIRST_IMPORTS], capture_output=True, text=True, env=env)
     assert done.returncode == 0, done.stderr
-
-
-def test_an_unregistered_design_function_is_named():
-    with pytest.raises(LookupError, match="no_such_design"):
-        design_function("no_such_design")
+    assert done.stdout == ""

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from uiest import ModelError, System
+from uiest.detectability import certify_reduced_model
 from uiest.models import crop_growth
 from uiest.reduction import ReducedModel
 
@@ -101,5 +102,5 @@ def test_the_reduced_domain_is_proved_not_read_off_a_grid():
         lambda z: [z[0], z[1], z[2] - 0.3 * np.sin(4.0 * z[1])], lambda y, z, v: [y[0] - v[0]], n_flat=1,
     )  # fmt: skip
     assert reduced.z_bounds_note == "" and reduced.z_bounds.upper[1] >= 1.3 and reduced.z_bounds.lower[1] <= -1.3
-    cert = reduced.certify()
+    cert = certify_reduced_model(reduced)
     assert cert.certified and cert.sound, cert.reason

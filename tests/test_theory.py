@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from uiest import simulate, theory
 from uiest.cli import app
-from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
 from uiest.errors import ModelError
 from uiest.estimators import UISE, StandardMHE, TwoStageUISE
 from uiest.models import get, linear
@@ -81,7 +81,7 @@ def _guarantee_strings(estimator) -> list[str]:
 def test_guarantees_reasons_and_errors_name_results_in_words(linear_model):
     strong = certify_strong_detectability(linear_model)
     reduced = reduce_quasi_state_affine(linear_model)
-    reduced_cert = reduced.certify()
+    reduced_cert = certify_reduced_model(reduced)
     estimators = {
         "uise": UISE(linear_model, certificate=strong),
         "uise, short": UISE(linear_model, certificate=strong, N=1),

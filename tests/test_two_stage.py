@@ -8,6 +8,7 @@ import pytest
 from failing_solver import FailingSolver
 
 from uiest import Box, CertificationError, DataError, OptionError, SolverError, System, UniformNoise, simulate
+from uiest.detectability import certify_reduced_model
 from uiest.estimators import (
     EstimationResult,
     LinearUIO,
@@ -32,7 +33,7 @@ from uiest.window.polish import refine
 def closed_form_case():
     """Closed-form model on a domain wide enough for x1 to follow a huge unknown input; certified reduction."""
     reduced = closed_form.reduction(x_bounds=((-1e9, -10.0), (1e9, 10.0)))
-    certificate = closed_form.reduction().certify()  # the reduced model does not depend on the x1 range
+    certificate = certify_reduced_model(closed_form.reduction())  # the reduced model does not depend on the x1 range
     assert certificate.certified
     return reduced, certificate
 
@@ -41,7 +42,7 @@ def closed_form_case():
 def linear_case():
     """Zeros {0.5, 0.2}: certificate on the bounded twin (LTI: domain-independent), estimation unbounded."""
     bounded, A, B, C = linear.with_invariant_zeros([0.5, 0.2], seed=1, x_bounds=(-10, 10), v_bounds=(-1e-3, 1e-3))
-    certificate = reduce_quasi_state_affine(bounded).certify()
+    certificate = certify_reduced_model(reduce_quasi_state_affine(bounded))
     assert certificate.certified and certificate.mu == pytest.approx(0.5, abs=1e-3)  # zeros^2 < mu: contraction
     system = linear.linear_system(A, B, C, v_bounds=(-1e-3, 1e-3))
     reduced = reduce_quasi_state_affine(system, z_bounds=Box.unbounded(2))

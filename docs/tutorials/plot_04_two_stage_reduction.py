@@ -28,7 +28,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from uiest import ModelError, System, UniformNoise, simulate
-from uiest.detectability import certify_strong_detectability
+from uiest.detectability import certify_reduced_model, certify_strong_detectability
 from uiest.estimators import UISE, TwoStageUISE
 from uiest.reduction import ReducedModel
 
@@ -102,11 +102,11 @@ except ModelError as error:
 # ----------------------------------
 # The two-stage UISE's guarantee (Theorem 4.8 of Guo et al.) needs one more property, of the reduced
 # model rather than of the maps: exponential incremental input/output-to-state stability
-# (Assumption 4.7). :py:meth:`~uiest.reduction.ReducedModel.certify` proves it by LMIs, as in
+# (Assumption 4.7). :py:func:`~uiest.detectability.certify_reduced_model` proves it by LMIs, as in
 # tutorial 2, and returns the constants the estimator's weights and window come from: the rate
 # ``mu``, the prior weight ``c_x``, the noise and output weights ``c_v``, ``c_y``, and the shortest
 # window ``N > -log_mu(4 c_x)`` (the two-stage UISE horizon condition, Eq. (31)).
-eioss = reduced.certify()
+eioss = certify_reduced_model(reduced)
 print(eioss.status, "| mu =", round(eioss.mu, 4), "| c_x =", round(eioss.c_x, 3), "| shortest N:", eioss.min_horizon())
 
 # %%

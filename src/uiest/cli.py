@@ -22,7 +22,7 @@ from uiest.analysis import analyse as analyse_model
 from uiest.atomic import staged_folder, write_file, write_text
 from uiest.box import as_vector
 from uiest.checks import check_samples
-from uiest.detectability import certify_delta_ioss, certify_strong_detectability
+from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
 from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
 from uiest.estimate import (
     ALL,
@@ -378,7 +378,7 @@ def certify(
     def reduced() -> tuple[Any, Callable[[Any], Any]]:
         assert entry.reduction is not None
         red = entry.reduction()
-        return red.certify(seed=seed), lambda c: TwoStageUISE(red, certificate=c)
+        return certify_reduced_model(red, seed=seed), lambda c: TwoStageUISE(red, certificate=c)
 
     def delta() -> tuple[Any, Callable[[Any], Any]]:
         return certify_delta_ioss(system, structure=structure, seed=seed), lambda c: StandardMHE(system, certificate=c)

@@ -21,8 +21,8 @@ model certifies:
   (:func:`uiest.tuning.fit_standard_mhe`).
 - ``ekf``, ``ukf``: random-walk variance ``w_variance`` (times ``w.scale^2``) if given, else the input model
   (random walk or integrated random walk), its variance and the prior's factor that maximise the likelihood of
-  the record's innovations (:meth:`EKF.fit <uiest.kalman.KalmanFilter.fit>`: the prediction-error method, no true
-  states); the note gives the choices, the profiles' shapes and each model's log-likelihood.
+  the record's innovations (:meth:`EKF.fit <uiest.estimators.kalman.KalmanFilter.fit>`: the prediction-error
+  method, no true states); the note gives the choices, the profiles' shapes and each model's log-likelihood.
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
   increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
   dw[k]``) fitted to the record with the EKF's default prior, and ``max_horizon`` as for the UISE; its
@@ -86,7 +86,7 @@ from uiest.tuning import arrival_covariance, fit_standard_mhe, likelihood_weight
 
 if TYPE_CHECKING:
     from uiest.estimators import UISE, TwoStageUISE
-    from uiest.kalman import KalmanFilter
+    from uiest.estimators.kalman import KalmanFilter
 
 __all__ = [
     "ALL",

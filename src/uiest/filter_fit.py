@@ -1,6 +1,6 @@
 r"""The Kalman filters' fit to a record: the unknown input's model, its variance and the prior's factor.
 
-:meth:`KalmanFilter.fit <uiest.kalman.KalmanFilter.fit>` maximises the innovations' log-likelihood
+:meth:`KalmanFilter.fit <uiest.estimators.kalman.KalmanFilter.fit>` maximises the innovations' log-likelihood
 (:mod:`uiest.likelihood`) over three things, all from the record alone:
 
 - the input model (:class:`~uiest.input_model.InputModel`: a random walk or an integrated random walk);

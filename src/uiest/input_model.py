@@ -1,6 +1,6 @@
 r"""The Kalman filters' prior on the unknown input: a random walk or an integrated random walk.
 
-The filters (:mod:`uiest.kalman`) carry the unknown input in their state as a linear Gauss-Markov model with
+The filters (:mod:`uiest.estimators.kalman`) carry the unknown input in their state as a linear Gauss-Markov model with
 ``nw * order`` components ``c`` (time-first, ``d[k]`` the input that acts between k and k+1)::
 
     RANDOM_WALK             (order 1)  c = d:       d[k+1] = d[k] + e[k]
@@ -11,7 +11,7 @@ The filters (:mod:`uiest.kalman`) carry the unknown input in their state as a li
 A random walk's increments are independent: it suits an input that jumps or wanders. An integrated random walk's
 increments ``r`` (its rate, per sample) are themselves a random walk: it suits an input that drifts smoothly,
 whose next increment is close to the last. Both have one variance per component, so a likelihood compares them
-without a penalty (:meth:`KalmanFilter.fit <uiest.kalman.KalmanFilter.fit>`).
+without a penalty (:meth:`KalmanFilter.fit <uiest.estimators.kalman.KalmanFilter.fit>`).
 """
 
 from __future__ import annotations

@@ -15,7 +15,6 @@ Eq. (26), ``x = T^-1(psi(y, z_sharp, v), z_sharp)``.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -26,9 +25,8 @@ import numpy as np
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_int, check_samples, check_seed, shown
-from uiest.detectability import interval, lmi
-from uiest.detectability.certificate import NOT_PROVED
-from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
+from uiest.detectability import lmi
+from uiest.detectability.interval import range_box
 from uiest.errors import ModelError
 from uiest.system import System, as_function
 from uiest.theory import PSI_RECOVERY, QUASI_STATE_AFFINE_REDUCTION, W_FREE_REDUCED_DYNAMICS
@@ -76,36 +74,6 @@ class AssumptionReport:
     def holds(self) -> bool:
         """All three violations within ``ASSUMPTION_TOL``."""
         return max(self.inverse_error, self.psi_error, self.w_sensitivity) <= ASSUMPTION_TOL
-
-
-GRID_POINTS = 5
-"""Points per axis of the grid that bounds a map's range where interval arithmetic cannot (not a proof)."""
-
-SNAP_RTOL = 1e-12
-"""A proved bound this close (relative to the range) to a value attained at a point is taken as that value."""
-
-
-def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box, str]:
-    """A box containing ``fun(box)``: proved by interval arithmetic, else the range over a grid of ``box``.
-
-    Returns (box, note); the note is empty when proved, else says that ``what`` was bounded at a grid.
-    """
-    try:
-        found = interval.bounds(fun, box, seed=seed)
-        if np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
-            # a bound within rounding of a value attained at a point is that value: the outward rounding of
-            # interval arithmetic would otherwise move a box found exactly (a linear map's) by a few units
-            slack = SNAP_RTOL * np.maximum(found.attained_upper - found.attained_lower, np.abs(found.attained_upper))
-            lower = np.where(found.attained_lower - found.lower <= slack, found.attained_lower, found.lower)
-            upper = np.where(found.upper - found.attained_upper <= slack, found.attained_upper, found.upper)
-            return Box(lower, upper), ""
-        reason = "interval arithmetic left a bound infinite"
-    except interval.IntervalUnsupportedError as exc:
-        reason = str(exc)
-    grid = lmi.grid_points(box, GRID_POINTS)
-    values = np.asarray(fun.map(len(grid))(grid.T), dtype=float).reshape(-1, len(grid)).T
-    note = f"{what} bounded at a grid of {len(grid)} points, not proved ({reason})"
-    return Box(values.min(axis=0), values.max(axis=0)), note
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,38 +207,6 @@ class ReducedModel:
         v = system.v.bounds.center if v is None else as_vector(v, system.nv, "v")
         z_flat = np.asarray(self.psi(y, z_sharp, v), dtype=float).reshape(-1)
         return np.asarray(self.T_inv(np.concatenate([z_flat, z_sharp])), dtype=float).reshape(-1)
-
-    def certify(self, **options: Any) -> ReducedIOSS:
-        """:func:`uiest.detectability.certify_reduced_ioss` on this model's domain, scaled by :attr:`z_scale`.
-
-        gamma ranges over Y (``h(X, V)``, bounded by interval arithmetic), v over V, u over U. The reduced
-        state is scaled by :attr:`z_scale` (from the state scales; T(X)'s widths only where they are
-        smaller), as the two-stage UISE's window is: a wide X with small state scales costs no digits.
-        """
-        system = self.system
-        xv = ca.SX.sym("xv", system.nx + system.nv)
-        h = ca.Function("h_xv", [xv], [system.h(xv[: system.nx], xv[system.nx :])])
-        XV = Box(np.concatenate([system.x.bounds.lower, system.v.bounds.lower]),
-                 np.concatenate([system.x.bounds.upper, system.v.bounds.upper]))  # fmt: skip
-        gamma_box, gamma_note = range_box(h, XV, "h(X, V)", int(options.get("seed", 0)))
-        u_box = lmi.finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
-        cert = certify_reduced_ioss(
-            self.f_sharp,
-            self.h_sharp,
-            z_bounds=self.z_bounds,
-            gamma_bounds=gamma_box,
-            v_bounds=system.v.bounds,
-            u_bounds=u_box if system.nu else None,
-            z_scale=self.z_scale,
-            gamma_scale=system.y.scale,
-            v_scale=system.v.scale,
-            **options,
-        )
-        unproved = "; ".join(note for note in (self.z_bounds_note, gamma_note) if note)
-        if not (unproved and cert.certified):
-            return cert
-        return dataclasses.replace(cert, certified=False, status=NOT_PROVED, sound=False,
-                                   reason=f"{NOT_PROVED}: {unproved}; {cert.reason}")  # fmt: skip
 
 
 def _assumption_report(

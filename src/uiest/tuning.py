@@ -24,10 +24,10 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import OptionError
+from uiest.estimators.kalman import EKF
 from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.weights import MHEWeights
 from uiest.health import quiet_bound_warnings
-from uiest.kalman import EKF
 from uiest.likelihood import ProfileShape, Score, check_grid, maximise_likelihood
 from uiest.run_data import check_run_data
 from uiest.system import System

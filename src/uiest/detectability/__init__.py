@@ -20,7 +20,7 @@ from uiest.detectability.certificate import Certificate, Verification
 from uiest.detectability.delta import DeltaIOSS, certify_delta_ioss
 from uiest.detectability.information import InformationBound, window_information
 from uiest.detectability.linear import LinearStrongDetectability, invariant_zeros, linear_strong_detectability
-from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss
+from uiest.detectability.reduced import ReducedIOSS, certify_reduced_ioss, certify_reduced_model
 from uiest.detectability.strong import StrongDetectability, certify_strong_detectability
 
 __all__ = [
@@ -33,6 +33,7 @@ __all__ = [
     "Verification",
     "certify_delta_ioss",
     "certify_reduced_ioss",
+    "certify_reduced_model",
     "certify_strong_detectability",
     "invariant_zeros",
     "linear_strong_detectability",

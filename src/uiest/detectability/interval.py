@@ -24,8 +24,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import Box, FloatArray
+from uiest.detectability.lmi import grid_points
 
-__all__ = ["Bounds", "IntervalUnsupportedError", "bounds", "centered", "enclosure"]
+__all__ = ["Bounds", "IntervalUnsupportedError", "bounds", "centered", "enclosure", "range_box"]
 
 Interval = tuple[FloatArray, FloatArray]
 
@@ -464,3 +465,33 @@ def _split_axis(
     use_width = unknown.any(axis=1) | (smear.max(axis=1) <= 0.0)
     fallback = np.argmax(relative, axis=1)
     return np.where(unknown.any(axis=1), by_width, np.where(use_width, fallback, by_smear))
+
+
+GRID_POINTS = 5
+"""Points per axis of the grid that bounds a map's range where interval arithmetic cannot (not a proof)."""
+
+SNAP_RTOL = 1e-12
+"""A proved bound this close (relative to the range) to a value attained at a point is taken as that value."""
+
+
+def range_box(fun: ca.Function, box: Box, what: str, seed: int = 0) -> tuple[Box, str]:
+    """A box containing ``fun(box)``: proved by interval arithmetic, else the range over a grid of ``box``.
+
+    Returns (box, note); the note is empty when proved, else says that ``what`` was bounded at a grid.
+    """
+    try:
+        found = bounds(fun, box, seed=seed)
+        if np.all(np.isfinite(found.lower) & np.isfinite(found.upper)):
+            # a bound within rounding of a value attained at a point is that value: the outward rounding of
+            # interval arithmetic would otherwise move a box found exactly (a linear map's) by a few units
+            slack = SNAP_RTOL * np.maximum(found.attained_upper - found.attained_lower, np.abs(found.attained_upper))
+            lower = np.where(found.attained_lower - found.lower <= slack, found.attained_lower, found.lower)
+            upper = np.where(found.upper - found.attained_upper <= slack, found.attained_upper, found.upper)
+            return Box(lower, upper), ""
+        reason = "interval arithmetic left a bound infinite"
+    except IntervalUnsupportedError as exc:
+        reason = str(exc)
+    grid = grid_points(box, GRID_POINTS)
+    values = np.asarray(fun.map(len(grid))(grid.T), dtype=float).reshape(-1, len(grid)).T
+    note = f"{what} bounded at a grid of {len(grid)} points, not proved ({reason})"
+    return Box(values.min(axis=0), values.max(axis=0)), note

@@ -8,7 +8,7 @@
 - :class:`DelayedUISE`: the UISE of the delayed system, x[k-lag] for an input of relative degree 2.
 - :class:`TwoStageUISE`: two-stage UISE with a reduced-order model (Theorem 4.8).
 - :class:`LinearUIO`: the classical linear unknown input observer (baseline for LTI systems).
-- :class:`EKF`, :class:`UKF`: Kalman filters with the unknown input as a random walk (:mod:`uiest.kalman`).
+- :class:`EKF`, :class:`UKF`: Kalman filters with the unknown input as a random walk (:mod:`uiest.estimators.kalman`).
 
 Each has a ``guarantee`` (:class:`~uiest.guarantee.Guarantee`): whether its theorem applies and its
 worst-case error bound per state (:mod:`uiest.estimators.bounds`).
@@ -18,10 +18,10 @@ the UISE, the FIE and the smooth-input MHE use ``y[0..k]``, the standard MHE ``y
 covers ``k-N_k .. k`` with ``N_k = min(N, k)``.
 """
 
-import uiest.design  # noqa: F401  (registers the functions the design() classmethods call: uiest.estimators.design_hook)
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.delayed import DelayedUISE
 from uiest.estimators.fie import FIE
+from uiest.estimators.kalman import EKF, UKF
 from uiest.estimators.linear_uio import LinearUIO
 from uiest.estimators.smooth_mhe import SmoothInputMHE
 from uiest.estimators.standard_mhe import StandardMHE
@@ -29,7 +29,6 @@ from uiest.estimators.two_stage import TwoStageUISE
 from uiest.estimators.uise import UISE
 from uiest.estimators.weights import MHEWeights, TwoStageWeights, UISEWeights
 from uiest.guarantee import Guarantee, Verdict
-from uiest.kalman import EKF, UKF
 from uiest.results import EstimationResult, Outcome, StepEstimate
 
 __all__ = [

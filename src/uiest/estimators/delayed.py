@@ -28,7 +28,7 @@ from uiest.delay import delayed_system
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowOptions
 from uiest.estimators.bounds import strong_bound
-from uiest.estimators.design_hook import design_function
+from uiest.estimators.design_search import estimator_options, search_uise
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.uise import UISE, check_system
 from uiest.guarantee import Guarantee
@@ -89,8 +89,6 @@ class DelayedUISE(UISE):
     @classmethod
     def design(cls, system: System, *, x0_prior: ArrayLike, lag: int = 1, **design_options: Any) -> DelayedUISE:
         """:meth:`UISE.design <uiest.estimators.UISE.design>` on the delayed system (prior ``T_b x0_prior``)."""
-        design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
-
         given = design_options.get("design")
         if "records" in design_options or getattr(given, "records", None) is not None:
             # records would score a UISE of the delayed system, not this estimator
@@ -98,7 +96,8 @@ class DelayedUISE(UISE):
         system = data_scales(check_system(system), x0_prior)
         delayed = delayed_system(system)
         _check_lag(lag, delayed.system)
-        design = design_uise(delayed.system, delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior"), **design_options)
+        prior = delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior")
+        design = search_uise(UISE, delayed.system, prior, **design_options)
         est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design

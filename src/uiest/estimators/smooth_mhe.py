@@ -31,7 +31,7 @@ output mismatch of a model ``h(x) + v`` by ``Sigma_y^-1``); ``Sigma_v`` is V's u
 for which ``Q_w >= c Q_w,c``, ``Q_v >= c Q_v,c``, ``R >= c R_c``: the statistical weights keep the
 certificate's guarantee (:attr:`SmoothInputMHE.guarantee`).
 
-``dw_variance`` is the EKF's ``w_variance`` (:class:`~uiest.kalman.EKF` treats the unknown input as
+``dw_variance`` is the EKF's ``w_variance`` (:class:`~uiest.estimators.kalman.EKF` treats the unknown input as
 a random walk with exactly this step): a variance tuned for the EKF gives this estimator's weights.
 """
 

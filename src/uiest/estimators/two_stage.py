@@ -80,7 +80,7 @@ from uiest.checks import check_flag, check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import noise_quadratic, reduction_bound, two_stage_rate, two_stage_z_bound
-from uiest.estimators.design_hook import design_function
+from uiest.estimators.design_search import estimator_options, search_two_stage
 from uiest.estimators.input_fit import InputFit
 from uiest.estimators.projection import Projection
 from uiest.estimators.weights import ReducedCertificate, TwoStageWeights, certificate_z_scale, resolve_weights
@@ -160,7 +160,7 @@ class TwoStageUISE(WindowEstimator):
         reduced = reduced_data_scales(reduced, x0_prior)
         self.reduced = reduced
         self.design_report: Any = None
-        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
+        """The :class:`~uiest.estimators.design_search.Design` when built by :meth:`design`, else None."""
         system = reduced.system
         self.weights: TwoStageWeights | None = None
         self.certificate = certificate
@@ -195,12 +195,10 @@ class TwoStageUISE(WindowEstimator):
 
         As :meth:`UISE.design <uiest.estimators.UISE.design>`; the chosen design is :attr:`design_report`.
         """
-        design_two_stage, estimator_options = design_function("design_two_stage"), design_function("estimator_options")
-
         if not isinstance(reduced, ReducedModel):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
         reduced = reduced_data_scales(reduced, x0_prior)
-        design = design_two_stage(reduced, x0_prior, **design_options)
+        design = search_two_stage(cls, reduced, x0_prior, **design_options)
         est = cls(reduced, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design

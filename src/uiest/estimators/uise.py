@@ -40,7 +40,7 @@ from uiest.delay import matching_ranks
 from uiest.errors import ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import strong_bound
-from uiest.estimators.design_hook import design_function
+from uiest.estimators.design_search import estimator_options, search_uise
 from uiest.estimators.weights import StrongCertificate, UISEWeights, resolve_weights
 from uiest.guarantee import Guarantee
 from uiest.scales import data_scales
@@ -143,7 +143,7 @@ class UISE(WindowEstimator):
         system = data_scales(check_system(system), x0_prior)
         window_system = self._window_system(system, force)
         self.design_report: Any = None
-        """The :class:`uiest.design.Design` when built by :meth:`design`, else None."""
+        """The :class:`~uiest.estimators.design_search.Design` when built by :meth:`design`, else None."""
         self.weights, self.certificate, N = resolve_weights(
             UISEWeights, certificate, weights, N, lambda w: w.check(window_system)
         )
@@ -179,10 +179,8 @@ class UISE(WindowEstimator):
         ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
         the guaranteed bound and the simulated error of every candidate) is :attr:`design_report`.
         """
-        design_uise, estimator_options = design_function("design_uise"), design_function("estimator_options")
-
         system = data_scales(check_system(system), x0_prior)
-        design = design_uise(system, x0_prior, **design_options)
+        design = search_uise(cls, system, x0_prior, **design_options)
         est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design

@@ -36,6 +36,7 @@ from uiest.estimators import (
     TwoStageWeights,
     UISEWeights,
 )
+from uiest.estimators.kalman import EKF, UKF
 from uiest.estimators.smooth_mhe import increments, variance_weights
 from uiest.experiments import executors
 from uiest.experiments.certificates import summary
@@ -43,7 +44,6 @@ from uiest.experiments.scenario import EstimatorSpec, Scenario
 from uiest.experiments.study_model import StudyModel, study_model
 from uiest.experiments.study_store import StudyStore
 from uiest.health import quiet_bound_warnings
-from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry
 from uiest.noise import GaussianNoise, NoiseModel, UniformNoise
 from uiest.results import Trajectory, count_names
@@ -55,7 +55,7 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from uiest.estimators.base import WindowEstimator
-    from uiest.kalman import KalmanFilter
+    from uiest.estimators.kalman import KalmanFilter
 
 __all__ = ["BUILDERS", "RunOutcome", "StudyResult", "noise_model", "run_study", "simulate_run"]
 

@@ -22,10 +22,10 @@ import numpy as np
 from uiest import models
 from uiest.augmented import augmented_system
 from uiest.checks import check_real
-from uiest.detectability import Certificate, certify_delta_ioss, certify_strong_detectability
+from uiest.detectability import Certificate, certify_delta_ioss, certify_reduced_model, certify_strong_detectability
 from uiest.errors import CertificationError, ModelError, OptionError
+from uiest.estimators.kalman import EKF, UKF
 from uiest.estimators.smooth_mhe import DW_SIGMAS
-from uiest.kalman import EKF, UKF
 from uiest.models import ModelEntry, SimulationSetup
 from uiest.reduction import ReducedModel
 from uiest.simulate import simulate
@@ -161,7 +161,7 @@ class StudyModel:
             theta = self.entry.jacobian_parameters() if self.entry.jacobian_parameters is not None else None
             make = lambda rate: certify_strong_detectability(self.system, rate, parameters=theta)  # noqa: E731
         elif kind == "two-stage":
-            make = lambda rate: self.reduction.certify(mu=rate)  # noqa: E731
+            make = lambda rate: certify_reduced_model(self.reduction, mu=rate)  # noqa: E731
         elif kind == "standard-mhe":
             make = lambda rate: certify_delta_ioss(self.system, rate)  # noqa: E731
         elif kind == "smooth-mhe":
