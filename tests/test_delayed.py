@@ -85,7 +85,8 @@ def test_nonlinear_delayed_uise_is_certified_and_exact_without_noise():
     u = 0.5 * np.sin(0.3 * np.arange(K))[:, None]
     truth = simulate(system, [0.5, 0.2, -1.0], K, u=u, w=lambda k, x: [0.3 * np.cos(0.5 * k) - 0.05 * x[0]])
     est = DelayedUISE(system, certificate=cert, lag=1, x0_prior=np.zeros(3))
-    assert est.guaranteed and cert.min_horizon() == est.N
+    assert est.guarantee.applies and cert.min_horizon() == est.N
+    assert not est.guaranteed  # no bound for x[0], which depends on the delayed system's unknown input
     result = est.run(u, truth.y)
     assert np.abs(result.x_lag[40:-1] - truth.x[40:-1]).max() < 1e-8
     assert np.abs(result.w_hat[40:-2] - truth.w[40:-2]).max() < 1e-8
@@ -136,7 +137,7 @@ def test_an_oblique_invisible_direction_certifies_and_stays_in_X():
         DelayedUISE(system, certificate=cert, N=4, lag=4)
 
 
-def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise():
+def test_designed_delayed_uise_is_certified_and_its_lagged_error_is_the_noise():
     # On the chain x_lag[j] - x[j] = (v[j+1], v[j], ...) for any weights that fit y exactly at interior nodes;
     # the design certifies the delayed system, keeps N >= lag + 1 and the RMS error is the noise's.
     system = _chain()
@@ -146,7 +147,8 @@ def test_designed_delayed_uise_is_guaranteed_and_its_lagged_error_is_the_noise()
     u = np.sin(0.2 * np.arange(K))[:, None]
     truth = simulate(system, [2.0, -1.0, 3.0], K, u=u, w=(2.0 * rng.standard_normal(K))[:, None], v=v)
     est = DelayedUISE.design(system, x0_prior=np.zeros(3), lag=2, rates=(0.5, 0.9))
-    assert est.guaranteed and est.options.lag == 2 and est.N >= 3 and est.design_report.N <= est.N
+    assert est.guarantee.applies and est.options.lag == 2 and est.N >= 3 and est.design_report.N <= est.N
+    assert not est.guaranteed  # no bound for x[0]
     error = est.run(u, truth.y).x_lag[50:-2] - truth.x[50:-2]
     np.testing.assert_allclose(error[:, :2], np.column_stack([v[51:-1, 0], v[50:-2, 0]]), atol=1e-6)
 

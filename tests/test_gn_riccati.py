@@ -101,3 +101,8 @@ def test_qp_option_is_checked_and_the_backend_is_selectable():
     solver = make_solver("gn-riccati", problem)
     assert isinstance(solver, GaussNewtonSolver) and solver.qp == "riccati"
     assert make_solver("gn", problem).qp == "qrqp"
+    assert make_solver("gn-riccati", problem, options={"qp": "riccati"}).qp == "riccati"
+    with pytest.raises(OptionError, match="solver_options: qp='qrqp' contradicts solver='gn-riccati'"):
+        make_solver("gn-riccati", problem, options={"qp": "qrqp"})
+    with pytest.raises(OptionError, match="solver_options: max_iter=5 contradicts solver='rti'"):
+        make_solver("rti", problem, options={"max_iter": 5})

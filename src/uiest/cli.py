@@ -293,6 +293,13 @@ def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
     return as_vector(values, system.nx, "--x0")
 
 
+RUN_DESIGNS_ITS_OWN = (
+    "The estimator run below chooses its own weights and window for accuracy under noise: its mu, N and guarantee "
+    "are the ones in the table, not the analysis's"
+)
+"""Said after the analysis's recommendation: the analysis's design (its mu, N and bound) is not the one run."""
+
+
 def _build_estimators(
     status: Any, kinds: list[str], entry: Any, system: Any, prior: Any, options: dict[str, Any]
 ) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
@@ -303,8 +310,8 @@ def _build_estimators(
     if not kinds:
         status.update("analysing the model")
         kind, why = recommended(system, prior, options["horizon"])
-        console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis)", markup=False,
-                      highlight=False, soft_wrap=True)  # fmt: skip
+        console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis). {RUN_DESIGNS_ITS_OWN}",
+                      markup=False, highlight=False, soft_wrap=True)  # fmt: skip
         kinds = [kind]
     if ALL in kinds:
         status.update("building every estimator the model admits")

@@ -70,7 +70,8 @@ class WindowOptions:
     ----------
     solver : str
         ``"gn"`` (Gauss-Newton SQP with IPOPT as its fallback), ``"ipopt"`` (the paper's
-        solver) or ``"rti"`` (one Gauss-Newton step per sample).
+        solver), ``"rti"`` (one Gauss-Newton step per sample) or ``"gn-riccati"`` (Gauss-Newton with each QP
+        solved by a stage-wise Riccati interior point, compiled by numba on its first use).
     solver_options : mapping
         Backend options (IPOPT options over :data:`uiest.window.IPOPT_DEFAULTS`, or keyword
         arguments of :class:`~uiest.window.gauss_newton.GaussNewtonSolver`).
@@ -181,8 +182,12 @@ class StreamingEstimator:
 
     @property
     def guaranteed(self) -> bool:
-        """The theorem's assumptions are met (:attr:`guarantee` ``.applies``)."""
-        return self.guarantee.applies
+        """The theorem applies and bounds every state below X's width (:attr:`guarantee` ``.informative``).
+
+        False as well when the theorem applies but its bound is vacuous for some state (no smaller than X's width
+        there): ``guarantee.applies`` and ``guarantee.verdict`` tell the two apart.
+        """
+        return self.guarantee.informative
 
     def _no_guarantee(self, theorem: str, reason: str) -> Guarantee:
         x = self.system.x

@@ -88,8 +88,8 @@ class UISE(WindowEstimator):
         (for relative degree 2, :class:`~uiest.estimators.DelayedUISE` estimates x[k-1]).
     **options
         :class:`~uiest.estimators.base.WindowOptions`: ``solver`` (``"gn"`` default, ``"ipopt"``,
-        ``"rti"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``; or all of them as one
-        ``window=WindowOptions(...)``.
+        ``"rti"``, ``"gn-riccati"``), ``solver_options``, ``warm_start``, ``strict``, ``polish``, ``lag``; or all
+        of them as one ``window=WindowOptions(...)``.
 
     Raises
     ------

@@ -172,7 +172,7 @@ class StudyResult:
     model : StudyModel
         The model the study ran on (its system and default simulation, for the report).
     solver : str
-        The window backend every estimator used (``"ipopt"``, ``"gn"`` or ``"rti"``).
+        The window backend every estimator used (one of :data:`~uiest.window.backends.BACKENDS`).
     certificates : tuple of dict
         For each estimator with certificate weights: the certificate's rate, horizon, noise gain and
         coverage (:func:`uiest.experiments.certificates.summary`); the estimators' guarantees are in

@@ -27,6 +27,10 @@ DEFAULT_BACKEND = "gn"
 solve (its cost against IPOPT's: the performance page and the design notes, window solvers)."""
 
 
+_SET_BY_NAME: dict[str, dict[str, Any]] = {"rti": {"max_iter": 1}, "gn-riccati": {"qp": "riccati"}}
+"""The Gauss-Newton settings a backend's name fixes (a contradicting ``solver_options`` entry is refused)."""
+
+
 def make_solver(
     name: str,
     problem: WindowProblem,
@@ -40,10 +44,10 @@ def make_solver(
         return IpoptSolver(problem, warm_start=warm_start, options=options, polish=polish)
     if name in ("gn", "rti", "gn-riccati"):
         settings = {"polish": polish, **(options or {})}
-        if name == "rti":
-            settings["max_iter"] = 1
-        if name == "gn-riccati":
-            settings["qp"] = "riccati"
+        for key, value in _SET_BY_NAME.get(name, {}).items():
+            if settings.setdefault(key, value) != value:
+                raise OptionError(f"solver_options: {key}={settings[key]!r} contradicts solver={name!r}, which "
+                                  f"sets {key}={value!r}")  # fmt: skip
         try:
             return GaussNewtonSolver(problem, **settings)
         except TypeError as exc:
