@@ -4,8 +4,7 @@ The graph is read with ``ast`` from the sources, imports inside functions includ
 dependency), and so are the packages Python imports on the way to a module (``import uiest.a.b`` runs
 ``uiest/a/__init__.py`` first; the root package ``uiest`` is left out: every import runs it, and it imports only
 the base and system layers). Imports under ``if TYPE_CHECKING:`` are left out: they are for the type checker
-only. A function may import a uiest module only when it is a package's module-level ``__getattr__`` (a lazy
-attribute that keeps ``import uiest`` light); its edge still counts for cycles and layers.
+only. No function imports a uiest module.
 """
 
 import ast
@@ -64,8 +63,8 @@ def layer_of(module: str) -> int:
     return best
 
 
-def imports(root: Path) -> list[tuple[str, str, bool, bool]]:
-    """``(importer, imported, in_function, in_lazy_getattr)`` for every import between uiest modules."""
+def imports(root: Path) -> list[tuple[str, str, bool]]:
+    """``(importer, imported, in_function)`` for every import between uiest modules."""
     modules = module_names(root)
     found = []
     for module, path in modules.items():
@@ -81,13 +80,7 @@ def imports(root: Path) -> list[tuple[str, str, bool, bool]]:
                 chain.append(q)
             if any(isinstance(q, ast.If) and "TYPE_CHECKING" in ast.unparse(q.test) for q in chain):
                 continue
-            functions = [q for q in chain if isinstance(q, ast.FunctionDef | ast.AsyncFunctionDef)]
-            lazy = (
-                path.name == "__init__.py"
-                and len(functions) == 1
-                and functions[0].name == "__getattr__"
-                and parents[functions[0]] is tree
-            )
+            in_function = any(isinstance(q, ast.FunctionDef | ast.AsyncFunctionDef) for q in chain)
             if isinstance(node, ast.ImportFrom):
                 base = node.module or ""
                 if node.level:
@@ -99,7 +92,7 @@ def imports(root: Path) -> list[tuple[str, str, bool, bool]]:
             own = packages_on_the_way(module) + ([module] if path.name == "__init__.py" else [])
             targets += [p for t in targets for p in packages_on_the_way(t) if p in modules and p not in own]
             targets = [t for t in dict.fromkeys(targets) if t in modules and t != module]
-            found += [(module, t, bool(functions), lazy) for t in targets]
+            found += [(module, t, in_function) for t in targets]
     return found
 
 
@@ -153,24 +146,23 @@ GRAPH = imports(SOURCES)
 def test_the_graph_is_read():
     importers = {a for a, *_ in GRAPH}
     assert {"uiest.estimators.uise", "uiest.design", "uiest.cli"} <= importers
-    assert ("uiest.system", "uiest.box", False, False) in GRAPH
+    assert ("uiest.system", "uiest.box", False) in GRAPH
 
 
-def test_function_level_type_checking_and_lazy_imports_are_told_apart(tmp_path):
+def test_function_level_and_type_checking_imports_are_told_apart(tmp_path):
     package = tmp_path / "uiest"
     (package / "sub").mkdir(parents=True)
     (package / "a.py").write_text("from uiest import b\n\ndef f():\n    from uiest.sub import c\n")
     (package / "b.py").write_text("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from uiest import a\n")
-    (package / "__init__.py").write_text("def __getattr__(name):\n    from . import a\n")
+    (package / "__init__.py").write_text("")
     (package / "sub" / "__init__.py").write_text("")
     (package / "sub" / "c.py").write_text("from ..b import x\nimport uiest.a\n")
     assert sorted(imports(package)) == [
-        ("uiest", "uiest.a", True, True),
-        ("uiest.a", "uiest.b", False, False),
-        ("uiest.a", "uiest.sub", True, False),
-        ("uiest.a", "uiest.sub.c", True, False),
-        ("uiest.sub.c", "uiest.a", False, False),
-        ("uiest.sub.c", "uiest.b", False, False),
+        ("uiest.a", "uiest.b", False),
+        ("uiest.a", "uiest.sub", True),
+        ("uiest.a", "uiest.sub.c", True),
+        ("uiest.sub.c", "uiest.a", False),
+        ("uiest.sub.c", "uiest.b", False),
     ]
     assert cycles({(a, b) for a, b, *_ in imports(package)}) == [["uiest.a", "uiest.sub.c"]]
 
@@ -183,7 +175,7 @@ def test_a_cycle_through_a_package_init_is_found(tmp_path):
     (package / "sub" / "d.py").write_text("from uiest import e\n")
     (package / "sub" / "c.py").write_text("")
     (package / "e.py").write_text("from uiest.sub.c import z\n")  # runs uiest/sub/__init__.py first
-    assert ("uiest.e", "uiest.sub", False, False) in imports(package)
+    assert ("uiest.e", "uiest.sub", False) in imports(package)
     assert cycles({(a, b) for a, b, *_ in imports(package)}) == [["uiest.e", "uiest.sub", "uiest.sub.d"]]
 
 
@@ -192,7 +184,7 @@ def test_no_import_cycles():
 
 
 def test_no_function_level_imports_between_uiest_modules():
-    local = sorted({(a, b) for a, b, in_function, lazy in GRAPH if in_function and not lazy})
+    local = sorted({(a, b) for a, b, in_function in GRAPH if in_function})
     assert local == []
 
 

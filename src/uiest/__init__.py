@@ -5,8 +5,8 @@ a model admits, and why) and the result containers; models live in :mod:`uiest.m
 """
 
 from importlib import metadata as _metadata
-from typing import Any
 
+from uiest.analysis import ModelAnalysis, analyse
 from uiest.box import Box
 from uiest.errors import (
     BoundWarning,
@@ -36,15 +36,6 @@ def _installed_version() -> str:
 
 __version__ = _installed_version()
 """uiest's version (``uiest --version`` prints it)."""
-
-
-def __getattr__(name: str) -> Any:
-    """``analyse`` and ``ModelAnalysis`` from :mod:`uiest.analysis` (imported on first use: it needs the estimators)."""
-    if name in ("analyse", "ModelAnalysis"):
-        from uiest import analysis
-
-        return getattr(analysis, name)
-    raise AttributeError(f"module 'uiest' has no attribute {name!r}")
 
 
 __all__ = [
