@@ -148,6 +148,9 @@ def test_signal_specs_refuse_mixed_forms_unknown_keywords_and_bad_fields():
     f, h = _scalar_functions()
     with pytest.raises(OptionError, match=r"signals\['x'\] and x_bounds given together"):
         System.from_functions(f, h, signals={"x": SignalSpec(names=["a"])}, x_bounds=(-1, 1))
+    with pytest.raises(OptionError, match=r"^signals\['x'\] and x_names given together"):  # no other caller named
+        System.from_callables(lambda x, u, w: x + w, lambda x, v: x + v, nx=1, nw=1, nv=1, x_names=("a",),
+                              signals={"x": SignalSpec(names=("b",))})  # fmt: skip
     with pytest.raises(OptionError, match=r"unexpected keyword.*x_bound\b"):
         System.from_functions(f, h, x_bound=(-1, 1))
     with pytest.raises(OptionError, match=r"signals\['x'\]: expected a SignalSpec"):

@@ -103,9 +103,7 @@ def signal_specs(given: Mapping[str, Any] | None, flat: dict[str, Any], caller: 
         allowed = ("names", "units", "scale") if kind == "w" else _FLAT_FIELDS
         values = {name: flat.pop(f"{kind}_{name}") for name in allowed if f"{kind}_{name}" in flat}
         if spec is not None and values:
-            raise OptionError(
-                f"{caller}: signals[{kind!r}] and {', '.join(f'{kind}_{n}' for n in values)} given together"
-            )
+            raise OptionError(f"signals[{kind!r}] and {', '.join(f'{kind}_{n}' for n in values)} given together")
         try:
             specs[kind] = spec if spec is not None else SignalSpec(**values)
         except ModelError as exc:
