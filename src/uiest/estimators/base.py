@@ -48,7 +48,7 @@ from uiest.errors import BoundWarning, CertificationError, DataError, OptionErro
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
-from uiest.health import Outcome, at_bound, bound_message
+from uiest.health import BoundTest, Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -233,8 +233,9 @@ class WindowEstimator(StreamingEstimator):
     outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
     status_note: str = ""
     """Why a forced estimator carries no guarantee (" [no guarantee: ...]"; its :attr:`guarantee` says so)."""
-    _last: tuple[int, WindowProblem, WindowSolution] | None
-    """The newest solved window: (its first time index, its problem, its solution); None before one."""
+    _last: tuple[int, WindowProblem, WindowSolution, WindowTrajectory | None] | None
+    """The newest solved window: (its first time index, its problem, its solution, the solution unpacked or None);
+    None before one."""
 
     def __init__(
         self,
@@ -258,6 +259,8 @@ class WindowEstimator(StreamingEstimator):
         if not system.v.bounds.contains(v_bar):
             raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {v_bar.tolist()}")
         self.v_prior = v_bar
+        self._x_at_bound = BoundTest(system.x.bounds, system.x.scale)
+        self._window_at_bound = BoundTest(model.x_bounds, model.x_scale)
         self._options = self._checked(WindowOptions.build(options))
         self._cache: dict[int | tuple[int, str], _Cached] = {}
         self._x0_prior: FloatArray | None = None
@@ -446,18 +449,21 @@ class WindowEstimator(StreamingEstimator):
             node, outcome = prior.copy(), Outcome.PRIOR
         elif self.model.nx == 0:  # nothing to estimate by optimisation (two-stage, n_sharp = 0)
             node, outcome, length = np.zeros(0), Outcome.ALGEBRAIC, 0
-        elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
+        elif np.isnan(y_win).all():  # an outage longer than the window: bridge it with the model
             node, outcome = self._propagate(u_vec), Outcome.PROPAGATED
         else:
             data = self._window_data(length)
             entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
             solution = attempts[-1]
             if solution.success:
-                window, held = self._hold_unseen_input(entry.problem.unpack(solution.z), u_vec, y_vec)
+                unpacked = entry.problem.unpack(solution.z)
+                for part in (unpacked.x, unpacked.w, unpacked.v):  # the next step's guess shifts it: kept as it is
+                    part.setflags(write=False)
+                window, held = self._hold_unseen_input(unpacked, u_vec, y_vec)
                 node, outcome = window.x[-1].copy(), Outcome.SOLVED
                 if held:  # later windows start from the held values: their optimum is flat there too
                     solution = dataclasses.replace(solution, z=entry.problem.pack(window))
-                self._last = (start, entry.problem, solution)
+                self._last = (start, entry.problem, solution, None if held else unpacked)
             elif self._options.strict:
                 raise SolverError(
                     f"step k={k}: the window problem ({length} transitions) was not solved: "
@@ -525,9 +531,9 @@ class WindowEstimator(StreamingEstimator):
         x_lag = self._lagged(window, x_hat, data_k, k)
         self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)
         last = attempts[-1] if attempts else None
-        states_at_bound = at_bound(self.system.x.bounds, x_hat, self.system.x.scale)
+        states_at_bound = self._x_at_bound(x_hat)
         solved = outcome is Outcome.SOLVED
-        window_held = window is not None and bool(at_bound(self.model.x_bounds, window.x, self.model.x_scale).any())
+        window_held = window is not None and bool(self._window_at_bound(window.x).any())
         return StepEstimate(
             k=k,
             x_hat=x_hat,
@@ -667,10 +673,10 @@ class WindowEstimator(StreamingEstimator):
     ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
         """The last successful solution shifted onto the new window, else a prediction from the prior."""
         if self._last is not None:
-            old_start, old_problem, old_solution = self._last
+            old_start, old_problem, old_solution, old_trajectory = self._last
             shift = self._k - length - old_start
             shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
-                                    duals=self._takes_multipliers(), data=data)  # fmt: skip
+                                    duals=self._takes_multipliers(), data=data, old_trajectory=old_trajectory)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None

@@ -196,10 +196,18 @@ ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
 
 
-def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> FloatArray:
-    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0."""
-    at_upper, at_lower = value >= upper - ACTIVE_TOL, value <= lower + ACTIVE_TOL
+def _on_bounds(value: FloatArray, edges: tuple[FloatArray, FloatArray]) -> FloatArray:
+    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0.
+
+    ``edges``: ``(lower + ACTIVE_TOL, upper - ACTIVE_TOL)`` (:func:`_edges`).
+    """
+    at_upper, at_lower = value >= edges[1], value <= edges[0]
     return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
+
+
+def _edges(lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(lower + ACTIVE_TOL, upper - ACTIVE_TOL)``: within them a value is on its bound (:func:`_on_bounds`)."""
+    return lower + ACTIVE_TOL, upper - ACTIVE_TOL
 
 
 class _QPForm(NamedTuple):
@@ -703,6 +711,9 @@ class GaussNewtonSolver:
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
         self._no_multipliers = np.zeros(problem.n_con)
+        # the first QP's active set: the bounds and the inequalities (not the equalities) the start sits on
+        self._x_edges, self._g_edges = _edges(problem.lbx, problem.ubx), _edges(problem.lbg, problem.ubg)
+        self._g_ranged = problem.lbg < problem.ubg
         self._staged = problem if qp == "riccati" else None
         self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._staged)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
@@ -828,9 +839,12 @@ class GaussNewtonSolver:
             return None
         dz, model, state.lam_x, state.lam_a = solved
         # decrease of |r|^2 predicted by the undamped model (H = J^T J, or J^T J + S_+), -2 (q^T dz + dz^T H dz / 2),
-        # from the QP's cost q^T dz + dz^T (H + damping I) dz / 2
-        with np.errstate(over="ignore", invalid="ignore"):
-            predicted = -2.0 * (model - 0.5 * damping * float(dz @ dz)) if damping else -2.0 * model
+        # from the QP's cost q^T dz + dz^T (H + damping I) dz / 2 (Python floats overflow to inf without a warning)
+        if damping:
+            with np.errstate(over="ignore", invalid="ignore"):
+                predicted = -2.0 * (model - 0.5 * damping * float(dz @ dz))
+        else:
+            predicted = -2.0 * model
         # a step whose square overflows has no model decrease: treated as a failed QP (damped retries follow)
         return (dz, predicted) if math.isfinite(predicted) else None
 
@@ -901,8 +915,8 @@ class GaussNewtonSolver:
         point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
         largest = float(np.abs(point.h).max(initial=0.0))
         damping = Damping(max(self.min_damping, self._kept_damping), max(largest, 1.0))
-        lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
-        lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
+        lam_x = _on_bounds(point.z, self._x_edges)
+        lam_a = _on_bounds(point.g, self._g_edges) * self._g_ranged
         return SolveState(p, point, damping, QP_SCALE / (largest or 1.0), lam_x, lam_a, self._kept_damping > 0.0)
 
     def _iterate(self, state: SolveState) -> bool:
