@@ -676,7 +676,8 @@ class WindowEstimator(StreamingEstimator):
             old_start, old_problem, old_solution, old_trajectory = self._last
             shift = self._k - length - old_start
             shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
-                                    duals=self._takes_multipliers(), data=data, old_trajectory=old_trajectory)  # fmt: skip
+                                    duals=self._takes_multipliers(), data=data,
+                                    old_trajectory=old_trajectory)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None
