@@ -28,13 +28,16 @@ import numpy as np
 from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
-from uiest.window import buffered, riccati_qp
+from uiest.window import buffered, riccati_qp, stage_qp
 
 PYTHON_TARGET = 0.1
 """Issue 38's target for the Python outside the QP and CasADi, ms per full-window sample at N = 30."""
 
 KERNEL = "riccati kernel"
 """The name the compiled stage-wise QP kernel's calls are reported under."""
+
+WRAPPER = "QP wrapper"
+"""The Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around the kernel (scatter, guess, multipliers)."""
 
 
 class _Timer:
@@ -50,6 +53,7 @@ class _Timer:
         self._first = False
         self._call = buffered.BufferedFunction.__call__
         self._kernel = riccati_qp._ipm
+        self._stage_solve = stage_qp.StageForm.solve
 
     def _record(self, name: str, start: float, end: float, iterations: tuple[int, int] | None) -> None:
         self.cpu[name] += end - start
@@ -61,7 +65,7 @@ class _Timer:
                 self._first = False
 
     def __enter__(self) -> _Timer:
-        call, kernel, timer = self._call, self._kernel, self
+        call, kernel, stage_solve, timer = self._call, self._kernel, self._stage_solve, self
 
         def timed(function: buffered.BufferedFunction, *args: Any) -> list[np.ndarray]:
             start = time.thread_time()
@@ -84,13 +88,25 @@ class _Timer:
                 timer.overhead += time.thread_time() - end
             return code
 
+        def timed_stage_solve(form: stage_qp.StageForm, *args: Any, **kwargs: Any) -> Any:
+            start, kernel_before = time.thread_time(), timer.cpu[KERNEL]
+            out = stage_solve(form, *args, **kwargs)
+            if timer.on:
+                end = time.thread_time()
+                timer.cpu[WRAPPER] += end - start - (timer.cpu[KERNEL] - kernel_before)
+                timer.calls[WRAPPER] += 1
+                timer.overhead += time.thread_time() - end
+            return out
+
         buffered.BufferedFunction.__call__ = timed  # type: ignore[method-assign]
         riccati_qp._ipm = timed_kernel
+        stage_qp.StageForm.solve = timed_stage_solve  # type: ignore[method-assign]
         return self
 
     def __exit__(self, *exc: object) -> None:
         buffered.BufferedFunction.__call__ = self._call  # type: ignore[method-assign]
         riccati_qp._ipm = self._kernel
+        stage_qp.StageForm.solve = self._stage_solve  # type: ignore[method-assign]
 
     def wrap(self, estimator: Any, N: int) -> None:
         step = estimator.step
