@@ -125,7 +125,7 @@ class WindowOptions:
 
 @dataclass
 class _Cached:
-    """A window problem, its weights' part of ``p``, its v and w priors and its solvers (the cold one built on need)."""
+    """A window problem, its weights' part of ``p``, its v and w priors, its solvers (the cold one built on need)."""
 
     problem: WindowProblem
     weights: FloatArray
@@ -133,6 +133,8 @@ class _Cached:
     w_bar: FloatArray
     warm: WindowSolver
     cold: WindowSolver | None = None
+    parameters: FloatArray | None = None
+    """The last window's ``p`` (its data replaced each step: the priors and weights stay)."""
 
 
 class StreamingEstimator:
@@ -657,7 +659,12 @@ class WindowEstimator(StreamingEstimator):
             gain = self._input_gain(start, u_win[-1])
             weights = problem.weight_vector(self._gap_weights(self.schedule.window(length, range(length + 1)), length,
                                                               gain))  # fmt: skip
-        p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
+        if gap or entry.parameters is None:
+            p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
+            if not gap:
+                entry.parameters = p.copy()
+        else:
+            p = problem.with_data(entry.parameters, prior, u_win, y_win, data)
         attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
         if not attempts[-1].success:
             cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)

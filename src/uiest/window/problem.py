@@ -536,30 +536,52 @@ class WindowProblem:
         """
         s = self.model
         L, M = self.length, self.n_meas
+        parts = self._data_parts(prior, u, y, data)
+        parts["v_bar"] = np.zeros(M * s.nv) if v_bar is None else np.asarray(v_bar, dtype=float).reshape(M * s.nv)
+        parts["w_bar"] = (
+            np.broadcast_to(s.nominal_w, (L, s.nw)).ravel()
+            if w_bar is None
+            else np.asarray(w_bar, dtype=float).reshape(L * s.nw)
+        )
+        parts["weights"] = self._weights_part(weights)
+        return self._filled(np.empty(self.n_par), parts)
+
+    def with_data(
+        self, base: FloatArray, prior: ArrayLike, u: ArrayLike, y: ArrayLike, data: ArrayLike | None = None
+    ) -> FloatArray:
+        """A copy of ``base`` (a vector from :meth:`parameters`) with another window's data in it.
+
+        The same vector as :meth:`parameters` with these data and ``base``'s priors of v and w and weights: for a
+        caller whose priors and weights stay the same from window to window. The data as in :meth:`parameters`.
+        """
+        return self._filled(np.array(base, dtype=float), self._data_parts(prior, u, y, data))
+
+    def _data_parts(
+        self, prior: ArrayLike, u: ArrayLike, y: ArrayLike, data: ArrayLike | None
+    ) -> dict[str, FloatArray]:
+        """The window's data as the flat parts of ``p``: prior, u, y (0 where missing), mask, data."""
+        s = self.model
+        L, M = self.length, self.n_meas
         if data is None and s.nd:
             raise DataError(f"data: the model takes node data, expected shape ({L + 1}, {s.nd}), got None")
         y_arr = np.asarray(y, dtype=float).reshape(M * s.ny)
         mask = np.isfinite(y_arr)
-        parts = {
+        return {
             "prior": np.asarray(prior, dtype=float).reshape(s.nx),
             "u": np.asarray(u, dtype=float).reshape(L * s.nu),
             "y": np.where(mask, y_arr, 0.0),
             "mask": mask.astype(float),
-            "v_bar": np.zeros(M * s.nv) if v_bar is None else np.asarray(v_bar, dtype=float).reshape(M * s.nv),
-            "w_bar": (
-                np.broadcast_to(s.nominal_w, (L, s.nw)).ravel()
-                if w_bar is None
-                else np.asarray(w_bar, dtype=float).reshape(L * s.nw)
-            ),
             "data": np.zeros(0) if data is None else np.asarray(data, dtype=float).reshape((L + 1) * s.nd),
-            "weights": self._weights_part(weights),
         }
-        p = np.empty(self.n_par)
+
+    def _filled(self, p: FloatArray, parts: dict[str, FloatArray]) -> FloatArray:
+        """``p`` with ``parts`` written at their slices; DataError naming a part that is not finite."""
         for key, value in parts.items():
             p[self.parameter_slices[key]] = value
         if not np.isfinite(p).all():
-            key = next(key for key, value in parts.items() if not np.all(np.isfinite(value)))
-            raise DataError(f"{key}: expected finite window data, got {np.asarray(parts[key]).tolist()}")
+            key = next((key for key, value in parts.items() if not np.isfinite(value).all()), "base")
+            shown = np.asarray(parts[key]).tolist() if key in parts else "a parameter vector that is not finite"
+            raise DataError(f"{key}: expected finite window data, got {shown}")
         return p
 
     def _weights_part(self, weights: WindowWeights | FloatArray | None) -> FloatArray:
