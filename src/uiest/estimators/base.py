@@ -35,7 +35,6 @@ import warnings
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from itertools import islice
 from types import MappingProxyType
 from typing import Any, ClassVar
 
@@ -46,6 +45,7 @@ from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
+from uiest.estimators.history import RowHistory
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
 from uiest.health import BoundTest, Outcome, at_bound, bound_message
@@ -329,9 +329,9 @@ class WindowEstimator(StreamingEstimator):
                     solver.reset()
         maxlen = self.N
         self._k = 0
-        self._u: deque[FloatArray] = deque(maxlen=maxlen)
-        self._y: deque[FloatArray] = deque(maxlen=maxlen)
-        self._data: deque[FloatArray] = deque(maxlen=maxlen)
+        self._u = RowHistory(self.system.nu, maxlen)
+        self._y = RowHistory(self.system.ny, maxlen)
+        self._data = RowHistory(self.model.nd, maxlen)
         self._priors: deque[FloatArray] = deque(maxlen=maxlen)
         self._last = None
         self._x_last: FloatArray | None = None
@@ -440,10 +440,9 @@ class WindowEstimator(StreamingEstimator):
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
         length, start = window_bounds(k, self.N)
-        u_win = np.array([*islice(self._u, len(self._u) - length + 1, None), u_vec] if length else [], dtype=float)
-        u_win = u_win.reshape(length, self.system.nu)
-        past = list(islice(self._y, len(self._y) - length, None)) if length else []
-        y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
+        u_win = np.concatenate((self._u.last(length - 1), u_vec[None])) if length else np.zeros((0, self.system.nu))
+        past = self._y.last(length)
+        y_win = past if self.one_step_ahead else np.concatenate((past, y_vec[None]))
         prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
         attempts: list[WindowSolution] = []
         window, held = None, False
@@ -638,10 +637,7 @@ class WindowEstimator(StreamingEstimator):
         """Node data of the window (the stored data of k-N_k .. k-1, zeros at node k); None without."""
         if not self.model.nd:
             return None
-        stored = np.array(list(islice(self._data, len(self._data) - length, None)), dtype=float).reshape(
-            length, self.model.nd
-        )
-        return np.vstack([stored, np.zeros((1, self.model.nd))])
+        return np.concatenate((self._data.last(length), np.zeros((1, self.model.nd))))
 
     def _solve_window(
         self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
