@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uiest.checks import real_array
+from uiest.checks import all_true, real_array
 from uiest.errors import DataError, ModelError
 
 __all__ = ["Box", "as_vector"]
@@ -30,7 +30,7 @@ def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] 
         arr = arr.reshape(1)
     if arr.shape != (size,):
         raise error(f"{name}: expected shape ({size},), got shape {arr.shape}")
-    if not np.isfinite(arr).all():
+    if not all_true(np.isfinite(arr)):
         raise error(f"{name}: expected finite values, got {arr.tolist()}")
     return arr
 
@@ -179,7 +179,7 @@ class Box:
         lower, upper = self._enlarged(tol)
         inside = (arr >= lower) & (arr <= upper)
         if arr.ndim == 1:
-            return bool(inside.all())
+            return all_true(inside)
         return np.asarray(inside.all(axis=-1))
 
     def _enlarged(self, tol: float) -> tuple[FloatArray, FloatArray]:

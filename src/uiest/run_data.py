@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import DOMAIN_TOL, real_array
+from uiest.checks import DOMAIN_TOL, any_true, real_array
 from uiest.errors import DataError
 
 if TYPE_CHECKING:
@@ -59,7 +59,7 @@ def check_y(system: System, y: ArrayLike) -> FloatArray:
         arr = arr.reshape(1)
     if arr.shape != (ny,):
         raise DataError(f"y: expected shape ({ny},), got shape {arr.shape}")
-    if np.isinf(arr).any():
+    if any_true(np.isinf(arr)):
         raise DataError(f"y: expected finite values or NaN (missing), got {arr.tolist()}")
     return arr
 

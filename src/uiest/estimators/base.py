@@ -42,7 +42,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, user_stacklevel
+from uiest.checks import all_true, any_true, check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.history import RowHistory
@@ -450,7 +450,7 @@ class WindowEstimator(StreamingEstimator):
             node, outcome = prior.copy(), Outcome.PRIOR
         elif self.model.nx == 0:  # nothing to estimate by optimisation (two-stage, n_sharp = 0)
             node, outcome, length = np.zeros(0), Outcome.ALGEBRAIC, 0
-        elif np.isnan(y_win).all():  # an outage longer than the window: bridge it with the model
+        elif all_true(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
             node, outcome = self._propagate(u_vec), Outcome.PROPAGATED
         else:
             data = self._window_data(length)
@@ -485,7 +485,7 @@ class WindowEstimator(StreamingEstimator):
         result. Ranks by ``HOLD_RTOL`` of G's largest singular value. Returns (window, whether it held).
         """
         missing = np.isnan(y_vec)
-        if not (self.free_input and missing.any() and len(window.w)):
+        if not (self.free_input and any_true(missing) and len(window.w)):
             return window, False
         G = self._newest_input_effect(window, u_vec)
         values = np.linalg.svd(G, compute_uv=False)
@@ -534,7 +534,7 @@ class WindowEstimator(StreamingEstimator):
         last = attempts[-1] if attempts else None
         states_at_bound = self._x_at_bound(x_hat)
         solved = outcome is Outcome.SOLVED
-        window_held = window is not None and bool(self._window_at_bound(window.x).any())
+        window_held = window is not None and any_true(self._window_at_bound(window.x))
         return StepEstimate(
             k=k,
             x_hat=x_hat,
@@ -552,7 +552,7 @@ class WindowEstimator(StreamingEstimator):
             primary_status=last.primary_status if last is not None else "",
             reason=reason,
             held_input=held,
-            on_boundary=bool(states_at_bound.any()) and held_on_boundary(self.system, x_hat, y_vec, self.v_prior),
+            on_boundary=any_true(states_at_bound) and held_on_boundary(self.system, x_hat, y_vec, self.v_prior),
             window_at_bound=window_held,
             trajectory=window,
             x_lag=x_lag,
@@ -643,7 +643,7 @@ class WindowEstimator(StreamingEstimator):
         self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
     ) -> tuple[_Cached, list[WindowSolution]]:
         """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts."""
-        gap = self.free_input and length > 0 and not self.one_step_ahead and bool(np.isnan(y_win).any())
+        gap = self.free_input and length > 0 and not self.one_step_ahead and any_true(np.isnan(y_win))
         entry = self._cached(length, gap)
         problem = entry.problem
         z0, duals = self._guess(problem, length, prior, u_win, data)

@@ -70,7 +70,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
-from uiest.checks import check_int, check_real
+from uiest.checks import all_true, check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import BlockCurvature, IndexArray
@@ -1017,7 +1017,7 @@ class GaussNewtonSolver:
             lam_g=state.lam_a.copy(),
             cost=cost,
             status=status,
-            success=bool(converged and np.isfinite(z).all()),
+            success=bool(converged and all_true(np.isfinite(z))),
             iterations=state.iterations,
             solve_time=elapsed,
         )
