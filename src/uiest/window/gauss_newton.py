@@ -942,7 +942,7 @@ class GaussNewtonSolver:
         maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
         if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
             dz, trial, ratio = self._correct(state, dz, trial, predicted, nu)
-        small_step = bool(np.abs(dz).max(initial=0.0) <= self.step_tol)
+        small_step = all_true(np.abs(dz) <= self.step_tol)
         if ratio > ACCEPT_RATIO or self.max_iter == 1:
             state.point = trial
             damping.accept(ratio)
