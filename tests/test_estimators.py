@@ -271,6 +271,18 @@ def test_streaming_equals_run_with_bounded_memory(closed_form_case):
     assert len(est._cache) == N + 1  # one window problem per length 0..N
 
 
+def test_a_steps_window_is_read_only_as_the_next_steps_guess_starts_from_it(closed_form_case):
+    system, weights, traj = closed_form_case
+    est = UISE(system, weights=weights, N=5, x0_prior=[0.0, 0.0])
+    steps = [est.step(None if k == 0 else traj.u[k - 1], traj.y[k]) for k in range(8)]
+    window = steps[-1].trajectory
+    assert window is not None
+    for part in (window.x, window.w, window.v):
+        assert not part.flags.writeable
+    with pytest.raises(ValueError, match="read-only"):
+        window.x[-1] += 1.0
+
+
 def test_warm_start_does_not_change_the_answer(closed_form_case):
     system, weights, traj = closed_form_case
     warm = UISE(system, weights=weights, N=6, x0_prior=[0.0, 0.0]).run(traj.u, traj.y)

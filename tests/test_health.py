@@ -14,7 +14,7 @@ from uiest import BoundWarning, simulate
 from uiest.cli import app
 from uiest.estimators import EKF, UISE, EstimationResult, Guarantee, Outcome, UISEWeights
 from uiest.estimators import base as base_module
-from uiest.health import AT_BOUND_RTOL, at_bound, status_text
+from uiest.health import AT_BOUND_RTOL, BoundTest, at_bound, status_text
 from uiest.models import closed_form, linear
 from uiest.window import gauss_newton
 
@@ -92,9 +92,11 @@ def test_a_state_on_a_side_that_holds_it_is_at_bound_within_the_relative_toleran
     scale = np.array([1.0, 4.0, 1.0])
     x = np.array([[0.0, 1.0, 2.0], [10.0 * (1 - AT_BOUND_RTOL / 2), 1.0 - 3 * AT_BOUND_RTOL, 2.0],
                   [-1.0, 2.0, 2.0], [1e-3, -1e9, 2.0]])  # fmt: skip
-    np.testing.assert_array_equal(at_bound(box, x, scale),
-                                  [[True, True, False], [True, True, False], [True, True, False],
-                                   [False, False, False]])  # fmt: skip
+    expected = [[True, True, False], [True, True, False], [True, True, False], [False, False, False]]
+    np.testing.assert_array_equal(at_bound(box, x, scale), expected)
+    test = BoundTest(box, scale)  # the thresholds computed once, for a test repeated every step
+    np.testing.assert_array_equal(test(x), expected)
+    np.testing.assert_array_equal(test(x[1]), expected[1])
 
 
 def test_a_failed_solve_is_counted_with_the_solvers_status(monkeypatch):

@@ -320,6 +320,9 @@ def test_shifted_guess_maps_nodes_by_time_and_predicts_new_ones():
     )
     # sliding: window 1..4 of the same length; the new transition reuses the last w estimate
     z, (lam_x, lam_g) = shifted_guess(old, sol, old, 1, u[1:4], np.zeros(1), np.zeros(1), duals=True)
+    from_unpacked = shifted_guess(old, sol, old, 1, u[1:4], np.zeros(1), np.zeros(1), duals=False,
+                                  old_trajectory=old.unpack(sol.z))  # fmt: skip
+    np.testing.assert_array_equal(from_unpacked[0], z)  # the caller's unpacked solution: the same guess, to the bit
     guess = old.unpack(z)
     np.testing.assert_allclose(guess.x[:3], x[1:4])
     np.testing.assert_allclose(guess.x[3], system.step(x[3], u[3], w[2]))
@@ -338,3 +341,32 @@ def test_shifted_guess_maps_nodes_by_time_and_predicts_new_ones():
     assert shifted_guess(old, sol, old, 4, u[:3], np.zeros(1), np.zeros(1), duals=False) is None
     cold = old.unpack(predicted_guess(old, x[0], u[:3], w[0], np.zeros(1)))
     np.testing.assert_allclose(cold.x[1], system.step(x[0], u[0], w[0]))
+
+
+@pytest.mark.parametrize("model", ["linear", "crop"])
+def test_a_windows_data_written_into_another_windows_parameters_are_its_parameters(model):
+    rng = np.random.default_rng(5)
+    if model == "linear":
+        system, L, measured = small_system(), 4, [0, 1, 2, 3, 4]
+        W = weights(L, measured, rng, with_w=True)
+    else:
+        system, L, measured = crop_growth.system(), 3, [1, 2, 3]
+        W = WindowWeights(prior=np.eye(3), y=np.tile(np.eye(2), (3, 1, 1)), v=np.tile(np.eye(2), (3, 1, 1)))
+    problem = WindowProblem(system, L, measured, W, w_box=system.w_range if model == "crop" else None)
+    v_bar = rng.uniform(-1e-3, 1e-3, (len(measured), system.nv))
+    w_bar = rng.uniform(0.5, 1.0, (L, system.nw))
+
+    def data():
+        y = rng.uniform(1.0, 2.0, (len(measured), system.ny))
+        y[rng.random(y.shape) < 0.3] = np.nan  # missing entries: 0 with mask 0
+        return rng.uniform(0.1, 1.0, system.nx), rng.uniform(0.0, 30.0, (L, system.nu)), y
+
+    base = problem.parameters(*data(), v_bar=v_bar, w_bar=w_bar)
+    for _ in range(3):
+        prior, u, y = data()
+        expected = problem.parameters(prior, u, y, v_bar=v_bar, w_bar=w_bar)
+        np.testing.assert_array_equal(problem.with_data(base, prior, u, y), expected)
+    bad_prior = prior.copy()
+    bad_prior[0] = np.inf
+    with pytest.raises(DataError, match="prior: expected finite window data"):
+        problem.with_data(base, bad_prior, u, y)

@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from uiest.checks import real_array
+from uiest.checks import all_true, real_array
 from uiest.errors import DataError, ModelError
 
 __all__ = ["Box", "as_vector"]
@@ -22,12 +22,15 @@ def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] 
 
     A scalar is accepted for ``size == 1``. Raises ``error`` naming ``name`` otherwise.
     """
-    arr = real_array(value, name, f"{size} real numbers", error=error)
+    if type(value) is np.ndarray and value.dtype == np.float64:  # the common case, as real_array: a copy
+        arr = value.copy()
+    else:
+        arr = real_array(value, name, f"{size} real numbers", error=error)
     if arr.ndim == 0 and size == 1:
         arr = arr.reshape(1)
     if arr.shape != (size,):
         raise error(f"{name}: expected shape ({size},), got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
+    if not all_true(np.isfinite(arr)):
         raise error(f"{name}: expected finite values, got {arr.tolist()}")
     return arr
 
@@ -173,15 +176,24 @@ class Box:
         Returns a bool for one point and an array of shape (m,) for m points.
         """
         arr = np.asarray(z, dtype=float)
-        slack = tol * np.where(np.isfinite(self.width), self.width, 0.0)
-        inside = (arr >= self.lower - slack) & (arr <= self.upper + slack)
+        lower, upper = self._enlarged(tol)
+        inside = (arr >= lower) & (arr <= upper)
         if arr.ndim == 1:
-            return bool(inside.all())
+            return all_true(inside)
         return np.asarray(inside.all(axis=-1))
+
+    def _enlarged(self, tol: float) -> tuple[FloatArray, FloatArray]:
+        """The sides moved outwards by ``tol`` times the finite widths, kept per ``tol`` (the bounds are read-only)."""
+        cache: dict[float, tuple[FloatArray, FloatArray]] = self.__dict__.setdefault("_enlarged_sides", {})
+        sides = cache.get(tol)
+        if sides is None:
+            slack = tol * np.where(np.isfinite(self.width), self.width, 0.0)
+            sides = cache[tol] = (self.lower - slack, self.upper + slack)
+        return sides
 
     def clip(self, z: ArrayLike) -> FloatArray:
         """Project ``z`` (shape (..., n)) onto the box."""
-        return np.clip(np.asarray(z, dtype=float), self.lower, self.upper)
+        return np.asarray(z, dtype=float).clip(self.lower, self.upper)
 
     def corners(self) -> FloatArray:
         """The 2^n corners, shape (2^n, n); only for bounded boxes."""

@@ -24,6 +24,8 @@ __all__ = [
     "MAX_STAGE_SIZE",
     "MEMORY_BUDGET",
     "STAGE_BYTES_PER_SIZE2",
+    "all_true",
+    "any_true",
     "check_callable",
     "check_flag",
     "check_int",
@@ -137,6 +139,19 @@ def check_callable(value: Any, name: str, *, error: type[Exception] = OptionErro
     if value is not None and not callable(value):
         raise error(f"{name}: expected a callable or None, got {shown(value)}")
     return value
+
+
+def any_true(mask: NDArray[np.bool_]) -> bool:
+    """``mask.any()`` for a boolean array, by a count.
+
+    A NumPy reduction's call costs several times a count on the few entries of a check repeated every step.
+    """
+    return int(np.count_nonzero(mask)) > 0
+
+
+def all_true(mask: NDArray[np.bool_]) -> bool:
+    """``mask.all()`` by a count (see :func:`any_true`)."""
+    return int(np.count_nonzero(mask)) == mask.size
 
 
 def real_array(value: Any, name: str, expected: str, *, error: type[Exception] = DataError) -> NDArray[np.float64]:

@@ -91,14 +91,35 @@ def at_bound(box: Box, x: FloatArray, scale: FloatArray) -> NDArray[np.bool_]:
     """Which entries of ``x (..., n)`` lie on or beyond a finite side of ``box`` (:data:`AT_BOUND_RTOL`).
 
     ``scale (n,)`` replaces the width of a side-infinite axis. Axes of zero width (a fixed
-    state) are never at a side.
+    state) are never at a side. :class:`BoundTest` is the same test with its thresholds computed once.
     """
-    arr = np.asarray(x, dtype=float)
-    width = np.where(np.isfinite(box.width), box.width, scale)
-    tol = AT_BOUND_RTOL * width
-    low = np.isfinite(box.lower) & (arr <= box.lower + tol)
-    high = np.isfinite(box.upper) & (arr >= box.upper - tol)
-    return (low | high) & (box.width > 0)
+    return BoundTest(box, scale)(x)
+
+
+class BoundTest:
+    """:func:`at_bound` for one box and scale, its thresholds computed once (a test repeated every step).
+
+    Parameters
+    ----------
+    box : Box
+        The box, dimension n.
+    scale : ndarray (n,)
+        Replaces the width of a side-infinite axis.
+
+    """
+
+    def __init__(self, box: Box, scale: FloatArray) -> None:
+        width = np.where(np.isfinite(box.width), box.width, scale)
+        tol = AT_BOUND_RTOL * width
+        wide = box.width > 0
+        self._low, self._high = box.lower + tol, box.upper - tol
+        self._has_low, self._has_high = np.isfinite(box.lower) & wide, np.isfinite(box.upper) & wide
+
+    def __call__(self, x: FloatArray) -> NDArray[np.bool_]:
+        """Which entries of ``x (..., n)`` lie on or beyond a finite side of the box."""
+        arr = np.asarray(x, dtype=float)
+        result: NDArray[np.bool_] = (self._has_low & (arr <= self._low)) | (self._has_high & (arr >= self._high))
+        return result
 
 
 def status_text(
@@ -213,6 +234,7 @@ __all__ = [
     "AT_BOUND_RTOL",
     "BOUND_SHARE",
     "FAILURES",
+    "BoundTest",
     "Outcome",
     "at_bound",
     "bound_message",

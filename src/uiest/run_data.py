@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import DOMAIN_TOL, real_array
+from uiest.checks import DOMAIN_TOL, any_true, real_array
 from uiest.errors import DataError
 
 if TYPE_CHECKING:
@@ -33,7 +33,8 @@ def check_u_prev(system: System, u_prev: ArrayLike | None, k: int) -> FloatArray
             return np.zeros(0)
         raise DataError(f"u_prev: expected the known input u[{k - 1}] of shape ({nu},), got None")
     u_vec = as_vector(u_prev, nu, "u_prev")
-    _check_in_U(system, u_vec[None], "u_prev", k - 1)
+    if not system.u.bounds.contains(u_vec, tol=DOMAIN_TOL):
+        _check_in_U(system, u_vec[None], "u_prev", k - 1)
     return u_vec
 
 
@@ -50,14 +51,17 @@ def check_y(system: System, y: ArrayLike) -> FloatArray:
     ny = system.ny
     if y is None:
         raise DataError(f"y: expected {ny} real numbers (NaN = missing), got None")
-    arr = real_array(y, "y", f"{ny} real numbers (NaN = missing)")
+    if type(y) is np.ndarray and y.dtype == np.float64:  # the common case, as real_array: a copy
+        arr = y.copy()
+    else:
+        arr = real_array(y, "y", f"{ny} real numbers (NaN = missing)")
     if arr.ndim == 0 and ny == 1:
         arr = arr.reshape(1)
     if arr.shape != (ny,):
         raise DataError(f"y: expected shape ({ny},), got shape {arr.shape}")
-    if np.any(np.isinf(arr)):
+    if any_true(np.isinf(arr)):
         raise DataError(f"y: expected finite values or NaN (missing), got {arr.tolist()}")
-    return arr.copy()
+    return arr
 
 
 def check_run_data(system: System, u: ArrayLike | None, y: ArrayLike) -> tuple[FloatArray, FloatArray]:

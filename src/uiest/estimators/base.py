@@ -35,7 +35,6 @@ import warnings
 from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields
-from itertools import islice
 from types import MappingProxyType
 from typing import Any, ClassVar
 
@@ -43,12 +42,13 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, user_stacklevel
+from uiest.checks import all_true, any_true, check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
+from uiest.estimators.history import RowHistory
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
-from uiest.health import Outcome, at_bound, bound_message
+from uiest.health import BoundTest, Outcome, at_bound, bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -126,7 +126,7 @@ class WindowOptions:
 
 @dataclass
 class _Cached:
-    """A window problem, its weights' part of ``p``, its v and w priors and its solvers (the cold one built on need)."""
+    """A window problem, its weights' part of ``p``, its v and w priors, its solvers (the cold one built on need)."""
 
     problem: WindowProblem
     weights: FloatArray
@@ -134,6 +134,8 @@ class _Cached:
     w_bar: FloatArray
     warm: WindowSolver
     cold: WindowSolver | None = None
+    parameters: FloatArray | None = None
+    """The last window's ``p`` (its data replaced each step: the priors and weights stay)."""
 
 
 class StreamingEstimator:
@@ -238,8 +240,9 @@ class WindowEstimator(StreamingEstimator):
     outputs it reaches leaves x[k] free along its direction (:meth:`_hold_unseen_input`)."""
     status_note: str = ""
     """Why a forced estimator carries no guarantee (" [no guarantee: ...]"; its :attr:`guarantee` says so)."""
-    _last: tuple[int, WindowProblem, WindowSolution] | None
-    """The newest solved window: (its first time index, its problem, its solution); None before one."""
+    _last: tuple[int, WindowProblem, WindowSolution, WindowTrajectory | None] | None
+    """The newest solved window: (its first time index, its problem, its solution, the solution unpacked or None);
+    None before one."""
 
     def __init__(
         self,
@@ -263,6 +266,8 @@ class WindowEstimator(StreamingEstimator):
         if not system.v.bounds.contains(v_bar):
             raise DataError(f"v_prior: expected a point in V = {system.v.bounds}, got {v_bar.tolist()}")
         self.v_prior = v_bar
+        self._x_at_bound = BoundTest(system.x.bounds, system.x.scale)
+        self._window_at_bound = BoundTest(model.x_bounds, model.x_scale)
         self._options = self._checked(WindowOptions.build(options))
         self._cache: dict[int | tuple[int, str], _Cached] = {}
         self._x0_prior: FloatArray | None = None
@@ -329,9 +334,9 @@ class WindowEstimator(StreamingEstimator):
                     solver.reset()
         maxlen = self.N
         self._k = 0
-        self._u: deque[FloatArray] = deque(maxlen=maxlen)
-        self._y: deque[FloatArray] = deque(maxlen=maxlen)
-        self._data: deque[FloatArray] = deque(maxlen=maxlen)
+        self._u = RowHistory(self.system.nu, maxlen)
+        self._y = RowHistory(self.system.ny, maxlen)
+        self._data = RowHistory(self.model.nd, maxlen)
         self._priors: deque[FloatArray] = deque(maxlen=maxlen)
         self._last = None
         self._x_last: FloatArray | None = None
@@ -440,10 +445,9 @@ class WindowEstimator(StreamingEstimator):
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
         length, start = window_bounds(k, self.N)
-        u_win = np.array([*islice(self._u, len(self._u) - length + 1, None), u_vec] if length else [], dtype=float)
-        u_win = u_win.reshape(length, self.system.nu)
-        past = list(islice(self._y, len(self._y) - length, None)) if length else []
-        y_win = np.array(past if self.one_step_ahead else [*past, y_vec], dtype=float).reshape(-1, self.system.ny)
+        u_win = np.concatenate((self._u.last(length - 1), u_vec[None])) if length else np.zeros((0, self.system.nu))
+        past = self._y.last(length)
+        y_win = past if self.one_step_ahead else np.concatenate((past, y_vec[None]))
         prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
         attempts: list[WindowSolution] = []
         window, held = None, False
@@ -451,18 +455,21 @@ class WindowEstimator(StreamingEstimator):
             node, outcome = prior.copy(), Outcome.PRIOR
         elif self.model.nx == 0:  # nothing to estimate by optimisation (two-stage, n_sharp = 0)
             node, outcome, length = np.zeros(0), Outcome.ALGEBRAIC, 0
-        elif np.all(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
+        elif all_true(np.isnan(y_win)):  # an outage longer than the window: bridge it with the model
             node, outcome = self._propagate(u_vec), Outcome.PROPAGATED
         else:
             data = self._window_data(length)
             entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
             solution = attempts[-1]
             if solution.success:
-                window, held = self._hold_unseen_input(entry.problem.unpack(solution.z), u_vec, y_vec)
+                unpacked = entry.problem.unpack(solution.z)
+                for part in (unpacked.x, unpacked.w, unpacked.v):  # the next step's guess shifts it: kept as it is
+                    part.setflags(write=False)
+                window, held = self._hold_unseen_input(unpacked, u_vec, y_vec)
                 node, outcome = window.x[-1].copy(), Outcome.SOLVED
                 if held:  # later windows start from the held values: their optimum is flat there too
                     solution = dataclasses.replace(solution, z=entry.problem.pack(window))
-                self._last = (start, entry.problem, solution)
+                self._last = (start, entry.problem, solution, None if held else unpacked)
             elif self._options.strict:
                 raise SolverError(
                     f"step k={k}: the window problem ({length} transitions) was not solved: "
@@ -483,7 +490,7 @@ class WindowEstimator(StreamingEstimator):
         result. Ranks by ``HOLD_RTOL`` of G's largest singular value. Returns (window, whether it held).
         """
         missing = np.isnan(y_vec)
-        if not (self.free_input and missing.any() and len(window.w)):
+        if not (self.free_input and any_true(missing) and len(window.w)):
             return window, False
         G = self._newest_input_effect(window, u_vec)
         values = np.linalg.svd(G, compute_uv=False)
@@ -530,9 +537,9 @@ class WindowEstimator(StreamingEstimator):
         x_lag = self._lagged(window, x_hat, data_k, k)
         self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)
         last = attempts[-1] if attempts else None
-        states_at_bound = at_bound(self.system.x.bounds, x_hat, self.system.x.scale)
+        states_at_bound = self._x_at_bound(x_hat)
         solved = outcome is Outcome.SOLVED
-        window_held = window is not None and bool(at_bound(self.model.x_bounds, window.x, self.model.x_scale).any())
+        window_held = window is not None and any_true(self._window_at_bound(window.x))
         return StepEstimate(
             k=k,
             x_hat=x_hat,
@@ -550,7 +557,7 @@ class WindowEstimator(StreamingEstimator):
             primary_status=last.primary_status if last is not None else "",
             reason=reason,
             held_input=held,
-            on_boundary=bool(states_at_bound.any()) and held_on_boundary(self.system, x_hat, y_vec, self.v_prior),
+            on_boundary=any_true(states_at_bound) and held_on_boundary(self.system, x_hat, y_vec, self.v_prior),
             window_at_bound=window_held,
             trajectory=window,
             x_lag=x_lag,
@@ -635,16 +642,13 @@ class WindowEstimator(StreamingEstimator):
         """Node data of the window (the stored data of k-N_k .. k-1, zeros at node k); None without."""
         if not self.model.nd:
             return None
-        stored = np.array(list(islice(self._data, len(self._data) - length, None)), dtype=float).reshape(
-            length, self.model.nd
-        )
-        return np.vstack([stored, np.zeros((1, self.model.nd))])
+        return np.concatenate((self._data.last(length), np.zeros((1, self.model.nd))))
 
     def _solve_window(
         self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
     ) -> tuple[_Cached, list[WindowSolution]]:
         """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts."""
-        gap = self.free_input and length > 0 and not self.one_step_ahead and bool(np.isnan(y_win).any())
+        gap = self.free_input and length > 0 and not self.one_step_ahead and any_true(np.isnan(y_win))
         entry = self._cached(length, gap)
         problem = entry.problem
         z0, duals = self._guess(problem, length, prior, u_win, data)
@@ -656,7 +660,12 @@ class WindowEstimator(StreamingEstimator):
             gain = self._input_gain(start, u_win[-1])
             weights = problem.weight_vector(self._gap_weights(self.schedule.window(length, range(length + 1)), length,
                                                               gain))  # fmt: skip
-        p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
+        if gap or entry.parameters is None:
+            p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
+            if not gap:
+                entry.parameters = p.copy()
+        else:
+            p = problem.with_data(entry.parameters, prior, u_win, y_win, data)
         attempts = [entry.warm.solve(z0, p, *(duals or (None, None)))]
         if not attempts[-1].success:
             cold_guess = predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data)
@@ -672,10 +681,11 @@ class WindowEstimator(StreamingEstimator):
     ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None]:
         """The last successful solution shifted onto the new window, else a prediction from the prior."""
         if self._last is not None:
-            old_start, old_problem, old_solution = self._last
+            old_start, old_problem, old_solution, old_trajectory = self._last
             shift = self._k - length - old_start
             shifted = shifted_guess(old_problem, old_solution, problem, shift, u_win, self._w_guess(), self.v_prior,
-                                    duals=self._takes_multipliers(), data=data)  # fmt: skip
+                                    duals=self._takes_multipliers(), data=data,
+                                    old_trajectory=old_trajectory)  # fmt: skip
             if shifted is not None:
                 return shifted
         return predicted_guess(problem, prior, u_win, self._w_guess(), self.v_prior, data), None

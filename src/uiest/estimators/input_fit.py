@@ -18,6 +18,7 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.checks import all_true
 from uiest.system import System
 from uiest.window.buffered import BufferedFunction
 
@@ -54,13 +55,16 @@ class InputFit:
         if not self.system.nw:
             return w
         scale = self.system.w.scale
-        for _ in range(1 if self.affine else self.max_iter):
+        iterations = 1 if self.affine else self.max_iter
+        for iteration in range(1, iterations + 1):
             r, J_nonzeros = self._fun(x_prev, u, w, x_next)
             J = J_nonzeros.reshape(self.system.nw, self.system.nx).T  # column-major nonzeros
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(J))):
+            if not (all_true(np.isfinite(r)) and all_true(np.isfinite(J))):
                 break
             step = np.linalg.lstsq(J, -r, rcond=None)[0]
             w = w + step
+            if iteration == iterations:  # affine in w: the one step is exact
+                break
             if np.max(np.abs(step) / scale) <= self.tol * (1.0 + np.max(np.abs(w) / scale)):
                 break
         return w

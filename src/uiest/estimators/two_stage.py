@@ -76,7 +76,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
-from uiest.checks import check_flag, check_int
+from uiest.checks import any_true, check_flag, check_int
 from uiest.errors import OptionError
 from uiest.estimators.base import WindowEstimator
 from uiest.estimators.bounds import noise_quadratic, reduction_bound, two_stage_rate, two_stage_z_bound
@@ -244,7 +244,7 @@ class TwoStageUISE(WindowEstimator):
     def _fill(self, y: FloatArray, z_sharp: FloatArray, u_prev: FloatArray, k: int) -> FloatArray:
         """``y`` with missing channels replaced by the predicted output (module docstring)."""
         missing = np.isnan(y)
-        if not missing.any():
+        if not any_true(missing):
             return y
         s, red = self.system, self.reduced
         x_pred = self._x0_prior if self._x_last is None else self._x_last

@@ -35,7 +35,7 @@ class BufferedFunction:
         self.function = function
         self._args = [np.zeros(max(function.nnz_in(i), 1)) for i in range(function.n_in())]
         self._outs = [np.zeros(max(function.nnz_out(i), 1)) for i in range(function.n_out())]
-        self._sizes = [function.nnz_out(i) for i in range(function.n_out())]
+        self._results = [arr[: function.nnz_out(i)] for i, arr in enumerate(self._outs)]
         self._buffer: Any
         self._buffer, self._call = function.buffer()
         for i, arr in enumerate(self._args):
@@ -48,7 +48,7 @@ class BufferedFunction:
         for slot, value in zip(self._args, args, strict=True):
             slot[: value.size if isinstance(value, np.ndarray) else np.size(value)] = value
         self._call()
-        return [arr[:size] for arr, size in zip(self._outs, self._sizes, strict=True)]
+        return [*self._results]
 
     def stats(self) -> dict[str, Any]:
         """The Function's statistics of the last call (solvers: ``success``, ``return_status``, ...)."""

@@ -70,7 +70,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
-from uiest.checks import check_int, check_real
+from uiest.checks import all_true, check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import BlockCurvature, IndexArray
@@ -196,10 +196,18 @@ ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
 
 
-def _on_bounds(value: FloatArray, lower: FloatArray, upper: FloatArray) -> FloatArray:
-    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0."""
-    at_upper, at_lower = value >= upper - ACTIVE_TOL, value <= lower + ACTIVE_TOL
+def _on_bounds(value: FloatArray, edges: tuple[FloatArray, FloatArray]) -> FloatArray:
+    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0.
+
+    ``edges``: ``(lower + ACTIVE_TOL, upper - ACTIVE_TOL)`` (:func:`_edges`).
+    """
+    at_upper, at_lower = value >= edges[1], value <= edges[0]
     return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
+
+
+def _edges(lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, FloatArray]:
+    """``(lower + ACTIVE_TOL, upper - ACTIVE_TOL)``: within them a value is on its bound (:func:`_on_bounds`)."""
+    return lower + ACTIVE_TOL, upper - ACTIVE_TOL
 
 
 class _QPForm(NamedTuple):
@@ -703,6 +711,9 @@ class GaussNewtonSolver:
         )
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
         self._no_multipliers = np.zeros(problem.n_con)
+        # the first QP's active set: the bounds and the inequalities (not the equalities) the start sits on
+        self._x_edges, self._g_edges = _edges(problem.lbx, problem.ubx), _edges(problem.lbg, problem.ubg)
+        self._g_ranged = problem.lbg < problem.ubg
         self._staged = problem if qp == "riccati" else None
         self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._staged)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
@@ -733,19 +744,20 @@ class GaussNewtonSolver:
         slot = 1 - keep.slot if keep is not None else 0
         lam = self._no_multipliers if lam_g is None else lam_g
         cost, violation, worst, stationarity, q, h, g, a = self._buffers[slot](z, p, lam)
-        return _Point(z, slot, float(cost[0]), float(violation[0]), float(worst[0]), float(stationarity[0]),
-                      q, h, g[: self.problem.n_con], a)  # fmt: skip
+        return _Point(z, slot, float(cost[0]), float(violation[0]), float(worst[0]), float(stationarity[0]), q, h, g, a)
 
-    def _stationary(self, point: _Point, lam_a: FloatArray) -> bool:
+    def _stationary(self, point: _Point, lam_a: FloatArray, largest: float | None = None) -> bool:
         """KKT stationarity at ``point`` with the constraint multipliers ``lam_a`` it was evaluated with.
 
         ``s = J^T r + G^T lam_g`` must vanish at free variables and point outwards at active
         bounds (where the bound's multiplier takes it); the test is
         ``|s|_inf <= kkt_tol (1 + |lam_g|_inf)``. After a full Gauss-Newton step the multipliers
         of the QP are those of the window problem to second order, so this stops without
-        solving one more QP to see a zero step.
+        solving one more QP to see a zero step. ``largest``: ``|lam_a|_inf`` if the caller has it.
         """
-        return point.stationarity <= self.kkt_tol * (1.0 + float(np.abs(lam_a).max(initial=0.0)))
+        if largest is None:
+            largest = float(np.abs(lam_a).max(initial=0.0))
+        return point.stationarity <= self.kkt_tol * (1.0 + largest)
 
     # ------------------------------------------------------------------ QP
     def _qp(
@@ -828,9 +840,12 @@ class GaussNewtonSolver:
             return None
         dz, model, state.lam_x, state.lam_a = solved
         # decrease of |r|^2 predicted by the undamped model (H = J^T J, or J^T J + S_+), -2 (q^T dz + dz^T H dz / 2),
-        # from the QP's cost q^T dz + dz^T (H + damping I) dz / 2
-        with np.errstate(over="ignore", invalid="ignore"):
-            predicted = -2.0 * (model - 0.5 * damping * float(dz @ dz)) if damping else -2.0 * model
+        # from the QP's cost q^T dz + dz^T (H + damping I) dz / 2 (Python floats overflow to inf without a warning)
+        if damping:
+            with np.errstate(over="ignore", invalid="ignore"):
+                predicted = -2.0 * (model - 0.5 * damping * float(dz @ dz))
+        else:
+            predicted = -2.0 * model
         # a step whose square overflows has no model decrease: treated as a failed QP (damped retries follow)
         return (dz, predicted) if math.isfinite(predicted) else None
 
@@ -852,7 +867,7 @@ class GaussNewtonSolver:
         if step is None:
             return None
         corrected = step[0]
-        z = np.clip(point.z + corrected, self.problem.lbx, self.problem.ubx)
+        z = (point.z + corrected).clip(self.problem.lbx, self.problem.ubx)
         return _Correction(corrected, self._evaluate(z, p, point, state.lam_a), (state.lam_x, state.lam_a))
 
     # ------------------------------------------------------------------ the solve
@@ -898,11 +913,11 @@ class GaussNewtonSolver:
         """A solve's state at ``z0`` (clipped into the bounds): the first QP's active set is the sides ``z0`` is on."""
         prob = self.problem
         p = np.asarray(p, dtype=float)
-        point = self._evaluate(np.clip(np.asarray(z0, dtype=float), prob.lbx, prob.ubx), p)
+        point = self._evaluate(np.asarray(z0, dtype=float).clip(prob.lbx, prob.ubx), p)
         largest = float(np.abs(point.h).max(initial=0.0))
         damping = Damping(max(self.min_damping, self._kept_damping), max(largest, 1.0))
-        lam_x = _on_bounds(point.z, prob.lbx, prob.ubx)
-        lam_a = _on_bounds(point.g, prob.lbg, prob.ubg) * (prob.lbg < prob.ubg)
+        lam_x = _on_bounds(point.z, self._x_edges)
+        lam_a = _on_bounds(point.g, self._g_edges) * self._g_ranged
         return SolveState(p, point, damping, QP_SCALE / (largest or 1.0), lam_x, lam_a, self._kept_damping > 0.0)
 
     def _iterate(self, state: SolveState) -> bool:
@@ -920,17 +935,20 @@ class GaussNewtonSolver:
         if at_least_damping and _only_restores_rounding(predicted, point):
             state.status = "Converged"
             return True
-        nu = _penalty(float(np.abs(state.lam_a).max(initial=0.0)))
-        trial = self._evaluate(np.clip(point.z + dz, self.problem.lbx, self.problem.ubx), state.p, point, state.lam_a)
+        lam_a, largest = state.lam_a, float(np.abs(state.lam_a).max(initial=0.0))
+        nu = _penalty(largest)
+        trial = self._evaluate((point.z + dz).clip(self.problem.lbx, self.problem.ubx), state.p, point, state.lam_a)
         ratio = _ratio(point, trial, predicted, nu)
         maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
         if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
             dz, trial, ratio = self._correct(state, dz, trial, predicted, nu)
-        small_step = bool(np.abs(dz).max(initial=0.0) <= self.step_tol)
+        small_step = all_true(np.abs(dz) <= self.step_tol)
         if ratio > ACCEPT_RATIO or self.max_iter == 1:
             state.point = trial
             damping.accept(ratio)
-            settled = _no_decrease_left(predicted, point.cost, self.cost_tol) or self._stationary(trial, state.lam_a)
+            settled = _no_decrease_left(predicted, point.cost, self.cost_tol) or self._stationary(
+                trial, state.lam_a, largest if state.lam_a is lam_a else None
+            )
             status = _stop_status(small_step, settled, trial.worst)
         else:  # rejected: the curvature, then damp more; same linearisation
             status = _stop_status(small_step, False, point.worst)
@@ -984,7 +1002,7 @@ class GaussNewtonSolver:
         point = state.point
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
-            status, converged = "RTI_Step", bool(np.all(np.isfinite(point.z)))
+            status, converged = "RTI_Step", bool(np.isfinite(point.z).all())
         if state.regularised and converged:
             status += " (regularised)"
         z, cost = point.z, point.cost
@@ -999,7 +1017,7 @@ class GaussNewtonSolver:
             lam_g=state.lam_a.copy(),
             cost=cost,
             status=status,
-            success=bool(converged and np.all(np.isfinite(z))),
+            success=bool(converged and all_true(np.isfinite(z))),
             iterations=state.iterations,
             solve_time=elapsed,
         )

@@ -57,6 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import Box, FloatArray
+from uiest.checks import all_true
 from uiest.errors import DataError, OptionError
 from uiest.system import System
 from uiest.window.model import WindowModel
@@ -257,6 +258,9 @@ class WindowProblem:
         if nodes.size and (nodes.min() < 0 or nodes.max() > L or np.any(np.diff(nodes) <= 0)):
             raise OptionError(f"measured: expected increasing node indices in 0..{L}, got {nodes.tolist()}")
         self.measured = nodes
+        self.measured_row = np.full(L + 1, -1, dtype=int)
+        """Node ``i``'s row of ``v`` (M, nv), -1 where node ``i`` is not measured; shape (L+1,)."""
+        self.measured_row[nodes] = np.arange(nodes.size)
         self.n_meas = M = int(nodes.size)
         nx, nw, nv, ny = model.nx, model.nw, model.nv, model.ny
         self.f_uses_v = model.f_uses_v
@@ -284,6 +288,14 @@ class WindowProblem:
         self.y_center, self.y_scale = working_center(model.y_bounds, model.y_scale), model.y_scale
 
         self.x_index, self.w_index, self.v_index, self.n_var = _index_layout(L, nodes, nx, nv, nw)
+        # x, w, v flattened in this order: their positions in z, centres and scales (pack, unpack)
+        self._flat_index = np.concatenate((self.x_index.ravel(), self.w_index.ravel(), self.v_index.ravel()))
+        self._flat_center = np.concatenate((np.tile(self.x_center, L + 1), np.tile(self.w_center, L),
+                                            np.tile(self.v_center, M)))  # fmt: skip
+        self._flat_scale = np.concatenate(
+            (np.tile(self.x_scale, L + 1), np.tile(self.w_scale, L), np.tile(self.v_scale, M))
+        )
+        self._flat_ends = ((L + 1) * nx, (L + 1) * nx + L * nw)
         y_lo, y_hi = model.y_bounds.lower, model.y_bounds.upper
         self.has_output_constraints = bool(
             output_constraints and M > 0 and (np.isfinite(y_lo).any() or np.isfinite(y_hi).any())
@@ -525,30 +537,52 @@ class WindowProblem:
         """
         s = self.model
         L, M = self.length, self.n_meas
+        parts = self._data_parts(prior, u, y, data)
+        parts["v_bar"] = np.zeros(M * s.nv) if v_bar is None else np.asarray(v_bar, dtype=float).reshape(M * s.nv)
+        parts["w_bar"] = (
+            np.broadcast_to(s.nominal_w, (L, s.nw)).ravel()
+            if w_bar is None
+            else np.asarray(w_bar, dtype=float).reshape(L * s.nw)
+        )
+        parts["weights"] = self._weights_part(weights)
+        return self._filled(np.empty(self.n_par), parts)
+
+    def with_data(
+        self, base: FloatArray, prior: ArrayLike, u: ArrayLike, y: ArrayLike, data: ArrayLike | None = None
+    ) -> FloatArray:
+        """A copy of ``base`` (a vector from :meth:`parameters`) with another window's data in it.
+
+        The same vector as :meth:`parameters` with these data and ``base``'s priors of v and w and weights: for a
+        caller whose priors and weights stay the same from window to window. The data as in :meth:`parameters`.
+        """
+        return self._filled(np.array(base, dtype=float), self._data_parts(prior, u, y, data))
+
+    def _data_parts(
+        self, prior: ArrayLike, u: ArrayLike, y: ArrayLike, data: ArrayLike | None
+    ) -> dict[str, FloatArray]:
+        """The window's data as the flat parts of ``p``: prior, u, y (0 where missing), mask, data."""
+        s = self.model
+        L, M = self.length, self.n_meas
         if data is None and s.nd:
             raise DataError(f"data: the model takes node data, expected shape ({L + 1}, {s.nd}), got None")
-        y_arr = np.asarray(y, dtype=float).reshape(M, s.ny)
+        y_arr = np.asarray(y, dtype=float).reshape(M * s.ny)
         mask = np.isfinite(y_arr)
-        parts = {
+        return {
             "prior": np.asarray(prior, dtype=float).reshape(s.nx),
-            "u": np.asarray(u, dtype=float).reshape(L, s.nu),
+            "u": np.asarray(u, dtype=float).reshape(L * s.nu),
             "y": np.where(mask, y_arr, 0.0),
             "mask": mask.astype(float),
-            "v_bar": np.zeros((M, s.nv)) if v_bar is None else np.asarray(v_bar, dtype=float).reshape(M, s.nv),
-            "w_bar": (
-                np.broadcast_to(s.nominal_w, (L, s.nw))
-                if w_bar is None
-                else np.asarray(w_bar, dtype=float).reshape(L, s.nw)
-            ),
-            "data": np.zeros((L + 1, 0)) if data is None else np.asarray(data, dtype=float).reshape(L + 1, s.nd),
-            "weights": self._weights_part(weights),
+            "data": np.zeros(0) if data is None else np.asarray(data, dtype=float).reshape((L + 1) * s.nd),
         }
-        p = np.empty(self.n_par)
+
+    def _filled(self, p: FloatArray, parts: dict[str, FloatArray]) -> FloatArray:
+        """``p`` with ``parts`` written at their slices; DataError naming a part that is not finite."""
         for key, value in parts.items():
-            p[self.parameter_slices[key]] = np.ravel(value)
-        if not np.isfinite(p).all():
-            key = next(key for key, value in parts.items() if not np.all(np.isfinite(value)))
-            raise DataError(f"{key}: expected finite window data, got {np.asarray(parts[key]).tolist()}")
+            p[self.parameter_slices[key]] = value
+        if not all_true(np.isfinite(p)):
+            key = next((key for key, value in parts.items() if not np.isfinite(value).all()), "base")
+            shown = np.asarray(parts[key]).tolist() if key in parts else "a parameter vector that is not finite"
+            raise DataError(f"{key}: expected finite window data, got {shown}")
         return p
 
     def _weights_part(self, weights: WindowWeights | FloatArray | None) -> FloatArray:
@@ -565,22 +599,27 @@ class WindowProblem:
         return vector
 
     def pack(self, trajectory: WindowTrajectory) -> FloatArray:
-        """Scaled decision vector from a trajectory in original units."""
+        """Scaled decision vector ``(value - centre) / scale`` from a trajectory in original units."""
+        model, L, M = self.model, self.length, self.n_meas
+        parts = [np.asarray(trajectory.x, dtype=float).reshape((L + 1) * model.nx)]
+        if L:
+            parts.append(np.asarray(trajectory.w, dtype=float).reshape(L * model.nw))
+        if M:
+            parts.append(np.asarray(trajectory.v, dtype=float).reshape(M * model.nv))
         z = np.empty(self.n_var)
-        z[self.x_index] = (np.asarray(trajectory.x).reshape(self.length + 1, -1) - self.x_center) / self.x_scale
-        if self.length:
-            z[self.w_index] = (np.asarray(trajectory.w).reshape(self.length, -1) - self.w_center) / self.w_scale
-        if self.n_meas:
-            z[self.v_index] = (np.asarray(trajectory.v).reshape(self.n_meas, -1) - self.v_center) / self.v_scale
+        z[self._flat_index] = (np.concatenate(parts) - self._flat_center) / self._flat_scale
         return z
 
     def unpack(self, z: ArrayLike) -> WindowTrajectory:
-        """Trajectory in original units from a scaled decision vector."""
+        """Trajectory in original units (``centre + scale * z``) from a scaled decision vector."""
+        model, L = self.model, self.length
         vec = np.asarray(z, dtype=float).reshape(self.n_var)
+        values = self._flat_center + self._flat_scale * vec[self._flat_index]
+        x_end, w_end = self._flat_ends
         return WindowTrajectory(
-            x=self.x_center + self.x_scale * vec[self.x_index],
-            w=self.w_center + self.w_scale * vec[self.w_index],
-            v=self.v_center + self.v_scale * vec[self.v_index],
+            x=values[:x_end].reshape(L + 1, model.nx),
+            w=values[x_end:w_end].reshape(L, model.nw),
+            v=values[w_end:].reshape(self.n_meas, model.nv),
         )
 
     def __repr__(self) -> str:

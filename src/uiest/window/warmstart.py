@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from uiest.box import FloatArray
+from uiest.checks import all_true
 from uiest.window.problem import WindowProblem, WindowTrajectory
 from uiest.window.solvers import WindowSolution
 
@@ -40,14 +41,14 @@ def predict_states(
     ``v`` holds the noise estimates of the measured nodes (M, nv) (default: the box centre);
     ``data`` the node data (L+1, nd).
     """
-    model, box = problem.model, problem.x_box
+    model, box, L = problem.model, problem.x_box, problem.length
     d = _node_data(problem, data)
-    v_node = np.tile(problem.v_center, (problem.length + 1, 1))
-    if v is not None and problem.n_meas:
-        v_node[problem.measured] = np.asarray(v, dtype=float).reshape(problem.n_meas, model.nv)
-    for i in range(first, problem.length):
-        nxt = model.step(x[i], u[i], w[i], v_node[i], d[i])
-        x[i + 1] = box.clip(nxt) if np.all(np.isfinite(nxt)) else x[i]
+    v_rows = problem.measured_row  # node -> its row of v, -1 where not measured (the box centre)
+    v_arr = np.asarray(v, dtype=float).reshape(problem.n_meas, model.nv) if v is not None and problem.n_meas else None
+    for i in range(first, L):
+        v_i = v_arr[v_rows[i]] if v_arr is not None and v_rows[i] >= 0 else problem.v_center
+        nxt = model.step(x[i], u[i], w[i], v_i, d[i])
+        x[i + 1] = box.clip(nxt) if all_true(np.isfinite(nxt)) else x[i]
 
 
 def predicted_guess(
@@ -79,6 +80,7 @@ def shifted_guess(
     *,
     duals: bool,
     data: FloatArray | None = None,
+    old_trajectory: WindowTrajectory | None = None,
 ) -> tuple[FloatArray, tuple[FloatArray, FloatArray] | None] | None:
     """The old solution moved ``shift`` steps forward onto ``problem``; None when the windows share no node.
 
@@ -99,6 +101,8 @@ def shifted_guess(
         Also shift the multipliers (new entries 0).
     data : ndarray (L+1, nd), optional
         The new window's node data (models with node data).
+    old_trajectory : WindowTrajectory, optional
+        ``old_problem.unpack(old_solution.z)`` where the caller has it.
 
     Returns
     -------
@@ -109,14 +113,16 @@ def shifted_guess(
     n_x = min(old_problem.length + 1 - shift, L + 1)  # state nodes both windows hold
     if shift < 0 or n_x < 1:
         return None
-    old = old_problem.unpack(old_solution.z)
+    old = old_problem.unpack(old_solution.z) if old_trajectory is None else old_trajectory
     n_w = min(n_x - 1, L)
     n_v = min(max(old_problem.n_meas - shift, 0), M)
     x = np.empty((L + 1, problem.model.nx))
     x[:n_x] = old.x[shift : shift + n_x]
-    w = np.tile(old.w[-1] if old_problem.length else w_fill, (L, 1))
+    w = np.empty((L, problem.model.nw))
+    w[:] = old.w[-1] if old_problem.length else w_fill
     w[:n_w] = old.w[shift : shift + n_w]
-    v = np.tile(v_fill, (M, 1))
+    v = np.empty((M, problem.model.nv))
+    v[:] = v_fill
     v[:n_v] = old.v[shift : shift + n_v]
     predict_states(problem, x, w, u, n_x - 1, v, data)
     z0 = problem.pack(WindowTrajectory(x, w, v))
