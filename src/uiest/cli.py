@@ -681,7 +681,7 @@ def bench(
                 f"{record['estimator']}: N={record['N']} capped at its information horizon {record['N_used']} "
                 "(older cost terms fall below double precision)"
             )
-            console.print(line, highlight=False)
+            console.print(line, highlight=False, soft_wrap=True)
         printed.append(record)
         console.print(table_row(record), highlight=False, soft_wrap=True)
 
