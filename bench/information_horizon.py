@@ -23,6 +23,7 @@ import os
 import runpy
 import time
 from collections.abc import Callable
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -126,13 +127,14 @@ def main() -> None:
             info = est.information_horizon
             assert info is not None and info.horizon is not None
             print(f"\n{name} {kind}: mu {mu}, {info.text()}")
-            print(f"  terms: oldest {info.oldest_term} {info.oldest:.3g}, largest {info.largest_term} {info.largest:.3g}")
+            print(f"  terms: oldest {info.oldest_term} {info.oldest:.3g}, "
+                  f"largest {info.largest_term} {info.largest:.3g}")  # fmt: skip
             lengths = sorted({5, 10, 20, info.horizon, min(2 * info.horizon, 60)})
             found = []
             for L in lengths:
                 est_L = build(kind, system, mu, output, L, prior)
                 if est_L.N != L:  # the measurement reads the window as asked for, past the cap
-                    est_L = _uncapped(lambda: build(kind, system, mu, output, L, prior))
+                    est_L = _uncapped(partial(build, kind, system, mu, output, L, prior))
                 ratio, condition = measured_ratio(est_L, traj, L, L + 40)
                 found.append((L, ratio))
                 print(f"  L {L:3d}: estimate ratio {info.ratio(L):9.3g}, reduced Hessian {ratio:9.3g} "
@@ -145,7 +147,7 @@ def main() -> None:
                 continue
             steps = args.steps
             for N in (info.horizon, 2 * info.horizon):
-                fresh = _uncapped(lambda N=N: build(kind, system, mu, output, N, prior))
+                fresh = _uncapped(partial(build, kind, system, mu, output, N, prior))
                 print(f"  N {N:3d} uncapped, {run(fresh, traj, steps)}")
             print(f"  N {2 * info.horizon:3d} capped,   "
                   f"{run(build(kind, system, mu, output, 2 * info.horizon, prior), traj, steps)}")  # fmt: skip

@@ -69,7 +69,7 @@ def test_a_window_longer_than_the_horizon_is_capped_and_runs_as_the_capped_one()
     long = UISE(system, weights=weights, N=200, x0_prior=[0.0])
     assert long.information_horizon is not None
     horizon = long.information_horizon.horizon
-    assert horizon == 18 and long.N == horizon and long.requested_N == 200 and long.horizon_capped
+    assert horizon == 18 and horizon == long.N and long.requested_N == 200 and long.horizon_capped
     short = UISE(system, weights=weights, N=horizon, x0_prior=[0.0])
     assert not short.horizon_capped
     a, b = long.run(truth.u, truth.y), short.run(truth.u, truth.y)
@@ -90,7 +90,7 @@ def test_capped_guarantee_is_the_theorem_for_the_window_used_and_says_so():
     capped = UISE(system, certificate=cert, N=500, x0_prior=np.zeros(system.nx))
     assert capped.information_horizon is not None
     horizon = capped.information_horizon.horizon
-    assert horizon is not None and cert.min_horizon() <= horizon < 500 and capped.N == horizon
+    assert horizon is not None and cert.min_horizon() <= horizon < 500 and horizon == capped.N
     used = UISE(system, certificate=cert, N=horizon, x0_prior=np.zeros(system.nx))
     g, reference = capped.guarantee, used.guarantee
     assert g.applies and g.capped and (g.horizon, g.requested_horizon, g.information_horizon) == (horizon, 500, horizon)
@@ -125,4 +125,4 @@ def test_crop_bench_weights_horizons(kind, expected):
         reduced = crop_growth.reduction()
         est = TwoStageUISE(reduced, weights=TwoStageWeights.from_scales(reduced, 0.48, output=1e6), N=300)
     assert est.information_horizon is not None and est.information_horizon.horizon == expected
-    assert est.N == expected and est.requested_N == 300
+    assert expected == est.N and est.requested_N == 300

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike
 
+from uiest.box import FloatArray
 from uiest.window.problem import WindowProblem
 
 __all__ = ["CurvatureRange", "curvature_range"]
@@ -53,7 +54,7 @@ class CurvatureRange:
         return self.smallest / self.largest if self.largest > 0.0 else 0.0
 
 
-def reduced_jacobian(problem: WindowProblem, z: ArrayLike, p: ArrayLike) -> np.ndarray:
+def reduced_jacobian(problem: WindowProblem, z: FloatArray, p: FloatArray) -> FloatArray:
     """``J Z`` (n_res, n_theta): the residuals' Jacobian with the dynamics eliminated (module docstring).
 
     Columns in the order ``x_0`` (nx), ``w_0..w_{L-1}`` (L nw), the measured nodes' ``v`` (M nv).
@@ -66,7 +67,8 @@ def reduced_jacobian(problem: WindowProblem, z: ArrayLike, p: ArrayLike) -> np.n
     if dependent.size:
         dyn = G[: problem.n_dyn]
         Z[dependent] = np.linalg.solve(dyn[:, dependent], -dyn[:, free])
-    return J @ Z
+    reduced: FloatArray = J @ Z
+    return reduced
 
 
 def curvature_range(problem: WindowProblem, z: ArrayLike, p: ArrayLike) -> CurvatureRange:
