@@ -43,7 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, check_int, user_stacklevel
+from uiest.checks import check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.horizon import InformationHorizon, information_horizon
@@ -260,10 +260,10 @@ class WindowEstimator(StreamingEstimator):
         )
         """Where the window's oldest cost terms fall below double precision (None: a model without state)."""
         if N is not None:
-            N = check_int(N, "N", low=1)
+            N = check_horizon(N, "N", model)
             self.requested_N: int | None = N
             """The horizon asked for; :attr:`N` is the one used (capped at the information horizon)."""
-            N = check_horizon(N if self.information_horizon is None else self.information_horizon.cap(N), "N", model)
+            N = N if self.information_horizon is None else self.information_horizon.cap(N)
         else:
             self.requested_N = None
         self.system, self.model, self.schedule, self.N = system, model, schedule, N
