@@ -1,6 +1,9 @@
 """The Gauss-Newton backend against the IPOPT reference, and its fallbacks."""
 
+import dataclasses
 import runpy
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -8,6 +11,7 @@ import pytest
 
 from uiest import UniformNoise, simulate
 from uiest.estimators import UISE, MHEWeights, Outcome, StandardMHE, UISEWeights
+from uiest.estimators import base as base_module
 from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
 from uiest.models import crop_growth, get, load
 from uiest.window import gauss_newton
@@ -434,14 +438,31 @@ def test_a_qp_stopped_by_the_iteration_limit_goes_on_from_where_it_stopped(monke
     assert damped_samples() > 0
 
 
+@contextmanager
+def _uncapped() -> Iterator[None]:
+    """Estimators built inside run the N asked for, past their information horizon.
+
+    The solver tests below need windows whose oldest terms fall below double precision, which the estimators cap.
+    """
+    real = base_module.information_horizon
+
+    def none(*args, **kwargs):
+        return dataclasses.replace(real(*args, **kwargs), horizon=None)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(base_module, "information_horizon", none)
+        yield
+
+
 @pytest.fixture(scope="module")
 def henon_mhe_windows():
     """The full windows (N = 100, weights down to 0.6^99 ~ 1e-22) of a noisy Henon map's standard MHE, recorded."""
     example = runpy.run_path(str(Path(__file__).resolve().parents[1] / "examples" / "chaotic_message.py"))
     system = example["build"]()
     traj = simulate(system, [0.1, 0.1], 106, w=example["message"](106), v=UniformNoise.symmetric(1e-3), seed=0)
-    estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=100, x0_prior=np.zeros(2),
-                            solver="gn")  # fmt: skip
+    with _uncapped():  # its information horizon is 70
+        estimator = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=100, x0_prior=np.zeros(2),
+                                solver="gn")  # fmt: skip
     recorder = _record_full_windows(estimator, 100)
     assert estimator.run(traj.u, traj.y).failures == 0
     return recorder
@@ -506,7 +527,8 @@ def test_damping_returns_to_zero_gradually_after_good_steps(monkeypatch):
     weights = UISEWeights.from_scales(system, 0.48, output=1e6)
 
     def fallbacks() -> int:
-        estimator = UISE(system, weights=weights, N=50, x0_prior=scenario.prior(traj.y[0]), solver="gn")
+        with _uncapped():  # its information horizon is 30
+            estimator = UISE(system, weights=weights, N=50, x0_prior=scenario.prior(traj.y[0]), solver="gn")
         return estimator.run(traj.u, traj.y).fallbacks
 
     gradual = fallbacks()

@@ -674,12 +674,21 @@ def bench(
         writable_file(json_file, "--json")
 
     printed: list[dict[str, object]] = []
+    caps: set[tuple[object, object]] = set()
 
     def report(record: dict[str, object]) -> None:
         if not printed:  # the header once the arguments were accepted
-            title = "window solvers, noisy crop scenario (ms per sample after N warm-up samples)"
+            title = "window solvers, noisy crop scenario (ms per sample after N_used warm-up samples)"
             console.print(title, highlight=False)
             console.print(TABLE_HEADER, highlight=False, soft_wrap=True)
+        capped = (record["estimator"], record["N"])
+        if record["N_used"] < record["N"] and capped not in caps:  # type: ignore[operator]
+            caps.add(capped)
+            line = (
+                f"{record['estimator']}: N={record['N']} capped at its information horizon {record['N_used']} "
+                "(older cost terms fall below double precision)"
+            )
+            console.print(line, highlight=False, soft_wrap=True)
         printed.append(record)
         console.print(table_row(record), highlight=False, soft_wrap=True)
 

@@ -75,6 +75,15 @@ class Guarantee:
         unknown input in its known range); the text says "holds while <condition>".
     bound_note : str
         Why some states have no finite bound (empty when all have one).
+    horizon : int or None
+        The window length (transitions) the estimator uses, for which the bound is computed (None: no
+        fixed window).
+    requested_horizon : int or None
+        The window length asked for; larger than :attr:`horizon` when the window was capped at the
+        information horizon (:attr:`capped`).
+    information_horizon : int or None
+        The longest window whose every cost term counts in double precision
+        (:mod:`uiest.estimators.horizon`; None: no such limit, or no window).
 
     """
 
@@ -89,6 +98,9 @@ class Guarantee:
     assumes: str = ""
     bound_note: str = ""
     condition: str = ""
+    horizon: int | None = None
+    requested_horizon: int | None = None
+    information_horizon: int | None = None
 
     def __post_init__(self) -> None:
         width = np.array(self.x_width, dtype=float, ndmin=1)
@@ -108,6 +120,11 @@ class Guarantee:
              units: tuple[str, ...]) -> Guarantee:  # fmt: skip
         """A theorem that does not apply, and why."""
         return cls(theorem=theorem, applies=False, reason=reason, x_width=x_width, names=names, units=units)
+
+    @property
+    def capped(self) -> bool:
+        """The window used is shorter than the one asked for (capped at the information horizon)."""
+        return self.horizon is not None and self.requested_horizon is not None and self.horizon < self.requested_horizon
 
     # ------------------------------------------------------------------ flags per state
     @property
@@ -151,7 +168,15 @@ class Guarantee:
     # ------------------------------------------------------------------ text
     @property
     def text(self) -> str:
-        """One line derived from the numbers (module docstring)."""
+        """One line derived from the numbers (module docstring), and the window's cap where it was capped."""
+        if not self.capped:
+            return self._verdict_text()
+        return (
+            f"{self._verdict_text()}; for N={self.horizon}: the window is capped at its information horizon "
+            f"(N={self.requested_horizon} asked for; older cost terms fall below double precision)"
+        )
+
+    def _verdict_text(self) -> str:
         verdict = self.verdict
         if verdict is Verdict.NONE:
             return f"none: {self.reason}"
@@ -211,6 +236,10 @@ class Guarantee:
             "settling_steps": self.settling_steps,
             "assumes": self.assumes,
             "bound_note": self.bound_note,
+            "horizon": self.horizon,
+            "requested_horizon": self.requested_horizon,
+            "information_horizon": self.information_horizon,
+            "capped": self.capped,
             "text": self.text,
         }
 

@@ -76,6 +76,7 @@ class Cause(enum.Enum):
     ZERO_OUTSIDE = "a zero on or outside the unit circle"
     NOT_CERTIFIED = "strong detectability is not certified"
     WINDOW_TOO_LONG = "the certified window is longer than max_horizon"
+    BEYOND_INFORMATION_HORIZON = "the certified window is longer than its weights' information horizon"
     VACUOUS = "the certified UISE's bound is not below X's width"
 
 
@@ -98,6 +99,8 @@ def decide(matching: bool, zeros: Zeros, strong: EstimatorDesign, delayed: Estim
         cause = Cause.ZERO_OUTSIDE
     elif not strong.certified:
         cause = Cause.NOT_CERTIFIED
+    elif strong.guarantee is not None and not strong.guarantee.applies and strong.guarantee.capped:
+        cause = Cause.BEYOND_INFORMATION_HORIZON
     elif strong.guarantee is None or not strong.guarantee.applies:
         cause = Cause.WINDOW_TOO_LONG
     else:
@@ -257,6 +260,11 @@ def reason(a: ModelAnalysis) -> str:
         text = f"strong detectability is {_certificate_text(strong)}"
     elif cause is Cause.WINDOW_TOO_LONG:
         text = f"strong detectability is {_window_text(strong, a.max_horizon)}"
+    elif cause is Cause.BEYOND_INFORMATION_HORIZON:
+        assert strong.guarantee is not None
+        text = (f"strong detectability is certified with mu = {number(strong.certificate.mu)}, but its window "
+                f"{strong.min_horizon} is longer than its weights' information horizon "
+                f"{strong.guarantee.information_horizon} (older cost terms fall below double precision)")  # fmt: skip
     else:
         assert strong.guarantee is not None
         text = f"the certified UISE's guarantee {strong.guarantee.text}"

@@ -46,6 +46,7 @@ from uiest.checks import all_true, any_true, check_flag, user_stacklevel
 from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.history import RowHistory
+from uiest.estimators.horizon import InformationHorizon, information_horizon
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
 from uiest.health import BoundTest, Outcome, at_bound, bound_message
@@ -193,7 +194,12 @@ class StreamingEstimator:
 
     def _no_guarantee(self, theorem: str, reason: str) -> Guarantee:
         x = self.system.x
-        return Guarantee.none(theorem, reason, x.bounds.width, x.names, x.units)
+        return Guarantee(theorem=theorem, applies=False, reason=reason, x_width=x.bounds.width, names=x.names,
+                         units=x.units, **self._horizon_fields())  # fmt: skip
+
+    def _horizon_fields(self) -> dict[str, Any]:
+        """The guarantee's horizon fields (:class:`~uiest.guarantee.Guarantee`); none without a window."""
+        return {}
 
     def _holds(self, theorem: str, bound: FloatArray, settling: int | None, assumes: str, note: str = "",
                condition: str = "") -> Guarantee:  # fmt: skip
@@ -207,7 +213,7 @@ class StreamingEstimator:
         return Guarantee(theorem=theorem, applies=True, x_width=x.bounds.width, names=x.names, units=x.units,
                          error_bound=bound, settling_steps=settling, bound_note=note, condition=condition,
                          assumes=f"{assumes}; settling counted from an initial error up to X's width in every "
-                         "state")  # fmt: skip
+                         "state", **self._horizon_fields())  # fmt: skip
 
     def _require_prior(self) -> FloatArray:
         if self._x0_prior is None:
@@ -257,8 +263,17 @@ class WindowEstimator(StreamingEstimator):
         w_box: Box | None = None,
         w_prior: FloatArray | None = None,
     ) -> None:
+        self.information_horizon: InformationHorizon | None = (
+            None if schedule is None else information_horizon(schedule, model, one_step_ahead=self.one_step_ahead)
+        )
+        """Where the window's oldest cost terms fall below double precision (None: a model without state)."""
         if N is not None:
             N = check_horizon(N, "N", model)
+            self.requested_N: int | None = N
+            """The horizon asked for; :attr:`N` is the one used (capped at the information horizon)."""
+            N = N if self.information_horizon is None else self.information_horizon.cap(N)
+        else:
+            self.requested_N = None
         self.system, self.model, self.schedule, self.N = system, model, schedule, N
         self.w_box = w_box
         self.w_prior = model.nominal_w if w_prior is None else w_prior
@@ -316,6 +331,19 @@ class WindowEstimator(StreamingEstimator):
         return options
 
     # ------------------------------------------------------------------ guarantee
+    @property
+    def horizon_capped(self) -> bool:
+        """Whether :attr:`N` (the window used) is shorter than the one asked for, at the information horizon."""
+        return self.requested_N is not None and self.N is not None and self.requested_N > self.N
+
+    def _horizon_fields(self) -> dict[str, Any]:
+        info = self.information_horizon
+        return {
+            "horizon": self.N,
+            "requested_horizon": self.requested_N,
+            "information_horizon": None if info is None else info.horizon,
+        }
+
     def _horizon_missing(self, certificate_kind: str, horizon_eq: str) -> str:
         """Why the weights and N do not meet the theorem (no certificate, N below ``min_horizon()``); "" if they do."""
         certificate = getattr(self, "certificate", None)

@@ -284,8 +284,9 @@ def bench_window_solvers(
     Gauss-Newton backend handed to IPOPT), ``qp_fallbacks`` (QPs of the full windows that ``gn-riccati``'s
     interior point handed to qrqp; 0 for the other backends), max_dev_vs_ipopt, median_dev_vs_ipopt,
     windows_compared, windows_dev_above_1e-6, max_cost_excess_vs_ipopt, windows_cost_above_1e-8 and
-    closed_loop_dev_vs_ipopt (see the module docstring), and ``load`` (the 1-minute load
-    average when the record was taken).
+    closed_loop_dev_vs_ipopt (see the module docstring), ``load`` (the 1-minute load
+    average when the record was taken), ``N_used`` (the window the estimator runs: N capped at its
+    ``information_horizon``, :mod:`uiest.estimators.horizon`; the first ``N_used`` samples are the warm-up).
     ``quick``: 100 samples, and N = 30 unless ``horizons`` are given (else ``horizons``, default N in
     {10, 30, 100, 300}: 300 samples for N <= 30, N + 50 for N >= 100). Horizons from ``long_horizon`` on use the
     long-horizon protocol. ``estimators``: names from :data:`ESTIMATORS` (default all).
@@ -318,8 +319,7 @@ def bench_window_solvers(
 
     for N in horizons:
         for name in chosen:
-            long = N >= long_horizon  # noqa: SIM300 (reads as the docstring's N >= LONG_HORIZON)
-            _bench_estimator(name, builders[name], system, traj, N, lengths[N], long, emit)
+            _bench_estimator(name, builders[name], system, traj, N, lengths[N], long_horizon, emit)
     return records
 
 
@@ -351,22 +351,26 @@ def _bench_estimator(
     traj: Trajectory,
     N: int,
     steps: int,
-    long: bool,
+    long_horizon: int,
     emit: Callable[[dict[str, object]], None],
 ) -> None:
     """Emit one estimator's records at horizon N.
 
     Each backend in closed loop (at long horizons: gn, rti and gn-riccati, with IPOPT timed on gn's windows),
-    then IPOPT's own record on those windows or do-mpc's peer.
+    then IPOPT's own record on those windows or do-mpc's peer. The estimator runs the window ``N_used``: N capped at
+    its information horizon (:mod:`uiest.estimators.horizon`); the first ``N_used`` samples are its warm-up, and the
+    long-horizon protocol applies when ``N_used >= long_horizon``.
     """
     reference, reference_ms, reference_cpu = None, 0.0, 0.0
     ipopt_times = _IpoptTimes()
+    used = build("gn", N).N  # the window the estimator runs: N capped at its information horizon
+    long = used >= long_horizon
     for solver in ("gn", "rti", "gn-riccati") if long else SOLVERS:
         estimator = build(solver, N)
-        recorder = _record_full_windows(estimator, N) if solver != "ipopt" else None
+        recorder = _record_full_windows(estimator, used) if solver != "ipopt" else None
         clock = _StepClock(estimator)
         result = estimator.run(traj.u[:steps], traj.y[: steps + 1])
-        ms, cpu = 1e3 * np.array(clock.wall[N:]), 1e3 * np.array(clock.cpu[N:])
+        ms, cpu = 1e3 * np.array(clock.wall[used:]), 1e3 * np.array(clock.cpu[used:])
         if recorder is None:
             agreement = _IPOPT_ITSELF
         elif long:
@@ -389,8 +393,10 @@ def _bench_estimator(
             "protocol": "closed loop",
             "samples": int(ms.size),
             **_timing(cpu, ms, reference_cpu, reference_ms),
-            "median_solve_ms": float(np.median(1e3 * result.solve_time[N:])),
-            "iterations": float(result.iterations[N:].mean()),
+            "N_used": used,
+            "information_horizon": _horizon_of(estimator),
+            "median_solve_ms": float(np.median(1e3 * result.solve_time[used:])),
+            "iterations": float(result.iterations[used:].mean()),
             **agreement,
             "closed_loop_dev_vs_ipopt": closed_loop,
             "failures": int(result.failures),
@@ -398,19 +404,27 @@ def _bench_estimator(
             "qp_fallbacks": getattr(recorder.solver if recorder else None, "qp_fallbacks", 0),
             "load": os.getloadavg()[0],
         })  # fmt: skip
+    horizon_keys = {"N_used": used, "information_horizon": _horizon_of(estimator)}
     if long:
-        emit(_ipopt_on_windows(name, N, ipopt_times))
+        emit({**_ipopt_on_windows(name, N, ipopt_times), **horizon_keys})
     elif name == "standard MHE" and _dompc_available():
         assert reference is not None
-        emit(_dompc_record(system, N, traj, steps, reference, reference_ms, reference_cpu))
+        emit({**_dompc_record(system, N, traj, steps, reference, reference_ms, reference_cpu), **horizon_keys})
+
+
+def _horizon_of(estimator: Any) -> int | None:
+    """The estimator's information horizon (None: none)."""
+    info = estimator.information_horizon
+    return None if info is None else info.horizon
 
 
 TABLE_HEADER = (
-    f"{'estimator':15s} {'solver':10s} {'N':>4s} {'cpu ms':>8s} {'p95':>7s} {'max':>7s} {'x ipopt':>8s} "
+    f"{'estimator':15s} {'solver':10s} {'N':>4s} {'used':>4s} {'cpu ms':>8s} {'p95':>7s} {'max':>7s} {'x ipopt':>8s} "
     f"{'wall ms':>8s} {'solve':>7s} {'iter':>5s} {'window dev':>10s} {'>1e-6':>7s} {'cost exc':>9s} {'>1e-8':>7s} "
     f"{'run dev':>9s} {'fail':>4s} {'fallb':>5s} {'qp fb':>5s} {'load':>5s}  protocol"
 )
-"""Column headers of :func:`table_row`: per-sample CPU ms (median, p95, max), the CPU ratio to IPOPT, the wall
+"""Column headers of :func:`table_row`: the window asked for and the one used (capped at the information horizon,
+``N_used``), per-sample CPU ms (median, p95, max), the CPU ratio to IPOPT, the wall
 median, the solver's share, then the same-window agreement with IPOPT (largest deviation, count above 1e-6,
 largest cost excess, count above 1e-8), the closed-loop deviation, failures, IPOPT fallbacks, QPs the Riccati
 interior point handed to qrqp (``gn-riccati``), the load average and the protocol."""
@@ -423,7 +437,8 @@ def table_row(r: dict[str, object]) -> str:
     share = f"{r['windows_dev_above_1e-6']}/{compared}" if known else "-"
     cost_share = f"{r['windows_cost_above_1e-8']}/{compared}" if known else "-"
     return (
-        f"{r['estimator']:15s} {r['solver']:10s} {r['N']:4d} {r['median_cpu_ms']:8.3f} {r['p95_cpu_ms']:7.2f} "
+        f"{r['estimator']:15s} {r['solver']:10s} {r['N']:4d} {r.get('N_used', r['N']):4d} "
+        f"{r['median_cpu_ms']:8.3f} {r['p95_cpu_ms']:7.2f} "
         f"{r['max_cpu_ms']:7.2f} {r['cpu_ratio_vs_ipopt']:8.1f} {r['median_ms']:8.3f} {r['median_solve_ms']:7.3f} "
         f"{r['iterations']:5.1f} {r['max_dev_vs_ipopt']:10.2e} {share:>7s} {r['max_cost_excess_vs_ipopt']:9.1e} "
         f"{cost_share:>7s} "
