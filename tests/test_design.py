@@ -11,7 +11,8 @@ from uiest.design import ERROR_TOLERANCE, DesignOptions, design_uise, regret
 from uiest.detectability import certify_reduced_model, certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
 from uiest.estimators import UISE, LinearUIO
-from uiest.models import linear
+from uiest.estimators.design_search import search_uise
+from uiest.models import closed_form, linear
 
 
 def benchmark(seed: int):
@@ -315,3 +316,18 @@ def test_design_options_are_checked_once_and_equal_to_the_keywords():
     np.testing.assert_array_equal(by_object.bound, by_keywords.bound)
     designed = UISE.design(system, x0_prior=np.zeros(3), design=options)
     assert (designed.design_report.certificate.mu, designed.N) == (by_object.certificate.mu, by_object.N)
+
+
+class _CappedUISE(UISE):
+    """A UISE that runs at most 12 nodes, as one capped at its information horizon does."""
+
+    def __init__(self, system, *, N, **options):
+        super().__init__(system, N=min(N, 12), **options)
+
+
+def test_a_candidate_records_the_window_its_estimator_runs():
+    system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        design = search_uise(_CappedUISE, system, [0.0, 0.0], rates=(0.8,), max_horizon=30, trials=1)
+    assert design.N == 12 and {c.N for c in design.candidates} == {12}

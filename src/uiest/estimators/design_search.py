@@ -98,6 +98,8 @@ class Candidate:
     ----------
     mu : float
     N : int
+        The window the candidate runs: the one its rate's bound ranks best, capped at its weights' information
+        horizon (:mod:`uiest.estimators.horizon`).
     bound : ndarray (nx,)
         The guarantee's per-state bound (``guarantee.error_bound``, state units; NaN where it bounds nothing).
     rms : ndarray (nx,)
@@ -411,7 +413,13 @@ def _design(
         bound = np.full(system.nx, np.nan) if guarantee.error_bound is None else guarantee.error_bound
         output_weight = float(getattr(cert, "output_weight", 1.0))
         return Candidate(
-            mu=cert.mu, N=N, bound=bound, rms=rms, output_weight=output_weight, guarantee=guarantee, w_rms=w_rms
+            mu=cert.mu,
+            N=estimator.N,
+            bound=bound,
+            rms=rms,
+            output_weight=output_weight,
+            guarantee=guarantee,
+            w_rms=w_rms,
         ), cert
 
     def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
