@@ -84,8 +84,9 @@ class WindowSolution:
     z : ndarray (n_var,)
         Scaled decision vector at the solver's last iterate.
     lam_x, lam_g : ndarray
-        Multipliers of the simple bounds and of g for the cost ``|r|^2`` (for warm starts; IPOPT's,
-        of its scaled cost, are divided by the scale).
+        Multipliers of the simple bounds and of g: IPOPT's for the cost ``|r|^2`` (those of its scaled cost
+        divided by the scale; an IPOPT warm start takes them back), the Gauss-Newton backends' for ``|r|^2 / 2``
+        (the Lagrangian their stationarity test uses).
     cost : float
         ``|r|^2`` at ``z``.
     status : str
