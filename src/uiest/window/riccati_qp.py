@@ -330,6 +330,7 @@ class StageKernel:
             layout.c_offset,
             layout.con_offset,
         )
+        self._counts = (layout.n_var, layout.n_dyn, layout.n_con, layout.n_stages, layout.nx)  # computed once
 
     def solve(
         self,
@@ -348,20 +349,20 @@ class StageKernel:
         guess: FloatArray | None = None,
     ) -> StageQPSolution:
         """Solve with contiguous float arrays of the sizes :func:`solve_stage_qp` checks."""
-        layout = self.layout
-        z = np.zeros(layout.n_var)
-        lam_x = np.zeros(layout.n_var)
-        lam_dyn = np.zeros(layout.n_dyn)
-        lam_c = np.zeros(layout.n_con)
+        n_var, n_dyn, n_con, n_stages, nx = self._counts
+        z = np.zeros(n_var)
+        lam_x = np.zeros(n_var)
+        lam_dyn = np.zeros(n_dyn)
+        lam_c = np.zeros(n_con)
         info = np.zeros(5)
-        side = np.zeros(layout.n_var + layout.n_con)
+        side = np.zeros(n_var + n_con)
         start = _NO_GUESS if guess is None else guess
         code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
                     z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
         return StageQPSolution(
             z=z,
             lam_x=lam_x,
-            lam_dyn=lam_dyn.reshape(layout.n_stages - 1, layout.nx),
+            lam_dyn=lam_dyn.reshape(n_stages - 1, nx),
             lam_c=lam_c,
             cost=float(info[0]),
             status=QPStatus(code),

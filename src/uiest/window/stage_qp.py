@@ -115,7 +115,7 @@ class StageForm:
         )
         self._c = np.zeros(int(c_offset[-1]))
         self._c_rows = (n_dyn + order).astype(np.int64)  # problem rows in stage order
-        self._n_dyn, self._n_con = n_dyn, problem.n_con
+        self._n_var, self._n_dyn, self._n_con = n, n_dyn, problem.n_con
         maps = (self._h_target, self._a_source, self._a_row, self._a_target, self._e_source, self._c_source,
                 self._c_target, self._c_rows)  # fmt: skip
         self._maps = tuple(np.ascontiguousarray(index, dtype=np.int64) for index in maps)
@@ -159,7 +159,7 @@ class StageForm:
             return None
         start = None
         if guess is not None:
-            start = np.empty(self.layout.n_var + self._c_rows.size)
+            start = np.empty(self._n_var + self._c_rows.size)
             _guess_sides(guess[0], guess[1], self._c_rows, GUESS_FLOOR, start)
         result = self._kernel.solve(self._h, q, self._a, b, lbx, ubx, self._c, lc, uc, guess=start)
         self.last_status = result.status
