@@ -177,11 +177,13 @@ class StageQPSolution:
     z : ndarray (n_var,)
         The minimiser (the last iterate unless ``status`` is SOLVED).
     lam_x : ndarray (n_var,)
-        Bound multipliers (> 0 upper side active, < 0 lower).
+        Bound multipliers (> 0 upper side active, < 0 lower). Unless ``exact_active_set``, the interior iterate's
+        on the rows of its active-set estimate (``active_set``) and zero on the others, so that their signs are
+        that estimate (a guess for the next, similar QP).
     lam_dyn : ndarray (N, nx)
         Multipliers of ``A_k z_k + b_k - x_{k+1} = 0``.
     lam_c : ndarray (n_con,)
-        Multipliers of the general inequality rows (sign as ``lam_x``).
+        Multipliers of the general inequality rows (sign and zeros as ``lam_x``).
     cost : float
         ``1/2 z^T (H + regularisation I) z + q^T z``.
     status : QPStatus
@@ -1227,10 +1229,10 @@ def _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, lb, ub, C, lc, uc, reg, t
     if not crossed:
         status, k, res, crossed = _interior_point(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo,
                                                   has_hi, reg, tol, max_iter, q_scale, it, side, lam)  # fmt: skip
-    if not crossed:
+    if not crossed:  # the interior iterate: multipliers on the rows its active-set estimate holds
         for i in range(m):
-            lam[i] = yu[i] - yl[i]
             side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
+            lam[i] = yu[i] - yl[i] if side[i] != 0.0 else 0.0
     side_out[:] = side
     z_out[:] = z
     lam_x_out[:] = lam[:n]
