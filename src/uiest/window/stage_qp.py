@@ -14,7 +14,8 @@ and every constraint is nonlinear in one node only. Its constraint rows are
 
 :class:`StageForm` checks this structure once, from the sparsities (a matrix that breaks it raises
 :class:`~uiest.errors.OptionError`), and keeps the index maps that scatter CasADi's nonzeros into the packed
-stage blocks, so that a QP costs one NumPy scatter per matrix and one call of the compiled kernel.
+stage blocks, so that a QP costs one compiled scatter (with the guess and the multipliers, compiled helpers too) and
+one call of the compiled kernel.
 """
 
 from __future__ import annotations
