@@ -139,7 +139,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     records = json.loads(out.read_text())
     keys = {"estimator", "solver", "N", "median_ms", "p95_ms", "max_ms", "iterations", "max_dev_vs_ipopt",
             "max_cost_excess_vs_ipopt", "closed_loop_dev_vs_ipopt", "speedup_vs_ipopt", "median_dev_vs_ipopt",
-            "windows_compared", "windows_dev_above_1e-6", "windows_cost_above_1e-8", "median_cpu_ms", "p95_cpu_ms",
+            "windows_compared", "windows_dev_above_1e-6", "windows_cost_above_1e-8",
+            "windows_cost_above_ipopt_plus_1e-8", "median_cpu_ms", "p95_cpu_ms",
             "max_cpu_ms", "cpu_ratio_vs_ipopt", "median_solve_ms", "samples", "fallbacks", "qp_fallbacks",
             "load"}  # fmt: skip
     from uiest.experiments.solver_bench import _dompc_available
@@ -160,6 +161,8 @@ def test_bench_quick_writes_one_record_per_estimator_and_backend(tmp_path):
     gn = [r for r in records if r["solver"] == "gn"]
     assert all(r["windows_compared"] == 71 and r["median_dev_vs_ipopt"] <= r["max_dev_vs_ipopt"] for r in gn)
     assert all((r["windows_cost_above_1e-8"] > 0) == (r["max_cost_excess_vs_ipopt"] > 1e-8) for r in gn)
+    # the absolute count (cost above IPOPT's + 1e-8) includes every window the relative one counts
+    assert all(r["windows_cost_above_ipopt_plus_1e-8"] >= r["windows_cost_above_1e-8"] for r in records)
 
 
 @pytest.mark.slow

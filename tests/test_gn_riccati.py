@@ -15,6 +15,7 @@ from uiest.experiments.solver_bench import _record_full_windows, same_window_dev
 from uiest.models import closed_form, crop_growth, get, load
 from uiest.window import WindowProblem, make_solver
 from uiest.window.gauss_newton import GaussNewtonSolver
+from uiest.window.riccati_qp import QPStatus
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -106,3 +107,41 @@ def test_qp_option_is_checked_and_the_backend_is_selectable():
         make_solver("gn-riccati", problem, options={"qp": "qrqp"})
     with pytest.raises(OptionError, match="solver_options: max_iter=5 contradicts solver='rti'"):
         make_solver("rti", problem, options={"max_iter": 5})
+
+
+def _crop_two_stage_form():
+    estimator, N, _ = _crop("two-stage")  # output and node constraints: general stage rows
+    solver = estimator._cached(N).warm
+    return solver.problem, solver._gauss_newton_form.stage
+
+
+def test_stage_form_guess_is_the_multipliers_signs_above_the_floor():
+    from uiest.window.stage_qp import GUESS_FLOOR, _guess_sides
+
+    problem, form = _crop_two_stage_form()
+    rows = form._c_rows
+    assert rows.size > 0  # the two-stage window has general rows
+    rng = np.random.default_rng(0)
+    lam_x = rng.standard_normal(problem.n_var) * 10.0 ** rng.integers(-14, 1, problem.n_var)
+    lam_a = rng.standard_normal(problem.n_con) * 10.0 ** rng.integers(-14, 1, problem.n_con)
+    lam_x[:3] = 0.0
+    out = np.empty(problem.n_var + rows.size)
+    _guess_sides(lam_x, lam_a, rows, GUESS_FLOOR, out)
+    lam = np.concatenate((lam_x, lam_a[rows]))
+    expected = np.where(np.abs(lam) > GUESS_FLOOR * np.abs(lam).max(), np.sign(lam), 0.0)
+    assert np.array_equal(out, expected) and 0 < np.count_nonzero(out) < out.size
+
+
+def test_stage_form_refuses_dynamics_rows_that_are_not_equalities():
+    problem, form = _crop_two_stage_form()
+    solver = GaussNewtonSolver(problem, qp="riccati")
+    z = problem.pack(problem.unpack(np.zeros(problem.n_var)))
+    point = solver._evaluate(np.clip(z, problem.lbx, problem.ubx), np.zeros(problem.n_par))
+    lba, uba = problem.lbg - point.g, problem.ubg - point.g
+    bounds = (lba, uba, problem.lbx - point.z, problem.ubx - point.z)
+    h = point.h.copy()
+    h[solver._gauss_newton_form.diagonal] += 1.0  # positive definite stage blocks
+    assert form.solve(h, point.q, point.a, bounds) is not None and form.last_status is QPStatus.SOLVED
+    loose = uba.copy()
+    loose[problem.n_dyn - 1] += 1e-6  # the last dynamics row becomes an inequality
+    assert form.solve(h, point.q, point.a, (lba, loose, *bounds[2:])) is None and form.last_status is None

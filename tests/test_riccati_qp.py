@@ -156,3 +156,17 @@ def test_wrong_sizes_raise_option_errors():
         StageLayout(3, [2, 4])
     with pytest.raises(OptionError, match="regularisation"):
         solve_stage_qp(layout, H, q, A, b, lb, ub, regularisation=-1.0)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_an_interior_iterate_reports_multipliers_only_on_its_active_set_estimate(seed):
+    """Stopped before its crossover, the iterate's multipliers are its guess for the next QP: signs = active set."""
+    layout, H, q, A, b, lb, ub, C, lc, uc = _random_qp(seed, nx=3, nus=(2,) * 12 + (1,), ncs=(1, 0) * 6 + (1,))
+    stopped = solve_stage_qp(layout, H, q, A, b, lb, ub, C, lc, uc, max_iter=3)
+    assert stopped.status is QPStatus.ITERATION_LIMIT and not stopped.exact_active_set
+    lam = np.concatenate((stopped.lam_x, stopped.lam_c))
+    assert np.array_equal(np.sign(lam), stopped.active_set)  # zero off the estimate, the estimate's side on it
+    assert 0 < np.count_nonzero(stopped.active_set) < lam.size
+    solved = solve_stage_qp(layout, H, q, A, b, lb, ub, C, lc, uc, guess=stopped.active_set)
+    cold = solve_stage_qp(layout, H, q, A, b, lb, ub, C, lc, uc)
+    assert solved.solved and cold.solved and abs(solved.cost - cold.cost) <= 1e-9 * (1.0 + abs(cold.cost))

@@ -177,11 +177,13 @@ class StageQPSolution:
     z : ndarray (n_var,)
         The minimiser (the last iterate unless ``status`` is SOLVED).
     lam_x : ndarray (n_var,)
-        Bound multipliers (> 0 upper side active, < 0 lower).
+        Bound multipliers (> 0 upper side active, < 0 lower). Unless ``exact_active_set``, the interior iterate's
+        on the rows of its active-set estimate (``active_set``) and zero on the others, so that their signs are
+        that estimate (a guess for the next, similar QP).
     lam_dyn : ndarray (N, nx)
         Multipliers of ``A_k z_k + b_k - x_{k+1} = 0``.
     lam_c : ndarray (n_con,)
-        Multipliers of the general inequality rows (sign as ``lam_x``).
+        Multipliers of the general inequality rows (sign and zeros as ``lam_x``).
     cost : float
         ``1/2 z^T (H + regularisation I) z + q^T z``.
     status : QPStatus
@@ -330,6 +332,7 @@ class StageKernel:
             layout.c_offset,
             layout.con_offset,
         )
+        self._counts = (layout.n_var, layout.n_dyn, layout.n_con, layout.n_stages, layout.nx)  # computed once
 
     def solve(
         self,
@@ -348,20 +351,20 @@ class StageKernel:
         guess: FloatArray | None = None,
     ) -> StageQPSolution:
         """Solve with contiguous float arrays of the sizes :func:`solve_stage_qp` checks."""
-        layout = self.layout
-        z = np.zeros(layout.n_var)
-        lam_x = np.zeros(layout.n_var)
-        lam_dyn = np.zeros(layout.n_dyn)
-        lam_c = np.zeros(layout.n_con)
+        n_var, n_dyn, n_con, n_stages, nx = self._counts
+        z = np.zeros(n_var)
+        lam_x = np.zeros(n_var)
+        lam_dyn = np.zeros(n_dyn)
+        lam_c = np.zeros(n_con)
         info = np.zeros(5)
-        side = np.zeros(layout.n_var + layout.n_con)
+        side = np.zeros(n_var + n_con)
         start = _NO_GUESS if guess is None else guess
         code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
                     z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
         return StageQPSolution(
             z=z,
             lam_x=lam_x,
-            lam_dyn=lam_dyn.reshape(layout.n_stages - 1, layout.nx),
+            lam_dyn=lam_dyn.reshape(n_stages - 1, nx),
             lam_c=lam_c,
             cost=float(info[0]),
             status=QPStatus(code),
@@ -1226,10 +1229,10 @@ def _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, lb, ub, C, lc, uc, reg, t
     if not crossed:
         status, k, res, crossed = _interior_point(nx, N1, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, C, lo, hi, has_lo,
                                                   has_hi, reg, tol, max_iter, q_scale, it, side, lam)  # fmt: skip
-    if not crossed:
+    if not crossed:  # the interior iterate: multipliers on the rows its active-set estimate holds
         for i in range(m):
-            lam[i] = yu[i] - yl[i]
             side[i] = 1.0 if has_hi[i] and yu[i] > su[i] else (-1.0 if has_lo[i] and yl[i] > sl[i] else 0.0)
+            lam[i] = yu[i] - yl[i] if side[i] != 0.0 else 0.0
     side_out[:] = side
     z_out[:] = z
     lam_x_out[:] = lam[:n]

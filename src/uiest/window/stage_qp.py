@@ -14,12 +14,14 @@ and every constraint is nonlinear in one node only. Its constraint rows are
 
 :class:`StageForm` checks this structure once, from the sparsities (a matrix that breaks it raises
 :class:`~uiest.errors.OptionError`), and keeps the index maps that scatter CasADi's nonzeros into the packed
-stage blocks, so that a QP costs one NumPy scatter per matrix and one call of the compiled kernel.
+stage blocks, so that a QP costs one compiled scatter (with the guess and the multipliers, compiled helpers too) and
+one call of the compiled kernel.
 """
 
 from __future__ import annotations
 
 import casadi as ca
+import numba
 import numpy as np
 
 from uiest.box import FloatArray
@@ -113,8 +115,11 @@ class StageForm:
             c_offset[c_stage] + (position[c_rows] - con_offset[c_stage]) * sizes[c_stage] + (c_cols - starts[c_stage])
         )
         self._c = np.zeros(int(c_offset[-1]))
-        self._c_rows = n_dyn + order  # problem rows in stage order
-        self._n_dyn, self._n_con = n_dyn, problem.n_con
+        self._c_rows = (n_dyn + order).astype(np.int64)  # problem rows in stage order
+        self._n_var, self._n_dyn, self._n_con = n, n_dyn, problem.n_con
+        maps = (self._h_target, self._a_source, self._a_row, self._a_target, self._e_source, self._c_source,
+                self._c_target, self._c_rows)  # fmt: skip
+        self._maps = tuple(np.ascontiguousarray(index, dtype=np.int64) for index in maps)
         self._kernel = StageKernel(self.layout)
         self.last_status: QPStatus | None = None
 
@@ -149,26 +154,67 @@ class StageForm:
 
         """
         lba, uba, lbx, ubx = bounds
-        n_dyn = self._n_dyn
-        if np.any(np.abs(uba[:n_dyn] - lba[:n_dyn]) > EQUALITY_TOL):
+        b, lc, uc = np.empty(self._n_dyn), np.empty(self._c_rows.size), np.empty(self._c_rows.size)
+        if not _scatter(h, a, lba, uba, self._maps, EQUALITY_TOL, self._h, self._a, self._c, b, lc, uc):
             self.last_status = None
             return None
-        self._h[self._h_target] = h
-        e = a[self._e_source]  # (N nx,), -1 for a window problem
-        self._a[self._a_target] = -a[self._a_source] / e[self._a_row]
-        self._c[self._c_target] = a[self._c_source]
-        b = lba[:n_dyn] / e
         start = None
         if guess is not None:
-            lam = np.concatenate((guess[0], guess[1][self._c_rows]))
-            start = np.where(np.abs(lam) > GUESS_FLOOR * np.abs(lam).max(initial=0.0), np.sign(lam), 0.0)
-        result = self._kernel.solve(
-            self._h, q, self._a, b, lbx, ubx, self._c, lba[self._c_rows], uba[self._c_rows], guess=start
-        )
+            start = np.empty(self._n_var + self._c_rows.size)
+            _guess_sides(guess[0], guess[1], self._c_rows, GUESS_FLOOR, start)
+        result = self._kernel.solve(self._h, q, self._a, b, lbx, ubx, self._c, lc, uc, guess=start)
         self.last_status = result.status
         if not result.solved:
             return None
         lam_a = np.empty(self._n_con)
-        lam_a[:n_dyn] = -result.lam_dyn.reshape(-1) / e
-        lam_a[self._c_rows] = result.lam_c
+        _constraint_multipliers(result.lam_dyn.reshape(-1), result.lam_c, a, self._e_source, self._c_rows, lam_a)
         return result.z, result.cost, result.lam_x, lam_a
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _scatter(h, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):  # pragma: no cover (compiled)
+    """The stage blocks ``H``, ``A``, ``C`` and ``b, lc, uc`` from CasADi's nonzeros (``maps``: the index maps).
+
+    False, with nothing written, if a dynamics row's bounds differ by more than ``equality_tol``.
+    """
+    h_target, a_source, a_row, a_target, e_source, c_source, c_target, c_rows = maps
+    n_dyn = b.size
+    for i in range(n_dyn):
+        if abs(uba[i] - lba[i]) > equality_tol:
+            return False
+    for i in range(h.size):
+        H[h_target[i]] = h[i]
+    for j in range(a_source.size):  # A_k = -(row) / e, e the row's entry at x_{k+1} (-1 for a window problem)
+        A[a_target[j]] = -a[a_source[j]] / a[e_source[a_row[j]]]
+    for j in range(c_source.size):
+        C[c_target[j]] = a[c_source[j]]
+    for i in range(n_dyn):
+        b[i] = lba[i] / a[e_source[i]]
+    for j in range(c_rows.size):
+        lc[j] = lba[c_rows[j]]
+        uc[j] = uba[c_rows[j]]
+    return True
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _guess_sides(lam_x, lam_a, c_rows, floor, out):  # pragma: no cover (compiled)
+    """``out``: the signs of ``[lam_x; lam_a[c_rows]]`` where above ``floor`` times the largest, else 0."""
+    n = lam_x.size
+    largest = 0.0
+    for i in range(n):
+        largest = max(largest, abs(lam_x[i]))
+    for j in range(c_rows.size):
+        largest = max(largest, abs(lam_a[c_rows[j]]))
+    threshold = floor * largest
+    for i in range(n + c_rows.size):
+        value = lam_x[i] if i < n else lam_a[c_rows[i - n]]
+        out[i] = (1.0 if value > 0.0 else -1.0) if abs(value) > threshold else 0.0
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _constraint_multipliers(lam_dyn, lam_c, a, e_source, c_rows, lam_a):  # pragma: no cover (compiled)
+    """``lam_a`` in the problem's row order: the dynamics rows' ``-lam_dyn / e``, the others' ``lam_c``."""
+    for i in range(lam_dyn.size):
+        lam_a[i] = -lam_dyn[i] / a[e_source[i]]
+    for j in range(c_rows.size):
+        lam_a[c_rows[j]] = lam_c[j]
