@@ -331,3 +331,15 @@ def test_a_candidate_records_the_window_its_estimator_runs():
         warnings.simplefilter("ignore")
         design = search_uise(_CappedUISE, system, [0.0, 0.0], rates=(0.8,), max_horizon=30, trials=1)
     assert design.N == 12 and {c.N for c in design.candidates} == {12}
+    assert design.ranked_horizon > 12 and "capped at the information horizon" in design.summary()
+
+
+def test_a_designed_uise_beyond_its_information_horizon_runs_capped_and_says_so():
+    system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        est = UISE.design(system, x0_prior=[0.0, 0.0], rates=(0.5,), max_horizon=80, trials=1)
+    report = est.design_report
+    assert est.horizon_capped and est.N == report.N < report.ranked_horizon == est.requested_N
+    assert est.guarantee.capped and est.guarantee.horizon == est.N and est.guarantee.applies
+    assert f"The window runs N={est.N}, not the N={est.requested_N} asked for" in str(est.guarantee)

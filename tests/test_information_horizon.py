@@ -97,7 +97,7 @@ def test_capped_guarantee_is_the_theorem_for_the_window_used_and_says_so():
     assert g.error_bound is not None and reference.error_bound is not None
     np.testing.assert_array_equal(g.error_bound, reference.error_bound)
     assert g.text.startswith(reference.text)
-    assert f"for N={horizon}: the window is capped at its information horizon (N=500 asked for" in g.text
+    assert f"The window runs N={horizon}, not the N=500 asked for: it is capped at its information horizon" in g.text
     assert not reference.capped and "capped" not in reference.text
     data = g.to_dict()
     assert (data["capped"], data["horizon"], data["requested_horizon"]) == (True, horizon, 500)

@@ -218,7 +218,8 @@ def build_estimator(
                 else:
                     built = est.TwoStageUISE.design(_reduction(entry, reduced), x0_prior=x0, **design_kw)
                 assert built.weights is not None  # a certified design has weights (n_sharp = 0 has no design)
-                return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, certified"
+                claim = "certified" if built.guarantee.applies else "certified, no guarantee (its guarantee says why)"
+                return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, {claim}"
             except HorizonError as exc:  # certified, with a longer window: the next limit may admit it
                 reason = horizon_reason(exc.limit, exc.shortest)
                 if exc.shortest > LONGEST_HORIZON:

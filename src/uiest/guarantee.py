@@ -172,8 +172,8 @@ class Guarantee:
         if not self.capped:
             return self._verdict_text()
         return (
-            f"{self._verdict_text()}; for N={self.horizon}: the window is capped at its information horizon "
-            f"(N={self.requested_horizon} asked for; older cost terms fall below double precision)"
+            f"{self._verdict_text()}. The window runs N={self.horizon}, not the N={self.requested_horizon} asked for: "
+            "it is capped at its information horizon (older cost terms would fall below double precision)"
         )
 
     def _verdict_text(self) -> str:

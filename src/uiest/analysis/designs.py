@@ -119,13 +119,19 @@ def _design(name: str, system: System, certified_system: System, build: Callable
         return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=None, guarantee=None)
     horizons = range(max(cert.min_horizon(), shortest), max_horizon + 1)
     if not horizons:
-        N = max(max_horizon, shortest)
-        return EstimatorDesign(
-            estimator=name, certificate=cert, not_applicable="", N=N, guarantee=build(cert, N).guarantee
-        )
+        guarantee = build(cert, max(max_horizon, shortest)).guarantee
+        return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=_used(guarantee),
+                               guarantee=guarantee)  # fmt: skip
     guarantees = {N: build(cert, N).guarantee for N in horizons}
     N = min(horizons, key=lambda n: _largest_relative(guarantees[n], system.x.scale))
-    return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=N, guarantee=guarantees[N])
+    return EstimatorDesign(estimator=name, certificate=cert, not_applicable="", N=_used(guarantees[N]),
+                           guarantee=guarantees[N])  # fmt: skip
+
+
+def _used(guarantee: Guarantee) -> int:
+    """The window the estimator runs (its information horizon where that capped the N asked for)."""
+    assert guarantee.horizon is not None  # a window estimator's guarantee
+    return guarantee.horizon
 
 
 def strong_design(system: System, x0: FloatArray, max_horizon: int) -> EstimatorDesign:

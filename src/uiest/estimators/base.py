@@ -351,6 +351,9 @@ class WindowEstimator(StreamingEstimator):
             return f"explicit weights without a {certificate_kind} certificate"
         n_min = certificate.min_horizon()
         if self.N is not None and n_min > self.N:
+            if self.horizon_capped:
+                return (f"the weights' information horizon N={self.N} is below min_horizon()={n_min} ({horizon_eq}): "
+                        "a longer window would not help; weights spanning fewer orders of magnitude would")  # fmt: skip
             return f"N={self.N} < min_horizon()={n_min}, too short for {horizon_eq}"
         return ""
 

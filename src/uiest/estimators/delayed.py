@@ -98,8 +98,8 @@ class DelayedUISE(UISE):
         _check_lag(lag, delayed.system)
         prior = delayed.T_b @ as_vector(x0_prior, system.nx, "x0_prior")
         design = search_uise(UISE, delayed.system, prior, **design_options)
-        est = cls(system, lag=lag, certificate=design.certificate, N=max(design.N, int(lag) + 1), x0_prior=x0_prior,
-                  **estimator_options(design_options))  # fmt: skip
+        est = cls(system, lag=lag, certificate=design.certificate, N=max(design.ranked_horizon, int(lag) + 1),
+                  x0_prior=x0_prior, **estimator_options(design_options))  # fmt: skip
         est.design_report = design
         return est
 

@@ -11,7 +11,8 @@ averages more samples and errs less. :func:`search_uise` therefore
 
 1. certifies at the minimal rate and at a grid of rates (``rates``, those above its design rate), within a
    CPU budget; each certified rate gets the horizon ``N <= max_horizon`` that minimises its bound
-   (only pairs with ``N >= min_horizon()`` are candidates, so every candidate is guaranteed); a rate
+   (only pairs with ``N >= min_horizon()`` are candidates; an N beyond the weights' information horizon runs
+   capped there, possibly without a guarantee, and guaranteed candidates are chosen first); a rate
    whose gain-optimal certificate needs more than ``max_horizon`` (``min_horizon`` grows with
    log cond(P)) is certified again with cond(P) bounded so that it fits (``max_condition``);
 2. runs each candidate on ``trials`` noise records (uniform in V, the true state starting at
@@ -110,6 +111,8 @@ class Candidate:
         The candidate estimator's guarantee.
     w_rms : ndarray (nw,)
         Simulated unknown-input error RMS per input (NaN where no estimate was delivered).
+    ranked_horizon : int or None
+        The window the rate's bound ranked best when the information horizon capped it to ``N``, else None.
 
     """
 
@@ -120,6 +123,7 @@ class Candidate:
     output_weight: float = 1.0
     guarantee: Guarantee | None = None
     w_rms: FloatArray = field(default_factory=lambda: np.zeros(0))
+    ranked_horizon: int | None = None
 
 
 def regret(errors: FloatArray) -> FloatArray:
@@ -152,6 +156,11 @@ class Design:
     certificate : StrongDetectability or ReducedIOSS
         Certified at the chosen rate.
     N : int
+        The window the chosen estimator runs.
+    ranked_horizon : int
+        The window its rate's bound ranked best: ``N``, or longer when the weights' information horizon capped it
+        (:mod:`uiest.estimators.horizon`); the ``design()`` classmethods build the estimator with it, so it states
+        the cap.
     bound : ndarray (nx,)
         The chosen estimator's guarantee's error bound per state (Theorem 3.6 or Theorem 4.8,
         :mod:`uiest.estimators.bounds`), in the states' units.
@@ -163,6 +172,7 @@ class Design:
 
     certificate: Any
     N: int
+    ranked_horizon: int
     bound: FloatArray
     candidates: tuple[Candidate, ...]
     seconds: float
@@ -174,6 +184,7 @@ class Design:
         for c in self.candidates:
             mark = "*" if (c.mu, c.N, c.output_weight) == chosen else " "
             weight = f" output weight x{c.output_weight:g}" if c.output_weight != 1.0 else ""
+            weight += f" (ranked N={c.ranked_horizon}, capped at the information horizon)" if c.ranked_horizon else ""
             w_rms = f" w rms={np.array2string(c.w_rms, precision=3)}" if c.w_rms.size else ""
             rows.append(
                 f"{mark} mu={c.mu:.4g} N={c.N:<3d}{weight} bound={np.array2string(c.bound, precision=3)} "
@@ -290,7 +301,8 @@ def search_uise(
     """:func:`uiest.design.design_uise` with the candidates built by ``estimator``.
 
     ``estimator(system, certificate=, N=, x0_prior=, **options)`` builds a candidate UISE: ``design_uise`` passes
-    the :class:`~uiest.estimators.UISE` class, the estimators' ``design()`` classmethods pass themselves. The other
+    the :class:`~uiest.estimators.UISE` class, ``UISE.design`` passes its class (``DelayedUISE.design`` the UISE of the
+    delayed system). The other
     parameters, the result and the errors are ``design_uise``'s.
 
     Examples
@@ -420,10 +432,16 @@ def _design(
             output_weight=output_weight,
             guarantee=guarantee,
             w_rms=w_rms,
+            ranked_horizon=N if estimator.N != N else None,
         ), cert
 
     def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
-        """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best."""
+        """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best.
+
+        Only the candidates whose guarantee applies compete, where there are any (an information horizon can cap a
+        candidate's window below its min_horizon()).
+        """
+        pool = [pair for pair in pool if pair[0].guarantee is not None and pair[0].guarantee.applies] or pool
         errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c, _ in pool])
         score = regret(errors)
         tied = [pair for pair, value in zip(pool, score, strict=True) if value <= ERROR_TOLERANCE * score.min()]
@@ -444,12 +462,17 @@ def _design(
             shortest,
         )
     chosen, cert = choose(candidates)
-    candidates += [weigh(variant, chosen.N) for variant in variants(cert)]  # the best rate's variants
+    for variant in variants(cert):  # the best rate's variants, at its ranked window
+        try:
+            candidates.append(weigh(variant, chosen.ranked_horizon or chosen.N))
+        except OptionError:  # output weights too large for the window's weight range: not a candidate
+            continue
     chosen, cert = choose(candidates)
     _warn_if_vacuous(chosen)
     return Design(
         certificate=cert,
         N=chosen.N,
+        ranked_horizon=chosen.ranked_horizon or chosen.N,
         bound=chosen.bound,
         candidates=tuple(c for c, _ in candidates),
         seconds=time.thread_time() - start,

@@ -199,7 +199,7 @@ class TwoStageUISE(WindowEstimator):
             raise OptionError(f"reduced: expected a uiest.reduction.ReducedModel, got {type(reduced).__name__}")
         reduced = reduced_data_scales(reduced, x0_prior)
         design = search_two_stage(cls, reduced, x0_prior, **design_options)
-        est = cls(reduced, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
+        est = cls(reduced, certificate=design.certificate, N=design.ranked_horizon, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design
         return est

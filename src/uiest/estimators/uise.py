@@ -181,7 +181,7 @@ class UISE(WindowEstimator):
         """
         system = data_scales(check_system(system), x0_prior)
         design = search_uise(cls, system, x0_prior, **design_options)
-        est = cls(system, certificate=design.certificate, N=design.N, x0_prior=x0_prior,
+        est = cls(system, certificate=design.certificate, N=design.ranked_horizon, x0_prior=x0_prior,
                   **estimator_options(design_options))  # fmt: skip
         est.design_report = design
         return est
