@@ -5,7 +5,10 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import functools
+import itertools
+import json
 import math
+import time
 import warnings
 from collections.abc import Callable
 from pathlib import Path
@@ -14,7 +17,7 @@ from typing import Annotated, Any, ParamSpec, TypeVar
 import numpy as np
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
 from uiest import __version__, models
@@ -366,9 +369,6 @@ def certify(
     seed: Annotated[int, typer.Option(help="Seed of the samples and the verification.")] = 0,
 ) -> None:
     """Certify a registered model: strong detectability, reduced-order e-IOSS, delta-IOSS."""
-    import json
-    import time
-
     check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")
@@ -435,8 +435,6 @@ def analyse(
     json_file: Annotated[Path | None, typer.Option("--json", help="Also write the analysis as JSON.")] = None,
 ) -> None:
     """Which estimator suits a model, and why: structure, zeros, near-zeros, certificates, recommendation."""
-    import json
-
     _positive(max_horizon, "--max-horizon")
     if json_file is not None:
         writable_file(json_file, "--json")
@@ -528,12 +526,6 @@ def reproduce(
     workers: Annotated[int | None, typer.Option(help="Processes running the runs (default: all cores).")] = None,
 ) -> None:
     """Run a model's study (default: the paper's crop-growth study): figures, Table 1, report.md; or a scenario file."""
-    import contextlib
-    import itertools
-    import time
-
-    from rich.progress import SpinnerColumn
-
     _choice(solver, BACKENDS, "--solver")
     _positive(runs, "--runs")
     _positive(steps, "--steps")
@@ -668,8 +660,6 @@ def bench(
     ] = None,
 ) -> None:
     """Window solver backends (ipopt, gn, rti, gn-riccati) x estimators x N on the noisy crop scenario."""
-    import json
-
     if json_file is not None:
         writable_file(json_file, "--json")
 

@@ -10,6 +10,8 @@ import re
 import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
+from os import PathLike
+from pathlib import Path
 from types import MappingProxyType
 from typing import TYPE_CHECKING, Any
 
@@ -593,9 +595,6 @@ def read_record(path: Any, system: Any) -> Trajectory:
 
     Gaps in ``k`` or ``t`` are missing samples (rows of NaN); a file with neither is taken as contiguous (a warning).
     """
-    from os import PathLike
-    from pathlib import Path
-
     import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
 
     if not isinstance(path, str | PathLike):

@@ -32,6 +32,7 @@ large condition number, and the weights (the noise gain) grow with it
 from __future__ import annotations
 
 import dataclasses
+import inspect
 from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -215,8 +216,6 @@ class DissipationSolution:
 
 def check_options(options: dict[str, Any], caller: str) -> None:
     """OptionError naming any keyword :func:`solve` does not take (``structure`` and ``mu`` are the caller's)."""
-    import inspect
-
     known = set(inspect.signature(solve).parameters) - {"model", "mu"}
     unknown = sorted(set(options) - known)
     if unknown:

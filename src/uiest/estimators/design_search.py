@@ -435,18 +435,6 @@ def _design(
             ranked_horizon=N if estimator.N != N else None,
         ), cert
 
-    def choose(pool: list[tuple[Candidate, Any]]) -> tuple[Candidate, Any]:
-        """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best.
-
-        Only the candidates whose guarantee applies compete, where there are any (an information horizon can cap a
-        candidate's window below its min_horizon()).
-        """
-        pool = [pair for pair in pool if pair[0].guarantee is not None and pair[0].guarantee.applies] or pool
-        errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c, _ in pool])
-        score = regret(errors)
-        tied = [pair for pair, value in zip(pool, score, strict=True) if value <= ERROR_TOLERANCE * score.min()]
-        return min(tied, key=lambda pair: _largest_bound(pair[0].bound, system.x.scale))
-
     for cert in certificates:
         horizons = range(cert.min_horizon(), max_horizon + 1)
         N = min(horizons, key=lambda n: rank(cert, n), default=None)
@@ -461,13 +449,13 @@ def _design(
             max_horizon,
             shortest,
         )
-    chosen, cert = choose(candidates)
+    chosen, cert = _choose(candidates, system)
     for variant in variants(cert):  # the best rate's variants, at its ranked window
         try:
             candidates.append(weigh(variant, chosen.ranked_horizon or chosen.N))
         except OptionError:  # output weights too large for the window's weight range: not a candidate
             continue
-    chosen, cert = choose(candidates)
+    chosen, cert = _choose(candidates, system)
     _warn_if_vacuous(chosen)
     return Design(
         certificate=cert,
@@ -477,6 +465,19 @@ def _design(
         candidates=tuple(c for c, _ in candidates),
         seconds=time.thread_time() - start,
     )
+
+
+def _choose(pool: list[tuple[Candidate, Any]], system: System) -> tuple[Candidate, Any]:
+    """The smallest bound among the candidates whose regret is within ERROR_TOLERANCE of the best.
+
+    Only the candidates whose guarantee applies compete, where there are any (an information horizon can cap a
+    candidate's window below its min_horizon()).
+    """
+    pool = [pair for pair in pool if pair[0].guarantee is not None and pair[0].guarantee.applies] or pool
+    errors = np.array([np.concatenate([c.rms / system.x.scale, c.w_rms / system.w.scale]) for c, _ in pool])
+    score = regret(errors)
+    tied = [pair for pair, value in zip(pool, score, strict=True) if value <= ERROR_TOLERANCE * score.min()]
+    return min(tied, key=lambda pair: _largest_bound(pair[0].bound, system.x.scale))
 
 
 def _warn_if_vacuous(chosen: Candidate) -> None:
