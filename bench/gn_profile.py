@@ -6,9 +6,9 @@ record once untimed (numba's cache, the problems' construction), then once timed
 backend (``gn``: qrqp; ``gn-riccati``: the stage-wise kernel). Over the samples with full windows (k >= N),
 ``time.thread_time`` times every call of a CasADi Function through :class:`~uiest.window.buffered.BufferedFunction`
 by the Function's name (``gn_qp`` is qrqp, ``gn_evaluation`` the fused point evaluation; the buffer's Python
-copies included), every call of the compiled Riccati kernel (``riccati kernel``), the Python of
-:meth:`~uiest.window.stage_qp.StageForm.solve` around it (``QP wrapper``: scatter, guess, multipliers, the
-kernel's Python wrapper), and the whole step. Printed per estimator: CPU per sample and its share of the step for
+copies included), every call of the compiled QP (``riccati kernel``: the scatter, guess, kernel and multipliers in
+one compiled call), the Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around it (``QP wrapper``), and
+the whole step. Printed per estimator: CPU per sample and its share of the step for
 each, calls per sample, CPU per call; the QP's iterations (qrqp's active-set changes, or the kernel's active-set
 steps and interior-point iterations) per QP and in each solve's first QP; and the rest of the step (``Python,
 rest``: the estimator's step, the window shift, the parameters, the Gauss-Newton loop, the result's bookkeeping)
@@ -28,16 +28,16 @@ import numpy as np
 from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
-from uiest.window import buffered, riccati_qp, stage_qp
+from uiest.window import buffered, stage_qp
 
 PYTHON_TARGET = 0.1
 """Issue 38's target for the Python outside the QP and CasADi, ms per full-window sample at N = 30."""
 
 KERNEL = "riccati kernel"
-"""The name the compiled stage-wise QP kernel's calls are reported under."""
+"""The name the compiled stage-wise QP's calls (scatter, guess, kernel, multipliers) are reported under."""
 
 WRAPPER = "QP wrapper"
-"""The Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around the kernel (scatter, guess, multipliers)."""
+"""The Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around the compiled QP."""
 
 
 class _Timer:
@@ -52,7 +52,7 @@ class _Timer:
         self.steps, self.step_cpu, self.overhead = 0, 0.0, 0.0
         self._first = False
         self._call = buffered.BufferedFunction.__call__
-        self._kernel = riccati_qp._ipm
+        self._kernel = stage_qp._solve_form
         self._stage_solve = stage_qp.StageForm.solve
 
     def _record(self, name: str, start: float, end: float, iterations: tuple[int, int] | None) -> None:
@@ -99,13 +99,13 @@ class _Timer:
             return out
 
         buffered.BufferedFunction.__call__ = timed  # type: ignore[method-assign]
-        riccati_qp._ipm = timed_kernel
+        stage_qp._solve_form = timed_kernel
         stage_qp.StageForm.solve = timed_stage_solve  # type: ignore[method-assign]
         return self
 
     def __exit__(self, *exc: object) -> None:
         buffered.BufferedFunction.__call__ = self._call  # type: ignore[method-assign]
-        riccati_qp._ipm = self._kernel
+        stage_qp._solve_form = self._kernel
         stage_qp.StageForm.solve = self._stage_solve  # type: ignore[method-assign]
 
     def wrap(self, estimator: Any, N: int) -> None:

@@ -2,8 +2,9 @@
 
 Run: ``python bench/riccati_profile.py [-N 30] [--steps 100] [--estimator UISE]``. On the noisy crop scenario
 (seed 1, the estimators and weights of ``uiest bench``), each window estimator runs once with the
-``gn-riccati`` backend; over the samples with full windows (k >= N), every call of the Riccati kernel
-(:meth:`~uiest.window.riccati_qp.StageKernel.solve`) is timed (``time.thread_time``) and its outcome kept.
+``gn-riccati`` backend; over the samples with full windows (k >= N), every stage-wise QP
+(:meth:`~uiest.window.stage_qp.StageForm.solve`: the scatter, the kernel, the multipliers) is timed
+(``time.thread_time``) and its outcome kept.
 Printed per estimator: CPU per sample (the whole step) and the kernel's share, Gauss-Newton iterations and QPs
 per sample, then for each sample's first QP and for the later ones: CPU per QP, how often the guessed active set
 was the optimum, the active-set steps from it, and the interior-point iterations where it was not.
@@ -21,38 +22,39 @@ import numpy as np
 from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
-from uiest.window import riccati_qp
+from uiest.window import riccati_qp, stage_qp
 
 
 class _KernelTimer:
-    """Times :meth:`StageKernel.solve` calls (while installed) and an estimator's steps, for samples k >= N."""
+    """Times :meth:`StageForm.solve` calls (while installed) and an estimator's steps, for samples k >= N."""
 
     def __init__(self) -> None:
         self.on = False
         self.first = False
         self.qps: list[tuple[bool, float, bool, int, int]] = []  # (first, cpu, from guess, steps, ipm iterations)
         self.steps, self.step_cpu, self.kernel_cpu, self.gn_iterations = 0, 0.0, 0.0, 0
-        self._solve = riccati_qp.StageKernel.solve
+        self._solve = stage_qp.StageForm.solve
 
     def __enter__(self) -> _KernelTimer:
         solve, timer = self._solve, self
 
-        def timed(kernel: riccati_qp.StageKernel, *args: Any, **kwargs: Any) -> riccati_qp.StageQPSolution:
+        def timed(form: stage_qp.StageForm, *args: Any, **kwargs: Any) -> Any:
             start = time.thread_time()
-            out = solve(kernel, *args, **kwargs)
+            out = solve(form, *args, **kwargs)
             if timer.on:
                 cpu = time.thread_time() - start
                 timer.kernel_cpu += cpu
-                guessed = out.iterations == 0 and out.active_set_steps > 0 and out.solved
-                timer.qps.append((timer.first, cpu, guessed, out.active_set_steps, out.iterations))
+                steps, iterations = form.last_counts
+                guessed = iterations == 0 and steps > 0 and form.last_status == riccati_qp.QPStatus.SOLVED
+                timer.qps.append((timer.first, cpu, guessed, steps, iterations))
                 timer.first = False
             return out
 
-        riccati_qp.StageKernel.solve = timed  # type: ignore[method-assign]
+        stage_qp.StageForm.solve = timed  # type: ignore[method-assign]
         return self
 
     def __exit__(self, *exc: object) -> None:
-        riccati_qp.StageKernel.solve = self._solve  # type: ignore[method-assign]
+        stage_qp.StageForm.solve = self._solve  # type: ignore[method-assign]
 
     def wrap(self, estimator: Any, N: int) -> None:
         step = estimator.step

@@ -322,7 +322,7 @@ class StageKernel:
 
     def __init__(self, layout: StageLayout) -> None:
         self.layout = layout
-        self._sizes = (
+        self.sizes = (
             np.int64(layout.nx),
             layout.stage_sizes,
             layout.z_offset,
@@ -359,7 +359,7 @@ class StageKernel:
         info = np.zeros(5)
         side = np.zeros(n_var + n_con)
         start = _NO_GUESS if guess is None else guess
-        code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
+        code = _ipm(*self.sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
                     z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
         return StageQPSolution(
             z=z,

@@ -27,7 +27,7 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.errors import OptionError
 from uiest.window.problem import WindowProblem
-from uiest.window.riccati_qp import QPStatus, StageKernel, StageLayout
+from uiest.window.riccati_qp import DEFAULT_MAX_ITER, DEFAULT_TOL, QPStatus, StageKernel, StageLayout, _ipm
 
 __all__ = ["EQUALITY_TOL", "GUESS_FLOOR", "StageForm"]
 
@@ -120,8 +120,12 @@ class StageForm:
         maps = (self._h_target, self._a_source, self._a_row, self._a_target, self._e_source, self._c_source,
                 self._c_target, self._c_rows)  # fmt: skip
         self._maps = tuple(np.ascontiguousarray(index, dtype=np.int64) for index in maps)
-        self._kernel = StageKernel(self.layout)
+        kernel_sizes = StageKernel(self.layout).sizes
+        self._kernel_sizes = kernel_sizes
+        self._no_guess = np.zeros(0)
+        self._info = np.zeros(5)
         self.last_status: QPStatus | None = None
+        self.last_counts = (0, 0)
 
     def solve(
         self,
@@ -154,21 +158,43 @@ class StageForm:
 
         """
         lba, uba, lbx, ubx = bounds
-        b, lc, uc = np.empty(self._n_dyn), np.empty(self._c_rows.size), np.empty(self._c_rows.size)
-        if not _scatter(h, a, lba, uba, self._maps, EQUALITY_TOL, self._h, self._a, self._c, b, lc, uc):
-            self.last_status = None
+        guess_x, guess_a = (self._no_guess, self._no_guess) if guess is None else guess
+        z, lam_x, lam_a = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_con)
+        info = self._info
+        code = _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, self._maps, EQUALITY_TOL, GUESS_FLOOR,
+                           *self._kernel_sizes, self._h, self._a, self._c, z, lam_x, lam_a, info)  # fmt: skip
+        self.last_status = None if code < 0 else QPStatus(code)
+        self.last_counts = int(info[4]), int(info[1])
+        if code != QPStatus.SOLVED:
             return None
-        start = None
-        if guess is not None:
-            start = np.empty(self._n_var + self._c_rows.size)
-            _guess_sides(guess[0], guess[1], self._c_rows, GUESS_FLOOR, start)
-        result = self._kernel.solve(self._h, q, self._a, b, lbx, ubx, self._c, lc, uc, guess=start)
-        self.last_status = result.status
-        if not result.solved:
-            return None
-        lam_a = np.empty(self._n_con)
-        _constraint_multipliers(result.lam_dyn.reshape(-1), result.lam_c, a, self._e_source, self._c_rows, lam_a)
-        return result.z, result.cost, result.lam_x, lam_a
+        return z, float(info[0]), lam_x, lam_a
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, maps, equality_tol, guess_floor, nx, nz, zo, ho, ao,
+                ncs, co, cro, H, A, C, z, lam_x, lam_a, info):  # pragma: no cover (compiled)  # fmt: skip
+    """:meth:`StageForm.solve` in one compiled call: scatter, guess, kernel, multipliers in the problem's row order.
+
+    Returns the kernel's :class:`QPStatus` code, or -1 (nothing solved) if a dynamics row is not an equality.
+    ``guess_x`` empty: no guess. ``info``: the kernel's (cost, iterations, residual, exact, active-set steps).
+    """
+    c_rows = maps[7]
+    n_dyn = (nz.size - 1) * nx
+    n_c = c_rows.size
+    b, lc, uc = np.empty(n_dyn), np.empty(n_c), np.empty(n_c)
+    if not _scatter(h, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):
+        info[1] = 0.0
+        info[4] = 0.0
+        return -1
+    start = np.empty(z.size + n_c if guess_x.size else 0)
+    if guess_x.size:
+        _guess_sides(guess_x, guess_a, c_rows, guess_floor, start)
+    lam_dyn, lam_c, side = np.empty(n_dyn), np.empty(n_c), np.empty(z.size + n_c)
+    code = _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, lbx, ubx, C, lc, uc, 0.0, DEFAULT_TOL,
+                DEFAULT_MAX_ITER, start, z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
+    if code == 0:
+        _constraint_multipliers(lam_dyn, lam_c, a, maps[4], c_rows, lam_a)
+    return code
 
 
 @numba.njit(cache=True, error_model="numpy")
