@@ -779,11 +779,10 @@ class GaussNewtonSolver:
         assert state is not None
         c, start = state.qp_scale, (state.lam_x, state.lam_a) if warm else None
         if form.stage is not None:
-            staged = form.stage.solve(c * h, c * q, a, bounds, start)
+            staged = form.stage.solve(h, q, a, bounds, start, scale=c)
             if staged is not None:
                 state.released = False
-                staged_dz, staged_cost, staged_lam_x, staged_lam_a = staged
-                return staged_dz, staged_cost / c, staged_lam_x / c, staged_lam_a / c
+                return staged
             self.qp_fallbacks += 1
         solved = _solve_qrqp(form, h, q, a, bounds, start, c, release_tol)
         if solved is None:

@@ -134,6 +134,7 @@ class StageForm:
         a: FloatArray,
         bounds: tuple[FloatArray, ...],
         guess: tuple[FloatArray, FloatArray] | None = None,
+        scale: float = 1.0,
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, cost, lam_x, lam_a)`` of ``min 1/2 dz^T H dz + q^T dz``, ``lba <= A dz <= uba``, ``lbx <= dz <= ubx``.
 
@@ -148,6 +149,9 @@ class StageForm:
             Multipliers whose signs, where above :data:`GUESS_FLOOR` of the largest, are the active set to try
             first, as qrqp's warm start: a previous QP's multipliers, or marks of the sides the linearisation
             point sits on.
+        scale : float
+            The kernel solves the QP with ``H`` and ``q`` times ``scale`` (its tolerances are absolute at that
+            scale); the cost and multipliers returned are the unscaled QP's.
 
         Returns
         -------
@@ -161,28 +165,30 @@ class StageForm:
         guess_x, guess_a = (self._no_guess, self._no_guess) if guess is None else guess
         z, lam_x, lam_a = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_con)
         info = self._info
-        code = _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, self._maps, EQUALITY_TOL, GUESS_FLOOR,
+        code = _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, self._maps, EQUALITY_TOL, GUESS_FLOOR,
                            *self._kernel_sizes, self._h, self._a, self._c, z, lam_x, lam_a, info)  # fmt: skip
         self.last_status = None if code < 0 else QPStatus(code)
         self.last_counts = int(info[4]), int(info[1])
         if code != QPStatus.SOLVED:
             return None
-        return z, float(info[0]), lam_x, lam_a
+        return z, float(info[0]) / scale, lam_x, lam_a
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, maps, equality_tol, guess_floor, nx, nz, zo, ho, ao,
-                ncs, co, cro, H, A, C, z, lam_x, lam_a, info):  # pragma: no cover (compiled)  # fmt: skip
+def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, maps, equality_tol, guess_floor, nx, nz, zo,
+                ho, ao, ncs, co, cro, H, A, C, z, lam_x, lam_a, info):  # pragma: no cover (compiled)  # fmt: skip
     """:meth:`StageForm.solve` in one compiled call: scatter, guess, kernel, multipliers in the problem's row order.
 
+    The kernel solves the QP with ``H`` and ``q`` times ``scale``; ``lam_x``, ``lam_a`` are divided by it again.
     Returns the kernel's :class:`QPStatus` code, or -1 (nothing solved) if a dynamics row is not an equality.
-    ``guess_x`` empty: no guess. ``info``: the kernel's (cost, iterations, residual, exact, active-set steps).
+    ``guess_x`` empty: no guess. ``info``: the kernel's (cost of the scaled QP, iterations, residual, exact,
+    active-set steps).
     """
     c_rows = maps[7]
     n_dyn = (nz.size - 1) * nx
     n_c = c_rows.size
     b, lc, uc = np.empty(n_dyn), np.empty(n_c), np.empty(n_c)
-    if not _scatter(h, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):
+    if not _scatter(h, scale, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):
         info[1] = 0.0
         info[4] = 0.0
         return -1
@@ -190,16 +196,23 @@ def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, maps, equality_to
     if guess_x.size:
         _guess_sides(guess_x, guess_a, c_rows, guess_floor, start)
     lam_dyn, lam_c, side = np.empty(n_dyn), np.empty(n_c), np.empty(z.size + n_c)
-    code = _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, q, A, b, lbx, ubx, C, lc, uc, 0.0, DEFAULT_TOL,
+    qs = np.empty(q.size)
+    for i in range(q.size):
+        qs[i] = scale * q[i]
+    code = _ipm(nx, nz, zo, ho, ao, ncs, co, cro, H, qs, A, b, lbx, ubx, C, lc, uc, 0.0, DEFAULT_TOL,
                 DEFAULT_MAX_ITER, start, z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
     if code == 0:
         _constraint_multipliers(lam_dyn, lam_c, a, maps[4], c_rows, lam_a)
+        for i in range(lam_x.size):
+            lam_x[i] = lam_x[i] / scale
+        for i in range(lam_a.size):
+            lam_a[i] = lam_a[i] / scale
     return code
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _scatter(h, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):  # pragma: no cover (compiled)
-    """The stage blocks ``H``, ``A``, ``C`` and ``b, lc, uc`` from CasADi's nonzeros (``maps``: the index maps).
+def _scatter(h, scale, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):  # pragma: no cover (compiled)
+    """The stage blocks ``H`` (times ``scale``), ``A``, ``C`` and ``b, lc, uc`` from CasADi's nonzeros (``maps``).
 
     False, with nothing written, if a dynamics row's bounds differ by more than ``equality_tol``.
     """
@@ -209,7 +222,7 @@ def _scatter(h, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):  # pragma:
         if abs(uba[i] - lba[i]) > equality_tol:
             return False
     for i in range(h.size):
-        H[h_target[i]] = h[i]
+        H[h_target[i]] = scale * h[i]
     for j in range(a_source.size):  # A_k = -(row) / e, e the row's entry at x_{k+1} (-1 for a window problem)
         A[a_target[j]] = -a[a_source[j]] / a[e_source[a_row[j]]]
     for j in range(c_source.size):
