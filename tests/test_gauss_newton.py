@@ -39,7 +39,8 @@ def test_gauss_newton_reaches_the_ipopt_optimum_on_the_crop_model(crop_run, kind
                               x0_prior=prior, solver=solver)  # fmt: skip
         runs[solver] = est.run(traj.u, traj.y)
     gn, ipopt = runs["gn"], runs["ipopt"]
-    assert gn.failures == 0 and set(gn.solver_status[1:]) <= {"Converged", "Converged (regularised)"}
+    # "Stalled": no step improved a feasible point further (noise-free windows at rounding level)
+    assert gn.failures == 0 and set(gn.solver_status[1:]) <= {"Converged", "Converged (regularised)", "Stalled"}
     assert set(gn.outcome[1:]) == {Outcome.SOLVED} and gn.fallbacks == 0
     deviation = np.abs((gn.x_hat - ipopt.x_hat) / system.x.scale).max()
     assert deviation < 1e-5

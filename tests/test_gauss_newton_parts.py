@@ -191,18 +191,24 @@ def test_second_order_corrections_are_tried_in_a_row_and_the_right_one_is_taken(
 
 # ------------------------------------------------------------------ the stopping tests
 @pytest.mark.parametrize(
-    ("small_step", "settled", "worst", "status"),
+    ("small_step", "no_decrease", "stationary", "worst", "damped", "status"),
     [
-        (False, False, 0.0, None),
-        (True, False, 0.0, "Converged"),
-        (False, True, 1e-9, "Converged"),
-        (False, True, 1e-7, None),  # infeasible: go on
-        (True, False, 1e-7, "Infeasible_Stationary_Point"),
-        (True, True, 1e-7, "Infeasible_Stationary_Point"),
+        (False, False, False, 0.0, False, None),
+        (True, False, False, 0.0, False, "Converged"),
+        (False, True, False, 1e-9, False, "Converged"),
+        (False, False, True, 1e-9, True, "Converged"),  # a direct test of the point: any damping
+        (False, True, False, 1e-7, False, None),  # infeasible: go on
+        (False, False, True, 1e-7, False, None),
+        (True, False, False, 1e-7, False, "Infeasible_Stationary_Point"),
+        (True, True, False, 1e-7, False, "Infeasible_Stationary_Point"),
+        (True, False, False, 0.0, True, "Stalled"),  # small by its damping: not converged
+        (False, True, False, 0.0, True, "Stalled"),
+        (True, False, False, 1e-7, True, "Stalled"),
+        (False, True, False, 1e-7, True, None),
     ],
 )
-def test_the_stopping_rule(small_step, settled, worst, status):
-    assert _stop_status(small_step, settled, worst) == status
+def test_the_stopping_rule(small_step, no_decrease, stationary, worst, damped, status):
+    assert _stop_status(small_step, no_decrease, stationary, worst, damped) == status
 
 
 # ------------------------------------------------------------------ a tiny window with a known optimum
@@ -231,6 +237,33 @@ def test_the_truth_of_a_noise_free_window_is_a_stationary_point(henon_window):
     solution = solver.solve(truth + 1e-2, p)
     assert solution.status == "Converged" and solution.cost < 1e-20
     np.testing.assert_allclose(solution.z, truth, rtol=0, atol=1e-8)
+
+
+def test_a_rejected_step_ends_the_solve_only_on_a_test_it_passes(henon_window, monkeypatch):
+    """Every trial costs more than the point (all steps rejected). An undamped step that predicts no decrease
+    worth having ends the solve as converged where it stands; a step that predicts a decrease, damped until it no
+    longer moves, ends it as stalled: usable at this feasible point, but not called converged."""
+    problem, p, truth = henon_window
+    solver = GaussNewtonSolver(problem)
+    starts = solver._start(truth, p), solver._start(truth, p)  # the same point, evaluated into buffer 0
+    worse = solver._evaluate(truth + 1e-3, p, starts[0].point)
+    monkeypatch.setattr(solver, "_evaluate", lambda z, p, keep=None, lam_g=None: worse)
+
+    def step(size: float, predicted: float) -> object:
+        return lambda point, damping, warm: (np.full(problem.n_var, size / (1.0 + 1e3 * damping)), predicted)
+
+    monkeypatch.setattr(solver, "_step", step(1e-6, 1e-20))
+    state = solver._state = starts[0]
+    assert solver._iterate(state) and state.status == "Converged" and state.point is not worse
+
+    monkeypatch.setattr(solver, "_step", step(1e-6, 1e-3))
+    state = solver._state = starts[1]
+    for state.iterations in range(1, 100):
+        if solver._iterate(state):
+            break
+    assert state.status == gauss_newton.STALLED and state.point is not worse and state.iterations > 2
+    solution = solver._finish(state, truth, 0.0)
+    assert solution.status == "Stalled" and solution.success and not solution.fallback
 
 
 def test_a_second_order_correction_removes_the_violation_a_curved_constraint_leaves(henon_window):

@@ -35,8 +35,11 @@ solve to ``H = J^T J + S_+`` before any damping. Solves whose steps are all acce
 Gauss-Newton.
 
 Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol`` (scaled
-units); a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude; or KKT stationarity
-at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)``; otherwise ``max_iter``.
+units); a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude (accepted or not); or KKT
+stationarity at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)``; otherwise
+``max_iter``. The first two count as convergence only for steps damped no more than :data:`DAMPING_FLOOR`: a more
+damped step is small, and predicts little, by its damping, and ends the solve as :data:`STALLED` (a solution only
+where the point is feasible, as IPOPT's near-success).
 The merit counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point
 feasible to that level a step that predicts no decrease of ``|r|^2`` ends the solve, unless it is damped
 beyond :data:`DAMPING_FLOOR` or its QP released held sides (:func:`_released`).
@@ -120,6 +123,13 @@ zeros (the UISE's unpenalised ``w``, fixed by the dynamics) are left alone."""
 
 ACCEPT_RATIO = 1e-4
 """Smallest ratio of actual to predicted merit decrease for which a step is accepted."""
+
+STALLED = "Stalled"
+"""The status of a solve whose steps, damped beyond :data:`DAMPING_FLOOR`, became too small to move or to predict a
+decrease worth having, with no stopping test passed at the point: no step improves it at the damping it needs.
+Like IPOPT's ``Search_Direction_Becomes_Too_Small`` (:data:`~uiest.window.solvers.NEAR_SUCCESS_STATUSES`) it counts
+as a solution where the point is feasible to :data:`~uiest.window.solvers.FEASIBILITY_TOL`, under its own name;
+elsewhere IPOPT's fallback takes the sample."""
 
 SOC_RATIO = 0.75
 """Ratio of actual to predicted merit decrease at which a second-order correction is taken at once (see
@@ -542,29 +552,40 @@ def _corrected(
     return last if last is not None and last[1] > LAST_CORRECTION_RATIO else None
 
 
-def _stop_status(small_step: bool, settled: bool, worst: float) -> str | None:
+def _stop_status(small_step: bool, no_decrease: bool, stationary: bool, worst: float, damped: bool) -> str | None:
     """The status that ends the solve after a step, or None to go on.
 
     Parameters
     ----------
     small_step : bool
         ``|dz|_inf <= step_tol``.
-    settled : bool
-        The step was accepted, and its point has no decrease left (:func:`_no_decrease_left`) or is
-        KKT-stationary (False after a rejected step).
+    no_decrease : bool
+        The step predicts no decrease of ``|r|^2`` worth having (:func:`_no_decrease_left`).
+    stationary : bool
+        The point the solve now stands at is KKT-stationary (False after a rejected step).
     worst : float
         The largest violation of ``lbg <= g <= ubg`` where the solve stands.
+    damped : bool
+        The step was damped beyond :data:`DAMPING_FLOOR`: its size and predicted decrease are then the
+        damping's, and prove nothing about the point.
 
     Returns
     -------
     str or None
-        ``"Converged"`` (feasible to :data:`~uiest.window.solvers.FEASIBILITY_TOL`),
-        ``"Infeasible_Stationary_Point"`` (a small step at an infeasible point), or None.
+        ``"Converged"`` (stationary, or an undamped step small or predicting no decrease, at a point feasible to
+        :data:`~uiest.window.solvers.FEASIBILITY_TOL`), ``"Infeasible_Stationary_Point"`` (a small undamped step at
+        an infeasible point), :data:`STALLED` (a damped step small, or predicting no decrease at a feasible point),
+        or None.
 
     """
-    if not (small_step or settled):
+    feasible = worst <= FEASIBILITY_TOL
+    if stationary and feasible:
+        return "Converged"
+    if not (small_step or no_decrease):
         return None
-    if worst <= FEASIBILITY_TOL:
+    if damped:
+        return STALLED if small_step or feasible else None
+    if feasible:
         return "Converged"
     return "Infeasible_Stationary_Point" if small_step else None
 
@@ -930,7 +951,8 @@ class GaussNewtonSolver:
             return True
         dz, predicted = step
         state.warm = True
-        at_least_damping = damping.value <= damping.floor and not state.released and self.max_iter > 1
+        undamped = damping.value <= damping.floor  # a more damped step is small by its damping (see _stop_status)
+        at_least_damping = undamped and not state.released and self.max_iter > 1
         if at_least_damping and _only_restores_rounding(predicted, point):
             state.status = "Converged"
             return True
@@ -942,15 +964,16 @@ class GaussNewtonSolver:
         if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
             dz, trial, ratio = self._correct(state, dz, trial, predicted, nu)
         small_step = all_true(np.abs(dz) <= self.step_tol)
+        no_decrease = _no_decrease_left(predicted, point.cost, self.cost_tol)
         if ratio > ACCEPT_RATIO or self.max_iter == 1:
             state.point = trial
             damping.accept(ratio)
-            settled = _no_decrease_left(predicted, point.cost, self.cost_tol) or self._stationary(
-                trial, state.lam_a, largest if state.lam_a is lam_a else None
-            )
-            status = _stop_status(small_step, settled, trial.worst)
+            stationary = self._stationary(trial, state.lam_a, largest if state.lam_a is lam_a else None)
+            status = _stop_status(small_step, no_decrease, stationary, trial.worst, damped=not undamped)
         else:  # rejected: the curvature, then damp more; same linearisation
-            status = _stop_status(small_step, False, point.worst)
+            # the merit's change is rounding where the model predicts no decrease worth having (as when accepted)
+            no_decrease = no_decrease and not state.released
+            status = _stop_status(small_step, no_decrease, False, point.worst, damped=not undamped)
             if status is None and (state.curved or not (maratos and self._curve())):
                 damping.reject()
         if status is None:
@@ -997,8 +1020,9 @@ class GaussNewtonSolver:
 
     def _finish(self, state: SolveState, z0: FloatArray, start: float) -> WindowSolution:
         """The solution at the solve's last point: RTI's status, polishing, IPOPT's fallback if not converged."""
-        status, converged = state.status, state.status == "Converged"
-        point = state.point
+        status, point = state.status, state.point
+        # a stall at a feasible point is usable, as IPOPT's Search_Direction_Becomes_Too_Small is (its status says so)
+        converged = status == "Converged" or (status == STALLED and point.worst <= FEASIBILITY_TOL)
         if self.max_iter == 1 and status != "QP_failed":
             # one step of the linearised problem: not feasible to FEASIBILITY_TOL by design
             status, converged = "RTI_Step", bool(np.isfinite(point.z).all())

@@ -99,8 +99,8 @@ class WindowSolution:
     fallback : bool
         The Gauss-Newton backend did not converge and handed the window to IPOPT.
     primary_status : str
-        After a fallback, why Gauss-Newton handed over (``"gn QP_failed"``, ``"gn Maximum_Iterations_Exceeded"``,
-        ...); else ``""``.
+        After a fallback, why Gauss-Newton handed over (``"gn QP_failed"``, ``"gn Stalled"``,
+        ``"gn Maximum_Iterations_Exceeded"``, ...); else ``""``.
 
     """
 
