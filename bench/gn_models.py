@@ -1,7 +1,8 @@
 """The Gauss-Newton backend against IPOPT beyond the crop model: fallbacks, failures, CPU, agreement.
 
-Run: ``python bench/gn_models.py [-N 10 -N 30] [--steps 200]``. For each model x estimator (UISE,
-standard MHE; weights from scales at mu = 0.6) x N, both backends run the same noisy record in
+Run: ``python bench/gn_models.py [-N 10 -N 30] [--steps 200] [--solver gn-riccati]``. For each model x
+estimator (UISE, standard MHE; weights from scales at mu = 0.6) x N, the Gauss-Newton backend (``gn``, qrqp's
+QPs, by default; ``gn-riccati``, the stage-wise kernel's) and IPOPT run the same noisy record in
 closed loop; printed per row: the Gauss-Newton backend's IPOPT fallbacks and failed samples,
 IPOPT's failed samples, the median per-sample CPU time (``time.thread_time``, whole steps after N
 warm-up samples) of each backend and their ratio, mean Gauss-Newton iterations, and the largest
@@ -107,6 +108,7 @@ def main() -> None:
     parser = argparse.ArgumentParser()
     parser.add_argument("-N", dest="horizons", type=int, action="append", help="window length (repeat; default 10 30)")
     parser.add_argument("--steps", type=int, default=STEPS, help="samples per record")
+    parser.add_argument("--solver", default="gn", help="the Gauss-Newton backend: gn (qrqp) or gn-riccati")
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f}; {args.steps} samples per record")
     print(f"{'model':12s} {'estimator':12s} {'N':>3s} {'gn fallb':>8s} {'gn fail':>7s} {'ipopt fail':>10s} "
@@ -115,7 +117,7 @@ def main() -> None:
         system, traj, prior = make(args.steps)
         for N in args.horizons or [10, 30]:
             for estimator in ("UISE", "standard MHE"):
-                gn, ipopt = (run(system, traj, prior, estimator, N, solver) for solver in ("gn", "ipopt"))
+                gn, ipopt = (run(system, traj, prior, estimator, N, solver) for solver in (args.solver, "ipopt"))
                 diff = np.nanmax(np.abs(gn["result"].x_hat - ipopt["result"].x_hat) / system.x.scale)
                 print(
                     f"{name:12s} {estimator:12s} {N:3d} {gn['fallbacks']:8d} {gn['result'].failures:7d} "

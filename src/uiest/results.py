@@ -271,8 +271,8 @@ class StepEstimate:
         Which states of ``x_hat`` lie on or beyond a finite side of X (:func:`uiest.health.at_bound`).
     solver_status : str
         The return status of the solver that produced the window solution (IPOPT's
-        ``return_status``, or the Gauss-Newton backend's ``"Converged"``, ...); after a fallback,
-        IPOPT's. ``""`` when no problem was solved.
+        ``return_status``, or the Gauss-Newton backend's ``"Converged"``, ``"Stalled"``, ...); after a
+        fallback, IPOPT's. ``""`` when no problem was solved.
     fallback : bool
         The Gauss-Newton backend did not converge and IPOPT solved the window (``solver_status``
         is IPOPT's, ``primary_status`` why Gauss-Newton handed over).
