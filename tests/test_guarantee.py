@@ -158,7 +158,9 @@ def test_the_fie_the_standard_mhe_and_the_filters():
     A, B, C = np.array([[0.6, 0.2], [0.0, 0.5]]), [[1.0], [0.5]], [[1.0, 0.0]]
     system = linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-0.01, 0.01), w_range=(-0.5, 0.5))
     fie = FIE(system, certificate=certify_strong_detectability(system), x0_prior=np.zeros(2))
-    assert fie.guarantee.informative and "Lemma 3.3 of Guo et al." in fie.guarantee.theorem
+    # mu = 0.177: the window stops growing at 13 transitions, and from there the FIE is the UISE with N = 13
+    assert fie.N == 13 and fie.guarantee.grows and fie.guarantee.informative
+    assert "Theorem 3.6 of Guo et al." in fie.guarantee.theorem
     delta = certify_delta_ioss(system)
     mhe = StandardMHE(system, certificate=delta, N=10, x0_prior=np.zeros(2))
     g = mhe.guarantee

@@ -80,7 +80,10 @@ class Guarantee:
         fixed window).
     requested_horizon : int or None
         The window length asked for; larger than :attr:`horizon` when the window was capped at the
-        information horizon (:attr:`capped`).
+        information horizon (:attr:`capped`). None for a window that grows from time 0 (the FIE).
+    grows : bool
+        The window grows from time 0 (the FIE); with :attr:`horizon` set, it stops growing there, at the
+        information horizon, and slides from then on (:attr:`capped`).
     information_horizon : int or None
         The longest window whose every cost term counts in double precision
         (:mod:`uiest.estimators.horizon`; None: no such limit, or no window).
@@ -101,6 +104,7 @@ class Guarantee:
     horizon: int | None = None
     requested_horizon: int | None = None
     information_horizon: int | None = None
+    grows: bool = False
 
     def __post_init__(self) -> None:
         width = np.array(self.x_width, dtype=float, ndmin=1)
@@ -123,8 +127,13 @@ class Guarantee:
 
     @property
     def capped(self) -> bool:
-        """The window used is shorter than the one asked for (capped at the information horizon)."""
-        return self.horizon is not None and self.requested_horizon is not None and self.horizon < self.requested_horizon
+        """The window used is shorter than the one asked for (capped at the information horizon).
+
+        A growing window (:attr:`grows`) is capped when it has a :attr:`horizon`: it stops growing there.
+        """
+        if self.horizon is None:
+            return False
+        return self.grows or (self.requested_horizon is not None and self.horizon < self.requested_horizon)
 
     # ------------------------------------------------------------------ flags per state
     @property
@@ -171,6 +180,11 @@ class Guarantee:
         """One line derived from the numbers (module docstring), and the window's cap where it was capped."""
         if not self.capped:
             return self._verdict_text()
+        if self.grows:
+            return (
+                f"{self._verdict_text()}. The window grows from time 0 to N={self.horizon} and slides from there: "
+                "its information horizon (older cost terms would fall below double precision)"
+            )
         return (
             f"{self._verdict_text()}. The window runs N={self.horizon}, not the N={self.requested_horizon} asked for: "
             "it is capped at its information horizon (older cost terms would fall below double precision)"
@@ -239,6 +253,7 @@ class Guarantee:
             "horizon": self.horizon,
             "requested_horizon": self.requested_horizon,
             "information_horizon": self.information_horizon,
+            "grows": self.grows,
             "capped": self.capped,
             "text": self.text,
         }
