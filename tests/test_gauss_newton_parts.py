@@ -11,6 +11,7 @@ import pytest
 from uiest import simulate
 from uiest.errors import OptionError
 from uiest.estimators import UISE, UISEWeights
+from uiest.models import get
 from uiest.window import gauss_newton
 from uiest.window.gauss_newton import (
     DAMPING_CAP,
@@ -264,6 +265,19 @@ def test_a_rejected_step_ends_the_solve_only_on_a_test_it_passes(henon_window, m
     assert state.status == gauss_newton.STALLED and state.point is not worse and state.iterations > 2
     solution = solver._finish(state, truth, 0.0)
     assert solution.status == "Stalled" and solution.success and not solution.fallback
+
+
+def test_a_constant_damping_the_user_asked_for_still_converges():
+    """``min_damping`` damps every step by the same amount: a small step at that damping is the solve's
+    least-damped step, and ends it as converged, not stalled (noisy linear windows, whose KKT test rounding fails)."""
+    entry = get("linear-example")
+    system, setup = entry.build(), entry.setup()
+    traj = simulate(system, setup.x0, 20, w=setup.w, v=setup.noise, seed=3)
+    weights = UISEWeights.from_scales(system, 0.5, output=1e4)
+    for solver in ("gn", "gn-riccati"):
+        result = UISE(system, weights=weights, N=6, x0_prior=np.zeros(3), solver=solver,
+                      solver_options={"min_damping": 1e-8}).run(None, traj.y)  # fmt: skip
+        assert set(result.solver_status[1:]) == {"Converged"} and result.fallbacks == 0
 
 
 def test_a_second_order_correction_removes_the_violation_a_curved_constraint_leaves(henon_window):

@@ -154,6 +154,16 @@ def test_the_linear_uio_bound_is_the_simulated_worst_case():
     assert back.guarantee.text == result.guarantee.text == g.text and back.to_pandas().equals(result.to_pandas())
 
 
+def test_an_fie_stopping_below_its_certificates_horizon_has_no_guarantee(monkeypatch):
+    A, B, C = np.array([[0.6, 0.2], [0.0, 0.5]]), [[1.0], [0.5]], [[1.0, 0.0]]
+    system = linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-0.01, 0.01), w_range=(-0.5, 0.5))
+    cert = certify_strong_detectability(system)
+    monkeypatch.setattr(type(cert), "min_horizon", lambda self: 50)
+    fie = FIE(system, certificate=cert, x0_prior=np.zeros(2))
+    assert fie.N == 13 and not fie.guarantee.applies
+    assert str(fie.guarantee).startswith("none: its window stops growing at N=13, below min_horizon()=50")
+
+
 def test_the_fie_the_standard_mhe_and_the_filters():
     A, B, C = np.array([[0.6, 0.2], [0.0, 0.5]]), [[1.0], [0.5]], [[1.0, 0.0]]
     system = linear.linear_system(A, B, C, x_bounds=(-10, 10), v_bounds=(-0.01, 0.01), w_range=(-0.5, 0.5))

@@ -392,7 +392,7 @@ class EstimationResult(_PicklableNames):
     estimator : str
         Name of the estimator (``"UISE"``, ``"FIE"``, ``"StandardMHE"``).
     horizon : int or None
-        N (None for the FIE).
+        N (for the FIE, where its window stops growing; None if it never does).
     guarantee : Guarantee
         The estimator's guarantee (:class:`~uiest.guarantee.Guarantee`): whether its theorem
         applies, the error bound per state and its text.

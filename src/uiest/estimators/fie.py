@@ -3,11 +3,11 @@ r"""The full information estimator of Lemma 3.3 of Guo et al. (Eq. (6), Eq. (7);
 Index convention::
 
     x[k+1] = f(x[k], u[k], w[k]),   y[k] = h(x[k], v[k])
-    x_hat[k] = x^*_{k|k}  from  x_bar_0, u[0 .. k-1], y[0 .. k]    (growing window, N_k = k)
+    x_hat[k] = x^*_{k|k}  from  x_bar_0, u[0 .. k-1], y[0 .. k]    (growing window, N_k = k, while k <= H)
     w_hat[k-1] = w^*_{k-1|k}
 
-Cost: Eq. (7) with the comparison functions a quadratic strong-detectability
-certificate implies (iterating Eq. (5b) as in the proof of Theorem 3.2):
+(``H``: where the window stops growing, below.) Cost: Eq. (7) with the comparison functions a quadratic
+strong-detectability certificate implies (iterating Eq. (5b) as in the proof of Theorem 3.2):
 ``alpha_0(r, k) = mu^k |r|_P^2``, ``alpha_v(r, j) = 2 mu^{j-1} |r|_{R_v}^2``,
 ``alpha_y(r, j) = 2 mu^{j-1} |r|_{R_y}^2``, so that::
 
@@ -21,14 +21,17 @@ moving-horizon machinery (and an offline estimator).
 Its window stops growing at its information horizon ``H`` (:mod:`uiest.estimators.horizon`): beyond it, the
 oldest cost terms (the prior's ``mu^k`` first) fall below double precision against the newest, so the exact FIE
 cannot be told apart from its neighbours in floating point, directions only those terms determine turn flat, and
-the solvers fail or stall there (crop model, mu = 0.48, H = 30, 120 samples: IPOPT failed 24, the Gauss-Newton
-backend handed 6 to IPOPT). From ``k = H`` on the window slides with ``N = H`` and the UISE's prior (Eq. (12)):
-the FIE is then the UISE with ``N = H`` and the same weights, and its guarantee is Theorem 3.6's for that N, stated
-as such (:attr:`~uiest.guarantee.Guarantee.grows`). Without a discount (``mu >= 1``) there is no such horizon and
-the window keeps growing: one problem is built per length (k+1 of them) and all data are kept, so building takes
-time that grows with the square of the record's length (design notes: input checks) and memory grows with k.
-``max_steps`` (default 500) bounds the growth: a record longer than it raises :class:`OptionError` before any
-work, pointing to the UISE, whose window stays N long, unless the window stops growing at or before it.
+the solvers fail or stall there (crop model, mu = 0.48, H = 30, 120 samples: IPOPT failed 24 samples, the
+``gn-riccati`` backend handed 6 to IPOPT, ``gn`` 16 with 1 failure). From ``k = H`` on the window slides with
+``N = H`` and the UISE's prior (Eq. (12)): ``x_hat[k]`` from ``x_hat[k-H]``, ``u[k-H .. k-1]``, ``y[k-H .. k]``.
+The FIE is then the UISE with ``N = H`` and the same weights, and its guarantee is Theorem 3.6's for that N,
+stated as such (:attr:`~uiest.guarantee.Guarantee.grows`); where ``H`` is below the certificate's
+``min_horizon()``, it has none. One problem is built per window length and the window's data are kept, so building
+takes time that grows with the square of ``min(k, H)`` (design notes: input checks). Where ``H`` exceeds the
+longest window memory allows (:func:`~uiest.window.size.max_horizon`; crop model at mu = 0.999: 34,640 against
+16,383), the window does not stop growing and the guarantee is Lemma 3.3's, for the exact FIE. ``max_steps``
+(default 500) bounds the growth: a record longer than it raises :class:`OptionError` before any work, pointing to
+the UISE, whose window stays N long, unless the window stops growing at or before it.
 """
 
 from __future__ import annotations
@@ -58,12 +61,13 @@ __all__ = ["FIE"]
 
 
 class FIE(WindowEstimator):
-    r"""Full information estimator (Lemma 3.3 of Guo et al.): growing window from time 0, cost Eq. (7).
+    r"""Full information estimator (Lemma 3.3 of Guo et al.): window from time 0, cost Eq. (7), up to its horizon.
 
     Index convention::
 
-        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = k
-        x_hat[k]   = x^*_{k|k}    from x_bar_0, u[0 .. k-1], y[0 .. k]
+        x[k+1] = f(x[k], u[k], w[k]),  y[k] = h(x[k], v[k]),  N_k = min(k, N)
+        x_hat[k]   = x^*_{k|k}    from x_bar_0, u[0 .. k-1], y[0 .. k]         (k <= N)
+                                  from x_hat[k-N], u[k-N .. k-1], y[k-N .. k]   (k > N: the UISE with N)
         w_hat[k-1] = w^*_{k-1|k}
 
     Parameters as for :class:`~uiest.estimators.UISE`, without N, and ``max_steps``: the longest
@@ -73,7 +77,10 @@ class FIE(WindowEstimator):
     Attributes
     ----------
     N : int or None
-        Where the window stops growing: the information horizon (None: it grows without bound).
+        Where the window stops growing: its information horizon (None where that exceeds the longest window
+        memory allows: the window grows without bound).
+    theorem : str
+        Lemma 3.3, the FIE's; :attr:`guarantee` names Theorem 3.6 where the window stops growing.
 
     """
 
@@ -105,12 +112,12 @@ class FIE(WindowEstimator):
         self.requested_N = None  # a window from time 0; N, if set, is where it stops growing
 
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
-        """As :meth:`WindowEstimator.step`; raises :class:`OptionError` beyond ``max_steps``."""
+        """As :meth:`WindowEstimator.step`; :class:`OptionError` beyond ``max_steps`` if the window grows further."""
         self._check_length(self._k)
         return super().step(u_prev, y)
 
     def run(self, u: ArrayLike | None, y: ArrayLike, *, x0_prior: ArrayLike | None = None) -> EstimationResult:
-        """As :meth:`WindowEstimator.run`; a record longer than ``max_steps`` is refused before any work."""
+        """As :meth:`WindowEstimator.run`; a record beyond ``max_steps`` is refused first if the window grows on."""
         _, y_arr = check_run_data(self.system, u, y)
         self._check_length(y_arr.shape[0] - 1)
         return super().run(u, y, x0_prior=x0_prior)
@@ -123,13 +130,22 @@ class FIE(WindowEstimator):
     def _horizon_fields(self) -> dict[str, Any]:
         return {**super()._horizon_fields(), "grows": True}
 
+    def _horizon_missing(self, certificate_kind: str, horizon_eq: str) -> str:
+        certificate = self.certificate
+        if certificate is not None and self.N is not None and certificate.min_horizon() > self.N:
+            return (f"its window stops growing at N={self.N}, below min_horizon()={certificate.min_horizon()} "
+                    f"({horizon_eq}), and beyond N the exact FIE cannot be solved in double precision; weights "
+                    "spanning fewer orders of magnitude would lift N")  # fmt: skip
+        return super()._horizon_missing(certificate_kind, horizon_eq)
+
     def _check_length(self, k: int) -> None:
         grows_to = "without bound" if self.N is None else f"to N={self.N} (its information horizon)"
+        raise_to = "" if self.N is None else f" to at least {self.N}"
         if k > self.max_steps and (self.N is None or self.max_steps < self.N):
             raise OptionError(
                 f"max_steps: the FIE builds one problem per window length, so its time grows with the square of "
                 f"the window, which grows {grows_to}; k = {k} exceeds max_steps = {self.max_steps}. Raise "
-                "max_steps, or use a UISE (its window stays N long)"
+                f"max_steps{raise_to}, or use a UISE (its window stays N long)"
             )
 
     @property

@@ -22,6 +22,7 @@ from uiest.experiments.certificates import describe
 from uiest.experiments.claims import FILTER_KINDS, headline, paper_claims
 from uiest.experiments.metrics import accuracy, health, state_names, timing
 from uiest.experiments.runner import StudyResult, noise_model
+from uiest.experiments.scenario import EstimatorSpec
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
 from uiest.lock import holds_folder
@@ -257,6 +258,13 @@ def study_guarantees(study: StudyResult) -> dict[str, Guarantee]:
     return found
 
 
+def _window(spec: EstimatorSpec, certified: dict[str, object] | None, guarantee: Guarantee | None) -> object:
+    """The report's N: the certificate's horizon or the spec's; for the FIE, where its window stops growing."""
+    if spec.kind == "fie":
+        return "-" if guarantee is None or guarantee.horizon is None else f"grows to {guarantee.horizon}"
+    return spec.N if certified is None else certified["N"]
+
+
 def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     """Per estimator: where its weights come from, rate, N, its guarantee (text and focus-state bound), RMSE.
 
@@ -287,7 +295,7 @@ def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
                 "estimator": spec.name,
                 "weights": "random walk" if kalman else weights,
                 "mu": "-" if kalman else f"{float(row['rate']):.6g}" if ok else f"{spec.mu:.6g}",  # type: ignore[arg-type, index]
-                "N": "-" if spec.kind == "fie" or kalman else (row["N"] if ok else spec.N),  # type: ignore[index]
+                "N": "-" if kalman else _window(spec, row if ok else None, guarantee),
                 "min horizon": row["min_horizon"] if ok else "-",  # type: ignore[index]
                 "guarantee": "none: every run raised" if guarantee is None else guarantee.text,
                 f"bound {name} ({unit})" if unit else f"bound {name}": "-" if bound is None else bound,

@@ -37,9 +37,11 @@ Gauss-Newton.
 Stopping, with the constraints satisfied to ``FEASIBILITY_TOL``: ``|dz|_inf <= step_tol`` (scaled
 units); a predicted change of ``|r|^2`` below ``cost_tol (1 + |r|^2)`` in magnitude (accepted or not); or KKT
 stationarity at the new point with the QP's multipliers below ``kkt_tol (1 + |lam_g|_inf)``; otherwise
-``max_iter``. The first two count as convergence only for steps damped no more than :data:`DAMPING_FLOOR`: a more
-damped step is small, and predicts little, by its damping, and ends the solve as :data:`STALLED` (a solution only
-where the point is feasible, as IPOPT's near-success).
+``max_iter``. The first two count as convergence only for steps damped no more than the solve's least damping
+(``min_damping``) or :data:`DAMPING_FLOOR`: a more damped step is small, and predicts little, by its damping. Such
+a step below ``step_tol`` ends the solve as :data:`STALLED`, and so does one predicting no decrease at a feasible
+point (elsewhere the solve goes on); a stall counts as a solution only where the point is feasible, as IPOPT's
+near-success does.
 The merit counts no violation below rounding (:data:`VIOLATION_FLOOR` per constraint), and at a point
 feasible to that level a step that predicts no decrease of ``|r|^2`` ends the solve, unless it is damped
 beyond :data:`DAMPING_FLOOR` or its QP released held sides (:func:`_released`).
@@ -82,7 +84,15 @@ from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
 from uiest.window.stage_qp import StageForm
 
-__all__ = ["DAMPING_FLOOR", "QP_OPTIONS", "SINGULAR_DAMPING", "SOC_RATIO", "VIOLATION_FLOOR", "GaussNewtonSolver"]
+__all__ = [
+    "DAMPING_FLOOR",
+    "QP_OPTIONS",
+    "SINGULAR_DAMPING",
+    "SOC_RATIO",
+    "STALLED",
+    "VIOLATION_FLOOR",
+    "GaussNewtonSolver",
+]
 
 QP_OPTIONS: dict[str, Any] = {
     "print_iter": False,
@@ -566,8 +576,8 @@ def _stop_status(small_step: bool, no_decrease: bool, stationary: bool, worst: f
     worst : float
         The largest violation of ``lbg <= g <= ubg`` where the solve stands.
     damped : bool
-        The step was damped beyond :data:`DAMPING_FLOOR`: its size and predicted decrease are then the
-        damping's, and prove nothing about the point.
+        The step was damped beyond the solve's least damping and :data:`DAMPING_FLOOR`: its size and predicted
+        decrease are then the damping's, and prove nothing about the point.
 
     Returns
     -------
@@ -647,16 +657,17 @@ class GaussNewtonSolver:
         Iterations per solve (1: real-time iteration). Where the residuals' curvature is large
         (noisy windows), Gauss-Newton converges linearly.
     step_tol : float
-        Convergence tolerance on ``|dz|_inf`` in scaled units.
+        Convergence tolerance on ``|dz|_inf`` in scaled units, for a step damped no more than the solve's least
+        damping or :data:`DAMPING_FLOOR`.
     cost_tol : float
-        Also converged when the Gauss-Newton model predicts a change of ``|r|^2`` below
-        ``cost_tol (1 + |r|^2)`` in magnitude (flat, weakly observable directions move without
-        changing the cost).
+        Also converged when the step (damped no more than for ``step_tol``) predicts a change of ``|r|^2`` below
+        ``cost_tol (1 + |r|^2)`` in magnitude (flat, weakly observable directions move without changing the cost).
+        A more damped step predicting that little ends the solve as :data:`STALLED` at a feasible point.
     fallback : bool
         Solve the sample with IPOPT (from the same starting point) when Gauss-Newton does not
-        converge: both the plain and the damped QP fail, ``max_iter`` is reached or the iterate
-        is an infeasible stationary point. The solution then has ``fallback=True``, IPOPT's status and
-        ``primary_status = "gn <why>"``.
+        converge: both the plain and the damped QP fail, ``max_iter`` is reached, the iterate
+        is an infeasible stationary point, or the solve stalls at an infeasible point. The solution then has
+        ``fallback=True``, IPOPT's status and ``primary_status = "gn <why>"``.
     min_damping : float
         Levenberg-Marquardt damping kept at every step, relative to ``max |J^T J|`` (default 0:
         exact Gauss-Newton steps; > 0 keeps the QP strictly convex when inputs are unpenalised,
@@ -951,7 +962,9 @@ class GaussNewtonSolver:
             return True
         dz, predicted = step
         state.warm = True
-        undamped = damping.value <= damping.floor  # a more damped step is small by its damping (see _stop_status)
+        # damped beyond the solve's least damping (min_damping, kept after failed QPs) and the floor, a step is small
+        # by its damping (see _stop_status)
+        undamped = damping.value <= max(damping.floor, damping.least)
         at_least_damping = undamped and not state.released and self.max_iter > 1
         if at_least_damping and _only_restores_rounding(predicted, point):
             state.status = "Converged"
@@ -971,7 +984,8 @@ class GaussNewtonSolver:
             stationary = self._stationary(trial, state.lam_a, largest if state.lam_a is lam_a else None)
             status = _stop_status(small_step, no_decrease, stationary, trial.worst, damped=not undamped)
         else:  # rejected: the curvature, then damp more; same linearisation
-            # the merit's change is rounding where the model predicts no decrease worth having (as when accepted)
+            # the model predicts no decrease of |r|^2 worth having: stop as when accepted (the merit may still have
+            # failed to remove a violation; _stop_status then asks feasibility to FEASIBILITY_TOL)
             no_decrease = no_decrease and not state.released
             status = _stop_status(small_step, no_decrease, False, point.worst, damped=not undamped)
             if status is None and (state.curved or not (maratos and self._curve())):
@@ -1002,7 +1016,7 @@ class GaussNewtonSolver:
         that was not good (:data:`CURVATURE_RATIO`) switches the solve to ``S_+``.
         """
         point, damping = state.point, state.damping.value
-        multipliers = state.lam_x, state.lam_a  # the step's, kept unless a correction is taken
+        multipliers, released = (state.lam_x, state.lam_a), state.released  # the step's, unless a correction is taken
         taken = _corrected(
             lambda step, at: self._second_order_correction(point, at, step, damping, state.p),
             lambda corrected: _ratio(point, corrected, predicted, nu),
@@ -1010,7 +1024,7 @@ class GaussNewtonSolver:
             trial,
         )
         if taken is None:
-            state.lam_x, state.lam_a = multipliers
+            (state.lam_x, state.lam_a), state.released = multipliers, released
             return dz, trial, _ratio(point, trial, predicted, nu)
         correction, ratio = taken
         state.lam_x, state.lam_a = correction.multipliers

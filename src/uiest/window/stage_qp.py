@@ -14,11 +14,13 @@ and every constraint is nonlinear in one node only. Its constraint rows are
 
 :class:`StageForm` checks this structure once, from the sparsities (a matrix that breaks it raises
 :class:`~uiest.errors.OptionError`), and keeps the index maps that scatter CasADi's nonzeros into the packed
-stage blocks, so that a QP costs one compiled scatter (with the guess and the multipliers, compiled helpers too) and
-one call of the compiled kernel.
+stage blocks, so that a QP costs one compiled call: the scatter, the guessed active set, the kernel and the
+multipliers back in the problem's row order (``_solve_form``).
 """
 
 from __future__ import annotations
+
+import math
 
 import casadi as ca
 import numba
@@ -54,7 +56,10 @@ class StageForm:
     ----------
     layout : StageLayout
     last_status : QPStatus or None
-        The status of the last :meth:`solve`.
+        The status of the last :meth:`solve` (None: a dynamics row was not an equality).
+    last_counts : (int, int)
+        The last :meth:`solve`'s active-set steps from its guess and interior-point iterations (0, 0 where the
+        kernel refused the data).
 
     """
 
@@ -161,6 +166,8 @@ class StageForm:
             dynamics rows are not equalities.
 
         """
+        if not (math.isfinite(scale) and scale > 0.0):
+            raise OptionError(f"scale: expected a finite number > 0, got {scale!r}")
         lba, uba, lbx, ubx = bounds
         guess_x, guess_a = (self._no_guess, self._no_guess) if guess is None else guess
         z, lam_x, lam_a = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_con)
@@ -184,13 +191,12 @@ def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, maps, equa
     ``guess_x`` empty: no guess. ``info``: the kernel's (cost of the scaled QP, iterations, residual, exact,
     active-set steps).
     """
+    info[:] = 0.0
     c_rows = maps[7]
     n_dyn = (nz.size - 1) * nx
     n_c = c_rows.size
     b, lc, uc = np.empty(n_dyn), np.empty(n_c), np.empty(n_c)
     if not _scatter(h, scale, a, lba, uba, maps, equality_tol, H, A, C, b, lc, uc):
-        info[1] = 0.0
-        info[4] = 0.0
         return -1
     start = np.empty(z.size + n_c if guess_x.size else 0)
     if guess_x.size:
