@@ -163,6 +163,21 @@ class StageLayout:
         """Start of each stage's rows in the constraint vector."""
         return _offsets(self.constraint_sizes)
 
+    def kernel_sizes(
+        self,
+    ) -> tuple[np.int64, IntArray, IntArray, IntArray, IntArray, IntArray, IntArray, IntArray]:
+        """The compiled kernel's size arguments: ``nx``, the stage sizes and the offsets, in its order."""
+        return (
+            np.int64(self.nx),
+            self.stage_sizes,
+            self.z_offset,
+            self.h_offset,
+            self.a_offset,
+            self.constraint_sizes,
+            self.c_offset,
+            self.con_offset,
+        )
+
 
 def _offsets(sizes: IntArray) -> IntArray:
     return np.concatenate(([0], np.cumsum(sizes))).astype(np.int64)
@@ -322,16 +337,7 @@ class StageKernel:
 
     def __init__(self, layout: StageLayout) -> None:
         self.layout = layout
-        self.sizes = (
-            np.int64(layout.nx),
-            layout.stage_sizes,
-            layout.z_offset,
-            layout.h_offset,
-            layout.a_offset,
-            layout.constraint_sizes,
-            layout.c_offset,
-            layout.con_offset,
-        )
+        self._sizes = layout.kernel_sizes()
         self._counts = (layout.n_var, layout.n_dyn, layout.n_con, layout.n_stages, layout.nx)  # computed once
 
     def solve(
@@ -359,7 +365,7 @@ class StageKernel:
         info = np.zeros(5)
         side = np.zeros(n_var + n_con)
         start = _NO_GUESS if guess is None else guess
-        code = _ipm(*self.sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
+        code = _ipm(*self._sizes, H, q, A, b, lb, ub, C, lc, uc, regularisation, tol, max_iter, start,
                     z, lam_x, lam_dyn, lam_c, side, info)  # fmt: skip
         return StageQPSolution(
             z=z,

@@ -29,7 +29,7 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.errors import OptionError
 from uiest.window.problem import WindowProblem
-from uiest.window.riccati_qp import DEFAULT_MAX_ITER, DEFAULT_TOL, QPStatus, StageKernel, StageLayout, _ipm
+from uiest.window.riccati_qp import DEFAULT_MAX_ITER, DEFAULT_TOL, QPStatus, StageLayout, _ipm
 
 __all__ = ["EQUALITY_TOL", "GUESS_FLOOR", "StageForm"]
 
@@ -121,12 +121,11 @@ class StageForm:
         )
         self._c = np.zeros(int(c_offset[-1]))
         self._c_rows = (n_dyn + order).astype(np.int64)  # problem rows in stage order
-        self._n_var, self._n_dyn, self._n_con = n, n_dyn, problem.n_con
+        self._n_var, self._n_con = n, problem.n_con
         maps = (self._h_target, self._a_source, self._a_row, self._a_target, self._e_source, self._c_source,
                 self._c_target, self._c_rows)  # fmt: skip
         self._maps = tuple(np.ascontiguousarray(index, dtype=np.int64) for index in maps)
-        kernel_sizes = StageKernel(self.layout).sizes
-        self._kernel_sizes = kernel_sizes
+        self._kernel_sizes = self.layout.kernel_sizes()
         self._no_guess = np.zeros(0)
         self._info = np.zeros(5)
         self.last_status: QPStatus | None = None
