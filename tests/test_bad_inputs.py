@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 
 from uiest import DataError, OptionError, UiestError, simulate
 from uiest.cli import app
-from uiest.experiments import Scenario
+from uiest.experiments import Scenario, executors
 from uiest.experiments.sweep import Sweep
 
 TMP = Path(tempfile.mkdtemp(prefix="uiest-bad-inputs-"))
@@ -29,7 +29,8 @@ def test_api_bad_input(case):
 
 
 @pytest.mark.parametrize("case", CLI, ids=[c.name for c in CLI])
-def test_cli_bad_input(case):
+def test_cli_bad_input(case, monkeypatch):
+    monkeypatch.setattr(executors, "SCHEDULER_TIMEOUT", 1.0)  # a scheduler that is not there: 1 s, not 10, of waiting
     result = CliRunner().invoke(app, list(case.args))
     text = result.output + (result.stderr if result.stderr_bytes is not None else "")
     assert result.exception is None or isinstance(result.exception, SystemExit), repr(result.exception)

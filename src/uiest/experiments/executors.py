@@ -129,6 +129,9 @@ def spawn_pool(width: int) -> ProcessPoolExecutor:
                                initargs=(os.getpid(),))  # fmt: skip
 
 
+SCHEDULER_TIMEOUT = 10.0
+"""Seconds a Dask scheduler given by its address has to answer before the sweep stops with an OptionError."""
+
 STOP_GRACE = 10.0
 """Seconds abandoned workers get to end after SIGTERM before they are killed."""
 
@@ -264,9 +267,11 @@ def dask(
             cluster = LocalCluster(n_workers=workers or os.cpu_count(), threads_per_worker=1, processes=True)
     try:
         try:
-            client = Client(cluster if cluster is not None else scheduler, timeout=10)
+            client = Client(cluster if cluster is not None else scheduler, timeout=SCHEDULER_TIMEOUT)
         except (OSError, TimeoutError, ValueError) as exc:
-            raise OptionError(f"scheduler: no Dask scheduler answers at {scheduler!r} within 10 s ({exc})") from None
+            raise OptionError(
+                f"scheduler: no Dask scheduler answers at {scheduler!r} within {SCHEDULER_TIMEOUT:g} s ({exc})"
+            ) from None
         with client:
             futures = client.map(run, tasks, pure=False)
             by_key = {future.key: task for future, task in zip(futures, tasks, strict=True)}
