@@ -59,6 +59,7 @@ from uiest.likelihood import LikelihoodProfile, ProfileShape, Score, check_grid,
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
+from uiest.window.buffered import BufferedFunction
 
 EDGE_GAIN = 1.01
 """``tuned`` warns about an end of its grid only when the neighbour's RMS is above this times the end's (below it
@@ -157,8 +158,13 @@ class KalmanFilter(StreamingEstimator):
         self.W0_rate = self.W0 if W0_rate is None else as_covariance(W0_rate, s.nw, s.w.scale**2, "W0_rate")
         x, u, d, v = (ca.SX.sym(n, m) for n, m in (("x", s.nx), ("u", s.nu), ("d", s.nw), ("v", s.nv)))
         fx, hx = s.f(x, u, d), s.h(x, v)
-        self._f = ca.Function("f_aug", [x, u, d], [fx, ca.jacobian(fx, ca.vertcat(x, d))])
-        self._h = ca.Function("h_aug", [x, v], [hx, ca.jacobian(hx, x), ca.jacobian(hx, v)])
+        # evaluated through CasADi's buffers: dense outputs, entries in column-major order
+        self._f = BufferedFunction(
+            ca.Function("f_aug", [x, u, d], [ca.densify(fx), ca.densify(ca.jacobian(fx, ca.vertcat(x, d)))])
+        )
+        self._h = BufferedFunction(
+            ca.Function("h_aug", [x, v], [ca.densify(e) for e in (hx, ca.jacobian(hx, x), ca.jacobian(hx, v))])
+        )
         self._x0_prior = None
         self._clear()
         if x0_prior is not None:
@@ -226,9 +232,9 @@ class KalmanFilter(StreamingEstimator):
         margin = INSIDE_MARGIN * np.where(np.isfinite(X.width), X.width, self.system.x.scale)
         return np.clip(x, X.lower + margin, X.upper - margin)
 
-    def _noise(self, x: FloatArray, observed: FloatArray) -> FloatArray:
-        """``R = D Sigma_v D^T`` of the observed channels, D at ``(x, v_bar)``."""
-        D = np.asarray(self._h(x, self.v_prior)[2], dtype=float).reshape(self.system.ny, self.system.nv)[observed]
+    def _noise(self, dh_dv: FloatArray, observed: FloatArray) -> FloatArray:
+        """``R = D Sigma_v D^T`` of the observed channels; ``dh_dv``: D's entries (column-major), :attr:`_h`'s third."""
+        D = dh_dv.reshape(self.system.nv, self.system.ny).T[observed]
         return D @ self.Sigma_v @ D.T
 
     def step(self, u_prev: ArrayLike | None, y: ArrayLike) -> StepEstimate:
@@ -477,9 +483,9 @@ class EKF(KalmanFilter):
         s = self.system
         x_next, J = self._f(self._inside(z[: s.nx]) if inside else z[: s.nx], u, z[s.nx : s.nx + s.nw])
         F = np.zeros_like(P)
-        F[: s.nx, : s.nx + s.nw] = np.asarray(J, dtype=float).reshape(s.nx, s.nx + s.nw)
+        F[: s.nx, : s.nx + s.nw] = J.reshape(s.nx + s.nw, s.nx).T
         F[s.nx :, s.nx :] = self._A_in
-        z_next = np.concatenate([np.asarray(x_next, dtype=float).reshape(-1), self._A_in @ z[s.nx :]])
+        z_next = np.concatenate([x_next, self._A_in @ z[s.nx :]])
         return z_next, F @ P @ F.T + self.Q
 
     def _update(
@@ -488,11 +494,11 @@ class EKF(KalmanFilter):
         s = self.system
         if inside:  # the estimate projected into X, as for the prediction
             z = np.concatenate([self._inside(z[: s.nx]), z[s.nx :]])
-        y_pred, C, _ = self._h(z[: s.nx], self.v_prior)
+        y_pred, C, dh_dv = self._h(z[: s.nx], self.v_prior)
         H = np.zeros((int(observed.sum()), len(z)))
-        H[:, : s.nx] = np.asarray(C, dtype=float).reshape(s.ny, s.nx)[observed]
-        innovation = y[observed] - np.asarray(y_pred, dtype=float).reshape(-1)[observed]
-        R = self._noise(z[: s.nx], observed)
+        H[:, : s.nx] = C.reshape(s.nx, s.ny).T[observed]
+        innovation = y[observed] - y_pred[observed]
+        R = self._noise(dh_dv, observed)
         S = H @ P @ H.T + R
         K = np.linalg.solve(S, H @ P).T
         I_KH = np.eye(len(z)) - K @ H
@@ -526,8 +532,11 @@ class UKF(KalmanFilter):
         self._wc = self._wm.copy()
         self._wc[0] += 1.0 - alpha**2 + check_real(beta, "beta", "a number")
         m = 2 * n + 1
-        self._f_map = system.f.map(m)
-        self._h_map = system.h.map(m)
+        sizes = {"x": system.nx, "u": system.nu, "d": system.nw, "v": system.nv}
+        x, u, d, v = (ca.MX.sym(name, size, m) for name, size in sizes.items())
+        # the model at all sigma points at once, through CasADi's buffers: column j of each input and output is point j
+        self._f_points = BufferedFunction(ca.Function("f_points", [x, u, d], [ca.densify(system.f.map(m)(x, u, d))]))
+        self._h_points = BufferedFunction(ca.Function("h_points", [x, v], [ca.densify(system.h.map(m)(x, v))]))
 
     def _points(self, z: FloatArray, P: FloatArray, inside: bool) -> FloatArray:
         """Sigma points (2n+1, n): z and ``z +- spread * columns of chol(P)`` (``inside``: states projected onto X)."""
@@ -552,8 +561,8 @@ class UKF(KalmanFilter):
         chi = self._points(z, P, inside)
         m = len(chi)
         d = chi[:, s.nx : s.nx + s.nw]
-        x_next = np.asarray(self._f_map(chi[:, : s.nx].T, np.tile(u, (m, 1)).T, d.T), dtype=float)
-        mean, cov = self._moments(np.hstack([x_next.reshape(s.nx, m).T, chi[:, s.nx :] @ self._A_in.T]))
+        (x_next,) = self._f_points(chi[:, : s.nx].ravel(), np.tile(u, m), d.ravel())
+        mean, cov = self._moments(np.hstack([x_next.reshape(m, s.nx), chi[:, s.nx :] @ self._A_in.T]))
         return mean, cov + self.Q
 
     def _update(
@@ -562,11 +571,12 @@ class UKF(KalmanFilter):
         s = self.system
         chi = self._points(z, P, inside)
         m = len(chi)
-        ys = np.asarray(self._h_map(chi[:, : s.nx].T, np.tile(self.v_prior, (m, 1)).T), dtype=float)
-        ys = ys.reshape(s.ny, m).T[:, observed]
+        (ys,) = self._h_points(chi[:, : s.nx].ravel(), np.tile(self.v_prior, m))
+        ys = ys.reshape(m, s.ny)[:, observed]
         y_mean = self._wm @ ys
         dy, dz = ys - y_mean, chi - self._wm @ chi
-        S = (self._wc[:, None] * dy).T @ dy + self._noise(self._inside(z[: s.nx]) if inside else z[: s.nx], observed)
+        dh_dv = self._h(self._inside(z[: s.nx]) if inside else z[: s.nx], self.v_prior)[2]
+        S = (self._wc[:, None] * dy).T @ dy + self._noise(dh_dv, observed)
         Pzy = (self._wc[:, None] * dz).T @ dy
         K = np.linalg.solve(S, Pzy.T).T
         innovation = y[observed] - y_mean
