@@ -491,27 +491,27 @@ class System:
         return dataclasses.replace(system, sampled_from=origin)
 
     # ------------------------------------------------------------------ sizes
-    @property
+    @cached_property
     def nx(self) -> int:
         """State dimension."""
         return self.x.size
 
-    @property
+    @cached_property
     def nu(self) -> int:
         """Known input dimension (may be 0)."""
         return self.u.size
 
-    @property
+    @cached_property
     def nw(self) -> int:
         """Unknown input dimension."""
         return self.w.size
 
-    @property
+    @cached_property
     def nv(self) -> int:
         """Measurement noise dimension."""
         return self.v.size
 
-    @property
+    @cached_property
     def ny(self) -> int:
         """Output dimension."""
         return self.y.size

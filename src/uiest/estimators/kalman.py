@@ -595,7 +595,7 @@ def _input_model(value: InputModel | str) -> InputModel:
 
 
 def _finite(z: FloatArray, P: FloatArray) -> bool:
-    return bool(np.all(np.isfinite(z)) and np.all(np.isfinite(P)))
+    return bool(np.isfinite(z).all() and np.isfinite(P).all())
 
 
 __all__ = ["EKF", "UKF", "KalmanFilter", "Tuning"]
