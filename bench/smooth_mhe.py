@@ -12,8 +12,8 @@ halfway): the RMSE of every state after 20 samples (smooth) or over the 40 sampl
 - ``SmoothInputMHE.design`` with that variance,
 
 and the thread CPU per sample (``EstimationResult.cpu_time``, mean over the steps after the first) of the smooth-input
-MHE and of the standard MHE on the same model (its delta-IOSS certificate over W, the same N). DEVELOPING.md quotes the
-figures.
+MHE, of the standard MHE on the same model (its delta-IOSS certificate over W, the same N) and of the EKF.
+docs/performance.md quotes the figures.
 """
 
 from __future__ import annotations
@@ -101,7 +101,7 @@ def compare(name: str, system: System, x, y, x0, u, variance: float, window: sli
     runs = {}
     estimator, how = uise(system, x0)
     runs[f"UISE ({how})"] = estimator.run(u, y)
-    runs[f"EKF (q={variance:g})"] = EKF(system, w_variance=variance, x0_prior=x0).run(u, y)
+    runs[f"EKF (q={variance:g})"] = ekf = EKF(system, w_variance=variance, x0_prior=x0).run(u, y)
     grid = {q: EKF(system, w_variance=q * system.w.scale[0] ** 2, x0_prior=x0).run(u, y) for q in GRID}
     best = min(grid, key=lambda q: float(np.sum(rms((grid[q].x_hat[window] - x[window]) / system.x.scale))))
     runs[f"EKF best (q={best:g})"] = grid[best]
@@ -113,7 +113,7 @@ def compare(name: str, system: System, x, y, x0, u, variance: float, window: sli
     standard = StandardMHE(system, certificate=certify_delta_ioss(system, w_bounds=w_bounds), N=smooth.N, x0_prior=x0)
     other = standard.run(u, y)
     print(f"  CPU per sample: smooth MHE {1e3 * result.cpu_time[1:].mean():.2f} ms, standard MHE (N={standard.N}) "
-          f"{1e3 * other.cpu_time[1:].mean():.2f} ms")  # fmt: skip
+          f"{1e3 * other.cpu_time[1:].mean():.2f} ms, EKF {1e3 * ekf.cpu_time[1:].mean():.3f} ms")  # fmt: skip
 
 
 def main() -> None:
