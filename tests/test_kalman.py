@@ -1,9 +1,13 @@
 """EKF and UKF with the unknown input as a random walk: exact on linear Gaussian models, tuning, bad input."""
 
+import pickle
+from copy import deepcopy
+
+import casadi as ca
 import numpy as np
 import pytest
 
-from uiest import BoundWarning, DataError, OptionError, simulate
+from uiest import BoundWarning, DataError, OptionError, System, simulate
 from uiest.estimators import EKF, UISE, UKF, Outcome
 from uiest.models import linear
 
@@ -67,6 +71,40 @@ def test_ekf_and_ukf_equal_the_kalman_filter_on_a_linear_gaussian_model():
         integrated = cls(system, **options, input_model="integrated random walk").run(u, truth.y)
         np.testing.assert_allclose(integrated.x_hat, reference[:, :3], rtol=0, atol=atol)
         np.testing.assert_allclose(integrated.w_hat[:, 0], reference[1:, 3] - reference[1:, 4], rtol=0, atol=atol)
+
+
+def test_output_noise_through_a_coupling_that_is_not_square_gives_the_kalman_filters_R():
+    """``y = C x + D v`` with D (2, 3), neither square nor diagonal: both filters use R = D Sigma_v D^T."""
+    D = np.array([[1.0, 0.5, 0.0], [0.2, 0.0, 1.5]])
+    x, u, w, v = (ca.SX.sym(name, n) for name, n in (("x", 3), ("u", 1), ("w", 1), ("v", 3)))
+    x_next = ca.mtimes(ca.DM(A), x) + ca.mtimes(ca.DM(B_U), u) + ca.mtimes(ca.DM(B), w)
+    system = System.from_expressions(x, u, w, v, x_next, ca.mtimes(ca.DM(C), x) + ca.mtimes(ca.DM(D), v),
+                                     x_bounds=(-50, 50), v_bounds=(-0.2, 0.2), u_bounds=(-2, 2))  # fmt: skip
+    rng = np.random.default_rng(3)
+    K = 60
+    u_data = rng.uniform(-1, 1, (K, 1))
+    sigma_v = np.array([4e-4, 1e-4, 9e-4])
+    truth = simulate(system, [1.0, -1.0, 2.0], K, u=u_data, w=np.cumsum(0.3 * rng.standard_normal(K))[:, None],
+                     v=np.sqrt(sigma_v) * rng.standard_normal((K + 1, 3)))  # fmt: skip
+    x0, P0, w0, W0 = np.array([0.5, 0.0, 1.0]), np.diag([1.0, 2.0, 3.0]), np.zeros(1), np.eye(1) * 4.0
+    options = {"w_variance": 0.09, "x_variance": [1e-4, 2e-4, 3e-4], "v_covariance": sigma_v, "P0": P0, "w0": w0,
+               "W0": W0, "x0_prior": x0}  # fmt: skip
+    reference = _kalman(system, u_data, truth.y, x0, P0, w0, W0, np.diag([1e-4, 2e-4, 3e-4, 0.09]),
+                        D @ np.diag(sigma_v) @ D.T)  # fmt: skip
+    np.testing.assert_allclose(EKF(system, **options).run(u_data, truth.y).x_hat, reference[:, :3], rtol=0, atol=1e-10)
+    np.testing.assert_allclose(UKF(system, **options).run(u_data, truth.y).x_hat, reference[:, :3], rtol=0, atol=1e-6)
+
+
+def test_a_filter_pickles_and_deep_copies_and_runs_as_before():
+    system = _system()
+    rng = np.random.default_rng(4)
+    u = rng.uniform(-1, 1, (30, 1))
+    truth = simulate(system, [1.0, -1.0, 2.0], 30, u=u, w=np.zeros((30, 1)), v=0.02 * rng.standard_normal((31, 2)))
+    for cls in (EKF, UKF):
+        original = cls(system, w_variance=0.09, x0_prior=np.zeros(3))
+        expected = original.run(u, truth.y).x_hat
+        for copy in (pickle.loads(pickle.dumps(original)), deepcopy(original)):
+            np.testing.assert_array_equal(copy.run(u, truth.y).x_hat, expected)
 
 
 @pytest.mark.slow

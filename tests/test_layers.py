@@ -241,7 +241,7 @@ def test_every_module_imports_first():
     runs = [
         subprocess.Popen([sys.executable, "-c", FIRST_IMPORTS, str(part), str(parts)], **pipes) for part in range(parts)
     ]
-    for run in runs:
-        stdout, stderr = run.communicate()
+    outputs = [run.communicate() for run in runs]  # every interpreter waited for before any assert
+    for run, (stdout, stderr) in zip(runs, outputs, strict=True):
         assert run.returncode == 0, stderr
         assert stdout == ""

@@ -349,7 +349,8 @@ def test_bad_input_gets_typed_errors():
 
 @pytest.mark.slow
 def test_cpu_per_sample_is_recorded_beside_the_standard_mhe_on_the_same_model(pendulum_record):
-    # the numbers go to the report (DEVELOPING.md); here only that both are measured per step, by thread CPU time
+    # the numbers go to docs/performance.md (bench/smooth_mhe.py); here only that both are measured per step, by thread
+    # CPU time
     system = pendulum()
     _, _, y = pendulum_record
     mhe = SmoothInputMHE.design(system, dw_variance=0.01, w_bounds=(-20.0, 20.0), x0_prior=[0.5, 0.0])

@@ -130,7 +130,8 @@ def spawn_pool(width: int) -> ProcessPoolExecutor:
 
 
 SCHEDULER_TIMEOUT = 10.0
-"""Seconds a Dask scheduler given by its address has to answer before the sweep stops with an OptionError."""
+"""Seconds the Dask scheduler (at the address given, or the local cluster's) has to answer before the sweep stops with
+an OptionError."""
 
 STOP_GRACE = 10.0
 """Seconds abandoned workers get to end after SIGTERM before they are killed."""

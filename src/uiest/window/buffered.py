@@ -27,12 +27,18 @@ class BufferedFunction:
 
     Notes
     -----
-    The arrays returned by a call are overwritten by the next one: copy what must be kept.
+    The arrays returned by a call are overwritten by the next one: copy what must be kept. Pickled (and deep-copied)
+    as its Function, the buffers built again when loaded.
 
     """
 
     def __init__(self, function: ca.Function) -> None:
         self.function = function
+        self._bind()
+
+    def _bind(self) -> None:
+        """The argument and result arrays and CasADi's buffer that reads and writes them."""
+        function = self.function
         self._args = [np.zeros(max(function.nnz_in(i), 1)) for i in range(function.n_in())]
         self._outs = [np.zeros(max(function.nnz_out(i), 1)) for i in range(function.n_out())]
         self._results = [arr[: function.nnz_out(i)] for i, arr in enumerate(self._outs)]
@@ -49,6 +55,14 @@ class BufferedFunction:
             slot[: value.size if isinstance(value, np.ndarray) else np.size(value)] = value
         self._call()
         return [*self._results]
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The Function only (CasADi's buffer objects do not pickle)."""
+        return {"function": self.function}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        self.function = state["function"]
+        self._bind()
 
     def stats(self) -> dict[str, Any]:
         """The Function's statistics of the last call (solvers: ``success``, ``return_status``, ...)."""
