@@ -92,7 +92,7 @@ def test_output_noise_through_a_coupling_that_is_not_square_gives_the_kalman_fil
     reference = _kalman(system, u_data, truth.y, x0, P0, w0, W0, np.diag([1e-4, 2e-4, 3e-4, 0.09]),
                         D @ np.diag(sigma_v) @ D.T)  # fmt: skip
     np.testing.assert_allclose(EKF(system, **options).run(u_data, truth.y).x_hat, reference[:, :3], rtol=0, atol=1e-10)
-    np.testing.assert_allclose(UKF(system, **options).run(u_data, truth.y).x_hat, reference[:, :3], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(UKF(system, **options).run(u_data, truth.y).x_hat, reference[:, :3], rtol=0, atol=1e-10)
 
 
 def test_a_filter_pickles_and_deep_copies_and_runs_as_before():
