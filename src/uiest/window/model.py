@@ -179,13 +179,6 @@ class WindowModel:
         """``f`` through CasADi's buffer interface (a plain call builds DMs, which costs more than evaluating ``f``)."""
         return BufferedFunction(self.f)
 
-    def __getstate__(self) -> dict[str, object]:
-        """Pickled without the evaluation buffer (rebuilt on first use)."""
-        return {key: value for key, value in self.__dict__.items() if key != "_f_buffered"}
-
-    def __setstate__(self, state: dict[str, object]) -> None:
-        self.__dict__.update(state)
-
     @classmethod
     def from_system(cls, system: System) -> WindowModel:
         """The window model of a full :class:`System`: ``f(x, u, w)``, ``h(x, v)``, no data, no node constraints."""
