@@ -104,6 +104,28 @@ def test_design_refuses_what_it_cannot_do():
     assert (refused.value.limit, refused.value.shortest) == (1, shortest)
     copy = pickle.loads(pickle.dumps(refused.value))
     assert (copy.limit, copy.shortest, str(copy)) == (1, shortest, str(refused.value))
+    with pytest.raises(HorizonError, match="fallback_horizon: no certified rate") as refused:
+        UISE.design(zero, x0_prior=np.zeros(zero.nx), max_horizon=1, fallback_horizon=2, rates=(0.5,))
+    assert (refused.value.limit, refused.value.shortest) == (2, shortest)
+
+
+def test_a_fallback_horizon_reuses_the_certificates(monkeypatch):
+    # no window of at most 1 certifies: the fallback limit admits the shortest one, certifying each rate once
+    from uiest.estimators import design_search
+
+    zero, *_ = linear.with_invariant_zeros([0.6], seed=3, x_bounds=(-10.0, 10.0), v_bounds=(-1e-3, 1e-3))
+    shortest = min(certify_strong_detectability(zero, mu=mu).min_horizon() for mu in (None, 0.5))
+    rates = []
+    certify = design_search.certify_strong_detectability
+
+    def counted(system, mu=None, **options):
+        rates.append((mu, "max_condition" in options))
+        return certify(system, mu=mu, **options)
+
+    monkeypatch.setattr(design_search, "certify_strong_detectability", counted)
+    design = design_uise(zero, np.zeros(zero.nx), max_horizon=1, fallback_horizon=shortest, rates=(0.5,), trials=1)
+    assert shortest <= design.N <= design.ranked_horizon <= shortest
+    assert [mu for mu, bounded in rates if not bounded] == [None, 0.5]  # each rate certified once
 
 
 @pytest.mark.slow
@@ -305,6 +327,9 @@ def test_design_options_are_checked_once_and_equal_to_the_keywords():
         DesignOptions(certify_options=[("solver", "CLARABEL")])
     with pytest.raises(OptionError, match="seed"):
         DesignOptions(seed=-1)
+    with pytest.raises(OptionError, match="fallback_horizon \\(at least max_horizon = 10\\)"):
+        DesignOptions(max_horizon=10, fallback_horizon=9)
+    assert DesignOptions(max_horizon=10, fallback_horizon=90).steps == 120  # a full window of 90 is scored
     options = DesignOptions(max_horizon=8, rates=(0.9, 0.5, 0.5), trials=1)
     assert (options.rates, options.steps) == ((0.5, 0.9), 80)
     system, _, _ = benchmark(0)

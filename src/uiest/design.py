@@ -64,7 +64,7 @@ def design_uise(system: System, x0: ArrayLike, *, design: DesignOptions | None =
     ------
     CertificationError
         When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
-        certified rate has an admissible N within ``max_horizon``.
+        certified rate has an admissible N within ``max_horizon`` (or ``fallback_horizon``, if given).
 
     Examples
     --------

@@ -204,29 +204,27 @@ def build_estimator(
                 "input of relative degree 2 use --estimator delayed"
             )
     if kind in ("uise", "delayed", "two-stage"):
-        for longest in (DEFAULT_MAX_HORIZON, LONGEST_HORIZON) if horizon is None else (horizon,):
-            design_kw: dict[str, Any] = {
-                "max_horizon": longest if horizon is not None else max(longest, lag + 1),
-                **options,
-            }
-            try:
-                built: UISE | TwoStageUISE
-                if kind == "uise":
-                    built = est.UISE.design(system, x0_prior=x0, **design_kw)
-                elif kind == "delayed":
-                    built = est.DelayedUISE.design(system, x0_prior=x0, **{**design_kw, "lag": max(lag, 1)})
-                else:
-                    built = est.TwoStageUISE.design(_reduction(entry, reduced), x0_prior=x0, **design_kw)
-                assert built.weights is not None  # a certified design has weights (n_sharp = 0 has no design)
-                claim = "certified" if built.guarantee.applies else "certified, no guarantee (its guarantee says why)"
-                return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, {claim}"
-            except HorizonError as exc:  # certified, with a longer window: the next limit may admit it
-                reason = horizon_reason(exc.limit, exc.shortest)
-                if exc.shortest > LONGEST_HORIZON:
-                    break
-            except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
-                reason = str(exc)
-                break
+        # without a horizon: N <= 30, or up to 60 where none of at most 30 certifies (the certificates reused)
+        limits: dict[str, Any] = (
+            {"max_horizon": max(DEFAULT_MAX_HORIZON, lag + 1), "fallback_horizon": max(LONGEST_HORIZON, lag + 1)}
+            if horizon is None
+            else {"max_horizon": horizon}
+        )
+        try:
+            built: UISE | TwoStageUISE
+            if kind == "uise":
+                built = est.UISE.design(system, x0_prior=x0, **limits, **options)
+            elif kind == "delayed":
+                built = est.DelayedUISE.design(system, x0_prior=x0, **limits, **{**options, "lag": max(lag, 1)})
+            else:
+                built = est.TwoStageUISE.design(_reduction(entry, reduced), x0_prior=x0, **limits, **options)
+            assert built.weights is not None  # a certified design has weights (n_sharp = 0 has no design)
+            claim = "certified" if built.guarantee.applies else "certified, no guarantee (its guarantee says why)"
+            return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, {claim}"
+        except HorizonError as exc:  # certified, with a longer window than admitted
+            reason = horizon_reason(exc.limit, exc.shortest)
+        except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
+            reason = str(exc)
         note = f"no certified design ({reason}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
         if kind == "uise":
             return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,

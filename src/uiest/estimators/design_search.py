@@ -14,7 +14,9 @@ averages more samples and errs less. :func:`search_uise` therefore
    (only pairs with ``N >= min_horizon()`` are candidates; an N beyond the weights' information horizon runs
    capped there, possibly without a guarantee, and guaranteed candidates are chosen first); a rate
    whose gain-optimal certificate needs more than ``max_horizon`` (``min_horizon`` grows with
-   log cond(P)) is certified again with cond(P) bounded so that it fits (``max_condition``);
+   log cond(P)) is certified again with cond(P) bounded so that it fits (``max_condition``); where no rate then
+   admits a window within ``max_horizon`` and a ``fallback_horizon`` is given, the same certificates are fitted to
+   that longer limit instead (only the bounded ones are certified again);
 2. runs each candidate on ``trials`` noise records (uniform in V, the true state starting at
    ``x0``, known input at U's centre, unknown input zero: the UISE's error does not depend on it
    for systems affine in w), or on the user's ``records`` (where that run would leave X, say);
@@ -205,6 +207,9 @@ class DesignOptions:
     ----------
     max_horizon : int
         Largest N considered (window cost grows with N), >= 1.
+    fallback_horizon : int, optional
+        The larger limit admitted where no certified rate has a window within ``max_horizon`` (the certificates are
+        reused, not computed again); None: :class:`~uiest.errors.HorizonError` then. At least ``max_horizon``.
     rates : tuple of float
         Rates in (0, 1) to certify besides the minimal one (those below mu_min are skipped); stored sorted, without
         repeats.
@@ -213,8 +218,9 @@ class DesignOptions:
     trials : int
         Noise records per candidate, >= 1.
     steps : int
-        Their length. The first quarter is not scored, so at least ``ceil(4 max_horizon / 3)`` (a full window of
-        ``max_horizon`` in the rest); default :data:`DEFAULT_STEPS` or that least length.
+        Their length. The first quarter is not scored, so at least ``ceil(4 H / 3)`` (a full window of the longest
+        admitted horizon ``H``, ``fallback_horizon`` if given, else ``max_horizon``, in the rest); default
+        :data:`DEFAULT_STEPS` or that least length.
     seed : int
         Seed of the noise records, >= 0.
     certify_options : mapping, optional
@@ -233,6 +239,7 @@ class DesignOptions:
     """
 
     max_horizon: int = 30
+    fallback_horizon: int | None = None
     rates: tuple[float, ...] = DEFAULT_RATES
     budget: float = 60.0
     trials: int = 2
@@ -243,11 +250,15 @@ class DesignOptions:
 
     def __post_init__(self) -> None:
         max_horizon = check_int(self.max_horizon, "max_horizon", low=1)
+        fallback = self.fallback_horizon
+        if fallback is not None:
+            fallback = check_int(fallback, f"fallback_horizon (at least max_horizon = {max_horizon})", low=max_horizon)
         trials = check_int(self.trials, "trials", low=1)
         # a trial scores from steps // 4 on: its scored part holds at least one full window of the longest horizon
-        shortest = -(-4 * max_horizon // 3)
+        longest, limit_name = (max_horizon, "max_horizon") if fallback is None else (fallback, "fallback_horizon")
+        shortest = -(-4 * longest // 3)
         steps = max(DEFAULT_STEPS, shortest) if self.steps is None else self.steps
-        steps = check_int(steps, f"steps (at least {shortest}: a full window of max_horizon = {max_horizon} in the "
+        steps = check_int(steps, f"steps (at least {shortest}: a full window of {limit_name} = {longest} in the "
                                  "scored three quarters of a trial)", low=shortest)  # fmt: skip
         budget = check_real(self.budget, "budget", "CPU seconds >= 0")
         if not budget >= 0:
@@ -260,8 +271,8 @@ class DesignOptions:
             raise OptionError(f"rates: expected numbers in (0, 1), got {list(self.rates)}")
         if self.certify_options is not None and not isinstance(self.certify_options, Mapping):
             raise OptionError(f"certify_options: expected a mapping of keywords, got {shown(self.certify_options)}")
-        values = {"max_horizon": max_horizon, "trials": trials, "steps": steps, "budget": budget, "rates": grid,
-                  "seed": check_seed(self.seed)}  # fmt: skip
+        values = {"max_horizon": max_horizon, "fallback_horizon": fallback, "trials": trials, "steps": steps,
+                  "budget": budget, "rates": grid, "seed": check_seed(self.seed)}  # fmt: skip
         for name, value in values.items():
             object.__setattr__(self, name, value)
 
@@ -317,7 +328,6 @@ def search_uise(
     """
     search, options = DesignOptions.split(design, options)
     certify = _certify_options(search.certify_options, certify_strong_detectability)
-    max_horizon = search.max_horizon
     system = data_scales(system, as_vector(x0, system.nx, "x0"))
     scale, V, width = system.x.scale, system.v.bounds, system.x.bounds.width
     v_bar = _v_prior(system, options)
@@ -325,11 +335,10 @@ def search_uise(
     def rank(cert: Any, n: int) -> float:
         return float(np.max(strong_bound(cert.P, cert.R_v, cert.mu, n, V, v_bar, width)[0] / scale))
 
-    def certify_with_horizon(mu: float | None) -> Any:
-        """The certificate at mu; if its min_horizon exceeds max_horizon, one with cond(P) bounded to fit."""
-        cert = certify_strong_detectability(system, mu=mu, **certify)
-        if cert.certified and cert.min_horizon() > max_horizon and "max_condition" not in certify:
-            fitting = CONDITION_MARGIN * horizon_condition(cert.mu, max_horizon)
+    def fit(cert: Any, limit: int) -> Any:
+        """``cert``, or if its min_horizon exceeds ``limit``, the one at its rate with cond(P) bounded to fit."""
+        if cert.min_horizon() > limit and "max_condition" not in certify:
+            fitting = CONDITION_MARGIN * horizon_condition(cert.mu, limit)
             if fitting > 1.0:
                 conditioned = certify_strong_detectability(system, mu=cert.mu, max_condition=fitting, **certify)
                 if conditioned.certified:
@@ -337,9 +346,9 @@ def search_uise(
         return cert
 
     return _design(
-        system, x0, certify_with_horizon, rank,
+        system, x0, lambda mu: certify_strong_detectability(system, mu=mu, **certify), rank,
         lambda cert, n, prior: estimator(system, certificate=cert, N=n, x0_prior=prior, **options),
-        what="strong detectability", search=search,
+        what="strong detectability", search=search, fit=fit,
         variants=lambda cert: [cert.with_output_weight(factor) for factor in OUTPUT_WEIGHTS if factor != 1.0],
     )  # fmt: skip
 
@@ -385,22 +394,22 @@ def _design(
     *,
     what: str,
     search: DesignOptions,
+    fit: Callable[[Any, int], Any] = lambda cert, limit: cert,
     variants: Callable[[Any], list[Any]] = lambda cert: [],
 ) -> Design:
-    """The design loop of the module docstring; ``rank(certificate, N)`` orders the horizons of a rate."""
-    max_horizon = check_horizon(search.max_horizon, "max_horizon", system)
-    budget, grid, records = search.budget, search.rates, search.records
+    """The design loop of the module docstring.
+
+    ``certify(mu)`` certifies at a rate (None: the minimal one), ``fit(certificate, limit)`` returns a certified
+    certificate of the same rate whose window fits ``limit`` where it can (else the one given),
+    ``rank(certificate, N)`` orders the horizons of a rate.
+    """
+    check_horizon(search.max_horizon, "max_horizon", system)
+    if search.fallback_horizon is not None:
+        check_horizon(search.fallback_horizon, "fallback_horizon", system)
+    records = search.records
     prior = as_vector(x0, system.nx, "x0")
     start = time.thread_time()
-    first = certify(None)
-    if not first.certified:
-        raise CertificationError(f"system: {what} is not certified ({first.reason}); nothing to design")
-    certificates = [first]
-    for mu in grid:
-        if mu > first.mu and time.thread_time() - start <= budget:
-            cert = certify(mu)
-            if cert.certified:
-                certificates.append(cert)
+    limit, certificates = _certificates(system, certify, fit, search, what)
     if records is None:
         assert search.steps is not None  # set by DesignOptions
         scored = _noise_records(system, prior, search.trials, search.steps, search.seed)
@@ -436,17 +445,18 @@ def _design(
         ), cert
 
     for cert in certificates:
-        horizons = range(cert.min_horizon(), max_horizon + 1)
+        horizons = range(cert.min_horizon(), limit + 1)
         N = min(horizons, key=lambda n: rank(cert, n), default=None)
         if N is not None:
             candidates.append(weigh(cert, N))
     if not candidates:
         shortest = min(cert.min_horizon() for cert in certificates)
+        name = "max_horizon" if limit == search.max_horizon else "fallback_horizon"
         raise HorizonError(
-            f"max_horizon: no certified rate has an admissible horizon <= {max_horizon} (the shortest certified "
-            f"window: {shortest}; max_horizon={shortest} admits it, and the estimator built from a certificate "
+            f"{name}: no certified rate has an admissible horizon <= {limit} (the shortest certified "
+            f"window: {shortest}; {name}={shortest} admits it, and the estimator built from a certificate "
             "with a shorter N runs without a guarantee)",
-            max_horizon,
+            limit,
             shortest,
         )
     chosen, cert = _choose(candidates, system)
@@ -465,6 +475,36 @@ def _design(
         candidates=tuple(c for c, _ in candidates),
         seconds=time.thread_time() - start,
     )
+
+
+def _certificates(
+    system: System,
+    certify: Callable[[float | None], Any],
+    fit: Callable[[Any, int], Any],
+    search: DesignOptions,
+    what: str,
+) -> tuple[int, list[Any]]:
+    """The window limit and the certified rates' certificates fitted to it (:func:`_design`'s arguments).
+
+    The limit is ``max_horizon``, or ``fallback_horizon`` (when given) where no certificate fits ``max_horizon``; the
+    grid of rates stops when the budget is spent.
+    """
+    max_horizon, fallback = search.max_horizon, search.fallback_horizon
+    start = time.thread_time()
+    first = certify(None)
+    if not first.certified:
+        raise CertificationError(f"system: {what} is not certified ({first.reason}); nothing to design")
+    found = [first]  # as certified, each to be fitted to a limit
+    certificates = [fit(first, max_horizon)]
+    for mu in search.rates:
+        if mu > first.mu and time.thread_time() - start <= search.budget:
+            cert = certify(mu)
+            if cert.certified:
+                found.append(cert)
+                certificates.append(fit(cert, max_horizon))
+    if fallback is None or any(cert.min_horizon() <= max_horizon for cert in certificates):
+        return max_horizon, certificates
+    return fallback, [fit(cert, fallback) for cert in found]
 
 
 def _choose(pool: list[tuple[Candidate, Any]], system: System) -> tuple[Candidate, Any]:
