@@ -296,3 +296,14 @@ def test_cli_analyse_prints_the_recommendation_and_writes_json(tmp_path):
     assert json.loads(out.read_text())["recommendation"] == "UISE"
     bad = runner.invoke(app, ["analyse", "linear-example", "--max-horizon", "0"])
     assert bad.exit_code == 2 and "--max-horizon" in bad.output
+
+
+def test_the_error_floor_makes_no_claim_where_zi_minus_a_is_singular_to_working_precision():
+    # a Jacobian of 1e20 (an explicit integrator where it is unstable): at z = 1 and -1, z I - A rounds to a singular
+    # matrix although z is 1 away from A's eigenvalues; the floor once ended the analysis with LinAlgError
+    from uiest.analysis.near_zeros import _floor
+
+    z = np.array([1.0, -1.0, 1j])
+    floors = _floor(np.full((2, 2), 1e20), np.array([[1.0], [0.0]]), np.array([[1.0, 0.0]]), np.ones(2), z)
+    np.testing.assert_array_equal(floors[:2], np.zeros((2, 2)))  # no claim there
+    assert np.all(np.isfinite(floors[2])) and np.all(floors[2] > 0)  # the solve at z = i is regular

@@ -340,7 +340,7 @@ def _print_estimates(
         table.add_row(kind, notes[kind], error, str(result.guarantee))
     console.print(table)
     for kind, why in skipped.items():
-        console.print(f"{kind}: not applicable ({why})", markup=False, highlight=False, soft_wrap=True)
+        console.print(f"{kind}: not run ({why})", markup=False, highlight=False, soft_wrap=True)
     console.print(_health_table(results))
 
 

@@ -128,13 +128,14 @@ def build_all(
     """Every estimator of :data:`ESTIMATORS` the model admits (:func:`build_estimator`'s options).
 
     Returns (estimators, notes, skipped): a kind the model does not admit (matching, no reduction, not
-    linear, ...) is in ``skipped`` with the reason it was refused.
+    linear, ...) or that could not be built (a fit to the record without a candidate, weights out of the window's
+    range) is in ``skipped`` with the reason; the others are built.
     """
     built, notes, skipped = {}, {}, {}
     for kind in ESTIMATORS:
         try:
             built[kind], notes[kind] = build_estimator(kind, entry, system, x0, **options)
-        except (ModelError, CertificationError) as exc:
+        except (ModelError, CertificationError, OptionError) as exc:  # not admitted, or not built on this record
             skipped[kind] = str(exc)
     return built, notes, skipped
 

@@ -267,7 +267,8 @@ def maximise_likelihood(
     if not np.any(np.isfinite(values)):
         raise OptionError(
             f"{name}: every filter of the grid {grid[0]:.3g} .. {grid[-1]:.3g} diverged or failed an update on the "
-            "record; give a smaller P0 (the default is X's uniform variance) or a prior closer to the data"
+            "record; give a smaller P0 (the default is X's uniform variance) or a prior closer to the data "
+            "(x0_prior; --x0 in `uiest estimate`)"
         )
     best = int(np.argmax(values))
     if refine > 0 and 0 < best < len(grid) - 1:

@@ -22,6 +22,7 @@ there (a lower bound for small motions; it says nothing about motions that leave
 
 from __future__ import annotations
 
+import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -137,9 +138,12 @@ def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray,
     shifted = z[:, None, None] * np.eye(n) - A
     eigenvalues = np.linalg.eigvals(A)
     regular = np.min(np.abs(z[:, None] - eigenvalues[None, :]), axis=1, initial=np.inf) > 1e-9
+    T = _solved(shifted[regular], Q)
+    solved = np.all(np.isfinite(T), axis=(1, 2))  # zI - A singular to working precision: no claim either
+    regular[regular] = solved
+    T = T[solved]
     if not regular.any():
         return floors
-    T = np.linalg.solve(shifted[regular], np.broadcast_to(Q, (int(regular.sum()), *Q.shape)))
     Y = C_noise @ T  # outputs over their noise amplitudes
     _, s, Vh = np.linalg.svd(Y, full_matrices=False)
     with np.errstate(divide="ignore"):
@@ -149,6 +153,19 @@ def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray,
     values = np.sqrt(np.sum(np.abs(np.nan_to_num(projected, nan=np.inf)) ** 2, axis=2)) * scale[None, :]
     floors[regular] = values
     return floors
+
+
+def _solved(M: np.ndarray, Q: FloatArray) -> np.ndarray:
+    """``M[i]^-1 Q`` for each matrix of ``M`` (m, n, n); NaN for those singular to working precision."""
+    rhs = np.broadcast_to(Q, (len(M), *Q.shape))
+    try:
+        return np.linalg.solve(M, rhs)
+    except np.linalg.LinAlgError:  # e.g. a Jacobian of 1e28 where an explicit integrator is unstable
+        out = np.full(rhs.shape, np.nan, dtype=np.result_type(M, Q))
+        for i, matrix in enumerate(M):
+            with contextlib.suppress(np.linalg.LinAlgError):
+                out[i] = np.linalg.solve(matrix, Q)
+        return out
 
 
 def output_noise(system: System, D: FloatArray) -> FloatArray | None:

@@ -55,8 +55,11 @@ MAX_PARAMETERS = 10
 AFFINE_RTOL = 1e-9
 """A parameter map whose best affine fit misses an entry by more than this fraction of its spread is 'not affine'."""
 
-WHAT_TO_DO = "give parameters= (a few functions of x and u it is affine in), a smaller X, or cover='sampled' (a check "
-"at samples, not a proof)"
+WHAT_TO_DO = (
+    "give parameters= (a few functions of x and u it is affine in), a smaller X, or cover='sampled' (a check "
+    "at samples, not a proof)"
+)
+"""What a refused exact cover's message tells the user to do."""
 
 
 @dataclass(frozen=True, kw_only=True)
