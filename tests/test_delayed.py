@@ -47,6 +47,13 @@ def test_lagged_error_of_the_delayed_uise_is_the_closed_form():
     i = np.arange(1, K - 2)  # w[i], delivered at k = i + lag + 1 <= K
     np.testing.assert_allclose(result.w_hat[i, 0] - truth.w[i, 0], v[i + 2, 0] - v[i + 1, 0], atol=1e-8)
     assert str(est.guarantee).startswith("none: explicit weights")
+    # uiest estimate scores the delayed UISE on its lagged estimates, any other estimator on x_hat, per state
+    from uiest.estimate import error_text, errors_against_truth
+
+    rmse = errors_against_truth(truth, {"delayed": result, "uise": result})
+    np.testing.assert_allclose(rmse["delayed"], np.sqrt(np.nanmean((result.x_lag - truth.x) ** 2, axis=0)))
+    np.testing.assert_allclose(rmse["uise"], np.sqrt(np.mean((result.x_hat - truth.x) ** 2, axis=0)))
+    assert error_text(system, rmse["delayed"], lagged=True).startswith(f"x[0] {rmse['delayed'][0]:.3g}, x[1] ")
 
 
 def test_a_system_without_matching_is_refused_unless_forced():

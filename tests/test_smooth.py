@@ -1,13 +1,15 @@
 """The smooth-input MHE: the augmented model, known answers (Kalman filter, the window's least squares), sampled
 mechanical systems whose sampling zero defeats the UISE, jumps, guarantees, bad input, CLI and study."""
 
+import warnings
+
 import numpy as np
 import pandas as pd
 import pytest
 from scipy.integrate import solve_ivp
 from typer.testing import CliRunner
 
-from uiest import CertificationError, DataError, ModelError, OptionError, System, UniformNoise, simulate
+from uiest import BoundWarning, CertificationError, DataError, ModelError, OptionError, System, UniformNoise, simulate
 from uiest.augmented import W_SPREAD, augmented_system
 from uiest.cli import app
 from uiest.detectability import certify_delta_ioss, invariant_zeros
@@ -413,3 +415,25 @@ def test_a_study_runs_the_smooth_input_mhe_kind():
     assert row["status"] == "certified" and row["certificate"].startswith("delta-IOSS of the model with w as a state")
     truth = study.truths[("noisy", 0)]
     assert rms(certified.x_hat[10:] - truth.x[10:]) < 0.1 * float(np.max(np.abs(truth.x)))
+
+
+def test_a_run_warns_when_the_input_estimate_sits_at_w_s_side():
+    # W defaults to nominal_w +- 100 w.scale: an input of 150 is estimated at 100 and the states err with it; the run
+    # once said nothing (its windows were counted "at X's side")
+    system, *_ = double_integrator(x_bound=1e5)
+    w = np.where(np.arange(40) >= 10, 150.0, 0.0)[:, None]
+    traj = simulate(system, [0.0, 0.0], 40, w=w, v=UniformNoise.symmetric(1e-3), seed=0)
+    variance = 100.0
+    for bounds, expected in ((None, 100.0), ((-1000.0, 1000.0), None)):
+        aug = augmented_system(system, 3 * np.sqrt(variance), bounds)
+        mhe = SmoothInputMHE(system, weights=variance_weights(aug, variance, 0.8), dw_variance=variance,
+                             w_bounds=bounds, N=10, x0_prior=[0.0, 0.0])  # fmt: skip
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            result = mhe.run(None, traj.y)
+        said = [str(c.message) for c in caught if issubclass(c.category, BoundWarning)]
+        if expected is None:
+            assert not said and np.nanmax(result.w_hat) > 140.0
+        else:
+            assert np.nanmax(result.w_hat) == pytest.approx(expected, rel=1e-6)
+            assert len(said) == 1 and "the unknown-input estimate of w[0] at or beyond W's upper side 100 in" in said[0]

@@ -14,7 +14,6 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Annotated, Any, ParamSpec, TypeVar
 
-import numpy as np
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, SpinnerColumn, TextColumn, TimeRemainingColumn
@@ -33,6 +32,7 @@ from uiest.estimate import (
     build_estimator,
     check_lag,
     default_prior,
+    error_text,
     errors_against_truth,
     recommended,
     run_estimators,
@@ -274,7 +274,7 @@ def estimate(
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
             results = run_estimators(built, record, prior)
-    _print_estimates(f"{entry.name}: {record.steps} steps from {data}", record, results, notes, skipped)
+    _print_estimates(f"{entry.name}: {record.steps} steps from {data}", system, record, results, notes, skipped)
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
         if issubclass(caught_warning.category, BoundWarning):
             error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
@@ -328,15 +328,15 @@ def _build_estimators(
 
 
 def _print_estimates(
-    title: str, record: Any, results: dict[str, Any], notes: dict[str, str], skipped: dict[str, str]
+    title: str, system: Any, record: Any, results: dict[str, Any], notes: dict[str, str], skipped: dict[str, str]
 ) -> None:
     """The estimators' table (weights, RMSE against the truth when the data hold it, guarantee) and step health."""
     rmse = errors_against_truth(record, results)
     table = Table(title=title)
-    for column in ("estimator", "weights", "state RMSE vs truth", "guarantee"):
+    for column in ("estimator", "weights", "RMSE vs truth, per state", "guarantee"):
         table.add_column(column)
     for kind, result in results.items():
-        error = "no truth in the data" if np.isnan(rmse[kind]) else f"{rmse[kind]:.4g}"
+        error = error_text(system, rmse[kind], lagged=kind == "delayed" and result.x_lag is not None)
         table.add_row(kind, notes[kind], error, str(result.guarantee))
     console.print(table)
     for kind, why in skipped.items():

@@ -179,21 +179,9 @@ def bound_message(
     in X, so a true state beyond a side is estimated at it), a physical limit the state reaches, or
     an estimate wrong there. None when no state reaches the share.
     """
-    steps = at_bound_steps.shape[0]
-    if not steps:
+    described = _at_sides(at_bound_steps, x_hat, box, names, "X")
+    if described is None:
         return None
-    counts = at_bound_steps.sum(axis=0)
-    flagged = np.flatnonzero(counts > BOUND_SHARE * steps)
-    if not flagged.size:
-        return None
-    lower_side = np.abs(x_hat - box.lower) <= np.abs(x_hat - box.upper)
-    described = []
-    for i in flagged:
-        low = int(np.count_nonzero(at_bound_steps[:, i] & lower_side[:, i]))
-        pairs = (("lower", box.lower[i], low), ("upper", box.upper[i], counts[i] - low))
-        sides = [f"{side} side {value:.6g}" for side, value, n in pairs if n]
-        described.append(f"{names[i]} at or beyond X's {' and '.join(sides)} in {counts[i]} of {steps} steps "
-                         f"({100.0 * counts[i] / steps:.0f} %)")  # fmt: skip
     narrow = (
         "X may be too narrow (this estimator keeps its estimates in X, so a true state beyond a side is estimated at "
         "it: give a wider X)"
@@ -201,10 +189,50 @@ def bound_message(
         else "X may be too narrow for the true state (give a wider X)"
     )
     return (
-        f"{estimator}: the estimate of {'; '.join(described)}. Three readings: {narrow}; the side is a physical "
+        f"{estimator}: the estimate of {described}. Three readings: {narrow}; the side is a physical "
         "limit the state reaches (estimates on it are then expected); or the estimate is wrong there (the data or "
         "the estimator's weights do not determine the state: see its guarantee)"
     )
+
+
+def input_bound_message(
+    estimator: str, at_bound_steps: NDArray[np.bool_], w_hat: FloatArray, box: Box, names: tuple[str, ...]
+) -> str | None:
+    """The warning of a run whose unknown-input estimates lie at a side of W in more than :data:`BOUND_SHARE` of them.
+
+    For an estimator whose model bounds the unknown input by W and keeps ``w_hat`` in it (the smooth-input MHE's
+    augmented state): ``at_bound_steps`` and ``w_hat`` are (K, nw). None when no input reaches the share.
+    """
+    described = _at_sides(at_bound_steps, w_hat, box, names, "W")
+    if described is None:
+        return None
+    return (
+        f"{estimator}: the unknown-input estimate of {described}. W may be too narrow: this estimator keeps w in W, "
+        "so a larger input is estimated at W's side and the states' estimates err with it (give a wider W: "
+        "w_bounds=, or the model's w_range; without either W is nominal_w +- 100 w.scale)"
+    )
+
+
+def _at_sides(
+    at_bound_steps: NDArray[np.bool_], values: FloatArray, box: Box, names: tuple[str, ...], domain: str
+) -> str | None:
+    """Each component at a side of ``domain`` in more than :data:`BOUND_SHARE` of the rows: its sides and share."""
+    steps = at_bound_steps.shape[0]
+    if not steps:
+        return None
+    counts = at_bound_steps.sum(axis=0)
+    flagged = np.flatnonzero(counts > BOUND_SHARE * steps)
+    if not flagged.size:
+        return None
+    lower_side = np.abs(values - box.lower) <= np.abs(values - box.upper)
+    described = []
+    for i in flagged:
+        low = int(np.count_nonzero(at_bound_steps[:, i] & lower_side[:, i]))
+        pairs = (("lower", box.lower[i], low), ("upper", box.upper[i], counts[i] - low))
+        sides = [f"{side} side {value:.6g}" for side, value, n in pairs if n]
+        described.append(f"{names[i]} at or beyond {domain}'s {' and '.join(sides)} in {counts[i]} of {steps} steps "
+                         f"({100.0 * counts[i] / steps:.0f} %)")  # fmt: skip
+    return "; ".join(described)
 
 
 @contextmanager
@@ -238,6 +266,7 @@ __all__ = [
     "Outcome",
     "at_bound",
     "bound_message",
+    "input_bound_message",
     "quiet_bound_warnings",
     "status_text",
     "without_bound_warnings",

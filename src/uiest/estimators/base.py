@@ -49,7 +49,7 @@ from uiest.estimators.history import RowHistory
 from uiest.estimators.horizon import InformationHorizon, information_horizon
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
-from uiest.health import BoundTest, Outcome, at_bound, bound_message
+from uiest.health import BoundTest, Outcome, at_bound, bound_message, input_bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -759,7 +759,8 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     and ``guarantee``; the caller has reset it. ``x_lag[j]`` is the estimate of ``x[j]`` delivered at
     step ``j + lag`` (NaN for the last ``lag`` rows). Warns (:class:`~uiest.errors.BoundWarning`,
     :func:`uiest.health.bound_message`) when a state's estimate lies at a side of X in more than 5 %
-    of the steps.
+    of the steps, and (:func:`uiest.health.input_bound_message`) when an unknown input's estimate lies at a side of
+    the estimator's ``w_domain`` (where it has one: the smooth-input MHE's W) in more than 5 % of them.
     """
     K = y_arr.shape[0] - 1
     s = estimator.system
@@ -802,6 +803,11 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
                             constrained=isinstance(estimator, WindowEstimator))  # fmt: skip
     if message is not None:
         warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
+    W = getattr(estimator, "w_domain", None)  # an estimator whose model bounds the unknown input
+    if W is not None:
+        message = input_bound_message(estimator.estimator_name, at_bound(W, w_hat, s.w.scale), w_hat, W, s.w.names)
+        if message is not None:
+            warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
     return EstimationResult(
         t=np.arange(K + 1) * s.dt,
         x_hat=x_hat,

@@ -186,6 +186,12 @@ class SmoothInputMHE(WindowEstimator):
     **options
         Window options (:class:`~uiest.estimators.WindowOptions`), as keywords or one ``window=WindowOptions(...)``.
 
+    Attributes
+    ----------
+    w_domain : Box
+        W, the range of w the augmented state covers: the estimates ``w_hat`` stay in it, and a run warns
+        (:class:`~uiest.errors.BoundWarning`) where they sit at its sides in more than 5 % of the steps.
+
     """
 
     estimator_name = "SmoothInputMHE"
@@ -229,7 +235,7 @@ class SmoothInputMHE(WindowEstimator):
             self.weights = certified_weights(certificate, variance_weights(aug, self.dw_variance, self.weights.eta))
         self.eta_given = self.weights.eta
         self.weights = span_normalised(self.weights, N, certificate is not None if normalise is None else normalise)
-        W = Box(aug.x.bounds.lower[system.nx :], aug.x.bounds.upper[system.nx :])
+        W = self.w_domain = Box(aug.x.bounds.lower[system.nx :], aug.x.bounds.upper[system.nx :])
         self.w0_prior = W.center if w0_prior is None else as_vector(w0_prior, system.nw, "w0_prior")
         if not W.contains(self.w0_prior):
             raise DataError(f"w0_prior: expected a point in W = {W}, got {self.w0_prior.tolist()}")
