@@ -307,3 +307,23 @@ def test_the_error_floor_makes_no_claim_where_zi_minus_a_is_singular_to_working_
     floors = _floor(np.full((2, 2), 1e20), np.array([[1.0], [0.0]]), np.array([[1.0, 0.0]]), np.ones(2), z)
     np.testing.assert_array_equal(floors[:2], np.zeros((2, 2)))  # no claim there
     assert np.all(np.isfinite(floors[2])) and np.all(floors[2] > 0)  # the solve at z = i is regular
+
+
+def test_a_zero_where_the_rk4_step_is_unstable_is_not_attributed_to_sampling():
+    # a DC motor whose electrical pole (-1975 / s) RK4 amplifies at dt = 2 ms: the zero at 6.0 comes from the
+    # integrator (the exactly sampled motor's is at -0.3); it was once "created by sampling", and so the reason
+    def rhs(x, u, w):
+        return [(u[0] - x[0] - 0.05 * x[1]) / 0.5e-3, (0.05 * x[0] - 1e-5 * x[1] - w[0]) / 1e-4]
+
+    def motor(substeps):
+        return System.from_ode(rhs, lambda x, v: [x[0] + v[0]], nx=2, nu=1, nw=1, nv=1, dt=2e-3, substeps=substeps,
+                               x_bounds=((-50.0, -1000.0), (50.0, 1000.0)), u_bounds=(-24.0, 24.0),
+                               v_bounds=(-0.01, 0.01))  # fmt: skip
+
+    with pytest.warns(UserWarning, match="RK4 with step 0.002 grows where the ODE decays"):
+        unstable = analyse(motor(1), points=4)
+    (zero,) = unstable.zeros.reference
+    assert zero.value.real == pytest.approx(6.0, abs=0.05) and zero.unstable_step and zero.from_sampling is None
+    assert "may come from the integrator" in unstable.reason and "created by sampling" not in unstable.reason
+    (zero,) = analyse(motor(4), points=4).zeros.reference  # RK4 stable: the sampling zero, named as such
+    assert zero.value.real == pytest.approx(-0.297, abs=0.01) and zero.from_sampling and not zero.unstable_step

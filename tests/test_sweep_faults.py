@@ -21,7 +21,7 @@ def design() -> Sweep:
     scenario = Scenario(
         name="killed-sweep",
         model="closed-form",
-        steps=60,
+        steps=300,  # a task takes about 0.5 s: the kill comes while most are still running
         runs=3,
         cases=("noisy",),
         prior=(math.nan, 0.0),
@@ -58,7 +58,7 @@ def test_a_killed_sweep_leaves_no_workers_and_resumes_to_the_same_rows(tmp_path,
     while not (runs.exists() and any(runs.glob("*.parquet"))):
         assert parent.poll() is None, "the sweep ended before it could be killed"
         assert time.monotonic() < deadline, "no task finished within 180 s"
-        time.sleep(0.2)
+        time.sleep(0.02)
     workers = psutil.Process(parent.pid).children(recursive=True)
     assert workers, "the sweep runs no worker processes"
     os.kill(parent.pid, signal.SIGKILL)

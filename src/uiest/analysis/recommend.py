@@ -156,6 +156,11 @@ def zero_text(a: ModelAnalysis, zero: Zero, degree: int | None = None) -> str:
             if degree
             else (", created by sampling")
         )
+    elif zero.unstable_step and zero.from_sampling is None:
+        text += (
+            ", where the model's RK4 step grows a mode the ODE damps (the zero may come from the integrator, not the "
+            "plant: analyse again with more substeps or method='collocation')"
+        )
     return text
 
 

@@ -117,6 +117,8 @@ class ModelAnalysis:
             notes = []
             if z.from_sampling is not None:
                 notes.append("created by sampling" if z.from_sampling else "from the continuous model")
+            elif z.unstable_step:
+                notes.append("where the RK4 step grows a decaying mode: it may come from the integrator")
             if z.limit is not None:
                 notes.append(f"{number(z.limit)} as dt -> 0")
             parts.append(complex_number(z.value) + (f" ({'; '.join(notes)})" if notes else ""))

@@ -25,6 +25,7 @@ from scipy.optimize import linear_sum_assignment
 from uiest.analysis.points import Linearisations, euler_frobenius_roots, relative_degrees
 from uiest.box import FloatArray
 from uiest.detectability.linear import invariant_zeros
+from uiest.ode import rk4_grows
 from uiest.system import System
 
 __all__ = ["Channel", "Zero", "Zeros", "find_zeros"]
@@ -41,15 +42,20 @@ class Zero:
     value : complex
     from_sampling : bool or None
         Created by sampling (True), the image ``exp(s dt)`` of a zero s of the continuous model
-        (False), or unknown: the model was not sampled by ``from_ode`` (None).
+        (False), or unknown: the model was not sampled by ``from_ode``, or its integration step is unstable
+        where the zero was found (None).
     limit : float or None
         For a channel's zero created by sampling: the Euler-Frobenius root it tends to as dt -> 0.
+    unstable_step : bool
+        The model's RK4 step grows where the ODE decays at the point of the zero (``System.from_ode`` warns): a
+        zero that is not the image of a continuous one may come from the integrator, not from sampling the plant.
 
     """
 
     value: complex
     from_sampling: bool | None = None
     limit: float | None = None
+    unstable_step: bool = False
 
     @property
     def modulus(self) -> float:
@@ -59,7 +65,8 @@ class Zero:
     def to_dict(self) -> dict[str, object]:
         """Plain data for JSON."""
         return {"real": self.value.real, "imag": self.value.imag, "modulus": self.modulus,
-                "from_sampling": self.from_sampling, "limit": self.limit}  # fmt: skip
+                "from_sampling": self.from_sampling, "limit": self.limit,
+                "unstable_step": self.unstable_step}  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -148,15 +155,20 @@ def created_by_sampling(sampled: ComplexArray, continuous: ComplexArray, dt: flo
 
 
 def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | None, G: FloatArray | None,
-              dt: float, degree: int | None = None) -> tuple[Zero, ...]:  # fmt: skip
+              dt: float, degree: int | None = None, step: float | None = None) -> tuple[Zero, ...]:  # fmt: skip
     """The zeros of (A, B, C), classified against the continuous (A_c, G, C) when given.
 
     The ones sampling created get their Euler-Frobenius limits when the continuous relative degree is given.
+    ``step``: the RK4 step of a model integrated by RK4; where it grows a decaying mode of ``A_c``, the zeros not
+    paired with continuous ones are not attributed to sampling (:attr:`Zero.unstable_step`).
     """
     found = invariant_zeros(A, B, C)
     if A_c is None or G is None:
         return tuple(Zero(value=complex(z)) for z in found)
     sampling = created_by_sampling(found, invariant_zeros(A_c, G, C), dt)
+    if step is not None and rk4_grows(np.linalg.eigvals(A_c), step).any():
+        return tuple(Zero(value=complex(z), from_sampling=None if sampling[i] else False, unstable_step=True)
+                     for i, z in enumerate(found))  # fmt: skip
     limits: dict[int, float] = {}
     roots = euler_frobenius_roots(degree) if degree else np.zeros(0)
     created = np.flatnonzero(sampling)
@@ -180,10 +192,12 @@ def find_zeros(system: System, lin: Linearisations) -> Zeros:
     def continuous(i: int) -> tuple[FloatArray | None, FloatArray | None]:
         return (None, None) if lin.A_c is None or lin.G is None else (lin.A_c[i], lin.G[i])
 
-    reference = _zeros_at(lin.A[0], lin.B[0], lin.C[0], *continuous(0), dt)
+    origin = system.sampled_from
+    step = origin.substeps and dt / origin.substeps if origin is not None and origin.method == "rk4" else None
+    reference = _zeros_at(lin.A[0], lin.B[0], lin.C[0], *continuous(0), dt, step=step)
     largest = largest_at = None
     if moduli[best] >= 0.0:
-        largest = _zeros_at(lin.A[best], lin.B[best], lin.C[best], *continuous(best), dt)[0]
+        largest = _zeros_at(lin.A[best], lin.B[best], lin.C[best], *continuous(best), dt, step=step)[0]
         largest_at = lin.x[best] * 1.0
     steps = relative_degrees(lin.A[:1], lin.B[:1], lin.C[:1])[0]
     degrees = None if lin.A_c is None or lin.G is None else relative_degrees(lin.A_c[:1], lin.G[:1], lin.C[:1])[0]
@@ -193,7 +207,7 @@ def find_zeros(system: System, lin: Linearisations) -> Zeros:
             degree = None if degrees is None or degrees[i, j] == 0 else int(degrees[i, j])
             A_c, G = continuous(0)
             zeros = _zeros_at(lin.A[0], lin.B[0][:, j : j + 1], lin.C[0][i : i + 1], A_c,
-                              None if G is None else G[:, j : j + 1], dt, degree)  # fmt: skip
+                              None if G is None else G[:, j : j + 1], dt, degree, step)  # fmt: skip
             channels.append(
                 Channel(
                     input=w_name, output=y_name, steps=int(steps[i, j]) or None, continuous_degree=degree, zeros=zeros
