@@ -455,3 +455,14 @@ def test_the_search_does_not_refute_with_pairs_closer_than_rounding():
         (found.first - found.second) / cert.system.x.scale
     ) >= falsify.MIN_SEPARATION * np.linalg.norm(width)
     assert found.worst_ratio <= 1.0 and cert.verify(20_000).holds
+
+
+def test_a_wide_domain_does_not_let_rounding_refute_a_certificate():
+    # the Henon map with w into the measured x1, X = +-1e4, the states' own scales: eliminating w subtracted two terms
+    # of 2e20 to leave 7e5, and rounding (2 %) refuted the certificate at a pair whose exact ratio is 0.99902
+    henon = System.from_callables(lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]],
+                                  lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=(-1e4, 1e4),
+                                  v_bounds=(-1e-3, 1e-3)).with_scales(x=[1.5, 0.5])  # fmt: skip
+    cert = certify_strong_detectability(henon)
+    assert cert.certified, cert.reason
+    assert 0.99 < cert.falsification.worst_ratio < 1.0

@@ -331,7 +331,7 @@ def _falsify(
     x, xt, u = ca.SX.sym("x", nx), ca.SX.sym("xt", nx), ca.SX.sym("u", nu)
     w0 = ca.DM(system.nominal_w)
     sx = system.x.scale
-    a = (system.f(x, u, w0) - system.f(xt, u, w0)) / ca.DM(sx)
+    a = _without_seen_input(((system.f(x, u, w0) - system.f(xt, u, w0)) / ca.DM(sx)).T, C, B).T
     dx = (x - xt) / ca.DM(sx)
     lhs = ca.bilin(ca.DM(Q), a, a)
     if B.shape[1]:
@@ -464,6 +464,23 @@ def _input_leak(cert: StrongDetectability, x: FloatArray, u: FloatArray, rng: np
     return float((excess[keep] / size[keep]).max(initial=0.0))
 
 
+def _without_seen_input(a: Any, C: FloatArray, B: FloatArray, noise: FloatArray | None = None) -> Any:
+    """The increments ``a`` (rows) moved along B so that ``C a + noise`` loses its part in range(C B).
+
+    The maximum over dd of ``|a + B dd|_P^2 - sigma |C (a + B dd) + noise|^2`` does not change when ``a`` moves
+    along B, but evaluated as it is it subtracts two terms of order ``sigma |C a|^2`` (1e20 on a Henon map with a
+    wide X, a sum of 1e6 left): rounding then refuted a certificate that holds. After the move the large part is
+    gone and the sum is formed without it. ``a`` is an array (m, n) or an SX row.
+    """
+    if not B.shape[1]:
+        return a
+    move = np.linalg.pinv(C @ B).T @ B.T  # (p, n): from C a + noise to the move along B that cancels it best
+    if isinstance(a, ca.SX):
+        return a - ca.mtimes(ca.mtimes(a, ca.DM(C.T)), ca.DM(move))
+    seen = a @ C.T if noise is None else a @ C.T + noise
+    return a - seen @ move
+
+
 def worst_case_ratio(
     *,
     a: FloatArray,
@@ -486,6 +503,7 @@ def worst_case_ratio(
     is bounded above iff ``B^T (P - sigma_y C^T C) B < 0``, and then its maximum is closed-form.
     """
     n_pairs = len(a)
+    a = _without_seen_input(a, C, B, noise_next)
     value = quad(a, P) - sigma_y * np.sum((a @ C.T + noise_next) ** 2, axis=1)
     if B.shape[1]:
         H = B.T @ (P - sigma_y * C.T @ C) @ B
