@@ -130,3 +130,21 @@ def test_collocation_matches_solve_ivp_on_the_nonlinear_reactor():
                          atol=1e-14)  # fmt: skip
         reference = flow.y[:, -1]
     np.testing.assert_allclose(x, reference, rtol=1e-6)
+
+
+def test_an_input_integral_that_varies_over_x_is_warned_of_and_the_rk4_channel_is_not():
+    # dx/dt = (x0 x1, w - x1): Gamma = int exp(A s) ds G, A = [[x1, x0], [0, -1]], is (0, 0.095) at X's centre and
+    # grows without bound towards x1 = 100 (exp(10)): the integral channel fixed at the centre misstates w's effect
+    def rhs(x, u, w):
+        return [x[0] * x[1], w[0] - x[1]]
+
+    def sampled(**options):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.1, x_bounds=(-100.0, 100.0),
+                            v_bounds=(-0.01, 0.01), **options)  # fmt: skip
+        return [str(c.message) for c in caught if "per-sample integral" in str(c.message)]
+
+    (said,) = sampled()
+    assert "that integral differs from it by" in said and "input_channel='rk4'" in said
+    assert not sampled(input_channel="rk4")

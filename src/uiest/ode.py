@@ -115,27 +115,11 @@ GROWTH_ROUNDING = 1e-9
 def rk4_instability(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, h: float) -> str | None:
     """Why RK4 with step ``h`` grows where the ODE decays somewhere in ``box``, or None.
 
-    At the box's corners (256 random ones beyond 8 states) and 256 uniform points (fixed seed),
-    sides that are not finite held at the box's centre, the Jacobian's eigenvalues ``lambda`` with
+    At the points of :func:`_probe_jacobians`, the Jacobian's eigenvalues ``lambda`` with
     ``Re lambda <= 0`` are checked against RK4's amplification
-    ``|1 + z + z^2/2 + z^3/6 + z^4/24| <= 1``, ``z = h lambda`` (to ``GROWTH_ROUNDING``). Points where
-    the Jacobian is not finite (a square root at a side of X) are left out.
+    ``|1 + z + z^2/2 + z^3/6 + z^4/24| <= 1``, ``z = h lambda`` (to ``GROWTH_ROUNDING``).
     """
-    finite = np.isfinite(box.lower) & np.isfinite(box.upper)
-    bounded = Box(np.where(finite, box.lower, box.center), np.where(finite, box.upper, box.center))
-    rng = np.random.default_rng(0)
-    n = box.size
-    if n > 8:
-        corners = np.where(rng.integers(0, 2, (256, n)).astype(bool), bounded.upper, bounded.lower)
-    else:
-        corners = bounded.corners()
-    points = np.vstack([corners, bounded.sample(rng, 256)])
-    x, u, w = ca.SX.sym("x", n), ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
-    jac = ca.Function("state_jacobian", [x, u, w], [ca.jacobian(rhs(x, u, w), x)]).map(len(points))
-    J = np.asarray(jac(points.T, np.tile(u_ref, (len(points), 1)).T, np.tile(w_ref, (len(points), 1)).T), dtype=float)
-    J = J.reshape(n, len(points), n).transpose(1, 0, 2)
-    keep = np.all(np.isfinite(J), axis=(1, 2))
-    points, J = points[keep], J[keep]
+    points, J = _probe_jacobians(rhs, box, u_ref, w_ref)
     if not len(points):
         return None
     lam = np.linalg.eigvals(J)
@@ -159,6 +143,64 @@ def rk4_grows(lam: np.ndarray, h: float) -> np.ndarray:
     growth = np.abs(1 + z + z**2 / 2 + z**3 / 6 + z**4 / 24)
     result: np.ndarray = (np.real(lam) <= 0) & (growth > 1 + GROWTH_ROUNDING)
     return result
+
+
+def _probe_jacobians(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points of ``box`` (m, n) and the drift's state Jacobians there (m, n, n), where finite.
+
+    The box's corners (256 random ones beyond 8 states) and 256 uniform points (fixed seed), sides that are not
+    finite held at the box's centre; points where the Jacobian is not finite (a square root at a side of X) are left
+    out.
+    """
+    finite = np.isfinite(box.lower) & np.isfinite(box.upper)
+    bounded = Box(np.where(finite, box.lower, box.center), np.where(finite, box.upper, box.center))
+    rng = np.random.default_rng(0)
+    n = box.size
+    if n > 8:
+        corners = np.where(rng.integers(0, 2, (256, n)).astype(bool), bounded.upper, bounded.lower)
+    else:
+        corners = bounded.corners()
+    points = np.vstack([corners, bounded.sample(rng, 256)])
+    x, u, w = ca.SX.sym("x", n), ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
+    jac = ca.Function("state_jacobian", [x, u, w], [ca.jacobian(rhs(x, u, w), x)]).map(len(points))
+    J = np.asarray(jac(points.T, np.tile(u_ref, (len(points), 1)).T, np.tile(w_ref, (len(points), 1)).T), dtype=float)
+    J = J.reshape(n, len(points), n).transpose(1, 0, 2)
+    keep = np.all(np.isfinite(J), axis=(1, 2))
+    return points[keep], J[keep]
+
+
+INPUT_SPREAD = 0.25
+"""The per-sample input integral may differ from the one at X's centre by this fraction of it over X before
+:meth:`System.from_ode <uiest.system.System.from_ode>` warns."""
+
+
+def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, dt: float) -> str | None:
+    """Why the input channel ``"integral"`` (``Gamma`` fixed at X's centre) misstates w's effect in ``box``, or None.
+
+    ``Gamma(x) = int_0^dt exp(A(x) s) ds G`` at the points of :func:`_probe_jacobians` against ``Gamma`` at the
+    centre: None when ``|Gamma(x) - Gamma| <= INPUT_SPREAD |Gamma|`` (2-norms) at every point.
+    """
+    points, J = _probe_jacobians(rhs, box, u_ref, w_ref)
+    finite = np.isfinite(box.lower) & np.isfinite(box.upper)
+    center = np.where(finite, box.center, np.where(np.isfinite(box.center), box.center, 0.0))
+    _, J_ref = _probe_jacobians(rhs, Box(center, center), u_ref, w_ref)
+    if not len(points) or not len(J_ref):
+        return None
+    n, nu, nw = (rhs.numel_in(i) for i in range(3))
+    x, u, w = ca.SX.sym("x", n), ca.SX.sym("u", nu), ca.SX.sym("w", nw)
+    G = np.asarray(ca.Function("G", [x, u, w], [ca.jacobian(rhs(x, u, w), w)])(center, u_ref, w_ref), dtype=float)
+    reference = input_integral(J_ref[0], G, dt)
+    size = np.linalg.norm(reference, 2)
+    with np.errstate(over="ignore", invalid="ignore"):
+        spread = np.array([np.linalg.norm(input_integral(A, G, dt) - reference, 2) for A in J]) / max(size, 1e-300)
+    spread = np.where(np.isnan(spread), np.inf, spread)
+    worst = int(np.argmax(spread))
+    if spread[worst] <= INPUT_SPREAD:
+        return None
+    factor = f"{spread[worst]:.3g} times its size" if np.isfinite(spread[worst]) else "more than doubles can hold"
+    return (f"w enters through its per-sample integral at X's centre, but at x = {np.round(points[worst], 6).tolist()} "
+            f"that integral differs from it by {factor}: away from the centre the model misstates w's effect by that "
+            "much; input_channel='rk4' keeps w inside the integrator")  # fmt: skip
 
 
 def input_integral(A_ref: np.ndarray, G: np.ndarray, dt: float) -> np.ndarray:

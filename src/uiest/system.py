@@ -416,7 +416,9 @@ class System:
         per sample; where rhs is affine in w with a constant matrix G, the unknown input enters
         through its per-sample integral ``Gamma (w - w0)`` (constant direction, linearised at
         the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
-        :mod:`uiest.ode` for the discretisation error. Further keywords as in :meth:`from_functions`.
+        :mod:`uiest.ode` for the discretisation error. Warns (``UserWarning``) where RK4 grows a mode the ODE damps
+        somewhere in X, and where that integral differs over X from the one at the centre by more than
+        :data:`~uiest.ode.INPUT_SPREAD` of its size. Further keywords as in :meth:`from_functions`.
         The system keeps the continuous model in ``sampled_from`` (the analysis names the zeros
         sampling created from it).
 
@@ -481,6 +483,9 @@ class System:
             unstable = ode.rk4_instability(rhs_f, X, u_ref, w_ref, dt / substeps)
             if unstable:
                 warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
+        spread = ode.input_spread(rhs_f, X, u_ref, w_ref, dt) if channel == "integral" else None
+        if spread:
+            warnings.warn(f"from_ode: {spread}", UserWarning, stacklevel=2)
         try:
             system = cls.from_functions(f, h_f, dt=dt, **spec)
         except ModelError as exc:
