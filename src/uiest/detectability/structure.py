@@ -226,7 +226,9 @@ def _fail_matching(rank_B: int, rank_CB: int, pointwise: int) -> NoReturn:
         f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
         f"dimension {rank_B} while df/dw has rank "
         f"{pointwise} at a point: w does not enter through a constant input matrix, e.g. an RK4 step of an ODE; "
-        "keep the input channel's direction constant, as System.from_ode(..., input_channel='integral') does)"
+        "keep the input's direction constant: System.from_ode does where dx/dt = F(x, u) + G w with a constant G "
+        "(its input channel 'integral'); where G varies with the state, take G(x) w's varying factor into the "
+        "unknown input (w' = g(x) w))"
         if pointwise < rank_B
         else ""
     )
