@@ -326,3 +326,23 @@ def test_a_given_variance_is_printed_in_the_unknown_inputs_unit():
         v_bounds=(-0.1, 0.1), w_names=["force"], w_units=["m/s^2"], w_scale=[0.2],
     )  # fmt: skip
     assert variance_text(system, 0.5) == "0.5 w.scale^2 = force 0.02 (m/s^2)^2 per step"
+
+
+def test_a_command_prints_each_warning_text_once(capsys):
+    # the same estimator or model is built many times in a command (a design's candidates, a fit's grid): a wide
+    # domain's scale warning was printed 74 times by one uiest estimate
+    import warnings
+
+    from uiest.cli import _user_errors
+
+    @_user_errors
+    def command():
+        for _ in range(3):
+            warnings.warn("x_scale: the same words", UserWarning, stacklevel=1)
+            warnings.warn("x_scale: the same words", UserWarning, stacklevel=2)  # another location
+        warnings.warn("other words", UserWarning, stacklevel=1)
+
+    command()
+    command()  # a second command prints them again
+    lines = capsys.readouterr().err.splitlines()
+    assert lines == ["warning: x_scale: the same words", "warning: other words"] * 2

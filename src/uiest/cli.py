@@ -74,6 +74,9 @@ Result = TypeVar("Result")
 _COMMAND_EXITS: contextvars.ContextVar[contextlib.ExitStack] = contextvars.ContextVar("command_exits")
 """What the running command releases when it ends (the output folder it holds)."""
 
+_SHOWN: contextvars.ContextVar[set[str]] = contextvars.ContextVar("shown_warnings")
+"""The warning lines the running command has printed (each is printed once)."""
+
 
 def _choice(value: str, allowed: Any, option: str) -> str:
     """``value`` if it is one of ``allowed``, else OptionError naming the option."""
@@ -99,7 +102,7 @@ def _user_errors(command: Callable[Params, Result]) -> Callable[Params, Result]:
     def wrapper(*args: Params.args, **kwargs: Params.kwargs) -> Result:
         with warnings.catch_warnings(), contextlib.ExitStack() as exits:  # restores the filters and showwarning
             warnings.showwarning = _show_warning
-            token = _COMMAND_EXITS.set(exits)
+            token, shown = _COMMAND_EXITS.set(exits), _SHOWN.set(set())
             try:
                 return command(*args, **kwargs)
             except UiestError as exc:
@@ -110,6 +113,7 @@ def _user_errors(command: Callable[Params, Result]) -> Callable[Params, Result]:
                 raise typer.Exit(code=1) from None
             finally:
                 _COMMAND_EXITS.reset(token)
+                _SHOWN.reset(shown)
 
     return wrapper
 
@@ -126,8 +130,16 @@ def _output_folder(folder: Path, option: str) -> Path:
 
 def _show_warning(message: Warning | str, category: type[Warning], filename: str, lineno: int, file: Any = None,
                   line: str | None = None) -> None:  # fmt: skip
-    """A warning emitted during a command, as one message line on stderr (no source file or line)."""
-    error_console.print(f"warning: {message}", style="yellow", highlight=False, soft_wrap=True, markup=False)
+    """A warning emitted during a command, as one message line on stderr (no source file or line), once per text.
+
+    The same model or estimator is built many times in a command (a design's candidates, a fit's grid): its warning
+    is printed the first time.
+    """
+    text = f"warning: {message}"
+    shown = _SHOWN.get()
+    if text not in shown:
+        shown.add(text)
+        error_console.print(text, style="yellow", highlight=False, soft_wrap=True, markup=False)
 
 
 def _print_version(value: bool) -> None:
