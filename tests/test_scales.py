@@ -104,3 +104,15 @@ def test_a_bad_prior_is_refused_by_name():
         data_scales(wide(), np.zeros(2))
     with pytest.raises(DataError, match="x0_prior: expected finite values"):
         UISE(wide(), weights=UISEWeights.from_scales(wide(), 0.5), N=3, x0_prior=[0.0, np.nan, 0.0])
+
+
+def test_a_simulation_that_escapes_x_does_not_set_the_scales():
+    # the Henon map in X = +-1e6: excited by w up to its unit scale it escapes (1e5 on its way out), on its attractor
+    # it stays below 1.3; the escape's peaks once kept x1's scale at X's width and UISE.design refused the weights
+    henon = System.from_callables(lambda x, u, w: [1.0 - 1.4 * x[0] ** 2 + x[1] + w[0], 0.3 * x[0]],
+                                  lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=(-1e6, 1e6),
+                                  v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    scaled = data_scales(henon, [0.0, 0.0])
+    np.testing.assert_allclose(scaled.x.scale, [1.264, 0.378], rtol=1e-3)
+    designed = UISE.design(henon, x0_prior=[0.0, 0.0], trials=1, steps=60)
+    assert designed.guarantee.informative
