@@ -88,5 +88,7 @@ def check_weight_range(
             f"{rate_name}, {low_name}, {high_name}: the window problem's weights would span {high / (rate * low):.3g} "
             f"(largest scaled eigenvalue {high:.3g} of {high_name}; smallest {low:.3g} of {low_name}, times "
             f"{rate_name} = {rate:.3g} one step older); expected at most 1/eps = {1 / EPS:.3g}, beyond which the "
-            "smaller terms vanish in double-precision rounding: bring the discount and the weights into this range"
+            "smaller terms vanish in double-precision rounding: bring the discount and the weights into this range, "
+            "or give the signals scales of their magnitudes (System.with_scales; a scale taken from a domain far "
+            "wider than the signal makes the weights of precise measurements large)"
         )
