@@ -314,7 +314,9 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
     data_prior = SmoothInputMHE(system, weights=weights, dw_variance=variance, dw_bound=mhe.dw_bound, N=mhe.N,
                                 x0_prior=x0, **options)  # fmt: skip
-    data_prior.why_uncertified = f"{why}; its window prior replaced by the EKF's settled covariance on the data"
+    data_prior.why_uncertified = (
+        f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
+    )
     return data_prior, (f"{why}; window prior: the EKF's settled covariance of (x, w) on the data, "
                         f"eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}")  # fmt: skip
 
