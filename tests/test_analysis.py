@@ -327,3 +327,18 @@ def test_a_zero_where_the_rk4_step_is_unstable_is_not_attributed_to_sampling():
     assert "may come from the integrator" in unstable.reason and "created by sampling" not in unstable.reason
     (zero,) = analyse(motor(4), points=4).zeros.reference  # RK4 stable: the sampling zero, named as such
     assert zero.value.real == pytest.approx(-0.297, abs=0.01) and zero.from_sampling and not zero.unstable_step
+
+
+def test_an_unbounded_x_without_zeros_is_told_to_give_bounds():
+    # a sampled mass on a spring, position and velocity measured, X unbounded: no zero on or outside the unit circle,
+    # so the missing certificate is X's doing, and the reason says so
+    def cart(**bounds):
+        return System.from_ode(lambda x, u, w: [x[1], -4 * x[0] - 0.4 * x[1] + w[0]],
+                               lambda x, v: [x[0] + v[0], x[1] + v[1]], nx=2, nw=1, nv=2, dt=0.05,
+                               v_bounds=(-1e-3, 1e-3), **bounds)  # fmt: skip
+
+    free = analyse(cart())
+    assert not free.x_bounded and free.to_dict()["x_bounded"] is False
+    assert "give X bounds (x_bounds) and analyse again" in free.reason
+    bounded = analyse(cart(x_bounds=(-10.0, 10.0)))
+    assert bounded.x_bounded and "give X bounds" not in bounded.reason

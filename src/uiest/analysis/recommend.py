@@ -263,6 +263,9 @@ def reason(a: ModelAnalysis) -> str:
         limiting = None
     elif cause is Cause.NOT_CERTIFIED:
         text = f"strong detectability is {_certificate_text(strong)}"
+        if not a.x_bounded and a.zeros.largest_modulus < 1.0:  # no zero speaks against a certificate
+            text += ("; no zero of the model lies on or outside the unit circle: give X bounds (x_bounds) and "
+                     "analyse again, as a certificate may then exist")  # fmt: skip
     elif cause is Cause.WINDOW_TOO_LONG:
         text = f"strong detectability is {_window_text(strong, a.max_horizon)}"
     elif cause is Cause.BEYOND_INFORMATION_HORIZON:

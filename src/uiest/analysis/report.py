@@ -42,6 +42,8 @@ class ModelAnalysis:
         The integrator of the continuous-time model the system was sampled from (None: discrete-time).
     x_width : ndarray (nx,)
         X's width (the state scale where X is unbounded).
+    x_bounded : bool
+        Every side of X is finite (a certificate needs it).
     reference : ndarray (nx,)
         The reference point (x0, or X's centre): the first linearisation point.
     rank_CB, rank_B : int
@@ -78,6 +80,7 @@ class ModelAnalysis:
     time_unit: str
     continuous_method: str | None
     x_width: FloatArray
+    x_bounded: bool
     reference: FloatArray
     rank_CB: int  # noqa: N815
     rank_B: int  # noqa: N815
@@ -237,6 +240,7 @@ class ModelAnalysis:
             "time_unit": self.time_unit,
             "continuous_method": self.continuous_method,
             "x_width": self.x_width.tolist(),
+            "x_bounded": self.x_bounded,
             "reference": self.reference.tolist(),
             "rank_CB": self.rank_CB,
             "rank_B": self.rank_B,
