@@ -89,6 +89,12 @@ def test_boolean_outputs_are_refused(tmp_path):
     frame.to_parquet(path)
     with pytest.raises(DataError, match=r"frame\[y\]: expected real numbers, got .*bool"):
         read_record(path, system)
+    words = traj.to_pandas()
+    words[system.y.names[0]] = words[system.y.names[0]].astype(object)
+    words.loc[5, system.y.names[0]] = "abc"  # a word in a CSV: the cell is named
+    words.to_csv(tmp_path / "word.csv")
+    with pytest.raises(DataError, match=rf"got 'abc' \(str\) in column '{system.y.names[0]}' at row 5 \(k = 5\)"):
+        read_record(tmp_path / "word.csv", system)
     frame[system.y.names[0]] = frame[system.y.names[0]].astype("boolean")
     frame.loc[3, system.y.names[0]] = pd.NA
     frame.to_parquet(path)

@@ -170,6 +170,8 @@ class Trajectory(_PicklableNames):
                 raise DataError(f"frame: missing {sig.kind} columns {missing} (has {list(frame.columns)})")
             if present and len(present) < sig.size:
                 raise DataError(f"frame: {sig.kind} columns must be all present or all absent, got only {present}")
+            if present:
+                _check_numbers(frame, sig.names, sig.kind)
             data = (
                 real_array(frame[list(sig.names)].to_numpy(), f"frame[{sig.kind}]", "real numbers")
                 if present else np.full((rows, sig.size), np.nan)
@@ -207,6 +209,24 @@ FLAG_COLUMNS = ("x_outside", "v_outside")
 """The flags :meth:`Trajectory.to_pandas` writes after the signals."""
 TIME_NAMES = ("time", "timestamp", "datetime", "date", "time_s", "t_s", "seconds")
 """Column names (lower case) taken for a time column that should be ``t``."""
+
+
+def _check_numbers(frame: pd.DataFrame, names: tuple[str, ...], kind: str) -> None:
+    """DataError naming the first cell of the columns ``names`` that is not a real number (its column and row)."""
+    import pandas as pd  # loaded already: ``frame`` is a DataFrame
+
+    for name in names:
+        column = frame[name]
+        if column.dtype.kind in "iuf":
+            continue
+        numbers = pd.to_numeric(column, errors="coerce")
+        bad = numbers.isna() & column.notna()
+        bad |= column.map(lambda value: isinstance(value, bool | np.bool_ | complex)).astype(bool)
+        if bad.any():
+            row = bad.to_numpy().nonzero()[0][0]
+            value = column.iloc[row]
+            raise DataError(f"frame[{kind}]: expected real numbers, got {value!r} ({type(value).__name__}) in column "
+                            f"{name!r} at row {row} (k = {frame.index[row]})")  # fmt: skip
 
 
 def _check_columns(frame: pd.DataFrame, system: Any) -> None:
