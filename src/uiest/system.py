@@ -411,16 +411,14 @@ class System:
         """Sample the continuous-time model ``dx/dt = rhs(x, u, w)``, ``y = h(x, v)`` every ``dt``.
 
         ``rhs`` and ``h`` are callables (traced as in :meth:`from_callables`) or CasADi Functions.
-        u and w are held over each sample. The drift is integrated by RK4 (``method="rk4"``) or,
-        for stiff models, by Radau IIA collocation (``method="collocation"``), ``substeps`` steps
-        per sample; where rhs is affine in w with a constant matrix G, the unknown input enters
-        through its per-sample integral ``Gamma (w - w0)`` (constant direction, linearised at
-        the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
-        :mod:`uiest.ode` for the discretisation error. Warns (``UserWarning``) where RK4 grows a mode the ODE damps
-        somewhere in X, and where that integral differs over X from the one at the centre by more than
-        :data:`~uiest.ode.INPUT_SPREAD` of its size. Further keywords as in :meth:`from_functions`.
-        The system keeps the continuous model in ``sampled_from`` (the analysis names the zeros
-        sampling created from it).
+        u and w are held over each sample. The drift is integrated by RK4 (``method="rk4"``) or, for stiff models, by
+        Radau IIA collocation (``method="collocation"``), ``substeps`` steps per sample; where rhs is affine in w with
+        a constant matrix G, the unknown input enters through its per-sample integral ``Gamma (w - w0)`` (constant
+        direction, linearised at the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). See
+        :mod:`uiest.ode` for the discretisation error. Warns where RK4 grows a mode the ODE damps somewhere in X, and
+        where that integral differs over X by more than :data:`~uiest.ode.INPUT_SPREAD` of its size. Further keywords
+        as in :meth:`from_functions`. The system keeps the continuous model in ``sampled_from`` (the analysis names
+        the zeros sampling created from it).
 
         Parameters
         ----------
