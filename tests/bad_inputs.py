@@ -1341,6 +1341,12 @@ def cli_cases(tmp: Path) -> list[CliCase]:
             "--lag: expected an integer below the horizon (--horizon = 5)",
         ),
         CliCase(
+            "estimate --estimator uio on a nonlinear model",
+            ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--estimator", "uio", "--out", out),
+            2,
+            "--estimator uio: system: expected a linear",
+        ),
+        CliCase(
             "estimate --lag 5 --horizon 5",
             ("estimate", "closed-form", "--data", str(_record_file(tmp)), "--horizon", "5", "--lag", "5", "--out", out),
             2,

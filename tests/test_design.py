@@ -368,3 +368,24 @@ def test_a_designed_uise_beyond_its_information_horizon_runs_capped_and_says_so(
     assert est.horizon_capped and est.N == report.N < report.ranked_horizon == est.requested_N
     assert est.guarantee.capped and est.guarantee.horizon == est.N and est.guarantee.applies
     assert f"The window runs N={est.N}, not the N={est.requested_N} asked for" in str(est.guarantee)
+
+
+@pytest.mark.slow
+def test_a_design_with_a_lag_builds_no_candidate_whose_window_is_shorter():
+    # a Navion-like aircraft's lateral motion, a rudder fault unknown: at mu = 0.1 the certificate's weights cap the
+    # window at its information horizon, N = 1; with lag = 2 building that candidate raised OptionError and ended
+    # the design (and uiest estimate --lag 2, with every other estimator of the command)
+    from uiest import System
+
+    def rhs(x, u, w):
+        b, p, r, phi = x[0], x[1], x[2], x[3]
+        return [-0.254 * b - r + 0.183 * phi + 0.0708 * w[0],
+                -15.98 * b - 8.4 * p + 2.19 * r - 28.98 * u[0] + 2.548 * w[0],
+                4.549 * b - 0.349 * p - 0.76 * r - 0.2218 * u[0] - 4.597 * w[0], p]  # fmt: skip
+
+    lateral = System.from_ode(rhs, lambda x, v: [x[1] + v[0], x[2] + v[1], x[3] + v[2]], nx=4, nu=1, nw=1, nv=3,
+                              dt=0.02, x_bounds=((-0.5, -3, -2, -1.5), (0.5, 3, 2, 1.5)), u_bounds=(-0.3, 0.3),
+                              v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    designed = UISE.design(lateral, x0_prior=np.zeros(4), lag=2, trials=1, steps=60)
+    assert designed.N >= 2 and designed.options.lag == 2
+    assert all(candidate.N >= 2 for candidate in designed.design_report.candidates)

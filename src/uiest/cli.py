@@ -25,7 +25,7 @@ from uiest.atomic import staged_folder, write_file, write_text
 from uiest.box import as_vector
 from uiest.checks import check_samples
 from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
-from uiest.errors import BoundWarning, ModelError, OptionError, UiestError
+from uiest.errors import BoundWarning, CertificationError, ModelError, OptionError, UiestError
 from uiest.estimate import (
     ALL,
     build_all,
@@ -335,7 +335,12 @@ def _build_estimators(
     notes: dict[str, str] = {}
     for kind in kinds:
         status.update(f"building {kind}")
-        built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+        try:
+            built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
+        except (ModelError, CertificationError) as exc:  # the model does not admit it: say which one was asked for
+            if type(exc) not in (ModelError, CertificationError):
+                raise
+            raise type(exc)(f"--estimator {kind}: {exc}") from None
     return built, notes, {}
 
 
@@ -358,8 +363,9 @@ def _print_estimates(
 
 def _health_table(results: dict[str, Any]) -> Table:
     """Step counts of each estimator's run (:meth:`uiest.results.EstimationResult.counts`)."""
-    table = Table(title="steps: failed, IPOPT fallbacks, estimates at a side of X, held inputs, no data")
-    for column in ("estimator", "failed", "fallback", "at X's side", "window at X's side", "held input", "no data"):
+    table = Table(title="steps: failed, IPOPT fallbacks, estimates at a side of X, held inputs, propagated by the "
+                        "model alone")  # fmt: skip
+    for column in ("estimator", "failed", "fallback", "at X's side", "window at X's side", "held input", "propagated"):
         table.add_column(column)
     for kind, result in results.items():
         counts = result.counts()

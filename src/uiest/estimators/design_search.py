@@ -348,7 +348,7 @@ def search_uise(
     return _design(
         system, x0, lambda mu: certify_strong_detectability(system, mu=mu, **certify), rank,
         lambda cert, n, prior: estimator(system, certificate=cert, N=n, x0_prior=prior, **options),
-        what="strong detectability", search=search, fit=fit,
+        what="strong detectability", search=search, fit=fit, least=_lag(options),
         variants=lambda cert: [cert.with_output_weight(factor) for factor in OUTPUT_WEIGHTS if factor != 1.0],
     )  # fmt: skip
 
@@ -380,7 +380,7 @@ def search_two_stage(
     return _design(
         system, x0, lambda mu: certify_reduced_model(reduced, mu=mu, **certify), rank,
         lambda cert, n, prior: estimator(reduced, certificate=cert, N=n, x0_prior=prior, **options),
-        what=REDUCED_IOSS, search=search,
+        what=REDUCED_IOSS, search=search, least=_lag(options),
     )  # fmt: skip
 
 
@@ -396,12 +396,15 @@ def _design(
     search: DesignOptions,
     fit: Callable[[Any, int], Any] = lambda cert, limit: cert,
     variants: Callable[[Any], list[Any]] = lambda cert: [],
+    least: int = 1,
 ) -> Design:
     """The design loop of the module docstring.
 
     ``certify(mu)`` certifies at a rate (None: the minimal one), ``fit(certificate, limit)`` returns a certified
     certificate of the same rate whose window fits ``limit`` where it can (else the one given),
-    ``rank(certificate, N)`` orders the horizons of a rate.
+    ``rank(certificate, N)`` orders the horizons of a rate, at least ``least`` (the estimators' lag). A candidate
+    whose estimator cannot be built (``OptionError``: its window capped below the lag at its information horizon,
+    its weights out of the window's range) is none; where no candidate can be built, the first such error is raised.
     """
     check_horizon(search.max_horizon, "max_horizon", system)
     if search.fallback_horizon is not None:
@@ -444,11 +447,17 @@ def _design(
             ranked_horizon=N if estimator.N != N else None,
         ), cert
 
+    refused: list[OptionError] = []  # candidates that cannot be built (a window capped below the lag, ...)
     for cert in certificates:
-        horizons = range(cert.min_horizon(), limit + 1)
+        horizons = range(max(cert.min_horizon(), least), limit + 1)
         N = min(horizons, key=lambda n: rank(cert, n), default=None)
         if N is not None:
-            candidates.append(weigh(cert, N))
+            try:
+                candidates.append(weigh(cert, N))
+            except OptionError as exc:
+                refused.append(exc)
+    if not candidates and refused:
+        raise refused[0]
     if not candidates:
         shortest = min(cert.min_horizon() for cert in certificates)
         name = "max_horizon" if limit == search.max_horizon else "fallback_horizon"
@@ -538,6 +547,12 @@ def _largest_bound(bound: FloatArray, scale: FloatArray) -> float:
     """The largest per-state bound relative to the state scales; a state without a bound (NaN) counts as inf."""
     relative = np.asarray(bound, dtype=float) / scale
     return float(np.max(np.where(np.isnan(relative), np.inf, relative), initial=0.0))
+
+
+def _lag(options: Mapping[str, Any]) -> int:
+    """The candidates' lag (``lag=`` or ``window=WindowOptions(lag=...)`` among the estimator options), at least 1."""
+    lag = options.get("lag", getattr(options.get("window"), "lag", 0))
+    return max(1, int(lag)) if isinstance(lag, int | np.integer) else 1
 
 
 def _v_prior(system: System, options: Mapping[str, Any]) -> FloatArray:
