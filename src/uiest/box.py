@@ -129,10 +129,11 @@ class Box:
             if lo_arr.shape != (n,) or hi_arr.shape != (n,):
                 raise ModelError(f"{name}: expected scalars or bounds of length {n}, got {lo!r} and {hi!r}")
             if n == 2 and lo_arr.ndim == 1 and _read_both_ways(lo_arr, hi_arr):
+                a, b = (f"{name.split('_')[0]}[{i}]" for i in range(2))  # x_bounds: x[0], x[1]
                 raise ModelError(
-                    f"{name}: {value!r} is ambiguous for 2 states: as (lower, upper) it is {lo_arr[0]:g} <= z_0 <= "
-                    f"{hi_arr[0]:g}, {lo_arr[1]:g} <= z_1 <= {hi_arr[1]:g}; as per-state pairs it would be "
-                    f"{lo_arr[0]:g} <= z_0 <= {lo_arr[1]:g}, {hi_arr[0]:g} <= z_1 <= {hi_arr[1]:g}. {name} is "
+                    f"{name}: {value!r} is ambiguous for 2 components: as (lower, upper) it is {lo_arr[0]:g} <= {a} <= "
+                    f"{hi_arr[0]:g}, {lo_arr[1]:g} <= {b} <= {hi_arr[1]:g}; as per-component pairs it would be "
+                    f"{lo_arr[0]:g} <= {a} <= {lo_arr[1]:g}, {hi_arr[0]:g} <= {b} <= {hi_arr[1]:g}. {name} is "
                     f"(lower vector, upper vector): write {name}=Box(lower=..., upper=...) to say which"
                 )
             try:
