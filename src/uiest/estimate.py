@@ -225,7 +225,7 @@ def build_estimator(
             claim = "certified" if built.guarantee.applies else "certified, no guarantee (its guarantee says why)"
             return built, f"designed: mu={built.weights.mu:.3g}, N={built.N}, {claim}"
         except HorizonError as exc:  # certified, with a longer window than admitted
-            reason = horizon_reason(exc.limit, exc.shortest)
+            reason = horizon_reason(exc.limit, exc.shortest, None if record is None else record.steps)
         except (CertificationError, ModelError) as exc:  # e.g. X unbounded, an output not affine in x
             reason = str(exc)
         note = f"no certified design ({reason}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
@@ -277,12 +277,14 @@ def variance_text(system: System, factor: float) -> str:
     return f"{factor:g} w.scale^2 = {', '.join(parts)} per step"
 
 
-def horizon_reason(limit: int, shortest: int) -> str:
-    """Why a certificate gave no estimator: its shortest window exceeds the limit (named as the CLI's flag)."""
-    return (
-        f"certified, but with no window within --horizon {limit}: the shortest is {shortest}, "
-        f"--horizon {shortest} admits it"
-    )
+def horizon_reason(limit: int, shortest: int, steps: int | None = None) -> str:
+    """Why a certificate gave no estimator: its shortest window exceeds the limit (named as the CLI's flag).
+
+    ``steps``: the record's length, where the shortest window is longer than it (a window never fills).
+    """
+    admits = (f"--horizon {shortest} admits it" if steps is None or shortest <= steps
+              else f"longer than the record's {steps} samples")  # fmt: skip
+    return f"certified, but with no window within --horizon {limit}: the shortest is {shortest}, {admits}"
 
 
 def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, horizon: int | None,
@@ -342,7 +344,7 @@ def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, o
                     return mhe, f"delta-IOSS certificate: eta={mhe.weights.eta:.3g}, N={window} ({baseline})"
                 reason = f"certified, but its guarantee is {mhe.guarantee.verdict.value}"
             elif cert.certified:
-                reason = horizon_reason(longest, cert.min_horizon())
+                reason = horizon_reason(longest, cert.min_horizon(), None if record is None else record.steps)
         except (CertificationError, ModelError) as exc:
             reason = str(exc)
     u, y = _record_data("mhe", system, record)
