@@ -330,6 +330,19 @@ def test_design_options_are_checked_once_and_equal_to_the_keywords():
     with pytest.raises(OptionError, match="fallback_horizon \\(at least max_horizon = 10\\)"):
         DesignOptions(max_horizon=10, fallback_horizon=9)
     assert DesignOptions(max_horizon=10, fallback_horizon=90).steps == 120  # a full window of 90 is scored
+
+
+def test_a_fallback_horizon_beyond_the_memory_limit_is_checked_only_where_it_is_used(monkeypatch):
+    # uiest estimate passes 60 to every design: a model whose window may hold 46 transitions once failed at once
+    from uiest.window import size
+
+    system, _, _ = benchmark(0)
+    stage = size.STAGE_BYTES_PER_SIZE2 * (system.nx + system.nw + system.nv + system.ny) ** 2
+    monkeypatch.setattr(size, "MEMORY_BUDGET", 21 * stage)  # windows of at most 20 transitions
+    design = design_uise(system, np.zeros(3), max_horizon=8, fallback_horizon=30, rates=(0.5,), trials=1)
+    assert design.N <= 8
+    with pytest.raises(OptionError, match="max_horizon: expected a horizon <= 20"):
+        design_uise(system, np.zeros(3), max_horizon=30, rates=(0.5,), trials=1)
     options = DesignOptions(max_horizon=8, rates=(0.9, 0.5, 0.5), trials=1)
     assert (options.rates, options.steps) == ((0.5, 0.9), 80)
     system, _, _ = benchmark(0)

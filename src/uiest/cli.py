@@ -136,9 +136,10 @@ def _show_warning(message: Warning | str, category: type[Warning], filename: str
     is printed the first time.
     """
     text = f"warning: {message}"
-    shown = _SHOWN.get()
-    if text not in shown:
-        shown.add(text)
+    shown = _SHOWN.get(None)  # None outside a command's context (another thread): printed as it comes
+    if shown is None or text not in shown:
+        if shown is not None:
+            shown.add(text)
         error_console.print(text, style="yellow", highlight=False, soft_wrap=True, markup=False)
 
 

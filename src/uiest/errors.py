@@ -46,7 +46,7 @@ class HorizonError(CertificationError):
     Attributes
     ----------
     limit : int
-        The largest horizon allowed (``max_horizon``).
+        The largest horizon allowed (``max_horizon``, or ``fallback_horizon`` where a design has one).
     shortest : int
         The shortest window any certificate found admits (its ``min_horizon()``), > ``limit``.
 

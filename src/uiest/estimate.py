@@ -84,6 +84,7 @@ from uiest.results import EstimationResult, Trajectory
 from uiest.run_data import check_run_data
 from uiest.system import System
 from uiest.tuning import arrival_covariance, fit_standard_mhe, likelihood_weights
+from uiest.window import size as window_size
 
 if TYPE_CHECKING:
     from uiest.estimators import UISE, TwoStageUISE
@@ -207,12 +208,15 @@ def build_estimator(
                 "input of relative degree 2 use --estimator delayed"
             )
     if kind in ("uise", "delayed", "two-stage"):
-        # without a horizon: N <= 30, or up to 60 where none of at most 30 certifies (the certificates reused)
+        # without a horizon: N <= 30, or up to 60 where none of at most 30 certifies (the certificates reused); the
+        # longer limit within what the model's window may take in memory
+        designed = delayed_system(system).system if kind == "delayed" else system
         limits: dict[str, Any] = (
-            {"max_horizon": max(DEFAULT_MAX_HORIZON, lag + 1), "fallback_horizon": max(LONGEST_HORIZON, lag + 1)}
+            {"max_horizon": max(DEFAULT_MAX_HORIZON, lag + 1),
+             "fallback_horizon": min(max(LONGEST_HORIZON, lag + 1), window_size.max_horizon(designed))}
             if horizon is None
             else {"max_horizon": horizon}
-        )
+        )  # fmt: skip
         try:
             built: UISE | TwoStageUISE
             if kind == "uise":

@@ -181,15 +181,13 @@ def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarra
     centre: None when ``|Gamma(x) - Gamma| <= INPUT_SPREAD |Gamma|`` (2-norms) at every point.
     """
     points, J = _probe_jacobians(rhs, box, u_ref, w_ref)
-    finite = np.isfinite(box.lower) & np.isfinite(box.upper)
-    center = np.where(finite, box.center, np.where(np.isfinite(box.center), box.center, 0.0))
-    _, J_ref = _probe_jacobians(rhs, Box(center, center), u_ref, w_ref)
-    if not len(points) or not len(J_ref):
-        return None
     n, nu, nw = (rhs.numel_in(i) for i in range(3))
     x, u, w = ca.SX.sym("x", n), ca.SX.sym("u", nu), ca.SX.sym("w", nw)
-    G = np.asarray(ca.Function("G", [x, u, w], [ca.jacobian(rhs(x, u, w), w)])(center, u_ref, w_ref), dtype=float)
-    reference = input_integral(J_ref[0], G, dt)
+    jacobians = ca.Function("jacobians", [x, u, w], [ca.jacobian(rhs(x, u, w), x), ca.jacobian(rhs(x, u, w), w)])
+    A_ref, G = (np.asarray(m, dtype=float) for m in jacobians(box.center, u_ref, w_ref))
+    if not len(points) or not np.all(np.isfinite(A_ref)):
+        return None
+    reference = input_integral(A_ref, G, dt)
     size = np.linalg.norm(reference, 2)
     with np.errstate(over="ignore", invalid="ignore"):
         spread = np.array([np.linalg.norm(input_integral(A, G, dt) - reference, 2) for A in J]) / max(size, 1e-300)

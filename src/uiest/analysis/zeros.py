@@ -42,8 +42,8 @@ class Zero:
     value : complex
     from_sampling : bool or None
         Created by sampling (True), the image ``exp(s dt)`` of a zero s of the continuous model
-        (False), or unknown: the model was not sampled by ``from_ode``, or its integration step is unstable
-        where the zero was found (None).
+        (False), or unknown: the model was not sampled by ``from_ode``, or, for a zero that is no such image, its
+        integration step is unstable where the zero was found (None).
     limit : float or None
         For a channel's zero created by sampling: the Euler-Frobenius root it tends to as dt -> 0.
     unstable_step : bool

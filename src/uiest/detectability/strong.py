@@ -321,7 +321,8 @@ def _falsify(
 
     ``max_dd |a + B dd|_P^2 - s2 |C (a + B dd)|^2 <= mu |dx|_P^2 + s1 |C dx|^2`` with
     ``a = S_x^-1 (f(x, u, w0) - f(x~, u, w0))``; the maximum over dd is ``a' Q a - g' H^-1 g`` with
-    ``Q = P - s2 C'C``, ``H = B' Q B`` (negative definite when the LMI holds) and ``g = B' Q a``.
+    ``Q = P - s2 C'C``, ``H = B' Q B`` (negative definite when the LMI holds) and ``g = B' Q a``, evaluated at ``a``
+    moved along B first (:func:`_without_seen_input`: the maximum is the same, the rounding far smaller).
     Close pairs step along ker C; anchors are the points where the cover's parameters reach their extremes.
     """
     nx, nu = system.nx, system.nu
@@ -500,7 +501,8 @@ def worst_case_ratio(
     All scaled, per pair (rows): the drift increment ``a = f1(x) - f1(x~)`` (m, n), ``dx``,
     ``dy``, the noise part of ``dy+`` (m, p) and ``|dv|^2 + |dv+|^2`` (m,). With
     ``dx+ = a + B dd``, ``|dx+|_P^2 - sigma_y |C dx+ + noise_next|^2`` is a quadratic in dd; it
-    is bounded above iff ``B^T (P - sigma_y C^T C) B < 0``, and then its maximum is closed-form.
+    is bounded above iff ``B^T (P - sigma_y C^T C) B < 0``, and then its maximum is closed-form (evaluated at ``a``
+    moved along B, :func:`_without_seen_input`).
     """
     n_pairs = len(a)
     a = _without_seen_input(a, C, B, noise_next)

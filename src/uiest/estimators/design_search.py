@@ -196,7 +196,8 @@ class Design:
 
 
 DEFAULT_STEPS = 80
-"""Length of a design's noise trials unless ``max_horizon`` asks for longer ones."""
+"""Length of a design's noise trials unless the longest horizon admitted (``fallback_horizon`` if given, else
+``max_horizon``) asks for longer ones."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -407,8 +408,6 @@ def _design(
     its weights out of the window's range) is none; where no candidate can be built, the first such error is raised.
     """
     check_horizon(search.max_horizon, "max_horizon", system)
-    if search.fallback_horizon is not None:
-        check_horizon(search.fallback_horizon, "fallback_horizon", system)
     records = search.records
     prior = as_vector(x0, system.nx, "x0")
     start = time.thread_time()
@@ -511,8 +510,9 @@ def _certificates(
             if cert.certified:
                 found.append(cert)
                 certificates.append(fit(cert, max_horizon))
-    if fallback is None or any(cert.min_horizon() <= max_horizon for cert in certificates):
+    if fallback is None or fallback <= max_horizon or any(cert.min_horizon() <= max_horizon for cert in certificates):
         return max_horizon, certificates
+    fallback = check_horizon(fallback, "fallback_horizon", system)  # checked where it is used
     return fallback, [fit(cert, fallback) for cert in found]
 
 

@@ -175,8 +175,8 @@ class UISE(WindowEstimator):
         """A certified UISE whose mu and N are chosen for accuracy under noise (:func:`uiest.design.design_uise`).
 
         ``x0_prior`` is the prior and where the design's noise trials start; ``design_options``
-        go to :func:`~uiest.design.design_uise` (``max_horizon``, ``rates``, ``budget``, ``trials``,
-        ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
+        go to :func:`~uiest.design.design_uise` (``max_horizon``, ``fallback_horizon``, ``rates``, ``budget``,
+        ``trials``, ``certify_options``, and window options such as ``solver``). The design (the chosen pair,
         the guaranteed bound and the simulated error of every candidate) is :attr:`design_report`.
         """
         system = data_scales(check_system(system), x0_prior)
