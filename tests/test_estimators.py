@@ -519,3 +519,68 @@ def test_window_options_object_or_keywords_build_the_same_estimator():
     assert by_keywords.options == WindowOptions(solver="gn", polish=True)
     with pytest.raises(OptionError, match="window: given together with \\['strict'\\]"):
         by_keywords.configure(window=window, strict=False)
+
+
+def test_every_window_estimator_pickles_and_deep_copies_mid_run_and_goes_on_as_the_original():
+    # its window problems hold CasADi SX expressions, and WindowOptions a read-only view: neither pickled, so no
+    # window estimator could be copied (the EKF and UKF could)
+    import copy
+    import pickle
+
+    from test_delayed import _chain
+
+    from uiest.estimators import DelayedUISE, SmoothInputMHE, TwoStageUISE, TwoStageWeights
+    from uiest.reduction import reduce_quasi_state_affine
+
+    system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    K = 24
+    traj = simulate(system, [0.5, 1.0], K, u=np.zeros((K, 1)), w=np.sin(0.3 * np.arange(K))[:, None],
+                    v=UniformNoise.symmetric(1e-3), seed=0)  # fmt: skip
+    linear_system = linear.example()
+    linear_traj = simulate(linear_system, np.zeros(3), K, w=np.sin(0.3 * np.arange(K))[:, None],
+                           v=UniformNoise.symmetric(1e-3), seed=0)  # fmt: skip
+    reduced = reduce_quasi_state_affine(linear_system)
+    chain = _chain()  # relative degree 2: the delayed UISE's
+    chain_traj = simulate(chain, [2.0, -1.0, 3.0], K, u=np.sin(0.2 * np.arange(K))[:, None],
+                          w=np.cos(0.3 * np.arange(K))[:, None], v=UniformNoise.symmetric(0.05), seed=0)  # fmt: skip
+    uise_weights = UISEWeights.from_scales(system, 0.5, output=1e4)
+    made = {
+        "UISE gn": (lambda: UISE(system, weights=uise_weights, N=5, x0_prior=[0.5, 1.0]), traj),
+        "UISE ipopt": (lambda: UISE(system, weights=uise_weights, N=5, x0_prior=[0.5, 1.0], solver="ipopt"), traj),
+        "UISE gn-riccati": (
+            lambda: UISE(system, weights=uise_weights, N=5, x0_prior=[0.5, 1.0], solver="gn-riccati"),
+            traj,
+        ),
+        "StandardMHE": (
+            lambda: StandardMHE(system, weights=MHEWeights.from_scales(system, 0.8), N=5, x0_prior=[0.5, 1.0]),
+            traj,
+        ),
+        "SmoothInputMHE": (
+            lambda: SmoothInputMHE.design(system, dw_variance=0.01, w_bounds=(-5.0, 5.0), N=5, x0_prior=[0.5, 1.0]),
+            traj,
+        ),
+        "DelayedUISE": (
+            lambda: DelayedUISE(
+                chain,
+                weights=UISEWeights(mu=0.5, P=np.eye(2), R_y=np.eye(1), R_v=np.eye(1)),
+                N=5,
+                lag=2,
+                x0_prior=np.zeros(3),
+            ),
+            chain_traj,
+        ),
+        "TwoStageUISE": (
+            lambda: TwoStageUISE(reduced, weights=TwoStageWeights.from_scales(reduced, 0.5), N=5, x0_prior=np.zeros(3)),
+            linear_traj,
+        ),
+    }
+    for name, (make, record) in made.items():
+        estimator = make()
+        u = record.u if record.u.shape[1] else None
+        estimator.step(None, record.y[0])
+        for k in range(12):
+            estimator.step(None if u is None else u[k], record.y[k + 1])
+        copies = (pickle.loads(pickle.dumps(estimator)), copy.deepcopy(estimator), estimator)
+        later = [[c.step(None if u is None else u[k], record.y[k + 1]).x_hat for k in range(12, K)] for c in copies]
+        np.testing.assert_array_equal(later[0], later[2], err_msg=name)
+        np.testing.assert_array_equal(later[1], later[2], err_msg=name)

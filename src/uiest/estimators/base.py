@@ -30,6 +30,7 @@ with :meth:`WindowEstimator.configure` (which drops the cached solvers).
 from __future__ import annotations
 
 import dataclasses
+import pickle
 import time
 import warnings
 from collections import deque
@@ -38,6 +39,7 @@ from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -107,6 +109,11 @@ class WindowOptions:
         if isinstance(self.lag, bool) or not isinstance(self.lag, int | np.integer) or self.lag < 0:
             raise OptionError(f"lag: expected an integer >= 0, got {self.lag!r}")
 
+    def __reduce__(self) -> tuple[Any, ...]:
+        """Pickled (and deep-copied) by its fields, ``solver_options`` as a dict (a read-only view does not pickle)."""
+        values = {f.name: getattr(self, f.name) for f in fields(self)}
+        return (_window_options, (type(self), {**values, "solver_options": dict(self.solver_options)}))
+
     @classmethod
     def build(cls, values: Mapping[str, Any]) -> WindowOptions:
         """Options from keyword arguments, or the one given as ``window``; unknown names raise OptionError."""
@@ -123,6 +130,11 @@ class WindowOptions:
         if unknown:
             raise OptionError(f"options: unknown {unknown}; expected some of {known} (or window=WindowOptions(...))")
         return cls(**values)
+
+
+def _window_options(cls: type[WindowOptions], values: dict[str, Any]) -> WindowOptions:
+    """A pickled :class:`WindowOptions` built again from its fields."""
+    return cls(**values)
 
 
 @dataclass
@@ -249,6 +261,18 @@ class WindowEstimator(StreamingEstimator):
     _last: tuple[int, WindowProblem, WindowSolution, WindowTrajectory | None] | None
     """The newest solved window: (its first time index, its problem, its solution, the solution unpacked or None);
     None before one."""
+
+    def __getstate__(self) -> dict[str, Any]:
+        """The estimator's attributes, pickled in CasADi's pickle context (its window problems hold SX expressions).
+
+        So a window estimator pickles and deep-copies mid-run, and the copy goes on as the original would.
+        """
+        with ca.global_pickle_context():
+            return {"attributes": pickle.dumps(self.__dict__)}
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        with ca.global_unpickle_context():
+            self.__dict__.update(pickle.loads(state["attributes"]))
 
     def __init__(
         self,
