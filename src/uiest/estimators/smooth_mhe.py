@@ -37,6 +37,7 @@ a random walk with exactly this step): a variance tuned for the EKF gives this e
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import replace
 from typing import Any
 
@@ -45,7 +46,7 @@ from numpy.typing import ArrayLike
 
 from uiest.augmented import augmented_system, increment_bound
 from uiest.box import Box, FloatArray, as_vector
-from uiest.checks import check_flag, check_int
+from uiest.checks import check_flag, check_int, user_stacklevel
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, DataError, ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
@@ -260,7 +261,8 @@ class SmoothInputMHE(WindowEstimator):
         """Certify the augmented model (:func:`~uiest.detectability.certify_delta_ioss`) and build the estimator.
 
         With a certificate whose ``min_horizon() <= max(N, max_horizon)``: N (default
-        ``min(DEFAULT_HORIZON, max_horizon)``), raised to ``min_horizon()`` when shorter. Otherwise explicit
+        ``min(DEFAULT_HORIZON, max_horizon)``), raised to ``min_horizon()`` when shorter (a ``UserWarning`` where the
+        estimator's guarantee does not apply even so, e.g. its weights' information horizon caps N). Otherwise explicit
         :func:`variance_weights` with ``eta = FALLBACK_ETA`` and that N, and :attr:`why_uncertified` (and the
         guarantee) says why. ``certify_options`` go to ``certify_delta_ioss``; ``options`` are the window options.
         """
@@ -274,8 +276,12 @@ class SmoothInputMHE(WindowEstimator):
             cert = certify_delta_ioss(aug, **(certify_options or {}))
             reason = cert.reason
             if cert.certified and cert.min_horizon() <= longest:
-                return cls(system, certificate=cert, dw_variance=variance, x0_prior=x0_prior,
-                           N=max(window, cert.min_horizon()), **options)  # fmt: skip
+                est = cls(system, certificate=cert, dw_variance=variance, x0_prior=x0_prior,
+                          N=max(window, cert.min_horizon()), **options)  # fmt: skip
+                if not est.guarantee.applies:  # e.g. the weights' information horizon caps N below min_horizon()
+                    warnings.warn(f"SmoothInputMHE.design: certified, but the estimator's guarantee is {est.guarantee}",
+                                  UserWarning, stacklevel=user_stacklevel())  # fmt: skip
+                return est
             if cert.certified:
                 reason = f"certified, but min_horizon() = {cert.min_horizon()} > max_horizon = {longest}"
         except (CertificationError, ModelError) as exc:  # X unbounded, say
