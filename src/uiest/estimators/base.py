@@ -413,6 +413,10 @@ class WindowEstimator(StreamingEstimator):
         """The full state of window node ``j`` (negative: from the newest) with its node data (lagged estimates)."""
         return window.x[j]
 
+    def _held_in_post_map(self) -> bool:
+        """The last :meth:`_to_state` held the unknown input (filled missing outputs with its last estimate)."""
+        return False
+
     def _w_estimate(
         self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
     ) -> tuple[FloatArray | None, int | None]:
@@ -588,6 +592,7 @@ class WindowEstimator(StreamingEstimator):
     ) -> StepEstimate:
         """Post-map, unknown-input estimate, lagged estimate, health fields; store step k and move to k + 1."""
         x_hat, data_k = self._to_state(node, y_vec, u_vec, k, window)
+        held = held or self._held_in_post_map()
         w_hat, w_index = self._w_estimate(window, x_hat, u_vec, k)
         x_lag = self._lagged(window, x_hat, data_k, k)
         self._commit(k, u_vec, y_vec, node, data_k, x_hat, w_hat)

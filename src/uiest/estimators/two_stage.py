@@ -178,6 +178,7 @@ class TwoStageUISE(WindowEstimator):
         self.state_constraints = check_flag(state_constraints, "state_constraints")
         self.projection = Projection(reduced, projection)
         self._fit = InputFit(system)
+        self._filled = self._filled_before = False  # this step's and the last step's outputs filled (_fill)
         x = ca.SX.sym("x", system.nx)
         self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
         # Eq. (26) (before the projection) as one buffered call: T^-1(psi(gamma, z_sharp, v), z_sharp)
@@ -212,6 +213,7 @@ class TwoStageUISE(WindowEstimator):
     def _clear(self) -> None:
         super()._clear()
         self.projection.used = 0
+        self._filled = self._filled_before = False
 
     # ------------------------------------------------------------------ hooks of the template
     def _node_of(self, x: FloatArray) -> FloatArray:
@@ -235,16 +237,24 @@ class TwoStageUISE(WindowEstimator):
     def _w_estimate(
         self, window: WindowTrajectory | None, x_hat: FloatArray, u_prev: FloatArray, k: int
     ) -> tuple[FloatArray | None, int | None]:
-        """:class:`InputFit` of ``w_hat[k-1]`` to ``x_hat[k-1]`` and ``x_hat[k]``."""
-        if k == 0 or self._x_last is None:
+        """:class:`InputFit` of ``w_hat[k-1]`` to ``x_hat[k-1]`` and ``x_hat[k]``; none after a filled step.
+
+        ``x_hat[k-1]`` filled with the held input and ``x_hat[k]`` from the data: the fit would put the whole gap's
+        drift into one step (5 times the input on a three-output model), so that step has no estimate (NaN).
+        """
+        if k == 0 or self._x_last is None or (self._filled_before and not self._filled):
             return None, None
         guess = self._w_last if self._w_last is not None else self.system.nominal_w
         return self._fit(self._x_last, u_prev, x_hat, guess), k - 1
 
+    def _held_in_post_map(self) -> bool:
+        return self._filled
+
     def _fill(self, y: FloatArray, z_sharp: FloatArray, u_prev: FloatArray, k: int) -> FloatArray:
         """``y`` with missing channels replaced by the predicted output (module docstring)."""
         missing = np.isnan(y)
-        if not any_true(missing):
+        self._filled_before, self._filled = self._filled, any_true(missing)
+        if not self._filled:
             return y
         s, red = self.system, self.reduced
         x_pred = self._x0_prior if self._x_last is None else self._x_last
