@@ -264,6 +264,33 @@ def test_a_failing_tuning_is_recorded_per_run_and_kept(monkeypatch):
         model.certificate("uise", "abc")
 
 
+def test_a_run_whose_simulation_fails_is_recorded_and_the_study_and_its_report_go_on(monkeypatch, tmp_path):
+    # a model not finite for some initial states: the simulation's ModelError once ended the whole study (and every
+    # rerun of uiest reproduce), with no report
+    from uiest import ModelError
+
+    failing = {1}
+    simulate_run = runner_module.simulate_run
+
+    def simulation(scenario, case, run, study=None):
+        if run in failing:
+            raise ModelError("f: non-finite state at step k=6 (on purpose)")
+        return simulate_run(scenario, case, run, study)
+
+    monkeypatch.setattr(runner_module, "simulate_run", simulation)
+    scenario = tiny().with_overrides(runs=3, cases=("noise-free",))
+    study = run_study(scenario)
+    failed = study.runs[study.runs["run"] == 1]
+    expected = "simulation: ModelError: f: non-finite state at step k=6 (on purpose)"
+    assert len(failed) == 2 and (failed["error"] == expected).all()
+    assert set(study.truths) == {("noise-free", 0), ("noise-free", 2)} and set(study.steps.run) == {0, 2}
+    write_report(study, tmp_path / "report", wall_time=1.0)
+    assert "simulation: ModelError" in (tmp_path / "report" / "report.md").read_text()
+    failing.add(0)  # the figures show the first run whose simulation succeeded
+    write_report(run_study(scenario), tmp_path / "report0", wall_time=1.0)
+    assert (tmp_path / "report0" / "figure1_states.png").exists()
+
+
 def test_a_changed_model_file_is_read_again(tmp_path):
     import os
 

@@ -379,9 +379,16 @@ class _Tables:
     written: list[Path]
 
 
+def _shown_run(study: StudyResult) -> int | None:
+    """The run the figures show: the first whose simulation succeeded in every case (None: no such run)."""
+    cases = study.scenario.cases
+    return next((r for r in range(study.scenario.runs) if all((c, r) in study.truths for c in cases)), None)
+
+
 def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
     tables = _write_tables(study, out)
-    written = [*tables.written, *figures(study, out)]
+    run = _shown_run(study)
+    written = [*tables.written, *(figures(study, out, run) if run is not None else [])]
     study.scenario.to_toml(out / "scenario.toml")
     written.append(out / "scenario.toml")
     write_text(out / "report.md", "\n".join(_report_lines(study, tables, wall_time)))
@@ -409,7 +416,7 @@ def _write_tables(study: StudyResult, out: Path) -> _Tables:
     load = f"load average {os.getloadavg()[0]:.2f} at the end" if hasattr(os, "getloadavg") else "load unknown"
     write_text(out / "table1.md", _markdown(table) + f"\n\nMeasured on: {provenance.machine()}, {load}\n")
     try:
-        info = information_table(study)
+        info = information_table(study, _shown_run(study) or 0)
     except Exception as exc:  # an optional section: its failure is reported, the rest is written
         info = pd.DataFrame([{"information table unavailable": f"{type(exc).__name__}: {exc}"}])
     _csv(info, out / "information.csv")

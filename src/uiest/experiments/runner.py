@@ -317,7 +317,8 @@ def run_study(
     kept = {task: outcome for task, outcome in loaded.items() if outcome is not None}
 
     def add(outcome: RunOutcome) -> None:
-        truths[(outcome.case, outcome.run)] = outcome.truth
+        if outcome.truth is not None:
+            truths[(outcome.case, outcome.run)] = outcome.truth
         for name, result in outcome.results.items():
             results[(outcome.case, outcome.run, name)] = result
         step_frames.extend(outcome.frames)
@@ -351,11 +352,14 @@ def run_study(
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class RunOutcome:
-    """What one (case, run) of a study produces: the truth, each estimator's result, step frames and run rows."""
+    """What one (case, run) of a study produces: the truth, each estimator's result, step frames and run rows.
+
+    ``truth`` is None where the simulation itself failed (the rows then carry its error for every estimator).
+    """
 
     case: str
     run: int
-    truth: Trajectory
+    truth: Trajectory | None
     results: dict[str, EstimationResult]
     frames: list[pd.DataFrame]
     rows: list[dict[str, Any]]
@@ -371,7 +375,10 @@ def run_case(
     """
     if not isinstance(study, StudyModel):
         study = study_model(scenario.model, study)
-    _, truth, prior = simulate_run(scenario, case, run, study)
+    try:
+        _, truth, prior = simulate_run(scenario, case, run, study)
+    except Exception as exc:  # a run whose simulation fails (the model not finite there): recorded, the study goes on
+        return _failed_simulation(scenario, case, run, study, f"simulation: {type(exc).__name__}: {exc}")
     results, frames, rows = {}, [], []
     for spec in scenario.estimators:
         start = time.perf_counter()
@@ -393,6 +400,15 @@ def run_case(
                      "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
                      **counts})  # fmt: skip
     return RunOutcome(case=case, run=run, truth=truth, results=results, frames=frames, rows=rows)
+
+
+def _failed_simulation(scenario: Scenario, case: str, run: int, study: StudyModel, error: str) -> RunOutcome:
+    """The outcome of a run whose simulation failed: every estimator's row carries ``error``, counts -1."""
+    names = study.system.x.names
+    rows = [{"case": case, "run": run, "estimator": spec.name, "x0": [float("nan")] * len(names), "wall_time_s": 0.0,
+             "x_outside": -1, "error": error, **dict.fromkeys(count_names(names), -1)}
+            for spec in scenario.estimators]  # fmt: skip
+    return RunOutcome(case=case, run=run, truth=None, results={}, frames=[], rows=rows)
 
 
 def _outcomes(
