@@ -584,3 +584,25 @@ def test_every_window_estimator_pickles_and_deep_copies_mid_run_and_goes_on_as_t
         later = [[c.step(None if u is None else u[k], record.y[k + 1]).x_hat for k in range(12, K)] for c in copies]
         np.testing.assert_array_equal(later[0], later[2], err_msg=name)
         np.testing.assert_array_equal(later[1], later[2], err_msg=name)
+
+
+def test_ctrl_c_during_ipopt_solves_stops_the_run():
+    # CasADi turns a KeyboardInterrupt inside IPOPT into a warning and goes on: a serial study with IPOPT went on
+    # after Ctrl-C (IPOPT takes most of such a run, so the signal mostly lands inside it)
+    import os
+    import signal
+    import threading
+    import time
+
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    truth = simulate(system, scenario.x0, 120, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    estimator = UISE(system, weights=UISEWeights.from_scales(system, 0.48, output=1e6), N=30,
+                     x0_prior=scenario.prior(truth.y[0]), solver="ipopt")  # fmt: skip
+    estimator.run(truth.u[:40], truth.y[:41])  # built and compiled before the clock starts
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+    start = time.monotonic()
+    timer.start()
+    with pytest.raises(KeyboardInterrupt):
+        while time.monotonic() - start < 20.0:
+            estimator.run(truth.u, truth.y)
+    timer.cancel()

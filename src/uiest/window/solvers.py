@@ -8,8 +8,11 @@ window's parameters; it returns a :class:`WindowSolution`.
 
 from __future__ import annotations
 
+import contextlib
+import signal
+import threading
 import time
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -136,6 +139,30 @@ class WindowSolver(Protocol):
         ...
 
 
+@contextlib.contextmanager
+def interruptible() -> Iterator[None]:
+    """Ctrl-C (SIGINT) during a CasADi solver call takes effect when the call returns.
+
+    CasADi turns the KeyboardInterrupt raised inside IPOPT into a warning and goes on, so a run of IPOPT solves
+    ignored Ctrl-C. Inside, a SIGINT is recorded instead; when the call returns it goes to the handler that was
+    installed before (the default one raises KeyboardInterrupt). Outside the main thread (where signals are not
+    handled) nothing changes.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    caught: list[Any] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    if caught and callable(previous):
+        previous(signal.SIGINT, caught[0])
+    elif caught and previous == signal.SIG_DFL:
+        raise KeyboardInterrupt
+
+
 class IpoptSolver:
     """CasADi ``nlpsol("ipopt")`` on a window problem, built once.
 
@@ -205,7 +232,8 @@ class IpoptSolver:
             args["lam_g0"] = c * np.asarray(lam_g0)
         start = time.perf_counter()
         try:
-            out = self._solver(**args)
+            with interruptible():
+                out = self._solver(**args)
             stats = self._solver.stats()
             status = str(stats.get("return_status", "unknown"))
         except RuntimeError as exc:  # evaluation errors (NaN/inf in f or h) and the like
