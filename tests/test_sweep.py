@@ -178,3 +178,25 @@ def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_
     assert len(list((tmp_path / "out" / "runs").glob("*.parquet"))) == 1
     log = (tmp_path / "out" / "lost_tasks.log").read_text()
     assert "CodeMismatchError: the model file" in log and "changed after the sweep started" in log
+
+
+def test_task_keys_do_not_change_with_the_run_count_or_the_spelling_of_a_model_file_s_path(tmp_path, monkeypatch):
+    # a run's result depends on neither: adding runs recomputed every stored task, and naming the same model file by
+    # a relative and then an absolute path recomputed everything
+    import dataclasses
+    from pathlib import Path
+
+    keys = {(t.case, t.run, t.params): t.key for t in design().tasks()}
+    more = Sweep(dataclasses.replace(design().scenario, runs=3), grid=design().grid)
+    added = {(t.case, t.run, t.params): t.key for t in more.tasks()}
+    assert all(added[task] == key for task, key in keys.items()) and len(added) == len(keys) * 3 // 2
+    model = tmp_path / "gain.py"
+    model.write_text((Path(__file__).parent / "gain_model.py").read_text())
+    monkeypatch.chdir(tmp_path)
+    spelled = [Sweep(dataclasses.replace(design().scenario, model=path), grid=design().grid).tasks()
+               for path in ("gain.py", str(model), "./gain.py")]  # fmt: skip
+    assert [t.key for t in spelled[0]] == [t.key for t in spelled[1]] == [t.key for t in spelled[2]]
+    edited = model.read_text().replace("GAIN = 0.5", "GAIN = 1.5")
+    model.write_text(edited)  # its bytes still key the tasks
+    again = Sweep(dataclasses.replace(design().scenario, model="gain.py"), grid=design().grid).tasks()
+    assert {t.key for t in again}.isdisjoint(t.key for t in spelled[0])

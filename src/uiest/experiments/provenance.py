@@ -10,8 +10,9 @@ import subprocess
 import sys
 from importlib import metadata
 from pathlib import Path
+from typing import Any
 
-__all__ = ["code_version", "git_revision", "machine", "model_digest", "versions"]
+__all__ = ["code_version", "git_revision", "keyed_scenario", "machine", "model_digest", "versions"]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 """The ``uiest`` package folder."""
@@ -79,6 +80,20 @@ def code_version() -> str:
     for package in ("casadi", "numpy", "scipy", "cvxpy", "clarabel"):
         digest.update(versions().get(package, "").encode())
     return digest.hexdigest()[:16]
+
+
+def keyed_scenario(scenario: Any) -> dict[str, Any]:
+    """What of a scenario keys its stored runs: its fields but the run count and a model file's path.
+
+    A run's result does not depend on how many runs there are (each run's seeds are its own), nor on how the model
+    file's path is spelled (its bytes are keyed by :func:`model_digest`): adding runs, or naming the same file by
+    another path, reuses the runs stored.
+    """
+    data: dict[str, Any] = scenario.to_dict()
+    data.pop("runs", None)
+    if str(data.get("model", "")).endswith(".py"):
+        data["model"] = "model file"
+    return data
 
 
 def model_digest(model: str) -> str:

@@ -66,9 +66,11 @@ class StudyStore:
 
     @functools.cached_property
     def identity(self) -> list[Any]:
-        """What every run's key covers besides (case, run): the scenario but its run count, backend, code, model."""
-        data = self.scenario.to_dict()
-        data.pop("runs")
+        """What every run's key covers besides (case, run): the keyed scenario, backend, code, model file bytes.
+
+        The scenario as :func:`~uiest.experiments.provenance.keyed_scenario` keys it (no run count, no file path).
+        """
+        data = provenance.keyed_scenario(self.scenario)
         return [data, self.solver, provenance.code_version(), provenance.model_digest(self.scenario.model)]
 
     def key(self, case: str, run: int) -> str:

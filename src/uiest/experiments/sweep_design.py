@@ -22,7 +22,7 @@ import numpy as np
 
 from uiest.checks import shown
 from uiest.errors import OptionError
-from uiest.experiments.provenance import code_version, model_digest
+from uiest.experiments.provenance import code_version, keyed_scenario, model_digest
 from uiest.experiments.scenario import Scenario, model_beside, read_toml
 from uiest.window import DEFAULT_BACKEND
 from uiest.window.backends import BACKENDS
@@ -260,8 +260,12 @@ class Task:
 
     @property
     def key(self) -> str:
-        """Stable identifier: a hash of the scenario, point, case, run, backend, code and the model file's content."""
-        identity = [self.scenario.to_dict(), list(self.params), self.case, self.run, self.solver, self.code]
+        """Stable identifier: a hash of the scenario, point, case, run, backend, code and the model file's content.
+
+        The scenario as :func:`~uiest.experiments.provenance.keyed_scenario` keys it (no run count, no file path).
+        """
+        identity = [keyed_scenario(self.scenario), list(self.params), self.case, self.run, self.solver,
+                    self.code]  # fmt: skip
         payload = json.dumps(
             [*identity, self.model_sha256],
             sort_keys=True,
