@@ -200,3 +200,20 @@ def test_task_keys_do_not_change_with_the_run_count_or_the_spelling_of_a_model_f
     model.write_text(edited)  # its bytes still key the tasks
     again = Sweep(dataclasses.replace(design().scenario, model="gain.py"), grid=design().grid).tasks()
     assert {t.key for t in again}.isdisjoint(t.key for t in spelled[0])
+
+
+def test_a_sweep_where_one_estimator_fails_in_every_task_and_another_does_not_succeeds(tmp_path):
+    # "every task failed" (exit 1) came where every task had the EKF's results and only the two-stage UISE failed
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+
+    path = tmp_path / "mixed.toml"
+    path.write_text(
+        "[scenario]\nname = 'x'\nmodel = 'linear-example'\nsteps = 8\nruns = 1\ncases = ['noisy']\nsettle = 2\n"
+        "[[scenario.estimators]]\nname = '2s'\nkind = 'two-stage'\nN = 3\n"
+        "[[scenario.estimators]]\nname = 'EKF'\nkind = 'ekf'\nw_variance = 1.0\n[sweep]\ngrid = {N = [2, 3]}\n"
+    )
+    result = CliRunner().invoke(app, ["sweep", str(path), "--out", str(tmp_path / "out"), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert "2 of 2 tasks stored (2 with an error)" in result.output and "every task failed" not in result.output

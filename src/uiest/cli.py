@@ -659,7 +659,7 @@ def sweep(
     if last.lost:
         error_console.print(f"error: {last.lost} tasks were not computed (see {out / 'lost_tasks.log'}); run again")
         raise typer.Exit(code=1)
-    if keys == 0 or failed == keys:
+    if keys == 0 or bool((results["error"] != "").all()):  # no estimator of any task gave a result
         error_console.print("error: every task failed; see the 'error' column of results.parquet")
         raise typer.Exit(code=1)
 
