@@ -217,3 +217,13 @@ def test_a_sweep_where_one_estimator_fails_in_every_task_and_another_does_not_su
     result = CliRunner().invoke(app, ["sweep", str(path), "--out", str(tmp_path / "out"), "--workers", "1"])
     assert result.exit_code == 0, result.output
     assert "2 of 2 tasks stored (2 with an error)" in result.output and "every task failed" not in result.output
+
+
+def test_a_sweep_file_that_cannot_be_read_leaves_no_output_folder(tmp_path):
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+
+    result = CliRunner().invoke(app, ["sweep", str(tmp_path / "none.toml"), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 2 and "cannot read" in result.output
+    assert not (tmp_path / "out").exists()

@@ -626,8 +626,8 @@ def sweep(
     """Run a Monte Carlo sweep over scenario parameters (local processes or a Dask cluster)."""
     _choice(solver, BACKENDS, "--solver")
     _positive(workers, "--workers")
+    plan = Sweep.from_toml(design)  # read before the output folder is made: a bad file leaves no folder behind
     _output_folder(out, "--out")
-    plan = Sweep.from_toml(design)
     total = len(plan.tasks(solver))
     last = SweepProgress(0, 0, 0, 0)
     lines: ProgressLines | None = None  # without a terminal: periodic lines on stderr
