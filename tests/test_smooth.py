@@ -442,19 +442,9 @@ def test_a_run_warns_when_the_input_estimate_sits_at_w_s_side():
 def test_a_design_whose_estimator_has_no_guarantee_says_so():
     # certified with min_horizon() = 4, but the certified weights' information horizon caps the window at 3: the
     # design once returned that estimator without a word (its guarantee said none, and why)
-    import casadi as ca
+    import three_outputs
 
-    def f(x, u, w):
-        return [
-            0.9 * x[0] + 0.2 * ca.sin(x[1]) + 0.1 * u[0] + w[0],
-            0.7 * x[1] + 0.1 * x[0] + 0.1 * u[1],
-            0.6 * x[2] + 0.2 * ca.tanh(x[3]) + 0.05 * u[0] * u[1],
-            (0.4 + 0.2 * ca.tanh(x[1])) * x[3] + 0.1 * x[2],
-        ]
-
-    system = System.from_callables(f, lambda x, v: [x[0] + v[0], x[1] + v[1], x[2] + 0.1 * x[3] + v[2]], nx=4, nu=2,
-                                   nw=1, nv=3, x_bounds=(-10.0, 10.0), u_bounds=(-1.0, 1.0),
-                                   v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    system = three_outputs.system()
     with pytest.warns(UserWarning, match="SmoothInputMHE.design: certified, but the estimator's guarantee is none: N="):
         mhe = SmoothInputMHE.design(system, dw_variance=0.1, w_bounds=(-10, 10), x0_prior=np.zeros(4))
     assert mhe.certificate is not None and mhe.horizon_capped and not mhe.guarantee.applies

@@ -419,17 +419,9 @@ def test_missing_outputs_hold_the_input_and_say_so_and_the_step_after_has_no_inp
     # the unknown input reaches the measured x1, missing for k = 10..14: the two-stage UISE fills it with the held
     # input, and every such step said "solved" without held_input; after the gap the fit of w[14] put the whole
     # gap's drift into one step (0.88 against a true 0.17)
-    def f(x, u, w):
-        return [
-            0.9 * x[0] + 0.2 * ca.sin(x[1]) + 0.1 * u[0] + w[0],
-            0.7 * x[1] + 0.1 * x[0] + 0.1 * u[1],
-            0.6 * x[2] + 0.2 * ca.tanh(x[3]) + 0.05 * u[0] * u[1],
-            (0.4 + 0.2 * ca.tanh(x[1])) * x[3] + 0.1 * x[2],
-        ]
+    import three_outputs
 
-    system = System.from_callables(f, lambda x, v: [x[0] + v[0], x[1] + v[1], x[2] + 0.1 * x[3] + v[2]], nx=4, nu=2,
-                                   nw=1, nv=3, x_bounds=(-10.0, 10.0), u_bounds=(-1.0, 1.0),
-                                   v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    system = three_outputs.system()
     reduced = ReducedModel.from_maps(system, lambda x: x, lambda z: z, lambda y, z, v: [y[0] - v[0]], n_flat=1)
     K = 40
     u = np.column_stack([np.sin(0.3 * np.arange(K)), np.cos(0.2 * np.arange(K))])
