@@ -584,6 +584,15 @@ def test_every_window_estimator_pickles_and_deep_copies_mid_run_and_goes_on_as_t
         later = [[c.step(None if u is None else u[k], record.y[k + 1]).x_hat for k in range(12, K)] for c in copies]
         np.testing.assert_array_equal(later[0], later[2], err_msg=name)
         np.testing.assert_array_equal(later[1], later[2], err_msg=name)
+    # inside a user's own CasADi pickle context, beside an expression of theirs (the estimator's context is nested)
+    import casadi as ca
+
+    x = ca.SX.sym("x")
+    with ca.global_pickle_context():
+        data = pickle.dumps({"estimator": make(), "residual": ca.sin(x)})
+    with ca.global_unpickle_context():
+        loaded = pickle.loads(data)
+    assert str(loaded["residual"]) == "sin(x)" and isinstance(loaded["estimator"], TwoStageUISE)
 
 
 def test_ctrl_c_during_ipopt_solves_stops_the_run():
@@ -606,3 +615,11 @@ def test_ctrl_c_during_ipopt_solves_stops_the_run():
         while time.monotonic() - start < 20.0:
             estimator.run(truth.u, truth.y)
     timer.cancel()
+    from uiest.window.solvers import interruptible
+
+    handler = signal.getsignal(signal.SIGINT)
+    with pytest.raises(KeyboardInterrupt), interruptible():  # a call that raises after Ctrl-C: the interrupt is kept
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        raise RuntimeError("the solver failed")
+    assert signal.getsignal(signal.SIGINT) is handler

@@ -285,10 +285,15 @@ def test_a_run_whose_simulation_fails_is_recorded_and_the_study_and_its_report_g
     assert len(failed) == 2 and (failed["error"] == expected).all()
     assert set(study.truths) == {("noise-free", 0), ("noise-free", 2)} and set(study.steps.run) == {0, 2}
     write_report(study, tmp_path / "report", wall_time=1.0)
-    assert "simulation: ModelError" in (tmp_path / "report" / "report.md").read_text()
+    text = (tmp_path / "report" / "report.md").read_text()
+    assert "simulation: ModelError" in text and "left X" not in text  # a run not simulated left nothing
     failing.add(0)  # the figures show the first run whose simulation succeeded
     write_report(run_study(scenario), tmp_path / "report0", wall_time=1.0)
     assert (tmp_path / "report0" / "figure1_states.png").exists()
+    failing.add(2)  # no run simulated: the report is written, without figures, and says so
+    write_report(run_study(scenario), tmp_path / "none", wall_time=1.0)
+    text = (tmp_path / "none" / "report.md").read_text()
+    assert "No run was simulated in every case: no figures." in text and "figure1_states.png" not in text
 
 
 def test_a_changed_model_file_is_read_again(tmp_path):

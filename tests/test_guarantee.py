@@ -225,3 +225,4 @@ def test_the_delayed_uise_bounds_the_states_b_alone_determines():
     assert g.applies and free.tolist() == [False, True, True]
     assert np.isnan(g.error_bound[0]) and np.all(np.isfinite(g.error_bound[1:]))
     assert "no bound for x[0]: these states depend on a = T_a x" in str(g)
+    assert "; it bounds x_hat[k], not the lagged estimates x[k-lag]" in g.assumes

@@ -433,3 +433,7 @@ def test_missing_outputs_hold_the_input_and_say_so_and_the_step_after_has_no_inp
     assert result.held_input[10:15].all() and not result.held_input[15:].any()
     assert np.isnan(result.w_hat[14]).all() and np.all(np.isfinite(result.w_hat[15:]))
     assert np.abs(result.w_hat[16:] - truth.w[16:]).max() < 0.05
+    y = truth.y.copy()
+    y[10:15, 1] = np.nan  # an output psi does not use: only its residual drops, the input is not held
+    other = TwoStageUISE(reduced, certificate=certify_reduced_model(reduced), x0_prior=np.zeros(4)).run(u, y)
+    assert not other.held_input.any() and np.all(np.isfinite(other.w_hat))

@@ -29,12 +29,13 @@ with :meth:`WindowEstimator.configure` (which drops the cached solvers).
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import pickle
 import time
 import warnings
 from collections import deque
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -130,6 +131,20 @@ class WindowOptions:
         if unknown:
             raise OptionError(f"options: unknown {unknown}; expected some of {known} (or window=WindowOptions(...))")
         return cls(**values)
+
+
+@contextlib.contextmanager
+def _casadi_context(kind: str) -> Iterator[None]:
+    """CasADi's global (un)pickle context inside, and the one the caller may have entered restored after it.
+
+    CasADi sets its context to None on leaving one, which would break a user's own context around the pickling.
+    """
+    local, name = getattr(ca.casadi, "_thread_local", None), f"casadi_{kind}_ctx"
+    outer = getattr(local, name, None)
+    with ca.global_pickle_context() if kind == "pickle" else ca.global_unpickle_context():
+        yield
+    if local is not None:
+        setattr(local, name, outer)
 
 
 def _window_options(cls: type[WindowOptions], values: dict[str, Any]) -> WindowOptions:
@@ -267,11 +282,11 @@ class WindowEstimator(StreamingEstimator):
 
         So a window estimator pickles and deep-copies mid-run, and the copy goes on as the original would.
         """
-        with ca.global_pickle_context():
+        with _casadi_context("pickle"):
             return {"attributes": pickle.dumps(self.__dict__)}
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        with ca.global_unpickle_context():
+        with _casadi_context("unpickle"):
             self.__dict__.update(pickle.loads(state["attributes"]))
 
     def __init__(

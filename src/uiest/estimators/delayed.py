@@ -188,9 +188,10 @@ class DelayedUISE(UISE):
         bound, settling = strong_bound(self.weights.P, self.weights.R_v, self.weights.mu, self.N, self.system.v.bounds,
                                        self.v_prior, self.system.x.bounds.width, T=d.T_b, M=d.M_b)  # fmt: skip
         note = "" if free.all() else "these states depend on a = T_a x, an unknown input of the delayed system"
-        unlagged = "the bounds are of x_hat[k]; the lagged estimates are not covered"
-        note = f"{note}; {unlagged}" if note else unlagged
         return self._holds(self.theorem, np.where(free, bound, np.nan), settling, self._assumes(), note)
+
+    def _assumes(self) -> str:
+        return f"{super()._assumes()}; it bounds x_hat[k], not the lagged estimates x[k-lag]"
 
     def __repr__(self) -> str:
         return (

@@ -179,6 +179,10 @@ class TwoStageUISE(WindowEstimator):
         self.projection = Projection(reduced, projection)
         self._fit = InputFit(system)
         self._filled = self._filled_before = False  # this step's and the last step's outputs filled (_fill)
+        g, zs, vs = ca.SX.sym("gamma", system.ny), ca.SX.sym("z_sharp", reduced.n_sharp), ca.SX.sym("v", system.nv)
+        flat = reduced.psi(g, zs, vs)
+        self._psi_uses = np.array([bool(ca.depends_on(flat, g[j])) for j in range(system.ny)], dtype=bool)
+        """Which outputs psi uses: only their missing channels hold the input (module docstring)."""
         x = ca.SX.sym("x", system.nx)
         self._T_sharp = ca.Function("T_sharp", [x], [reduced.T(x)[reduced.n_flat :]])
         # Eq. (26) (before the projection) as one buffered call: T^-1(psi(gamma, z_sharp, v), z_sharp)
@@ -253,8 +257,8 @@ class TwoStageUISE(WindowEstimator):
     def _fill(self, y: FloatArray, z_sharp: FloatArray, u_prev: FloatArray, k: int) -> FloatArray:
         """``y`` with missing channels replaced by the predicted output (module docstring)."""
         missing = np.isnan(y)
-        self._filled_before, self._filled = self._filled, any_true(missing)
-        if not self._filled:
+        self._filled_before, self._filled = self._filled, any_true(missing & self._psi_uses)
+        if not any_true(missing):
             return y
         s, red = self.system, self.reduced
         x_pred = self._x0_prior if self._x_last is None else self._x_last

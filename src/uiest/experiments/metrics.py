@@ -137,5 +137,4 @@ def health(study: StudyResult) -> pd.DataFrame:
 
 def state_names(study: StudyResult) -> list[str]:
     """Names of the states, as used in the columns of ``study.steps``."""
-    truth = next(iter(study.truths.values()))
-    return list(truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1])))
+    return list(study.model.system.x.names)  # also where no run was simulated

@@ -317,6 +317,7 @@ def outcome_lines(study: StudyResult) -> list[str]:
     elif len(raised):
         lines.append(f"**{len(raised)} of {len(runs)} estimator runs raised (see Failures); the rest are reported.**")
     outside = runs.drop_duplicates(["case", "run"])["x_outside"]
+    outside = outside[outside >= 0]  # -1: the run was not simulated
     if outside.sum():
         lines.append(f"**The true state left X in {int((outside > 0).sum())} runs ({int(outside.sum())} samples): "
                      "the estimators constrain their estimates to X there.**")  # fmt: skip
@@ -510,12 +511,18 @@ def _report_lines(study: StudyResult, tables: _Tables, wall_time: float) -> list
         *filter_comparison(study, acc),
         "## Figures",
         "",
-        "![Figure 1](figure1_states.png)",
-        "",
-        "![Figure 2](figure2_errors.png)",
-        "",
-        "![Figure 3](figure3_unknown_input.png)",
-        "",
+        *(
+            [
+                "![Figure 1](figure1_states.png)",
+                "",
+                "![Figure 2](figure2_errors.png)",
+                "",
+                "![Figure 3](figure3_unknown_input.png)",
+                "",
+            ]
+            if _shown_run(study) is not None
+            else ["No run was simulated in every case: no figures.", ""]
+        ),
         "## Choices the paper leaves open, and how they were filled",
         "",
         *([f"- {choice}" for choice in OPEN_CHOICES] if scenario.model == "crop-growth" else ["- see scenario.toml"]),

@@ -148,19 +148,20 @@ def interruptible() -> Iterator[None]:
     installed before (the default one raises KeyboardInterrupt). Outside the main thread (where signals are not
     handled) nothing changes.
     """
-    if threading.current_thread() is not threading.main_thread():
+    previous = signal.getsignal(signal.SIGINT)
+    if threading.current_thread() is not threading.main_thread() or previous is None:  # None: not set from Python
         yield
         return
     caught: list[Any] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
+    signal.signal(signal.SIGINT, lambda signum, frame: caught.append(frame))
     try:
         yield
-    finally:
+    finally:  # also where the call raised: the interrupt is not lost
         signal.signal(signal.SIGINT, previous)
-    if caught and callable(previous):
-        previous(signal.SIGINT, caught[0])
-    elif caught and previous == signal.SIG_DFL:
-        raise KeyboardInterrupt
+        if caught and callable(previous):
+            previous(signal.SIGINT, caught[0])
+        elif caught and previous == signal.SIG_DFL:
+            signal.raise_signal(signal.SIGINT)  # what the default would have done
 
 
 class IpoptSolver:
