@@ -1257,7 +1257,12 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         CliCase("sweep --solver newton", ("sweep", str(empty), "--solver", "newton"), 2, "--solver"),
         CliCase("sweep --workers -1", ("sweep", str(empty), "--workers", "-1"), 2, "--workers"),
         CliCase("sweep --workers 0", ("sweep", str(empty), "--workers", "0"), 2, "--workers"),
-        CliCase("sweep to an unwritable folder", ("sweep", str(empty), "--out", bad), 2, "cannot write"),
+        CliCase(  # a valid sweep file: it is read before the output folder is made
+            "sweep to an unwritable folder",
+            ("sweep", str(_sweep_file(tmp, "grid = {N = [2]}")), "--out", bad),
+            2,
+            "cannot write",
+        ),
         CliCase("sweep grid N = 2.7", ("sweep", str(_sweep_file(tmp, "grid = {N = [2.7]}")), "--out", out), 2, "N"),
         CliCase(
             "sweep ranges low > high",
