@@ -257,9 +257,10 @@ class TwoStageUISE(WindowEstimator):
     def _fill(self, y: FloatArray, z_sharp: FloatArray, u_prev: FloatArray, k: int) -> FloatArray:
         """``y`` with missing channels replaced by the predicted output (module docstring)."""
         missing = np.isnan(y)
-        self._filled_before, self._filled = self._filled, any_true(missing & self._psi_uses)
-        if not any_true(missing):
+        if not any_true(missing):  # every step's path: one test
+            self._filled_before, self._filled = self._filled, False
             return y
+        self._filled_before, self._filled = self._filled, any_true(missing & self._psi_uses)
         s, red = self.system, self.reduced
         x_pred = self._x0_prior if self._x_last is None else self._x_last
         assert x_pred is not None
