@@ -183,6 +183,10 @@ class Box:
             return all_true(inside)
         return np.asarray(inside.all(axis=-1))
 
+    def sides(self, tol: float = 0.0) -> tuple[FloatArray, FloatArray]:
+        """``(lower, upper)`` moved outwards by ``tol`` times the finite widths (the sides :meth:`contains` tests)."""
+        return self._enlarged(tol)
+
     def _enlarged(self, tol: float) -> tuple[FloatArray, FloatArray]:
         """The sides moved outwards by ``tol`` times the finite widths, kept per ``tol`` (the bounds are read-only)."""
         cache: dict[float, tuple[FloatArray, FloatArray]] = self.__dict__.setdefault("_enlarged_sides", {})

@@ -16,6 +16,7 @@ from contextlib import contextmanager
 from enum import StrEnum
 from typing import ParamSpec, TypeVar
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -120,6 +121,23 @@ class BoundTest:
         arr = np.asarray(x, dtype=float)
         result: NDArray[np.bool_] = (self._has_low & (arr <= self._low)) | (self._has_high & (arr >= self._high))
         return result
+
+    def any(self, x: FloatArray) -> bool:
+        """Whether some row of ``x (m, n)`` has an entry on or beyond a finite side (one compiled pass)."""
+        if not self._low.size:
+            return False
+        return bool(_any_at_bound(np.asarray(x, dtype=float).reshape(-1, self._low.size), self._low, self._high,
+                                  self._has_low, self._has_high))  # fmt: skip
+
+
+@numba.njit(cache=True)
+def _any_at_bound(x, low, high, has_low, has_high):  # pragma: no cover (compiled)
+    """:meth:`BoundTest.any` for ``x (m, n)``."""
+    for i in range(x.shape[0]):
+        for j in range(x.shape[1]):
+            if (has_low[j] and x[i, j] <= low[j]) or (has_high[j] and x[i, j] >= high[j]):
+                return True
+    return False
 
 
 def status_text(

@@ -614,7 +614,7 @@ class WindowEstimator(StreamingEstimator):
         last = attempts[-1] if attempts else None
         states_at_bound = self._x_at_bound(x_hat)
         solved = outcome is Outcome.SOLVED
-        window_held = window is not None and any_true(self._window_at_bound(window.x))
+        window_held = window is not None and self._window_at_bound.any(window.x)
         return StepEstimate(
             k=k,
             x_hat=x_hat,

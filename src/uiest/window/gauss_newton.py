@@ -71,6 +71,7 @@ from dataclasses import dataclass
 from typing import Any, NamedTuple
 
 import casadi as ca
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -216,13 +217,51 @@ ACTIVE_TOL = 1e-12
 """Distance (scaled units) within which a value counts as sitting on its bound (qrqp warm start)."""
 
 
-def _on_bounds(value: FloatArray, edges: tuple[FloatArray, FloatArray]) -> FloatArray:
-    """Initial multipliers for qrqp: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one, else 0.
+@numba.njit(cache=True)
+def _on_bounds(value, lower_edge, upper_edge, ranged):  # pragma: no cover (compiled)
+    """Initial multipliers for the first QP: ``+ACTIVE_TOL`` on an upper bound, ``-ACTIVE_TOL`` on a lower one.
 
-    ``edges``: ``(lower + ACTIVE_TOL, upper - ACTIVE_TOL)`` (:func:`_edges`).
+    0 elsewhere and where ``ranged`` is False (an equality). ``lower_edge, upper_edge``: ``lower + ACTIVE_TOL``,
+    ``upper - ACTIVE_TOL`` (:func:`_edges`).
     """
-    at_upper, at_lower = value >= edges[1], value <= edges[0]
-    return np.where(at_upper, ACTIVE_TOL, np.where(at_lower, -ACTIVE_TOL, 0.0))
+    marks = np.zeros(value.size)
+    for i in range(value.size):
+        if ranged[i]:
+            if value[i] >= upper_edge[i]:
+                marks[i] = ACTIVE_TOL
+            elif value[i] <= lower_edge[i]:
+                marks[i] = -ACTIVE_TOL
+    return marks
+
+
+@numba.njit(cache=True)
+def _trial_point(z, dz, lower, upper, step_tol):  # pragma: no cover (compiled)
+    """``(clip(z + dz, lower, upper), |dz|_inf <= step_tol)``; NaN stays NaN and is no small step."""
+    trial = np.empty(z.size)
+    small = True
+    for i in range(z.size):
+        t = z[i] + dz[i]
+        if t < lower[i]:
+            t = lower[i]
+        elif t > upper[i]:
+            t = upper[i]
+        trial[i] = t
+        if not abs(dz[i]) <= step_tol:
+            small = False
+    return trial, small
+
+
+@numba.njit(cache=True)
+def _largest_abs(values):  # pragma: no cover (compiled)
+    """``|values|_inf`` (0 for none; NaN if one is, as NumPy's maximum)."""
+    largest = 0.0
+    for value in values:
+        size = abs(value)
+        if size > largest:
+            largest = size
+        elif size != size:
+            return math.nan
+    return largest
 
 
 def _edges(lower: FloatArray, upper: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -744,8 +783,8 @@ class GaussNewtonSolver:
         self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
         self._no_multipliers = np.zeros(problem.n_con)
         # the first QP's active set: the bounds and the inequalities (not the equalities) the start sits on
-        self._x_edges, self._g_edges = _edges(problem.lbx, problem.ubx), _edges(problem.lbg, problem.ubg)
-        self._g_ranged = problem.lbg < problem.ubg
+        self._x_edges = (*_edges(problem.lbx, problem.ubx), np.ones(problem.n_var, dtype=np.bool_))
+        self._g_edges = (*_edges(problem.lbg, problem.ubg), problem.lbg < problem.ubg)
         self._staged = problem if qp == "riccati" else None
         self._gauss_newton_form = _QPForm.build(self._h_sparsity, self._a_sparsity, self._staged)
         # the curvature Gauss-Newton leaves out and the QP form that holds it, built when first needed
@@ -788,7 +827,7 @@ class GaussNewtonSolver:
         solving one more QP to see a zero step. ``largest``: ``|lam_a|_inf`` if the caller has it.
         """
         if largest is None:
-            largest = float(np.abs(lam_a).max(initial=0.0))
+            largest = _largest_abs(lam_a)
         return point.stationarity <= self.kkt_tol * (1.0 + largest)
 
     # ------------------------------------------------------------------ QP
@@ -945,10 +984,10 @@ class GaussNewtonSolver:
         prob = self.problem
         p = np.asarray(p, dtype=float)
         point = self._evaluate(np.asarray(z0, dtype=float).clip(prob.lbx, prob.ubx), p)
-        largest = float(np.abs(point.h).max(initial=0.0))
+        largest = _largest_abs(point.h)
         damping = Damping(max(self.min_damping, self._kept_damping), max(largest, 1.0))
-        lam_x = _on_bounds(point.z, self._x_edges)
-        lam_a = _on_bounds(point.g, self._g_edges) * self._g_ranged
+        lam_x = _on_bounds(point.z, *self._x_edges)
+        lam_a = _on_bounds(point.g, *self._g_edges)
         return SolveState(p, point, damping, QP_SCALE / (largest or 1.0), lam_x, lam_a, self._kept_damping > 0.0)
 
     def _iterate(self, state: SolveState) -> bool:
@@ -969,14 +1008,15 @@ class GaussNewtonSolver:
         if at_least_damping and _only_restores_rounding(predicted, point):
             state.status = "Converged"
             return True
-        lam_a, largest = state.lam_a, float(np.abs(state.lam_a).max(initial=0.0))
+        lam_a, largest = state.lam_a, _largest_abs(state.lam_a)
         nu = _penalty(largest)
-        trial = self._evaluate((point.z + dz).clip(self.problem.lbx, self.problem.ubx), state.p, point, state.lam_a)
+        z_trial, small_step = _trial_point(point.z, dz, self.problem.lbx, self.problem.ubx, self.step_tol)
+        trial = self._evaluate(z_trial, state.p, point, state.lam_a)
         ratio = _ratio(point, trial, predicted, nu)
         maratos = trial.cost < point.cost and trial.violation > point.violation  # the cost fell, the violation rose
         if ratio <= ACCEPT_RATIO and maratos and self.max_iter > 1:
             dz, trial, ratio = self._correct(state, dz, trial, predicted, nu)
-        small_step = all_true(np.abs(dz) <= self.step_tol)
+            small_step = all_true(np.abs(dz) <= self.step_tol)
         no_decrease = _no_decrease_left(predicted, point.cost, self.cost_tol)
         if ratio > ACCEPT_RATIO or self.max_iter == 1:
             state.point = trial

@@ -37,6 +37,9 @@ GUESS_FLOOR = 1e-9
 """Multipliers below this fraction of the largest are not taken as active in a guess: an interior point's
 inactive sides keep multipliers of about ``mu / s`` (1e-11 relative at its tolerance)."""
 
+_STATUS_OF = {int(status): status for status in QPStatus}
+"""The kernel's status codes as :class:`QPStatus` (a lookup; the enum's call costs a microsecond)."""
+
 EQUALITY_TOL = 1e-14
 """Dynamics rows whose bounds differ by more than this are not equalities: such a QP is not put in stage form."""
 
@@ -173,7 +176,7 @@ class StageForm:
         info = self._info
         code = _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, self._maps, EQUALITY_TOL, GUESS_FLOOR,
                            *self._kernel_sizes, self._h, self._a, self._c, z, lam_x, lam_a, info)  # fmt: skip
-        self.last_status = None if code < 0 else QPStatus(code)
+        self.last_status = None if code < 0 else _STATUS_OF[code]
         self.last_counts = int(info[4]), int(info[1])
         if code != QPStatus.SOLVED:
             return None
