@@ -67,8 +67,8 @@ def test_failed_qp_falls_back_to_cold_start_then_regularised_then_ipopt(crop_run
     reference = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])
     real_qp = gauss_newton.GaussNewtonSolver._qp
 
-    def warm_fails(self, form, h, q, a, bounds, warm, release_tol):
-        return None if warm else real_qp(self, form, h, q, a, bounds, warm, release_tol)
+    def warm_fails(self, form, h, point, warm, release_tol):
+        return None if warm else real_qp(self, form, h, point, warm, release_tol)
 
     monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "_qp", warm_fails)
     cold = UISE(system, weights=weights, N=5, x0_prior=prior, solver="gn").run(traj.u[:10], traj.y[:11])

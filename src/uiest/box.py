@@ -6,6 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -33,6 +34,15 @@ def as_vector(value: ArrayLike, size: int, name: str, *, error: type[Exception] 
     if not all_true(np.isfinite(arr)):
         raise error(f"{name}: expected finite values, got {arr.tolist()}")
     return arr
+
+
+@numba.njit(cache=True)
+def _inside(z, lower, upper):  # pragma: no cover (compiled)
+    """Whether ``lower <= z <= upper`` entrywise (1-D; NaN is outside)."""
+    for i in range(z.size):  # noqa: SIM110 (an explicit loop for numba)
+        if not lower[i] <= z[i] <= upper[i]:
+            return False
+    return True
 
 
 def _read_both_ways(lower: FloatArray, upper: FloatArray) -> bool:
@@ -178,6 +188,8 @@ class Box:
         """
         arr = np.asarray(z, dtype=float)
         lower, upper = self._enlarged(tol)
+        if arr.shape == lower.shape:  # one point: one compiled pass
+            return bool(_inside(arr, lower, upper))
         inside = (arr >= lower) & (arr <= upper)
         if arr.ndim == 1:
             return all_true(inside)

@@ -9,6 +9,7 @@ import sys
 from collections.abc import Iterable, Mapping
 from typing import TYPE_CHECKING, Any
 
+import numba
 import numpy as np
 from numpy.typing import NDArray
 
@@ -147,6 +148,19 @@ def any_true(mask: NDArray[np.bool_]) -> bool:
     A NumPy reduction's call costs several times a count on the few entries of a check repeated every step.
     """
     return int(np.count_nonzero(mask)) > 0
+
+
+def all_finite(values: NDArray[np.float64]) -> bool:
+    """Whether every entry of a float array is finite (one compiled pass; ``np.isfinite`` and a count take two)."""
+    return bool(_all_finite(values.reshape(-1)))
+
+
+@numba.njit(cache=True)
+def _all_finite(values):  # pragma: no cover (compiled)
+    for value in values:  # noqa: SIM110 (an explicit loop for numba)
+        if not math.isfinite(value):
+            return False
+    return True
 
 
 def all_true(mask: NDArray[np.bool_]) -> bool:

@@ -18,7 +18,7 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import FloatArray
-from uiest.checks import all_true
+from uiest.checks import all_finite
 from uiest.system import System
 from uiest.window.buffered import BufferedFunction
 
@@ -59,7 +59,7 @@ class InputFit:
         for iteration in range(1, iterations + 1):
             r, J_nonzeros = self._fun(x_prev, u, w, x_next)
             J = J_nonzeros.reshape(self.system.nw, self.system.nx).T  # column-major nonzeros
-            if not (all_true(np.isfinite(r)) and all_true(np.isfinite(J))):
+            if not (all_finite(r) and all_finite(J_nonzeros)):
                 break
             step = _minimum_norm_step(J, r)
             w = w + step

@@ -76,7 +76,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import FloatArray
-from uiest.checks import all_true, check_int, check_real
+from uiest.checks import all_finite, all_true, check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import BlockCurvature, IndexArray
@@ -832,29 +832,24 @@ class GaussNewtonSolver:
 
     # ------------------------------------------------------------------ QP
     def _qp(
-        self,
-        form: _QPForm,
-        h: FloatArray,
-        q: FloatArray,
-        a: FloatArray,
-        bounds: tuple[FloatArray, ...],
-        warm: bool,
-        release_tol: float,
+        self, form: _QPForm, h: FloatArray, point: _Point, warm: bool, release_tol: float
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
-        """``(dz, QP cost, lam_x, lam_a)`` of the QP (cost of ``|r|^2`` units), or None.
+        """``(dz, QP cost, lam_x, lam_a)`` of the QP at ``point`` with Hessian ``h`` (cost of ``|r|^2`` units), or None.
 
         By the form's stage-wise interior point if it has one, else (or if that fails) by qrqp
         (:func:`_solve_qrqp`). ``warm``: start from the running solve's multipliers.
         """
-        state = self._state
+        state, prob = self._state, self.problem
         assert state is not None
         c, start = state.qp_scale, (state.lam_x, state.lam_a) if warm else None
+        q, a, g, z = point.q, point.a, point.g, point.z
         if form.stage is not None:
-            staged = form.stage.solve(h, q, a, bounds, start, scale=c)
+            staged = form.stage.solve(h, q, a, (prob.lbg, prob.ubg, prob.lbx, prob.ubx), start, scale=c, at=(g, z))
             if staged is not None:
                 state.released = False
                 return staged
             self.qp_fallbacks += 1
+        bounds = (prob.lbg - g, prob.ubg - g, prob.lbx - z, prob.ubx - z)
         solved = _solve_qrqp(form, h, q, a, bounds, start, c, release_tol)
         if solved is None:
             return None
@@ -895,17 +890,14 @@ class GaussNewtonSolver:
         ``warm``: the QP starts from the running solve's multipliers, and from scratch if that fails; they
         become the QP's. None if the QP fails.
         """
-        prob, state = self.problem, self._state
+        state = self._state
         assert state is not None
         form, h = self._model(point)
         if damping:
             h = h.copy()
             h[form.diagonal] += damping
-        bounds = (prob.lbg - point.g, prob.ubg - point.g, prob.lbx - point.z, prob.ubx - point.z)
         release_tol = RELEASE_GAIN * (1.0 + point.cost)
-        solved = (warm and self._qp(form, h, point.q, point.a, bounds, True, release_tol)) or self._qp(
-            form, h, point.q, point.a, bounds, False, release_tol
-        )
+        solved = (warm and self._qp(form, h, point, True, release_tol)) or self._qp(form, h, point, False, release_tol)
         if not solved:
             return None
         dz, model, state.lam_x, state.lam_a = solved
@@ -1094,7 +1086,7 @@ class GaussNewtonSolver:
             lam_g=state.lam_a.copy(),
             cost=cost,
             status=status,
-            success=bool(converged and all_true(np.isfinite(z))),
+            success=bool(converged and all_finite(z)),
             iterations=state.iterations,
             solve_time=elapsed,
         )

@@ -57,7 +57,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import Box, FloatArray
-from uiest.checks import all_true
+from uiest.checks import all_finite
 from uiest.errors import DataError, OptionError
 from uiest.system import System
 from uiest.window.model import WindowModel
@@ -579,7 +579,7 @@ class WindowProblem:
         """``p`` with ``parts`` written at their slices; DataError naming a part that is not finite."""
         for key, value in parts.items():
             p[self.parameter_slices[key]] = value
-        if not all_true(np.isfinite(p)):
+        if not all_finite(p):
             key = next((key for key, value in parts.items() if not np.isfinite(value).all()), "base")
             shown = np.asarray(parts[key]).tolist() if key in parts else "a parameter vector that is not finite"
             raise DataError(f"{key}: expected finite window data, got {shown}")

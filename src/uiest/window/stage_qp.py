@@ -142,6 +142,7 @@ class StageForm:
         bounds: tuple[FloatArray, ...],
         guess: tuple[FloatArray, FloatArray] | None = None,
         scale: float = 1.0,
+        at: tuple[FloatArray, FloatArray] | None = None,
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, cost, lam_x, lam_a)`` of ``min 1/2 dz^T H dz + q^T dz``, ``lba <= A dz <= uba``, ``lbx <= dz <= ubx``.
 
@@ -159,6 +160,10 @@ class StageForm:
         scale : float
             The kernel solves the QP with ``H`` and ``q`` times ``scale`` (its tolerances are absolute at that
             scale); the cost and multipliers returned are the unscaled QP's.
+        at : (g, z), optional
+            The point a Gauss-Newton step is taken from, ``g`` (n_con,) and ``z`` (n_var,): ``bounds`` are then the
+            problem's ``(lbg, ubg, lbx, ubx)`` and the QP's are them minus ``(g, g, z, z)`` (taken inside the
+            compiled call).
 
         Returns
         -------
@@ -172,10 +177,12 @@ class StageForm:
             raise OptionError(f"scale: expected a finite number > 0, got {scale!r}")
         lba, uba, lbx, ubx = bounds
         guess_x, guess_a = (self._no_guess, self._no_guess) if guess is None else guess
+        g_at, z_at = (self._no_guess, self._no_guess) if at is None else at
         z, lam_x, lam_a = np.empty(self._n_var), np.empty(self._n_var), np.empty(self._n_con)
         info = self._info
-        code = _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, self._maps, EQUALITY_TOL, GUESS_FLOOR,
-                           *self._kernel_sizes, self._h, self._a, self._c, z, lam_x, lam_a, info)  # fmt: skip
+        code = _solve_form(h, q, a, lba, uba, lbx, ubx, g_at, z_at, guess_x, guess_a, scale, self._maps, EQUALITY_TOL,
+                           GUESS_FLOOR, *self._kernel_sizes, self._h, self._a, self._c, z, lam_x, lam_a,
+                           info)  # fmt: skip
         self.last_status = None if code < 0 else _STATUS_OF[code]
         self.last_counts = int(info[4]), int(info[1])
         if code != QPStatus.SOLVED:
@@ -184,16 +191,18 @@ class StageForm:
 
 
 @numba.njit(cache=True, error_model="numpy")
-def _solve_form(h, q, a, lba, uba, lbx, ubx, guess_x, guess_a, scale, maps, equality_tol, guess_floor, nx, nz, zo,
-                ho, ao, ncs, co, cro, H, A, C, z, lam_x, lam_a, info):  # pragma: no cover (compiled)  # fmt: skip
+def _solve_form(h, q, a, lba, uba, lbx, ubx, g_at, z_at, guess_x, guess_a, scale, maps, equality_tol, guess_floor,
+                nx, nz, zo, ho, ao, ncs, co, cro, H, A, C, z, lam_x, lam_a, info):  # pragma: no cover  # fmt: skip
     """:meth:`StageForm.solve` in one compiled call: scatter, guess, kernel, multipliers in the problem's row order.
 
     The kernel solves the QP with ``H`` and ``q`` times ``scale``; ``lam_x``, ``lam_a`` are divided by it again.
     Returns the kernel's :class:`QPStatus` code, or -1 (nothing solved) if a dynamics row is not an equality.
-    ``guess_x`` empty: no guess. ``info``: the kernel's (cost of the scaled QP, iterations, residual, exact,
-    active-set steps).
+    ``guess_x`` empty: no guess; ``g_at``, ``z_at`` not empty: the bounds are taken relative to them. ``info``: the
+    kernel's (cost of the scaled QP, iterations, residual, exact, active-set steps).
     """
     info[:] = 0.0
+    if g_at.size:
+        lba, uba, lbx, ubx = lba - g_at, uba - g_at, lbx - z_at, ubx - z_at
     c_rows = maps[7]
     n_dyn = (nz.size - 1) * nx
     n_c = c_rows.size

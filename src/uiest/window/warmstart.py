@@ -14,7 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from uiest.box import FloatArray
-from uiest.checks import all_true
+from uiest.checks import all_finite
 from uiest.window.problem import WindowProblem, WindowTrajectory
 from uiest.window.solvers import WindowSolution
 
@@ -48,7 +48,7 @@ def predict_states(
     for i in range(first, L):
         v_i = v_arr[v_rows[i]] if v_arr is not None and v_rows[i] >= 0 else problem.v_center
         nxt = model.step(x[i], u[i], w[i], v_i, d[i])
-        x[i + 1] = box.clip(nxt) if all_true(np.isfinite(nxt)) else x[i]
+        x[i + 1] = box.clip(nxt) if all_finite(nxt) else x[i]
 
 
 def predicted_guess(
