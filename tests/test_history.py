@@ -17,6 +17,8 @@ def test_the_newest_rows_are_those_a_deque_of_the_same_length_holds(capacity):
         for n in range(len(reference) + 1):
             expected = np.array(list(reference)[len(reference) - n :]).reshape(n, 2)
             np.testing.assert_array_equal(history.last(n), expected)
+            extra = np.array([9.0, -9.0])
+            np.testing.assert_array_equal(history.last_and(n, extra), np.vstack((expected, extra)))
         if reference:
             np.testing.assert_array_equal(history[-1], reference[-1])
             np.testing.assert_array_equal(history[-len(reference)], reference[0])
@@ -36,6 +38,8 @@ def test_rows_handed_out_are_copies_and_the_bounds_are_checked():
     np.testing.assert_array_equal(history.last(1), [[1.0]])
     with pytest.raises(IndexError, match="n: expected 0 <= n <= 1, got 2"):
         history.last(2)
+    with pytest.raises(IndexError, match="n: expected 0 <= n <= 1, got 2"):
+        history.last_and(2, np.array([0.0]))
     with pytest.raises(IndexError, match="index: expected -1 <= index < 1, got -2"):
         history[-2]
     empty = RowHistory(0, 3)  # rows without entries (a model without node data)

@@ -519,9 +519,8 @@ class WindowEstimator(StreamingEstimator):
         u_vec = check_u_prev(self.system, u_prev, k)
         y_vec = check_y(self.system, y)
         length, start = window_bounds(k, self.N)
-        u_win = np.concatenate((self._u.last(length - 1), u_vec[None])) if length else np.zeros((0, self.system.nu))
-        past = self._y.last(length)
-        y_win = past if self.one_step_ahead else np.concatenate((past, y_vec[None]))
+        u_win = self._u.last_and(length - 1, u_vec) if length else np.zeros((0, self.system.nu))
+        y_win = self._y.last(length) if self.one_step_ahead else self._y.last_and(length, y_vec)
         prior = self._node_of(x0_prior) if start == 0 else self._priors[0]
         attempts: list[WindowSolution] = []
         window, held = None, False
@@ -621,8 +620,8 @@ class WindowEstimator(StreamingEstimator):
             w_hat=w_hat,
             w_index=w_index,
             outcome=outcome,
-            iterations=sum(a.iterations for a in attempts),
-            solve_time=sum(a.solve_time for a in attempts),
+            iterations=sum([a.iterations for a in attempts]),
+            solve_time=sum([a.solve_time for a in attempts]),
             cost=last.cost if solved and last is not None else (0.0 if outcome in NO_PROBLEM else float("nan")),
             window=length,
             missing=np.isnan(y_vec),

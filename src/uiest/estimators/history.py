@@ -58,6 +58,19 @@ class RowHistory:
         first = (self._count - n) % self.capacity if self.capacity else 0
         return self._rows[first : first + n].copy()
 
+    def last_and(self, n: int, row: FloatArray) -> FloatArray:
+        """The newest ``n`` rows, oldest first, then ``row``: shape (n + 1, width), one new array."""
+        if not 0 <= n <= len(self):
+            raise IndexError(f"n: expected 0 <= n <= {len(self)}, got {n}")
+        out = np.empty((n + 1, self.width))
+        if self.capacity is None:
+            out[:n] = self._rows[self._count - n : self._count]
+        elif n:
+            first = (self._count - n) % self.capacity
+            out[:n] = self._rows[first : first + n]
+        out[n] = row
+        return out
+
     def __getitem__(self, index: int) -> FloatArray:
         """A copy of row ``index`` (negative: from the newest, ``-1`` the newest; else from the oldest held)."""
         held = len(self)
