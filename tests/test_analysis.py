@@ -342,3 +342,37 @@ def test_an_unbounded_x_without_zeros_is_told_to_give_bounds():
     assert "give X bounds (x_bounds) and analyse again" in free.reason
     bounded = analyse(cart(x_bounds=(-10.0, 10.0)))
     assert bounded.x_bounded and "give X bounds" not in bounded.reason
+
+
+def test_an_input_no_output_sees_leaves_unbounded_only_the_states_it_moves():
+    # w2 drives x4 alone, which no output sees; x1..x3 are measured: their floor is their noise's reach, not
+    # "unbounded" (the floor once multiplied their zero motion along w2's direction by an infinite gain: 0 * inf)
+    import warnings
+
+    from uiest.models.linear import linear_system
+
+    A = np.array([[0.8, 0.1, 0.0, 0.0], [0.2, 0.7, 0.1, 0.0], [0.0, 0.3, 0.6, 0.0], [0.1, 0.0, 0.0, 0.8]])
+    B = np.array([[1.0, 0.0], [0.0, 0.0], [0.0, 0.0], [0.0, 1.0]])
+    C = np.eye(4)[:3]
+    system = linear_system(A, B, C, x_bounds=(-50, 50), v_bounds=(-0.01, 0.01))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        floor = analyse(system, points=4).near_zeros.error_floor
+    assert np.all(np.isfinite(floor[:3])) and np.all(floor[:3] < 0.05) and floor[3] == np.inf
+
+
+def test_a_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_unbounded():
+    # zero at 1.25 (x3 driven by x2, y = (x1, x2)): a motion growing 1.25-fold per sample shows in no output, so
+    # x3's error is unbounded; the floor once looked at |z| = 1 only and reported 0.016
+    from uiest.analysis.recommend import frequency_text
+    from uiest.models.linear import linear_system
+
+    A = np.array([[0.6, 0.3, 0.0], [0.2, 0.5, 0.1], [0.0, 0.5, 1.25]])
+    system = linear_system(A, np.array([[0.0], [1.0], [0.0]]), np.eye(3)[:2], x_bounds=(-20, 20),
+                           v_bounds=(-0.01, 0.01))  # fmt: skip
+    a = analyse(system, points=4)
+    assert a.near_zeros.floor_z == pytest.approx(1.25)
+    assert np.all(a.near_zeros.error_floor[:2] < 0.05) and a.near_zeros.error_floor[2] == np.inf
+    assert "growing 1.25-fold per sample" in a.reason
+    assert frequency_text(1.0 + 0j) == "constant or slowly drifting"
+    assert frequency_text(-1.5 + 0j) == "alternating every sample and growing 1.5-fold per sample"

@@ -17,7 +17,9 @@ measurements, so any estimator that allows arbitrary unknown inputs errs on one 
     floor_i = max_omega |xi_i| / |diag(eps)^-1 C xi|     (state i's units)
 
 the **error floor** reported: the largest over the frequencies and points, of the model linearised
-there (a lower bound for small motions; it says nothing about motions that leave X).
+there (a lower bound for small motions; it says nothing about motions that leave X). At an invariant zero ``z``
+with ``|z| >= 1`` the motion ``xi z^k`` moves no output at all and does not decay: the floor is unbounded for the
+states it moves (a linearisation's zero away from an equilibrium describes that linearisation only).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from scipy.optimize import minimize_scalar
 
 from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
+from uiest.detectability.linear import invariant_zeros
 from uiest.system import System
 
 __all__ = ["FrequencyMinimum", "NearZeros", "find_near_zeros"]
@@ -129,8 +132,14 @@ def sigma(A: FloatArray, Q: FloatArray, C: FloatArray, z: np.ndarray) -> FloatAr
     return s[:, -1] / s[:, 0]
 
 
-def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray, z: np.ndarray) -> FloatArray:
-    """The floor per state (state units) at each z: shape (len(z), nx); inf where the outputs do not move."""
+def _floor(
+    A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray, z: np.ndarray, unseen_rtol: float = 1e-14
+) -> FloatArray:
+    """The floor per state (state units) at each z: shape (len(z), nx); inf where the outputs do not move.
+
+    An input direction moves no output where its outputs' motion is below ``unseen_rtol`` times the largest, or
+    times what ``C_noise`` would show of its state motion.
+    """
     n = A.shape[0]
     if not Q.shape[1]:  # no unknown input: nothing is hidden
         return np.zeros((len(z), n))
@@ -146,13 +155,45 @@ def _floor(A: FloatArray, Q: FloatArray, C_noise: FloatArray, scale: FloatArray,
         return floors
     Y = C_noise @ T  # outputs over their noise amplitudes
     _, s, Vh = np.linalg.svd(Y, full_matrices=False)
-    with np.errstate(divide="ignore"):
-        inverse = np.where(s > 1e-14 * s[:, :1], 1.0 / s, np.inf)
+    moved = T @ np.conj(np.swapaxes(Vh, 1, 2))  # each state's motion along each input direction
+    shown = np.linalg.norm(C_noise, 2) * np.linalg.norm(moved, axis=1)  # what the outputs could show of it
+    unseen = ~((s > unseen_rtol * s[:, :1]) & (s > unseen_rtol * shown))  # input directions that move no output
+    inverse = np.where(unseen, 0.0, 1.0 / np.where(unseen, 1.0, s))
     # floor_i^2 = x_i (Y^H Y)^-1 x_i^H with x_i the i-th row of T (state units): |x_i V diag(1/s)|
-    projected = (T @ np.conj(np.swapaxes(Vh, 1, 2))) * inverse[:, None, :]
-    values = np.sqrt(np.sum(np.abs(np.nan_to_num(projected, nan=np.inf)) ** 2, axis=2)) * scale[None, :]
-    floors[regular] = values
+    values = np.sqrt(np.sum(np.abs(moved * inverse[:, None, :]) ** 2, axis=2)) * scale[None, :]
+    # a direction no output sees leaves the states it moves unbounded, and no others (a measured state's
+    # motion along it is zero, to rounding)
+    size = np.max(np.abs(T), axis=(1, 2), initial=0.0)[:, None, None]
+    hidden = np.any(unseen[:, None, :] & (np.abs(moved) > UNSEEN_MOTION * size), axis=2)
+    floors[regular] = np.where(hidden, np.inf, values)
     return floors
+
+
+ZERO_RTOL = 1e-8
+"""At a computed invariant zero, the outputs' gain along the zero's input direction is rounding: below this share of
+the largest it counts as none (:func:`invariant_zeros` finds zeros to a relative 1e-9)."""
+
+UNSEEN_MOTION = 1e-9
+"""A state moves along an input direction no output sees when its motion exceeds this share of the largest
+(relative to ``|(zI - A)^-1 Q|``): below it the motion is rounding, and the direction bounds the state."""
+
+
+def _floor_at_outer_zeros(
+    lin: Linearisations, bases: list[FloatArray], C_noise: list[FloatArray], scale: FloatArray
+) -> tuple[complex, FloatArray, FloatArray] | None:
+    """The floor at the invariant zeros with ``|z| >= 1`` (module docstring), or None where there is none.
+
+    ``(z, floor, point)`` of the zero of largest modulus over the points.
+    """
+    found = None
+    for i in range(lin.count):
+        zeros = invariant_zeros(lin.A[i], lin.B[i], lin.C[i])
+        outer = zeros[np.abs(zeros) >= 1.0]
+        if outer.size and (found is None or np.abs(outer).max() > abs(found[0])):
+            z = complex(outer[np.argmax(np.abs(outer))])
+            floor = _floor(lin.A[i], bases[i], C_noise[i], scale, np.array([z]), unseen_rtol=ZERO_RTOL)[0]
+            found = z, floor, lin.x[i] * 1.0
+    return found
 
 
 def _solved(M: np.ndarray, Q: FloatArray) -> np.ndarray:
@@ -227,6 +268,9 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         refined = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
         floor = np.maximum(np.max(floors, axis=(0, 1)), refined)
         floor_point = lin.x[p] * 1.0
+        outside = _floor_at_outer_zeros(lin, bases, C_noise, system.x.scale)
+        if outside is not None and np.max(outside[1] / width) > np.max(floor / width):
+            floor_z, floor, floor_point = outside[0], np.maximum(floor, outside[1]), outside[2]
     return NearZeros(
         unit_circle=unit,
         ring=ring,

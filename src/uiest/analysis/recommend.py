@@ -132,13 +132,15 @@ def point_text(names: tuple[str, ...], x: np.ndarray) -> str:
 
 
 def frequency_text(z: complex) -> str:
-    """What an input ``Re(omega z^k)`` does: alternates every sample, drifts, or oscillates with a period."""
+    """What an input ``Re(omega z^k)`` does: alternates every sample, drifts, or oscillates; grows where ``|z| > 1``."""
     theta = abs(float(np.angle(z)))
+    growing = abs(z) > 1.0 + 1e-9
+    growth = f"growing {number(abs(z))}-fold per sample"
     if theta >= 0.95 * np.pi:
-        return "alternating every sample"
+        return "alternating every sample" + (f" and {growth}" if growing else "")
     if theta <= 1e-3:
-        return "constant or slowly drifting"
-    return f"oscillating with a period of {2 * np.pi / theta:.3g} samples"
+        return growth if growing else "constant or slowly drifting"
+    return f"oscillating with a period of {2 * np.pi / theta:.3g} samples" + (f" and {growth}" if growing else "")
 
 
 def zero_text(a: ModelAnalysis, zero: Zero, degree: int | None = None) -> str:
