@@ -95,6 +95,7 @@ def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
     assert np.sqrt(np.mean((uise["c_A_hat"] - truth["c_A"]) ** 2)) < 5e-3  # measured 8e-4
     assert (out / "estimates_ekf.csv").is_file() and (out / "estimates.png").stat().st_size > 10_000
     assert "likelihood's" in result.output and "interior" in result.output  # fitted to the data given
+    assert "(from the model's setup()), the record's true x[0]" in " ".join(result.output.split())
     refused = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "kf",
                                        "--out", str(out)])  # fmt: skip
     assert refused.exit_code == 2 and "--estimator: expected one of" in refused.output
@@ -111,6 +112,12 @@ def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one(
         build_estimator("uise", entry, system, np.zeros(3))
     with pytest.raises(ModelError, match="has no reduction"):
         build_estimator("two-stage", entry, system, np.zeros(3))
+    # an input no output ever sees: no pointer to the delayed UISE, which then refused too
+    unseen = linear_models.linear_system(np.diag([0.8, 0.7]), [[1.0, 0.0], [0.0, 1.0]], [[1.0, 0.0]],
+                                         x_bounds=(-100, 100), v_bounds=(-0.05, 0.05))  # fmt: skip
+    entry = register("unseen-for-estimate", lambda: unseen, replace=True)
+    with pytest.raises(ModelError, match=r"matching fails .* the delayed UISE does not apply either \("):
+        build_estimator("uise", entry, unseen, np.zeros(2))
 
 
 @pytest.mark.slow
@@ -181,6 +188,7 @@ def test_estimate_on_a_model_whose_x_means_unbounded_takes_scales_from_the_data(
                                       "--estimator", "uio", "--x0", "0,0,0", "--out", str(out)])  # fmt: skip
     assert result.exit_code == 0, result.output
     assert "scale" not in result.output, result.output
+    assert "prior x[0]: x[0] 0, x[1] 0, x[2] 0 (from --x0)" in " ".join(result.output.split())
     columns = [f"x[{i}]_hat" for i in range(3)]
     rmse = {kind: np.sqrt(np.mean((pd.read_csv(out / f"estimates_{kind}.csv")[columns].to_numpy() - traj.x) ** 2))
             for kind in ("uise", "uio")}  # fmt: skip

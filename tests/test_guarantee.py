@@ -226,3 +226,24 @@ def test_the_delayed_uise_bounds_the_states_b_alone_determines():
     assert np.isnan(g.error_bound[0]) and np.all(np.isfinite(g.error_bound[1:]))
     assert "no bound for x[0]: these states depend on a = T_a x" in str(g)
     assert "; it bounds x_hat[k], not the lagged estimates x[k-lag]" in g.assumes
+
+
+def test_a_run_with_an_outage_suspends_its_guarantee_and_says_until_when():
+    # the missing-data guide's outage: the run's guarantee once said "holds" while x1's error reached 73 times its
+    # bound after the gap; the bound assumes every output measured
+    system = closed_form.system(x_bounds=((-100.0, -10.0), (100.0, 10.0)))
+    truth = simulate(system, [0.5, 1.0], 90, u=np.zeros(1), w=lambda k, x: [-0.5 * x[0] + np.sin(0.2 * k)])
+    y = truth.y.copy()
+    y[20:60] = np.nan
+    uise = UISE(system, certificate=certify_strong_detectability(system), x0_prior=[0.0, 0.0])
+    settling = uise.guarantee.settling_steps
+    result = uise.run(truth.u, y)
+    run = result.guarantee
+    assert run.suspended == (20, 59) and run.resumes == 59 + uise.N + 1 + settling and run.run_steps == 91
+    assert run.applies and run.to_dict()["suspended"] == [20, 59]
+    assert "at k = 20..59" in run.text and f"again from k = {run.resumes}, after the run's end (k = 90)" in run.text
+    full = uise.run(truth.u, truth.y).guarantee
+    assert full.suspended is None and full.text == uise.guarantee.text  # settles within the run: nothing to add
+    short = uise.run(truth.u[:10], truth.y[:11]).guarantee
+    assert short.text.endswith("The run ends at k = 10, before the bound applies") and settling > 10
+    assert UISE(system, weights=uise.weights, N=5, x0_prior=[0.0, 0.0]).run(truth.u, y).guarantee.suspended is None

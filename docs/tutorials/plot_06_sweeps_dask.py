@@ -99,7 +99,10 @@ serial[columns].sort_values(["estimator", "N", "noise_scale", "run"]).reset_inde
 # of seconds on a loaded machine (compare the wall times printed), which pays off for sweeps of
 # minutes, not for this one. Start a cluster only under
 # ``if __name__ == "__main__":``: Dask's worker processes import the main module (in a script, this
-# file), and without the guard each would try to start a cluster of its own.
+# file), and without the guard each would try to start a cluster of its own. Everything outside the
+# guard also runs again in each worker: run as a script, this file computes its serial sweep once more
+# per worker. A script of your own puts all its work under the guard (or in a function called there);
+# the tutorial keeps the steps at the top level to show them one by one.
 if __name__ == "__main__":
     t0 = time.perf_counter()
     distributed = sweep(design, out / "dask", workers=2, scheduler="local")

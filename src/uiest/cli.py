@@ -241,7 +241,12 @@ def estimate(
         ),
     ] = None,
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/estimate"),
-    lag: Annotated[int, typer.Option(help="Also deliver x[k-lag] from each window; lag in samples (0: none).")] = 0,
+    lag: Annotated[
+        int,
+        typer.Option(
+            help="Also deliver x[k-lag] from each window estimator (filters have no window); lag in samples (0: none)."
+        ),
+    ] = 0,
     horizon: Annotated[
         int | None,
         typer.Option(
@@ -287,7 +292,8 @@ def estimate(
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
             results = run_estimators(built, record, prior)
-    _print_estimates(f"{entry.name}: {record.steps} steps from {data}", system, record, results, notes, skipped)
+    title = f"{entry.name}: {record.steps} steps from {data}; {_prior_text(system, record, prior, x0, entry)}"
+    _print_estimates(title, system, record, results, notes, skipped)
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
         if issubclass(caught_warning.category, BoundWarning):
             error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
@@ -307,6 +313,20 @@ def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
     except ValueError:
         raise OptionError(f"--x0: expected {system.nx} comma-separated numbers, got {x0!r}") from None
     return as_vector(values, system.nx, "--x0")
+
+
+def _prior_text(system: Any, record: Any, prior: Any, x0: str | None, entry: Any) -> str:
+    """Which prior of x[0] the estimators start from, where it came from, and whether it is the record's truth."""
+    import numpy as np  # where a command needs it: `uiest --version` stays light
+
+    source = "--x0" if x0 is not None else ("the model's setup()" if entry.setup is not None else "X's centre")
+    values = ", ".join(f"{name} {value:.4g}" + (f" {unit}" if unit not in ("", "-") else "")
+                       for name, value, unit in zip(system.x.names, prior, system.x.units, strict=True))  # fmt: skip
+    text = f"prior x[0]: {values} (from {source})"
+    truth = record.x[0] if record.x is not None and len(record.x) else None
+    if truth is not None and np.all(np.isfinite(truth)) and np.allclose(prior, truth, rtol=1e-9, atol=0.0):
+        text += ", the record's true x[0]: the errors leave out a start from a wrong prior (give --x0)"
+    return text
 
 
 RUN_DESIGNS_ITS_OWN = (

@@ -203,10 +203,12 @@ def build_estimator(
     if kind in ("uise", "two-stage"):
         rank_CB, rank_B = matching_ranks(system)
         if rank_CB < rank_B:  # no fallback weights help: x[k] is not determined by y[..k]
-            raise ModelError(
-                f"--estimator {kind}: matching fails (rank(C B) = {rank_CB} < rank(B) = {rank_B}); for an unknown "
-                "input of relative degree 2 use --estimator delayed"
-            )
+            try:
+                delayed_system(system)
+                hint = "the delayed UISE applies: use --estimator delayed"
+            except ModelError as exc:
+                hint = f"the delayed UISE does not apply either ({exc})"
+            raise ModelError(f"--estimator {kind}: matching fails (rank(C B) = {rank_CB} < rank(B) = {rank_B}); {hint}")
     if kind in ("uise", "delayed", "two-stage"):
         # without a horizon: N <= 30, or up to 60 where none of at most 30 certifies (the certificates reused); the
         # longer limit within what the model's window may take in memory

@@ -15,6 +15,7 @@ The numbers come from :mod:`uiest.estimators.bounds` (each estimator's theorem);
 
 from __future__ import annotations
 
+import dataclasses
 import enum
 from dataclasses import dataclass
 
@@ -87,6 +88,14 @@ class Guarantee:
     information_horizon : int or None
         The longest window whose every cost term counts in double precision
         (:mod:`uiest.estimators.horizon`; None: no such limit, or no window).
+    suspended : (int, int) or None
+        A run's guarantee only (:meth:`for_run`): the first and last steps whose data or solve broke what the
+        bound assumes (an output missing, or a window not solved); None when none did.
+    resumes : int or None
+        With :attr:`suspended`: the step from which the bound holds again (the window full of measured outputs,
+        then :attr:`settling_steps` from an error as large as X allows; None without settling steps).
+    run_steps : int or None
+        A run's guarantee only: the run's steps ``K + 1`` (the text says where the bound applies to none of them).
 
     """
 
@@ -105,6 +114,9 @@ class Guarantee:
     requested_horizon: int | None = None
     information_horizon: int | None = None
     grows: bool = False
+    suspended: tuple[int, int] | None = None
+    resumes: int | None = None
+    run_steps: int | None = None
 
     def __post_init__(self) -> None:
         width = np.array(self.x_width, dtype=float, ndmin=1)
@@ -124,6 +136,21 @@ class Guarantee:
              units: tuple[str, ...]) -> Guarantee:  # fmt: skip
         """A theorem that does not apply, and why."""
         return cls(theorem=theorem, applies=False, reason=reason, x_width=x_width, names=names, units=units)
+
+    def for_run(self, broken: np.ndarray) -> Guarantee:
+        """The guarantee as a run of ``K + 1`` steps met it (:attr:`suspended`, :attr:`resumes`).
+
+        ``broken`` (K+1,) bool marks the steps whose data or solve broke what the bound assumes; the guarantee itself
+        where none did or it does not apply.
+        """
+        if not self.applies:
+            return self
+        steps = np.flatnonzero(broken)
+        if not steps.size:
+            return dataclasses.replace(self, run_steps=len(broken))
+        first, last = int(steps[0]), int(steps[-1])
+        resumes = None if self.settling_steps is None else last + (self.horizon or 0) + 1 + self.settling_steps
+        return dataclasses.replace(self, suspended=(first, last), resumes=resumes, run_steps=len(broken))
 
     @property
     def capped(self) -> bool:
@@ -177,18 +204,30 @@ class Guarantee:
     # ------------------------------------------------------------------ text
     @property
     def text(self) -> str:
-        """One line derived from the numbers (module docstring), and the window's cap where it was capped."""
-        if not self.capped:
-            return self._verdict_text()
-        if self.grows:
-            return (
-                f"{self._verdict_text()}. The window grows from time 0 to N={self.horizon} and slides from there: "
+        """One line derived from the numbers (module docstring), the window's cap and where a run suspended it."""
+        text = self._verdict_text()
+        if self.capped and self.grows:
+            text += (
+                f". The window grows from time 0 to N={self.horizon} and slides from there: its information horizon "
+                "(older cost terms would fall below double precision)"
+            )
+        elif self.capped:
+            text += (
+                f". The window runs N={self.horizon}, not the N={self.requested_horizon} asked for: it is capped at "
                 "its information horizon (older cost terms would fall below double precision)"
             )
-        return (
-            f"{self._verdict_text()}. The window runs N={self.horizon}, not the N={self.requested_horizon} asked for: "
-            "it is capped at its information horizon (older cost terms would fall below double precision)"
-        )
+        end = None if self.run_steps is None else self.run_steps - 1  # the run's last step
+        if self.suspended is not None:
+            first, last = self.suspended
+            steps = f"k = {first}" if first == last else f"k = {first}..{last}"
+            text += (f". Suspended in this run: an output was missing or a window not solved at {steps}, and the "
+                     "bound assumes every output measured")  # fmt: skip
+            if self.resumes is not None:
+                beyond = end is not None and self.resumes > end
+                text += f"; it applies again from k = {self.resumes}" + (f", after the run's end (k = {end})" * beyond)
+        elif end is not None and self.settling_steps is not None and self.settling_steps > end:
+            text += f". The run ends at k = {end}, before the bound applies"
+        return text
 
     def _verdict_text(self) -> str:
         verdict = self.verdict
@@ -255,6 +294,9 @@ class Guarantee:
             "information_horizon": self.information_horizon,
             "grows": self.grows,
             "capped": self.capped,
+            "suspended": None if self.suspended is None else list(self.suspended),
+            "resumes": self.resumes,
+            "run_steps": self.run_steps,
             "text": self.text,
         }
 

@@ -23,7 +23,7 @@ from uiest.checks import real_array, shown
 from uiest.errors import DataError
 from uiest.guarantee import Guarantee
 from uiest.health import FAILURES, Outcome, status_text
-from uiest.sampling import on_time_grid
+from uiest.sampling import on_time_grid, warn_absent
 from uiest.system import System
 
 if TYPE_CHECKING:
@@ -181,6 +181,7 @@ class Trajectory(_PicklableNames):
             bad = int(np.argwhere(~np.isfinite(arrays["u"]))[0][0])
             why = "is absent from the record (a gap in k or t)" if bad in filled else f"has {arrays['u'][bad]}"
             raise DataError(f"frame: the known input u must be given at every k < K; row {bad} {why}")
+        warn_absent(filled, "t" if "t" in frame.columns else "k")
         t = frame["t"].to_numpy(dtype=float) if "t" in frame.columns else np.arange(rows, dtype=np.float64) * system.dt
         names = {sig.kind: sig.names for sig in system.signals}
         return cls(t=t, x=arrays["x"], u=arrays["u"], w=arrays["w"], v=arrays["v"], y=arrays["y"], names=names,

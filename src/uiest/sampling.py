@@ -20,7 +20,7 @@ from uiest.errors import DataError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["on_time_grid"]
+__all__ = ["on_time_grid", "warn_absent"]
 
 FILLED_BYTES_LIMIT = 2**30
 """Largest table (rows x columns x 8 bytes) that gaps may be filled to: 1 GiB.
@@ -86,14 +86,21 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
     out = frame.set_axis(pd.Index(position), axis=0).reindex(pd.RangeIndex(rows))
     if t0 is not None:
         out["t"] = t0 + np.arange(rows) * dt
+    return out, filled
+
+
+def warn_absent(filled: np.ndarray, column: str) -> None:
+    """Warn that the time indices ``filled`` were absent from the record (gaps in ``column``), now missing samples.
+
+    Called once the record is accepted with them (a model with a known input refuses such gaps).
+    """
     if filled.size:
         warnings.warn(
-            f"frame: {filled.size} samples are absent from the record (gaps in {'t' if has_t else 'k'}, first at "
+            f"frame: {filled.size} samples are absent from the record (gaps in {column}, first at "
             f"k = {int(filled[0])}): kept as missing samples (NaN)",
             UserWarning,
             stacklevel=user_stacklevel(),
         )
-    return out, filled
 
 
 def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:

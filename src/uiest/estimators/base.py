@@ -42,7 +42,7 @@ from typing import Any, ClassVar
 
 import casadi as ca
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import all_true, any_true, check_flag, user_stacklevel
@@ -863,7 +863,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         missing=np.isnan(y_arr),
         estimator=estimator.estimator_name,
         horizon=estimator.N,
-        guarantee=estimator.guarantee,
+        guarantee=estimator.guarantee.for_run(_breaks_assumptions(outcome, y_arr)),
         names={"x": s.x.names, "w": s.w.names},
         time_unit=s.time_unit,
         x_lag=x_lag if lag else None,
@@ -872,6 +872,16 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
         cpu_time=cpu_time,
     )
+
+
+def _breaks_assumptions(outcome: list[str], y: FloatArray) -> NDArray[np.bool_]:
+    """(K+1,) bool: the steps whose data or solve break what a guarantee's bound assumes.
+
+    Every output measured, every window solved: a missing output, or an outcome other than solved, updated, the
+    prior or algebraic.
+    """
+    unbroken = {Outcome.SOLVED.value, Outcome.UPDATED.value, Outcome.PRIOR.value, Outcome.ALGEBRAIC.value}
+    return np.isnan(y).any(axis=1) | np.array([value not in unbroken for value in outcome], dtype=bool)
 
 
 __all__ = ["StreamingEstimator", "WindowEstimator", "WindowOptions", "collect_run"]

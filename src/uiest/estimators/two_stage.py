@@ -288,7 +288,7 @@ class TwoStageUISE(WindowEstimator):
             z_scale = np.zeros(0)
         else:
             theorem = self.theorem
-            missing = self._horizon_missing("reduced i-IOSS", TWO_STAGE_HORIZON)
+            missing = self._horizon_missing("reduced e-IOSS", TWO_STAGE_HORIZON)
             if missing:
                 return self._no_guarantee(theorem, missing)
             assert self.weights is not None and self.N is not None and self.certificate is not None
