@@ -376,3 +376,17 @@ def test_a_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_unbou
     assert "growing 1.25-fold per sample" in a.reason
     assert frequency_text(1.0 + 0j) == "constant or slowly drifting"
     assert frequency_text(-1.5 + 0j) == "alternating every sample and growing 1.5-fold per sample"
+
+
+def test_a_sampled_zero_far_from_its_continuous_image_is_not_called_the_continuous_models():
+    # a washout chemostat sampled with its input direction frozen at X's centre had a zero at 1.086 that paired
+    # with the continuous zero's image 0.974 and was called "from the continuous model"
+    from uiest.analysis.zeros import _zeros_at
+
+    A_c, G, C, dt = np.array([[0.0, 0.0], [1.0, -0.2]]), np.array([[1.0], [0.0]]), np.array([[1.0, 0.0]]), 0.1
+    B = np.array([[dt], [0.0]])
+    (moved,) = _zeros_at(np.array([[1.0, 0.0], [dt, 1.086]]), B, C, A_c, G, dt)
+    assert moved.value == pytest.approx(1.086) and moved.from_sampling is None
+    assert moved.image == pytest.approx(np.exp(-0.2 * dt))
+    (kept,) = _zeros_at(np.array([[1.0, 0.0], [dt, np.exp(-0.2 * dt) + 1e-4]]), B, C, A_c, G, dt)
+    assert kept.from_sampling is False and kept.image is None

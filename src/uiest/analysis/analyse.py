@@ -108,7 +108,7 @@ def analyse(
         dt=system.dt, time_unit=system.time_unit,
         continuous_method=None if system.sampled_from is None else system.sampled_from.method,
         x_width=np.where(np.isfinite(width), width, system.x.scale), reference=prior,
-        x_bounded=bool(system.x.bounds.is_bounded),
+        x_bounded=bool(system.x.bounds.is_bounded), linear=lin.constant,
         rank_CB=rank_CB, rank_B=rank_B, steps=steps,
         continuous_degree=continuous, zeros=zeros, near_zeros=near, random_walk=walk, strong=strong, delayed=delayed,
         recommendation=recommendation, cause=cause, max_horizon=max_horizon, cpu_time=time.thread_time() - start,

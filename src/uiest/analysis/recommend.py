@@ -158,6 +158,10 @@ def zero_text(a: ModelAnalysis, zero: Zero, degree: int | None = None) -> str:
             if degree
             else (", created by sampling")
         )
+    elif zero.image is not None:
+        text += (f", where the continuous model has its zero at exp(s dt) = {complex_number(zero.image)} (the sampled "
+                 "model moves it: see System.from_ode's warnings, or sample with more substeps or "
+                 "input_channel='rk4')")  # fmt: skip
     elif zero.unstable_step and zero.from_sampling is None:
         text += (
             ", where the model's RK4 step grows a mode the ODE damps (the zero may come from the integrator, not the "
@@ -196,7 +200,10 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
                                                                 strict=True))  # fmt: skip
     near_zero = "" if limiting_zero(a) is not None else _near_zero_text(a, near.floor_z)
     inputs = ", ".join(a.input_names)
-    return (f"an unknown input ({inputs}) {frequency_text(near.floor_z)}{near_zero} moves {' and '.join(parts)} "
+    where = ""
+    if not a.linear and near.floor_point is not None:
+        where = f"in the model linearised at {point_text(a.state_names, near.floor_point)}, "
+    return (f"{where}an unknown input ({inputs}) {frequency_text(near.floor_z)}{near_zero} moves {' and '.join(parts)} "
             f"while the outputs move within their noise ({noise}), an error no estimator that allows arbitrary "
             "unknown inputs can rule out")  # fmt: skip
 
@@ -260,8 +267,15 @@ def reason(a: ModelAnalysis) -> str:
     elif cause is Cause.ZERO_OUTSIDE:
         zero = a.zeros.largest
         assert zero is not None and a.zeros.largest_at is not None
-        text = (f"the model linearised at {point_text(a.state_names, a.zeros.largest_at)} has {zero_text(a, zero)}, "
-                f"|z| = {number(zero.modulus)} >= 1, so it is not strongly detectable")  # fmt: skip
+        if a.linear:
+            text = (f"the model has {zero_text(a, zero)}, |z| = {number(zero.modulus)} >= 1, so it is not strongly "
+                    "detectable")  # fmt: skip
+        else:
+            text = (f"the model linearised at {point_text(a.state_names, a.zeros.largest_at)} has "
+                    f"{zero_text(a, zero)}, |z| = {number(zero.modulus)} >= 1, so strong detectability has no "
+                    "certificate over X of the kind uiest computes (a quadratic storage; its rate would be at least "
+                    f"|z|^2 = {number(zero.modulus**2)}); the zero is that linearisation's, and the model's "
+                    "trajectories may still determine the state")  # fmt: skip
         limiting = None
     elif cause is Cause.NOT_CERTIFIED:
         text = f"strong detectability is {_certificate_text(strong)}"

@@ -44,6 +44,9 @@ class ModelAnalysis:
         X's width (the state scale where X is unbounded).
     x_bounded : bool
         Every side of X is finite (a certificate needs it).
+    linear : bool
+        The model's Jacobians are the same at every point linearised (a linear or affine model): its zeros are the
+        model's, not one point's.
     reference : ndarray (nx,)
         The reference point (x0, or X's centre): the first linearisation point.
     rank_CB, rank_B : int
@@ -81,6 +84,7 @@ class ModelAnalysis:
     continuous_method: str | None
     x_width: FloatArray
     x_bounded: bool
+    linear: bool
     reference: FloatArray
     rank_CB: int  # noqa: N815
     rank_B: int  # noqa: N815
@@ -120,7 +124,10 @@ class ModelAnalysis:
             notes = []
             if z.from_sampling is not None:
                 notes.append("created by sampling" if z.from_sampling else "from the continuous model")
-            elif z.unstable_step:
+            elif z.image is not None:
+                notes.append(f"the continuous model's is at exp(s dt) = {complex_number(z.image)}: the sampled "
+                             "model moved it")  # fmt: skip
+            if z.from_sampling is None and z.unstable_step:
                 notes.append("where the RK4 step grows a decaying mode: it may come from the integrator")
             if z.limit is not None:
                 notes.append(f"{number(z.limit)} as dt -> 0")
@@ -241,6 +248,7 @@ class ModelAnalysis:
             "continuous_method": self.continuous_method,
             "x_width": self.x_width.tolist(),
             "x_bounded": self.x_bounded,
+            "linear": self.linear,
             "reference": self.reference.tolist(),
             "rank_CB": self.rank_CB,
             "rank_B": self.rank_B,

@@ -49,6 +49,9 @@ class Zero:
     unstable_step : bool
         The model's RK4 step grows where the ODE decays at the point of the zero (``System.from_ode`` warns): a
         zero that is not the image of a continuous one may come from the integrator, not from sampling the plant.
+    image : complex or None
+        The image ``exp(s dt)`` of the continuous zero this one pairs with, where it lies far from it
+        (:func:`matches_image`): the sampled model moved the plant's zero (``from_sampling`` is then None).
 
     """
 
@@ -56,6 +59,7 @@ class Zero:
     from_sampling: bool | None = None
     limit: float | None = None
     unstable_step: bool = False
+    image: complex | None = None
 
     @property
     def modulus(self) -> float:
@@ -65,8 +69,8 @@ class Zero:
     def to_dict(self) -> dict[str, object]:
         """Plain data for JSON."""
         return {"real": self.value.real, "imag": self.value.imag, "modulus": self.modulus,
-                "from_sampling": self.from_sampling, "limit": self.limit,
-                "unstable_step": self.unstable_step}  # fmt: skip
+                "from_sampling": self.from_sampling, "limit": self.limit, "unstable_step": self.unstable_step,
+                "image": None if self.image is None else [self.image.real, self.image.imag]}  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -144,14 +148,30 @@ class Zeros:
         }
 
 
-def created_by_sampling(sampled: ComplexArray, continuous: ComplexArray, dt: float) -> np.ndarray:
-    """(len(sampled),) bool: the sampled zeros not paired with an image ``exp(s dt)`` of a continuous zero s."""
-    unpaired = np.ones(len(sampled), dtype=bool)
+def continuous_images(sampled: ComplexArray, continuous: ComplexArray, dt: float) -> ComplexArray:
+    """(len(sampled),) complex: the image ``exp(s dt)`` of the continuous zero s paired with each sampled zero.
+
+    NaN for the sampled zeros no continuous zero pairs with (sampling created them). Pairs minimise the total
+    distance; a pair may still lie far apart where the sampled model misstates the plant (:func:`matches_image`).
+    """
+    images = np.full(len(sampled), complex(np.nan, np.nan))
     if len(sampled) and len(continuous):
-        images = np.exp(np.asarray(continuous) * dt)
-        rows, _ = linear_sum_assignment(np.abs(np.asarray(sampled)[:, None] - images[None, :]))
-        unpaired[rows] = False
-    return unpaired
+        exact = np.exp(np.asarray(continuous) * dt)
+        rows, cols = linear_sum_assignment(np.abs(np.asarray(sampled)[:, None] - exact[None, :]))
+        images[rows] = exact[cols]
+    return images
+
+
+IMAGE_TOL = (1e-3, 0.5)
+"""A sampled zero z matches the image ``exp(s dt)`` of its continuous zero when ``|z - exp(s dt)|`` is at most the
+larger of the first and the second times ``|1 - |exp(s dt)||`` (half its distance to the unit circle: the pair
+agrees on how fast the zero's motion decays or grows)."""
+
+
+def matches_image(z: complex, image: complex) -> bool:
+    """Whether the sampled zero ``z`` lies near the continuous zero's image (:data:`IMAGE_TOL`)."""
+    absolute, relative = IMAGE_TOL
+    return bool(abs(z - image) <= max(absolute, relative * abs(1.0 - abs(image))))
 
 
 def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | None, G: FloatArray | None,
@@ -165,10 +185,13 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     found = invariant_zeros(A, B, C)
     if A_c is None or G is None:
         return tuple(Zero(value=complex(z)) for z in found)
-    sampling = created_by_sampling(found, invariant_zeros(A_c, G, C), dt)
+    images = continuous_images(found, invariant_zeros(A_c, G, C), dt)
+    sampling = np.isnan(images)
+    # a paired zero far from its image: the sampled model moved it (from_sampling None, the image kept)
+    moved = {i: complex(images[i]) for i in np.flatnonzero(~sampling) if not matches_image(found[i], images[i])}
     if step is not None and rk4_grows(np.linalg.eigvals(A_c), step).any():
-        return tuple(Zero(value=complex(z), from_sampling=None if sampling[i] else False, unstable_step=True)
-                     for i, z in enumerate(found))  # fmt: skip
+        return tuple(Zero(value=complex(z), from_sampling=None if sampling[i] or i in moved else False,
+                          unstable_step=True, image=moved.get(i)) for i, z in enumerate(found))  # fmt: skip
     limits: dict[int, float] = {}
     roots = euler_frobenius_roots(degree) if degree else np.zeros(0)
     created = np.flatnonzero(sampling)
@@ -176,7 +199,13 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
         rows, cols = linear_sum_assignment(np.abs(found[created][:, None] - roots[None, :]))
         limits = {int(created[r]): float(roots[c]) for r, c in zip(rows, cols, strict=True)}
     return tuple(
-        Zero(value=complex(z), from_sampling=bool(sampling[i]), limit=limits.get(i)) for i, z in enumerate(found)
+        Zero(
+            value=complex(z),
+            from_sampling=None if i in moved else bool(sampling[i]),
+            limit=limits.get(i),
+            image=moved.get(i),
+        )
+        for i, z in enumerate(found)
     )
 
 
