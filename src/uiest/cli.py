@@ -188,7 +188,7 @@ def simulate(
     out: Annotated[Path, typer.Option(help="Output folder.")] = Path("out/simulate"),
     noise: Annotated[bool, typer.Option(help="Add the model's measurement noise.")] = True,
 ) -> None:
-    """Simulate a registered model; write trajectory.csv and trajectory.png to OUT."""
+    """Simulate a registered model or a model file; write trajectory.csv and trajectory.png to OUT."""
     _positive(steps, "--steps", allow_zero=True)
     _output_folder(out, "--out")
     entry = models.load(model)
@@ -407,7 +407,7 @@ def certify(
     verify: Annotated[int, typer.Option(help="Random pairs for each certificate's sampled verification.")] = 100_000,
     seed: Annotated[int, typer.Option(help="Seed of the samples and the verification.")] = 0,
 ) -> None:
-    """Certify a registered model: strong detectability, reduced-order e-IOSS, delta-IOSS."""
+    """Certify a registered model or a model file: strong detectability, reduced-order e-IOSS, delta-IOSS."""
     check_samples(verify, "--verify")
     if structure not in ("full", "identity"):
         raise OptionError(f"--structure: expected full or identity, got {structure!r}")

@@ -325,8 +325,9 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     data_prior.why_uncertified = (
         f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
     )
-    return data_prior, (f"{why}; window prior: the EKF's settled covariance of (x, w) on the data, "
-                        f"eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}")  # fmt: skip
+    note = (f"no informative certified design (its guarantee says why); window prior: the EKF's settled covariance "
+            f"of (x, w) on the data, eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}")  # fmt: skip
+    return data_prior, note
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],
