@@ -145,3 +145,23 @@ def test_stage_form_refuses_dynamics_rows_that_are_not_equalities():
     loose = uba.copy()
     loose[problem.n_dyn - 1] += 1e-6  # the last dynamics row becomes an inequality
     assert form.solve(h, point.q, point.a, (lba, loose, *bounds[2:])) is None and form.last_status is None
+
+
+@pytest.mark.parametrize(("kind", "length"), [("uise", 0), ("two-stage", 10)])
+def test_stage_form_takes_the_bounds_relative_to_the_point_it_is_given(kind, length):
+    # at=(g, z) shifts the bounds inside the compiled call; a one-node window has no constraint rows (g empty),
+    # where the shift was once skipped and the QP solved with X's sides as the step's bounds
+    estimator, _, _ = _crop(kind)
+    solver = estimator._cached(length).warm
+    problem, form = solver.problem, solver._gauss_newton_form.stage
+    z = np.clip(problem.pack(problem.unpack(np.zeros(problem.n_var))), problem.lbx, problem.ubx)
+    z[0] = problem.ubx[0]  # the start on a side: the step's upper bound there is 0
+    point = solver._evaluate(z, np.zeros(problem.n_par))
+    h = point.h.copy()
+    h[solver._gauss_newton_form.diagonal] += 1.0
+    shifted = (problem.lbg - point.g, problem.ubg - point.g, problem.lbx - point.z, problem.ubx - point.z)
+    expected = form.solve(h, point.q, point.a, shifted)
+    given = form.solve(h, point.q, point.a, (problem.lbg, problem.ubg, problem.lbx, problem.ubx), at=(point.g, point.z))
+    assert (problem.n_con == 0) == (length == 0) and expected is not None and given is not None
+    np.testing.assert_array_equal(given[0], expected[0])
+    assert given[0][0] <= 0.0

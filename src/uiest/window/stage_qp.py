@@ -197,11 +197,11 @@ def _solve_form(h, q, a, lba, uba, lbx, ubx, g_at, z_at, guess_x, guess_a, scale
 
     The kernel solves the QP with ``H`` and ``q`` times ``scale``; ``lam_x``, ``lam_a`` are divided by it again.
     Returns the kernel's :class:`QPStatus` code, or -1 (nothing solved) if a dynamics row is not an equality.
-    ``guess_x`` empty: no guess; ``g_at``, ``z_at`` not empty: the bounds are taken relative to them. ``info``: the
+    ``guess_x`` empty: no guess; ``z_at`` not empty: the bounds are taken relative to ``g_at``, ``z_at``. ``info``: the
     kernel's (cost of the scaled QP, iterations, residual, exact, active-set steps).
     """
     info[:] = 0.0
-    if g_at.size:
+    if z_at.size:  # (a one-node window has no constraint rows: g_at is empty there too)
         lba, uba, lbx, ubx = lba - g_at, uba - g_at, lbx - z_at, ubx - z_at
     c_rows = maps[7]
     n_dyn = (nz.size - 1) * nx
