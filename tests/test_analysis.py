@@ -223,7 +223,10 @@ def test_quadruple_tank_with_inflows_into_the_upper_tanks_has_sampling_zeros(ana
     assert a.zeros.largest.from_sampling and a.zeros.largest_modulus > 1
     assert a.cause is Cause.ZERO_OUTSIDE and a.recommendation is Recommendation.SMOOTH_INPUT_MHE
     assert np.all(a.near_zeros.error_floor[2:] > 5.0)  # h3, h4: beyond X's width
-    assert "not strongly detectable" in a.reason
+    # the linearisation sampled exactly has its zeros inside (the model's fixed input direction moved this one), and
+    # a nonlinear model's zero outside denies a certificate, not strong detectability itself
+    assert abs(a.zeros.largest.exact) < 1 and not a.linear
+    assert "no certificate over X of the kind uiest computes" in a.reason and "sampled exactly" in a.reason
 
 
 # ---------------------------------------------------------------------------------------------- known answers
@@ -378,15 +381,49 @@ def test_a_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_unbou
     assert frequency_text(-1.5 + 0j) == "alternating every sample and growing 1.5-fold per sample"
 
 
-def test_a_sampled_zero_far_from_its_continuous_image_is_not_called_the_continuous_models():
+def test_a_zero_the_discretisation_moved_is_not_called_the_continuous_models():
     # a washout chemostat sampled with its input direction frozen at X's centre had a zero at 1.086 that paired
-    # with the continuous zero's image 0.974 and was called "from the continuous model"
-    from uiest.analysis.zeros import _zeros_at
+    # with the continuous zero's image 0.974 and was called "from the continuous model"; the comparison is with the
+    # zeros of the linearisation sampled exactly, not with exp(s dt) (which an exact sampling does not keep either)
+    from scipy.signal import cont2discrete
 
-    A_c, G, C, dt = np.array([[0.0, 0.0], [1.0, -0.2]]), np.array([[1.0], [0.0]]), np.array([[1.0, 0.0]]), 0.1
-    B = np.array([[dt], [0.0]])
-    (moved,) = _zeros_at(np.array([[1.0, 0.0], [dt, 1.086]]), B, C, A_c, G, dt)
-    assert moved.value == pytest.approx(1.086) and moved.from_sampling is None
-    assert moved.image == pytest.approx(np.exp(-0.2 * dt))
-    (kept,) = _zeros_at(np.array([[1.0, 0.0], [dt, np.exp(-0.2 * dt) + 1e-4]]), B, C, A_c, G, dt)
-    assert kept.from_sampling is False and kept.image is None
+    from uiest.analysis.zeros import _zeros_at, exactly_sampled_zeros
+
+    A_c, G, C, dt = np.array([[-2.0, 0.0], [1.0, 0.5]]), np.array([[1.0], [0.0]]), np.array([[1.0, 0.0]]), 1.0
+    A_d, B_d, *_ = cont2discrete((A_c, G, C, np.zeros((1, 1))), dt)
+    (exact,) = exactly_sampled_zeros(A_c, G, C, dt)
+    assert abs(exact - np.exp(0.5 * dt)) < 1e-9  # here the hidden mode's exp(s dt); in general it is not
+    (kept,) = _zeros_at(A_d, B_d, C, A_c, G, dt)  # the plant sampled exactly: the continuous model's zero
+    assert kept.from_sampling is False and kept.exact is None
+    (moved,) = _zeros_at(np.array([[A_d[0, 0], 0.0], [A_d[1, 0], 1.2]]), B_d, C, A_c, G, dt)
+    assert moved.value == pytest.approx(1.2) and moved.from_sampling is False and moved.exact == pytest.approx(exact)
+    # zeros the exact sampling moves away from exp(s dt) stay the continuous model's (0.9842 against 0.990)
+    A_c, G, C = np.array([[-2.0, 0.0], [0.0, -3.0]]), np.array([[1.0], [1.0]]), np.array([[1.0, -0.99]])
+    A_d, B_d, *_ = cont2discrete((A_c, G, C, np.zeros((1, 1))), dt)
+    (zoh,) = _zeros_at(A_d, B_d, C, A_c, G, dt)
+    assert zoh.from_sampling is False and zoh.exact is None
+
+
+def test_linearity_is_read_from_the_model_not_from_the_points_linearised():
+    # analysed at one point, a nonlinear model's Jacobians looked constant, and its zero outside was then
+    # "so it is not strongly detectable" as for a linear model
+    A = np.array([[0.5, 0.1], [0.3, 1.2]])
+
+    def f(x, u, w):
+        return [A[0, 0] * x[0] + A[0, 1] * x[1] + w[0], A[1, 0] * x[0] + A[1, 1] * x[1] + 0.1 * np.sin(x[1])]
+
+    system = System.from_callables(f, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=(-10, 10),
+                                   v_bounds=(-0.01, 0.01))  # fmt: skip
+    one = analyse(system, points=1)
+    assert not one.linear and "not strongly detectable" not in one.reason and one.to_dict()["linear"] is False
+    assert analyse(linear([1.2, 0.3]), points=1).linear
+
+
+def test_every_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_unbounded():
+    # zeros at 1.5 (hiding x3) and 1.2 (hiding x4): the floor once took the largest zero alone, and x4 came out 0.015
+    from uiest.models.linear import linear_system
+
+    A = np.array([[0.5, 0, 0.1, 0], [0, 0.5, 0, 0.1], [0.3, 0, 1.5, 0], [0, 0.3, 0, 1.2]])
+    system = linear_system(A, np.eye(4)[:, :2], np.eye(4)[:2], x_bounds=(-20, 20), v_bounds=(-0.01, 0.01))
+    floor = analyse(system, points=2).near_zeros.error_floor
+    assert np.all(floor[:2] < 0.05) and np.all(floor[2:] == np.inf)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 
+import casadi as ca
 import numpy as np
 from numpy.typing import ArrayLike
 
@@ -108,8 +109,19 @@ def analyse(
         dt=system.dt, time_unit=system.time_unit,
         continuous_method=None if system.sampled_from is None else system.sampled_from.method,
         x_width=np.where(np.isfinite(width), width, system.x.scale), reference=prior,
-        x_bounded=bool(system.x.bounds.is_bounded), linear=lin.constant,
+        x_bounded=bool(system.x.bounds.is_bounded), linear=jacobians_constant(system),
         rank_CB=rank_CB, rank_B=rank_B, steps=steps,
         continuous_degree=continuous, zeros=zeros, near_zeros=near, random_walk=walk, strong=strong, delayed=delayed,
         recommendation=recommendation, cause=cause, max_horizon=max_horizon, cpu_time=time.thread_time() - start,
     )  # fmt: skip
+
+
+def jacobians_constant(system: System) -> bool:
+    """Whether the Jacobians A, B (of w) and C depend on none of x, u, w, v (a linear or affine model).
+
+    Decided from the model's expressions: a nonlinear model's Jacobians sampled at one point would look constant.
+    """
+    jacobian = system.jacobian_function
+    symbols = [ca.SX.sym(f"a{i}", jacobian.size_in(i)) for i in range(jacobian.n_in())]
+    A, _, B, C, _ = jacobian(*symbols)
+    return not any(ca.depends_on(matrix, symbol) for matrix in (A, B, C) for symbol in symbols)

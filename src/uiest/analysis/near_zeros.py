@@ -179,21 +179,22 @@ UNSEEN_MOTION = 1e-9
 
 
 def _floor_at_outer_zeros(
-    lin: Linearisations, bases: list[FloatArray], C_noise: list[FloatArray], scale: FloatArray
+    lin: Linearisations, bases: list[FloatArray], C_noise: list[FloatArray], scale: FloatArray, width: FloatArray
 ) -> tuple[complex, FloatArray, FloatArray] | None:
     """The floor at the invariant zeros with ``|z| >= 1`` (module docstring), or None where there is none.
 
-    ``(z, floor, point)`` of the zero of largest modulus over the points.
+    ``(z, floor, point)``: the largest floor per state over every such zero at every point, and the zero (with its
+    point) whose floor has the largest share of X's ``width``.
     """
-    found = None
+    floor, found, share = np.zeros(len(scale)), None, -1.0
     for i in range(lin.count):
         zeros = invariant_zeros(lin.A[i], lin.B[i], lin.C[i])
-        outer = zeros[np.abs(zeros) >= 1.0]
-        if outer.size and (found is None or np.abs(outer).max() > abs(found[0])):
-            z = complex(outer[np.argmax(np.abs(outer))])
-            floor = _floor(lin.A[i], bases[i], C_noise[i], scale, np.array([z]), unseen_rtol=ZERO_RTOL)[0]
-            found = z, floor, lin.x[i] * 1.0
-    return found
+        for z in zeros[np.abs(zeros) >= 1.0]:
+            at = _floor(lin.A[i], bases[i], C_noise[i], scale, np.array([z]), unseen_rtol=ZERO_RTOL)[0]
+            floor = np.maximum(floor, at)
+            if np.max(at / width) > share:
+                share, found = float(np.max(at / width)), (complex(z), lin.x[i] * 1.0)
+    return None if found is None else (found[0], floor, found[1])
 
 
 def _solved(M: np.ndarray, Q: FloatArray) -> np.ndarray:
@@ -268,9 +269,11 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         refined = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
         floor = np.maximum(np.max(floors, axis=(0, 1)), refined)
         floor_point = lin.x[p] * 1.0
-        outside = _floor_at_outer_zeros(lin, bases, C_noise, system.x.scale)
-        if outside is not None and np.max(outside[1] / width) > np.max(floor / width):
-            floor_z, floor, floor_point = outside[0], np.maximum(floor, outside[1]), outside[2]
+        outside = _floor_at_outer_zeros(lin, bases, C_noise, system.x.scale, width)
+        if outside is not None:
+            if np.max(outside[1] / width) > np.max(floor / width):
+                floor_z, floor_point = outside[0], outside[2]
+            floor = np.maximum(floor, outside[1])
     return NearZeros(
         unit_circle=unit,
         ring=ring,

@@ -66,14 +66,6 @@ class Linearisations:
         """Number of points m."""
         return len(self.x)
 
-    @property
-    def constant(self) -> bool:
-        """The Jacobians are the same at every point (to 1e-12 relative): a linear or affine model."""
-        return all(
-            np.allclose(J, J[0], rtol=1e-12, atol=1e-12 * float(np.abs(J).max(initial=0.0)))
-            for J in (self.A, self.B, self.C)
-        )
-
 
 def linearise(system: System, reference: FloatArray | None = None, *, points: int = POINTS,
               seed: int = 0) -> Linearisations:  # fmt: skip

@@ -158,15 +158,14 @@ def zero_text(a: ModelAnalysis, zero: Zero, degree: int | None = None) -> str:
             if degree
             else (", created by sampling")
         )
-    elif zero.image is not None:
-        text += (f", where the continuous model has its zero at exp(s dt) = {complex_number(zero.image)} (the sampled "
-                 "model moves it: see System.from_ode's warnings, or sample with more substeps or "
-                 "input_channel='rk4')")  # fmt: skip
     elif zero.unstable_step and zero.from_sampling is None:
         text += (
             ", where the model's RK4 step grows a mode the ODE damps (the zero may come from the integrator, not the "
             "plant: analyse again with more substeps or method='collocation')"
         )
+    if zero.exact is not None:
+        text += (f" (the linearisation sampled exactly has it at {complex_number(zero.exact)}: the model's "
+                 "discretisation moves it; see System.from_ode's warnings)")  # fmt: skip
     return text
 
 

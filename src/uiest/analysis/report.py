@@ -124,13 +124,13 @@ class ModelAnalysis:
             notes = []
             if z.from_sampling is not None:
                 notes.append("created by sampling" if z.from_sampling else "from the continuous model")
-            elif z.image is not None:
-                notes.append(f"the continuous model's is at exp(s dt) = {complex_number(z.image)}: the sampled "
-                             "model moved it")  # fmt: skip
-            if z.from_sampling is None and z.unstable_step:
+            elif z.unstable_step:
                 notes.append("where the RK4 step grows a decaying mode: it may come from the integrator")
             if z.limit is not None:
                 notes.append(f"{number(z.limit)} as dt -> 0")
+            if z.exact is not None:
+                notes.append(f"sampled exactly, the linearisation has it at {complex_number(z.exact)}: the model's "
+                             "discretisation moved it")  # fmt: skip
             parts.append(complex_number(z.value) + (f" ({'; '.join(notes)})" if notes else ""))
         return ", ".join(parts)
 

@@ -20,6 +20,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.linalg import expm
 from scipy.optimize import linear_sum_assignment
 
 from uiest.analysis.points import Linearisations, euler_frobenius_roots, relative_degrees
@@ -49,9 +50,10 @@ class Zero:
     unstable_step : bool
         The model's RK4 step grows where the ODE decays at the point of the zero (``System.from_ode`` warns): a
         zero that is not the image of a continuous one may come from the integrator, not from sampling the plant.
-    image : complex or None
-        The image ``exp(s dt)`` of the continuous zero this one pairs with, where it lies far from it
-        (:func:`matches_image`): the sampled model moved the plant's zero (``from_sampling`` is then None).
+    exact : complex or None
+        The zero of the continuous linearisation sampled exactly (:func:`exactly_sampled_zeros`) that this one pairs
+        with, where they lie apart (:data:`DISCRETISATION_TOL`): the model's discretisation (its integrator, or the
+        unknown input's direction fixed at X's centre) moved the zero.
 
     """
 
@@ -59,7 +61,7 @@ class Zero:
     from_sampling: bool | None = None
     limit: float | None = None
     unstable_step: bool = False
-    image: complex | None = None
+    exact: complex | None = None
 
     @property
     def modulus(self) -> float:
@@ -70,7 +72,7 @@ class Zero:
         """Plain data for JSON."""
         return {"real": self.value.real, "imag": self.value.imag, "modulus": self.modulus,
                 "from_sampling": self.from_sampling, "limit": self.limit, "unstable_step": self.unstable_step,
-                "image": None if self.image is None else [self.image.real, self.image.imag]}  # fmt: skip
+                "exact": None if self.exact is None else [self.exact.real, self.exact.imag]}  # fmt: skip
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -148,30 +150,36 @@ class Zeros:
         }
 
 
-def continuous_images(sampled: ComplexArray, continuous: ComplexArray, dt: float) -> ComplexArray:
-    """(len(sampled),) complex: the image ``exp(s dt)`` of the continuous zero s paired with each sampled zero.
+def paired(found: ComplexArray, reference: ComplexArray) -> ComplexArray:
+    """(len(found),) complex: the zero of ``reference`` paired with each of ``found`` (NaN where none is).
 
-    NaN for the sampled zeros no continuous zero pairs with (sampling created them). Pairs minimise the total
-    distance; a pair may still lie far apart where the sampled model misstates the plant (:func:`matches_image`).
+    Pairs minimise the total distance (an assignment).
     """
-    images = np.full(len(sampled), complex(np.nan, np.nan))
-    if len(sampled) and len(continuous):
-        exact = np.exp(np.asarray(continuous) * dt)
-        rows, cols = linear_sum_assignment(np.abs(np.asarray(sampled)[:, None] - exact[None, :]))
-        images[rows] = exact[cols]
-    return images
+    pairs = np.full(len(found), complex(np.nan, np.nan))
+    if len(found) and len(reference):
+        rows, cols = linear_sum_assignment(np.abs(np.asarray(found)[:, None] - np.asarray(reference)[None, :]))
+        pairs[rows] = np.asarray(reference)[cols]
+    return pairs
 
 
-IMAGE_TOL = (1e-3, 0.5)
-"""A sampled zero z matches the image ``exp(s dt)`` of its continuous zero when ``|z - exp(s dt)|`` is at most the
-larger of the first and the second times ``|1 - |exp(s dt)||`` (half its distance to the unit circle: the pair
-agrees on how fast the zero's motion decays or grows)."""
+def exactly_sampled_zeros(A_c: FloatArray, G: FloatArray, C: FloatArray, dt: float) -> ComplexArray:
+    """The zeros of the continuous linearisation ``(A_c, G, C)`` sampled exactly (zero-order hold on w) every ``dt``."""
+    n, m = G.shape
+    M = np.zeros((n + m, n + m))
+    M[:n, :n], M[:n, n:] = A_c * dt, G * dt
+    E = expm(M)
+    return invariant_zeros(E[:n, :n], E[:n, n:], C)
 
 
-def matches_image(z: complex, image: complex) -> bool:
-    """Whether the sampled zero ``z`` lies near the continuous zero's image (:data:`IMAGE_TOL`)."""
-    absolute, relative = IMAGE_TOL
-    return bool(abs(z - image) <= max(absolute, relative * abs(1.0 - abs(image))))
+DISCRETISATION_TOL = (1e-3, 0.5)
+"""A zero of the sampled model lies apart from the exactly sampled linearisation's (:attr:`Zero.exact`) where they
+differ by more than the larger of the first and the second times the exact zero's distance to the unit circle
+(``|1 - |z||``): then they disagree on how fast the zero's motion decays or grows."""
+
+
+def _apart(z: complex, exact: complex) -> bool:
+    absolute, relative = DISCRETISATION_TOL
+    return bool(abs(z - exact) > max(absolute, relative * abs(1.0 - abs(exact))))
 
 
 def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | None, G: FloatArray | None,
@@ -185,13 +193,13 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     found = invariant_zeros(A, B, C)
     if A_c is None or G is None:
         return tuple(Zero(value=complex(z)) for z in found)
-    images = continuous_images(found, invariant_zeros(A_c, G, C), dt)
-    sampling = np.isnan(images)
-    # a paired zero far from its image: the sampled model moved it (from_sampling None, the image kept)
-    moved = {i: complex(images[i]) for i in np.flatnonzero(~sampling) if not matches_image(found[i], images[i])}
+    sampling = np.isnan(paired(found, np.exp(invariant_zeros(A_c, G, C) * dt)))
+    # a zero apart from the exactly sampled linearisation's: the model's discretisation moved it
+    exact = paired(found, exactly_sampled_zeros(A_c, G, C, dt))
+    moved = {i: complex(exact[i]) for i in range(len(found)) if np.isfinite(exact[i]) and _apart(found[i], exact[i])}
     if step is not None and rk4_grows(np.linalg.eigvals(A_c), step).any():
-        return tuple(Zero(value=complex(z), from_sampling=None if sampling[i] or i in moved else False,
-                          unstable_step=True, image=moved.get(i)) for i, z in enumerate(found))  # fmt: skip
+        return tuple(Zero(value=complex(z), from_sampling=None if sampling[i] else False, unstable_step=True,
+                          exact=moved.get(i)) for i, z in enumerate(found))  # fmt: skip
     limits: dict[int, float] = {}
     roots = euler_frobenius_roots(degree) if degree else np.zeros(0)
     created = np.flatnonzero(sampling)
@@ -201,9 +209,9 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     return tuple(
         Zero(
             value=complex(z),
-            from_sampling=None if i in moved else bool(sampling[i]),
+            from_sampling=bool(sampling[i]),
             limit=limits.get(i),
-            image=moved.get(i),
+            exact=moved.get(i),
         )
         for i, z in enumerate(found)
     )
