@@ -1,5 +1,6 @@
 """Guarantees in the user's units: the Guarantee object, each estimator's bound, and what the CLI says of them."""
 
+import dataclasses
 import pickle
 import warnings
 
@@ -247,3 +248,23 @@ def test_a_run_with_an_outage_suspends_its_guarantee_and_says_until_when():
     short = uise.run(truth.u[:10], truth.y[:11]).guarantee
     assert short.text.endswith("The run ends at k = 10, before the bound applies") and settling > 10
     assert UISE(system, weights=uise.weights, N=5, x0_prior=[0.0, 0.0]).run(truth.u, y).guarantee.suspended is None
+
+
+def test_a_runs_suspension_says_how_many_steps_and_a_growing_window_does_not_resume():
+    tank = _tank([3e-3, 0.5])  # settles after 12 steps; no window (an observer's)
+    broken = np.zeros(91, dtype=bool)
+    broken[[2, 80]] = True  # two single missing outputs, not an outage from 2 to 80
+    run = tank.for_run(broken)
+    assert run.suspended == (2, 80) and run.suspended_steps == 2 and run.resumes == 80 + 1 + 12
+    assert (
+        "at 2 steps from k = 2 to 80, and the bound assumes every output measured and every window solved" in run.text
+    )
+    assert "it applies again from k = 93, after the run's end (k = 90)" in run.text
+    assert run.verdict is Verdict.INFORMATIVE  # the flags stay the estimator's; the text says what the run did
+    assert run.for_study().text == tank.for_run(np.zeros(91, dtype=bool)).text == tank.text
+    growing = dataclasses.replace(tank, grows=True, horizon=None)  # the FIE without N keeps the missing outputs
+    fie = growing.for_run(broken)
+    assert fie.resumes is None and fie.text.endswith(
+        "it does not apply again (the growing window keeps the missing outputs)"
+    )
+    assert Guarantee.none("x", "no certificate", [24.0], ("h",), ("cm",)).for_run(broken).suspended is None

@@ -206,6 +206,8 @@ class Box:
         if sides is None:
             slack = tol * np.where(np.isfinite(self.width), self.width, 0.0)
             sides = cache[tol] = (self.lower - slack, self.upper + slack)
+            for side in sides:  # handed out by sides(): kept as they are
+                side.setflags(write=False)
         return sides
 
     def clip(self, z: ArrayLike) -> FloatArray:

@@ -319,7 +319,11 @@ def _prior_text(system: Any, record: Any, prior: Any, x0: str | None, entry: Any
     """Which prior of x[0] the estimators start from, where it came from, and whether it is the record's truth."""
     import numpy as np  # where a command needs it: `uiest --version` stays light
 
-    source = "--x0" if x0 is not None else ("the model's setup()" if entry.setup is not None else "X's centre")
+    source = (
+        "--x0"
+        if x0 is not None
+        else ("the model's setup()" if entry.setup is not None else "X's centre, 0 where unbounded")
+    )
     values = ", ".join(f"{name} {value:.4g}" + (f" {unit}" if unit not in ("", "-") else "")
                        for name, value, unit in zip(system.x.names, prior, system.x.units, strict=True))  # fmt: skip
     text = f"prior x[0]: {values} (from {source})"

@@ -91,11 +91,17 @@ class Guarantee:
     suspended : (int, int) or None
         A run's guarantee only (:meth:`for_run`): the first and last steps whose data or solve broke what the
         bound assumes (an output missing, or a window not solved); None when none did.
+    suspended_steps : int
+        How many steps between them did (0 without :attr:`suspended`).
     resumes : int or None
-        With :attr:`suspended`: the step from which the bound holds again (the window full of measured outputs,
-        then :attr:`settling_steps` from an error as large as X allows; None without settling steps).
+        With :attr:`suspended`: the step from which the bound holds again (a window of measured outputs after
+        the last, then :attr:`settling_steps` from an error as large as X allows; an observer without a window:
+        the settling steps after the last). None without settling steps, and for a window that grows from time 0
+        without a horizon (the FIE's keeps the missing outputs).
     run_steps : int or None
         A run's guarantee only: the run's steps ``K + 1`` (the text says where the bound applies to none of them).
+        The flags (:attr:`applies`, :attr:`verdict`, :attr:`informative`) stay the estimator's in a run's
+        guarantee: the text says what the run did to it.
 
     """
 
@@ -115,6 +121,7 @@ class Guarantee:
     information_horizon: int | None = None
     grows: bool = False
     suspended: tuple[int, int] | None = None
+    suspended_steps: int = 0
     resumes: int | None = None
     run_steps: int | None = None
 
@@ -149,8 +156,15 @@ class Guarantee:
         if not steps.size:
             return dataclasses.replace(self, run_steps=len(broken))
         first, last = int(steps[0]), int(steps[-1])
-        resumes = None if self.settling_steps is None else last + (self.horizon or 0) + 1 + self.settling_steps
-        return dataclasses.replace(self, suspended=(first, last), resumes=resumes, run_steps=len(broken))
+        resumes = None
+        if self.settling_steps is not None and not (self.grows and self.horizon is None):
+            resumes = last + (self.horizon or 0) + 1 + self.settling_steps
+        return dataclasses.replace(self, suspended=(first, last), suspended_steps=int(steps.size), resumes=resumes,
+                                   run_steps=len(broken))  # fmt: skip
+
+    def for_study(self) -> Guarantee:
+        """A run's guarantee without what one run did to it (:attr:`suspended`): the same for every run of a study."""
+        return dataclasses.replace(self, suspended=None, suspended_steps=0, resumes=None)
 
     @property
     def capped(self) -> bool:
@@ -208,8 +222,8 @@ class Guarantee:
         text = self._verdict_text()
         if self.capped and self.grows:
             text += (
-                f". The window grows from time 0 to N={self.horizon} and slides from there: its information horizon "
-                "(older cost terms would fall below double precision)"
+                f". The window grows from time 0 to N={self.horizon} and slides from there: it is capped at its "
+                "information horizon (older cost terms would fall below double precision)"
             )
         elif self.capped:
             text += (
@@ -219,12 +233,19 @@ class Guarantee:
         end = None if self.run_steps is None else self.run_steps - 1  # the run's last step
         if self.suspended is not None:
             first, last = self.suspended
-            steps = f"k = {first}" if first == last else f"k = {first}..{last}"
+            if first == last:
+                steps = f"k = {first}"
+            elif self.suspended_steps == last - first + 1:
+                steps = f"k = {first}..{last}"
+            else:
+                steps = f"{self.suspended_steps} steps from k = {first} to {last}"
             text += (f". Suspended in this run: an output was missing or a window not solved at {steps}, and the "
-                     "bound assumes every output measured")  # fmt: skip
+                     "bound assumes every output measured and every window solved")  # fmt: skip
             if self.resumes is not None:
                 beyond = end is not None and self.resumes > end
                 text += f"; it applies again from k = {self.resumes}" + (f", after the run's end (k = {end})" * beyond)
+            elif self.grows and self.horizon is None and self.settling_steps is not None:
+                text += "; it does not apply again (the growing window keeps the missing outputs)"
         elif end is not None and self.settling_steps is not None and self.settling_steps > end:
             text += f". The run ends at k = {end}, before the bound applies"
         return text
@@ -295,6 +316,7 @@ class Guarantee:
             "grows": self.grows,
             "capped": self.capped,
             "suspended": None if self.suspended is None else list(self.suspended),
+            "suspended_steps": self.suspended_steps,
             "resumes": self.resumes,
             "run_steps": self.run_steps,
             "text": self.text,

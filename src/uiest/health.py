@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import Box, FloatArray
-from uiest.errors import BoundWarning
+from uiest.errors import BoundWarning, DataError
 
 Params = ParamSpec("Params")
 Result = TypeVar("Result")
@@ -124,10 +124,13 @@ class BoundTest:
 
     def any(self, x: FloatArray) -> bool:
         """Whether some row of ``x (m, n)`` has an entry on or beyond a finite side (one compiled pass)."""
+        arr = np.asarray(x, dtype=float)
+        if arr.shape[-1:] != self._low.shape:
+            raise DataError(f"x: expected rows of {self._low.size} entries, got shape {arr.shape}")
         if not self._low.size:
             return False
-        return bool(_any_at_bound(np.asarray(x, dtype=float).reshape(-1, self._low.size), self._low, self._high,
-                                  self._has_low, self._has_high))  # fmt: skip
+        return bool(_any_at_bound(arr.reshape(-1, self._low.size), self._low, self._high, self._has_low,
+                                  self._has_high))  # fmt: skip
 
 
 @numba.njit(cache=True)

@@ -415,8 +415,9 @@ class EstimationResult(_PicklableNames):
     horizon : int or None
         N (for the FIE, where its window stops growing; None if it never does).
     guarantee : Guarantee
-        The estimator's guarantee (:class:`~uiest.guarantee.Guarantee`): whether its theorem
-        applies, the error bound per state and its text.
+        The estimator's guarantee (:class:`~uiest.guarantee.Guarantee`) as this run met it: whether its theorem
+        applies, the error bound per state, where the run suspended it (missing outputs, unsolved windows) and
+        its text.
     names : mapping
         Component names of "x" and "w".
     time_unit : str

@@ -14,6 +14,8 @@ which is the same thing for a linear system (with ``S_x = I``).
 
 from __future__ import annotations
 
+import math
+
 import casadi as ca
 import numpy as np
 
@@ -73,17 +75,19 @@ class InputFit:
 def _minimum_norm_step(J: FloatArray, r: FloatArray) -> FloatArray:
     """The minimum-norm least-squares step ``argmin |J s + r|`` (``J`` (nx, nw), ``r`` (nx,)), as ``lstsq`` gives it.
 
-    One column (a single unknown input, the common case) in closed form where its square neither underflows nor
-    overflows: ``lstsq`` costs several microseconds per call.
+    One column (a single unknown input, the common case) in closed form where neither its square nor the step
+    underflows or overflows (else ``lstsq``, which costs several microseconds per call).
     """
     if J.shape[1] == 1:
         column = J[:, 0]
         curvature = float(column @ column)
         if _SAFE_SQUARE[0] < curvature < _SAFE_SQUARE[1]:
-            return np.array([-float(column @ r) / curvature])
+            step = -float(column @ r) / curvature
+            if step != 0.0 and math.isfinite(step):  # J^T r neither overflowed nor underflowed
+                return np.array([step])
     step: FloatArray = np.linalg.lstsq(J, -r, rcond=None)[0]
     return step
 
 
 _SAFE_SQUARE = (1e-200, 1e200)
-"""Squared column norms within which :func:`_minimum_norm_step`'s closed form is as accurate as ``lstsq``."""
+"""Squared column norms within which :func:`_minimum_norm_step` tries its closed form."""

@@ -251,10 +251,13 @@ def information_table(study: StudyResult, run: int = 0, stride: int = 10) -> pd.
 
 
 def study_guarantees(study: StudyResult) -> dict[str, Guarantee]:
-    """Each estimator's guarantee, from its first result (an estimator every run of which raised has none)."""
+    """Each estimator's guarantee for the study's runs (an estimator every run of which raised has none).
+
+    From its first result, without what that run did to it (:meth:`~uiest.guarantee.Guarantee.for_study`).
+    """
     found: dict[str, Guarantee] = {}
     for (_, _, name), result in study.results.items():
-        found.setdefault(name, result.guarantee)
+        found.setdefault(name, result.guarantee.for_study())
     return found
 
 
@@ -268,8 +271,9 @@ def _window(spec: EstimatorSpec, certified: dict[str, object] | None, guarantee:
 def guarantee_table(study: StudyResult, acc: pd.DataFrame) -> pd.DataFrame:
     """Per estimator: where its weights come from, rate, N, its guarantee (text and focus-state bound), RMSE.
 
-    The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee`: its theorem's worst-case
-    error bound per state for noise in V, or why the theorem does not apply.
+    The guarantee is the estimator's :class:`~uiest.guarantee.Guarantee` for the study's runs
+    (:func:`study_guarantees`): its theorem's worst-case error bound per state for noise in V, or why the theorem
+    does not apply.
     """
     import pandas as pd
 
