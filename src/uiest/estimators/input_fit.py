@@ -75,15 +75,15 @@ class InputFit:
 def _minimum_norm_step(J: FloatArray, r: FloatArray) -> FloatArray:
     """The minimum-norm least-squares step ``argmin |J s + r|`` (``J`` (nx, nw), ``r`` (nx,)), as ``lstsq`` gives it.
 
-    One column (a single unknown input, the common case) in closed form where neither its square nor the step
-    underflows or overflows (else ``lstsq``, which costs several microseconds per call).
+    One column (a single unknown input, the common case) in closed form where its square neither underflows nor
+    overflows (else ``lstsq``, which costs several microseconds per call).
     """
     if J.shape[1] == 1:
         column = J[:, 0]
         curvature = float(column @ column)
         if _SAFE_SQUARE[0] < curvature < _SAFE_SQUARE[1]:
-            step = -float(column @ r) / curvature
-            if step != 0.0 and math.isfinite(step):  # J^T r neither overflowed nor underflowed
+            step = -float((column / curvature) @ r)  # scaled first: J^T r alone may under- or overflow
+            if math.isfinite(step):
                 return np.array([step])
     step: FloatArray = np.linalg.lstsq(J, -r, rcond=None)[0]
     return step
