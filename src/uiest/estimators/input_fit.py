@@ -82,9 +82,9 @@ def _minimum_norm_step(J: FloatArray, r: FloatArray) -> FloatArray:
         column = J[:, 0]
         curvature = float(column @ column)
         if _SAFE_SQUARE[0] < curvature < _SAFE_SQUARE[1]:
-            step = -float((column / curvature) @ r)  # scaled first: J^T r alone may under- or overflow
-            if math.isfinite(step):
-                return np.array([step])
+            closed_form = -float((column / curvature) @ r)  # scaled first: J^T r alone may under- or overflow
+            if math.isfinite(closed_form):
+                return np.array([closed_form])
     step: FloatArray = np.linalg.lstsq(J, -r, rcond=None)[0]
     return step
 
