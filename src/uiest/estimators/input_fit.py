@@ -85,7 +85,7 @@ def _minimum_norm_step(J: FloatArray, r: FloatArray) -> FloatArray:
             closed_form = -float((column / curvature) @ r)  # scaled first: J^T r alone may under- or overflow
             if math.isfinite(closed_form):
                 return np.array([closed_form])
-    step: FloatArray = np.linalg.lstsq(J, -r, rcond=None)[0]
+    step: FloatArray = np.asarray(np.linalg.lstsq(J, -r, rcond=None)[0], dtype=np.float64)
     return step
 
 
