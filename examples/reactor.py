@@ -83,7 +83,7 @@ def study():
         focus_state=0,
         estimators=(
             EstimatorSpec("UISE", "uise", N=10, mu=0.8, output_weight=1.0),
-            EstimatorSpec("UISE (certified)", "uise", N=0, weights="certificate"),
+            EstimatorSpec("UISE (certified)", "uise", N=0, mu=0.9, weights="certificate"),  # mu_min is 0.897
             EstimatorSpec("standard MHE", "standard-mhe", N=10, mu=0.8, output_weight=1.0),
             EstimatorSpec("EKF (tuned)", "ekf"),
             EstimatorSpec("UKF (tuned)", "ukf"),

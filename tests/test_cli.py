@@ -91,6 +91,7 @@ def test_reproduce_runs_the_study_of_a_model_file(tmp_path):
     assert result.exit_code == 0, result.output
     report = (tmp_path / "report.md").read_text()
     assert report.startswith("# reactor:") and "UISE (certified)" in report and "EKF (tuned)" in report
+    assert "is below its smallest rate" not in report  # the example asks for a rate its certificate has
 
 
 def test_sweep_command_runs_and_resumes(tmp_path):

@@ -41,7 +41,8 @@ class EstimatorSpec:
         One of ``ESTIMATOR_KINDS``.
     N : int
         Horizon (ignored by the FIE). 0 with certificate weights: the certificate's
-        ``min_horizon()``, the shortest horizon its theorem allows.
+        ``min_horizon()``, the shortest horizon its theorem allows. The defaults of ``N``, ``mu`` and the weights
+        are the paper's crop study's: give your model's own.
     mu : float
         Discount of the weights (eta for the standard and the smooth-input MHE). With certificate weights, the rate
         the certificate is designed at when it certifies there (``mu >= mu_min``), else the
