@@ -402,3 +402,16 @@ def test_a_design_with_a_lag_builds_no_candidate_whose_window_is_shorter():
     designed = UISE.design(lateral, x0_prior=np.zeros(4), lag=2, trials=1, steps=60)
     assert designed.N >= 2 and designed.options.lag == 2
     assert all(candidate.N >= 2 for candidate in designed.design_report.candidates)
+
+
+def test_the_designs_own_noise_trial_names_the_prior_when_it_fails():
+    # a prior outside X was refused as "x0:", and a trial that diverged ended with a bare simulation error
+    from uiest import DataError, ModelError, System
+
+    henon = System.from_callables(lambda x, u, w: [1.76 - x[1] ** 2 - 0.1 * x[2] + w[0], x[0], x[1]],
+                                  lambda x, v: [x[0] + v[0]], nx=3, nw=1, nv=1, x_bounds=(-2.5, 2.5),
+                                  v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    with pytest.raises(DataError, match=r"x0_prior: expected a point in X"):
+        UISE.design(henon, x0_prior=[3.0, 0.0, 0.0], max_horizon=15, trials=1, steps=60)
+    with pytest.raises(ModelError, match=r"x0_prior: the design.s noise trial.*pass records="):
+        UISE.design(henon, x0_prior=[2.4, -2.4, 2.4], max_horizon=15, trials=1, steps=60)

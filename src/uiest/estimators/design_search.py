@@ -50,7 +50,7 @@ from uiest.checks import check_int, check_keywords, check_real, check_seed, show
 from uiest.detectability import certify_reduced_model, certify_strong_detectability
 from uiest.detectability.certificate import horizon_condition
 from uiest.detectability.lmi import finite_box
-from uiest.errors import CertificationError, DataError, HorizonError, OptionError
+from uiest.errors import CertificationError, DataError, HorizonError, ModelError, OptionError
 from uiest.estimators.bounds import noise_quadratic, strong_bound, two_stage_z_bound
 from uiest.guarantee import Guarantee
 from uiest.health import without_bound_warnings
@@ -583,12 +583,20 @@ def _noise_records(
     system: System, x0: FloatArray, trials: int, steps: int, seed: int
 ) -> list[tuple[FloatArray | None, FloatArray, FloatArray, FloatArray]]:
     """``(u, y, x, w)`` of noise-only runs: u at U's centre, w = nominal, v uniform in V (its scale where unbounded)."""
+    if not system.x.bounds.contains(x0):  # as simulate() requires of its start
+        raise DataError(f"x0_prior: expected a point in X = {system.x.bounds}, got {np.asarray(x0).tolist()}")
     rng = np.random.default_rng(seed)
     V = finite_box(system.v.bounds, system.v.bounds.center, system.v.scale)
     u = np.tile(system.u.bounds.center, (steps, 1)) if system.nu else None
     records = []
     for _ in range(trials):
-        traj = simulate(system, x0, steps, u=u, w=system.nominal_w, v=V.sample(rng, steps + 1))
+        try:
+            traj = simulate(system, x0, steps, u=u, w=system.nominal_w, v=V.sample(rng, steps + 1))
+        except ModelError as exc:  # the design's own trial: say so, and how to give it others
+            raise type(exc)(
+                f"x0_prior: the design's noise trial, simulated from it with w = nominal and u at U's centre, "
+                f"failed ({exc}); pass records= (simulations of the operating conditions) to score the designs on"
+            ) from None
         records.append((u, traj.y, traj.x, traj.w))
     return records
 

@@ -269,7 +269,9 @@ class LinearUIO(StreamingEstimator):
     # ------------------------------------------------------------------ guarantee
     @property
     def guarantee(self) -> Guarantee:
-        """The exact worst case of ``x_hat - x`` over noise sequences in V (e+ = F e; module docstring).
+        """:data:`~uiest.estimators.bounds.SETTLED` (1.1) times the exact worst case of ``x_hat - x`` over noise in V.
+
+        (e+ = F e; module docstring.)
 
         ``x_hat[k] - x[k] = -F^k T (x[0] - x_bar_0) + sum_{j<k} F^{k-1-j} K D dv[j] + H D dv[k]``
         with ``dv = v - v_bar`` in ``V - v_bar``, whatever w: the impulse response summed with each
