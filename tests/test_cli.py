@@ -92,6 +92,17 @@ def test_reproduce_runs_the_study_of_a_model_file(tmp_path):
     report = (tmp_path / "report.md").read_text()
     assert report.startswith("# reactor:") and "UISE (certified)" in report and "EKF (tuned)" in report
     assert "is below its smallest rate" not in report  # the example asks for a rate its certificate has
+    # the written scenario names the model file from where it ends up (it was written relative to the staging
+    # folder, one level deeper: here the path then pointed beside tmp_path)
+    from uiest.experiments import Scenario
+
+    model = tmp_path / "models" / "reactor.py"
+    model.parent.mkdir()
+    model.write_bytes(reactor.read_bytes())
+    out = tmp_path / "out"
+    args = ["reproduce", str(model), "--runs", "1", "--steps", "60", "--solver", "gn", "--out", str(out)]
+    assert runner.invoke(app, args).exit_code == 0
+    assert Path(Scenario.from_toml(out / "scenario.toml").model).resolve() == model.resolve()
 
 
 def test_sweep_command_runs_and_resumes(tmp_path):

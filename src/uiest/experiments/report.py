@@ -369,7 +369,7 @@ def write_report(study: StudyResult, out: Path, *, wall_time: float) -> dict[str
     if not (math.isfinite(wall_time) and wall_time >= 0):
         raise OptionError(f"wall_time: expected seconds: a finite number >= 0, got {wall_time!r}")
     with staged_folder(Path(out)) as stage:
-        return _write_files(study, stage, wall_time=wall_time)
+        return _write_files(study, stage, wall_time=wall_time, final=Path(out))
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -390,11 +390,12 @@ def _shown_run(study: StudyResult) -> int | None:
     return next((r for r in range(study.scenario.runs) if all((c, r) in study.truths for c in cases)), None)
 
 
-def _write_files(study: StudyResult, out: Path, *, wall_time: float) -> dict[str, object]:
+def _write_files(study: StudyResult, out: Path, *, wall_time: float, final: Path) -> dict[str, object]:
+    """The report's files, written into ``out`` (the staging folder that becomes ``final``)."""
     tables = _write_tables(study, out)
     run = _shown_run(study)
     written = [*tables.written, *(figures(study, out, run) if run is not None else [])]
-    study.scenario.to_toml(out / "scenario.toml")
+    study.scenario.to_toml(out / "scenario.toml", relative_to=final)  # a model file's path as read from final
     written.append(out / "scenario.toml")
     write_text(out / "report.md", "\n".join(_report_lines(study, tables, wall_time)))
     written.append(out / "report.md")

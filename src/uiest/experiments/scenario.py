@@ -276,15 +276,17 @@ class Scenario:
         data["prior_from_output"] = [list(pair) for pair in self.prior_from_output]
         return data
 
-    def to_toml(self, path: Path | str) -> Path:
+    def to_toml(self, path: Path | str, *, relative_to: Path | str | None = None) -> Path:
         """Write the scenario as TOML, whole or not at all (OptionError or StorageError naming ``path``).
 
-        A model file's path is written relative to ``path``'s folder (:meth:`from_toml` reads it from there).
+        A model file's path is written relative to ``relative_to`` (default ``path``'s folder, from which
+        :meth:`from_toml` reads it; another folder where the file will be moved there, as a staged report is).
         """
         path = writable_file(Path(path), "path")
         data = self.to_dict()
         if is_model_file(self.model):
-            data["model"] = os.path.relpath(os.path.abspath(self.model), os.path.abspath(path.parent))
+            folder = path.parent if relative_to is None else Path(relative_to)
+            data["model"] = os.path.relpath(os.path.abspath(self.model), os.path.abspath(folder))
         return write_bytes(path, tomli_w.dumps(data).encode())
 
     @classmethod
