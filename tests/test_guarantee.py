@@ -256,9 +256,7 @@ def test_a_runs_suspension_says_how_many_steps_and_a_growing_window_does_not_res
     broken[[2, 80]] = True  # two single missing outputs, not an outage from 2 to 80
     run = tank.for_run(broken)
     assert run.suspended == (2, 80) and run.suspended_steps == 2 and run.resumes == 80 + 1 + 12
-    assert (
-        "at 2 steps from k = 2 to 80, and the bound assumes every output measured and every window solved" in run.text
-    )
+    assert "at 2 steps from k = 2 to 80, and the bound assumes every output measured, every window solved" in run.text
     assert "it applies again from k = 93, after the run's end (k = 90)" in run.text
     assert run.verdict is Verdict.INFORMATIVE  # the flags stay the estimator's; the text says what the run did
     assert run.for_study().text == tank.for_run(np.zeros(91, dtype=bool)).text == tank.text
@@ -268,3 +266,11 @@ def test_a_runs_suspension_says_how_many_steps_and_a_growing_window_does_not_res
         "it does not apply again (the growing window keeps the missing outputs)"
     )
     assert Guarantee.none("x", "no certificate", [24.0], ("h",), ("cm",)).for_run(broken).suspended is None
+
+
+def test_an_estimate_the_data_put_beyond_xs_side_suspends_the_guarantee():
+    from uiest.estimators.base import _breaks_assumptions
+
+    y = np.array([[0.0], [np.nan], [0.0], [0.0]])
+    broken = _breaks_assumptions(["solved", "solved", "failed", "solved"], y, [False, False, False, True])
+    assert broken.tolist() == [False, True, True, True]

@@ -90,7 +90,8 @@ class Guarantee:
         (:mod:`uiest.estimators.horizon`; None: no such limit, or no window).
     suspended : (int, int) or None
         A run's guarantee only (:meth:`for_run`): the first and last steps whose data or solve broke what the
-        bound assumes (an output missing, or a window not solved); None when none did.
+        bound assumes (an output missing, a window not solved, or an estimate the data put beyond a side of X);
+        None when none did.
     suspended_steps : int
         How many steps between them did (0 without :attr:`suspended`).
     resumes : int or None
@@ -239,8 +240,9 @@ class Guarantee:
                 steps = f"k = {first}..{last}"
             else:
                 steps = f"{self.suspended_steps} steps from k = {first} to {last}"
-            text += (f". Suspended in this run: an output was missing or a window not solved at {steps}, and the "
-                     "bound assumes every output measured and every window solved")  # fmt: skip
+            text += (f". Suspended in this run: an output was missing, a window not solved or the data put the state "
+                     f"beyond X's side at {steps}, and the bound assumes every output measured, every window solved "
+                     "and the state in X")  # fmt: skip
             if self.resumes is not None:
                 beyond = end is not None and self.resumes > end
                 text += f"; it applies again from k = {self.resumes}" + (f", after the run's end (k = {end})" * beyond)

@@ -863,7 +863,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         missing=np.isnan(y_arr),
         estimator=estimator.estimator_name,
         horizon=estimator.N,
-        guarantee=estimator.guarantee.for_run(_breaks_assumptions(outcome, y_arr)),
+        guarantee=estimator.guarantee.for_run(_breaks_assumptions(outcome, y_arr, health["on_boundary"])),
         names={"x": s.x.names, "w": s.w.names},
         time_unit=s.time_unit,
         x_lag=x_lag if lag else None,
@@ -874,14 +874,16 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     )
 
 
-def _breaks_assumptions(outcome: list[str], y: FloatArray) -> NDArray[np.bool_]:
+def _breaks_assumptions(outcome: list[str], y: FloatArray, on_boundary: list[Any]) -> NDArray[np.bool_]:
     """(K+1,) bool: the steps whose data or solve break what a guarantee's bound assumes.
 
-    Every output measured, every window solved: a missing output, or an outcome other than solved, updated, the
-    prior or algebraic.
+    Every output measured, every window solved, the state in X: a missing output, an outcome other than solved,
+    updated, the prior or algebraic, or an estimate the data put beyond a side of X (``on_boundary``: X, not the
+    data, holds it there, and the true state may have left X).
     """
     unbroken = {Outcome.SOLVED.value, Outcome.UPDATED.value, Outcome.PRIOR.value, Outcome.ALGEBRAIC.value}
-    return np.isnan(y).any(axis=1) | np.array([value not in unbroken for value in outcome], dtype=bool)
+    solved = np.array([value in unbroken for value in outcome], dtype=bool)
+    return np.isnan(y).any(axis=1) | ~solved | np.asarray(on_boundary, dtype=bool)
 
 
 __all__ = ["StreamingEstimator", "WindowEstimator", "WindowOptions", "collect_run"]
