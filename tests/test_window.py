@@ -370,3 +370,20 @@ def test_a_windows_data_written_into_another_windows_parameters_are_its_paramete
     bad_prior[0] = np.inf
     with pytest.raises(DataError, match="prior: expected finite window data"):
         problem.with_data(base, bad_prior, u, y)
+
+
+def test_ipopt_backtracking_from_where_the_model_is_not_finite_prints_nothing(capfd):
+    # sqrt(x2 + 1) is NaN on part of X: IPOPT backtracks from such trial points, and CasADi printed one warning per
+    # evaluation (thousands in a study); the solve's status says how it ended
+    from uiest import System, simulate
+    from uiest.estimators import UISE, UISEWeights
+
+    system = System.from_callables(
+        lambda x, u, w: [0.9 * x[0] + 0.2 * np.sqrt(x[1] + 1.0) + w[0], 0.95 * x[1] + 0.05 * np.exp(-x[0])],
+        lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, x_bounds=(-5.0, 5.0), v_bounds=(-0.01, 0.01),
+    )  # fmt: skip
+    truth = simulate(system, [0.5, 1.0], 40, w=lambda k, x: [0.3 * np.sin(0.2 * k)], v=np.zeros((41, 1)))
+    estimator = UISE(system, weights=UISEWeights.from_scales(system, 0.8, output=1.0), N=6, x0_prior=[0.0, -3.0],
+                     solver="ipopt")  # fmt: skip
+    estimator.run(truth.u, truth.y)
+    assert "NaN detected" not in capfd.readouterr().err

@@ -202,7 +202,9 @@ class IpoptSolver:
                 f"window_{problem.length}",
                 "ipopt",
                 problem.nlp(),
-                {"ipopt": ipopt, "print_time": False, "error_on_fail": False},
+                # IPOPT backtracks from a trial point where the model is not finite (outside its domain); CasADi
+                # would print a warning for every such evaluation (thousands in a study); the status says how it ended
+                {"ipopt": ipopt, "print_time": False, "error_on_fail": False, "show_eval_warnings": False},
             )
         except RuntimeError as exc:
             raise OptionError(f"solver_options: IPOPT rejected the options {ipopt}: {exc}") from exc
