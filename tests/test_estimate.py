@@ -96,9 +96,14 @@ def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
     assert (out / "estimates_ekf.csv").is_file() and (out / "estimates.png").stat().st_size > 10_000
     assert "likelihood's" in result.output and "interior" in result.output  # fitted to the data given
     assert "(from the model's setup()), the record's true x[0]" in " ".join(result.output.split())
-    refused = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "kf",
-                                       "--out", str(out)])  # fmt: skip
-    assert refused.exit_code == 2 and "--estimator: expected one of" in refused.output
+    refused = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "uise",
+                                       "--estimator", "kf", "--out", str(out)])  # fmt: skip
+    assert refused.exit_code == 2 and "--estimator: expected one of" in refused.output  # a name: refused at once
+    # one the model does not admit among those asked for: "not run", and the others run (it ended the command)
+    some = CliRunner().invoke(app, ["estimate", str(REACTOR), "--data", str(REACTOR_DATA), "--estimator", "uise",
+                                    "--estimator", "uio", "--out", str(tmp_path / "some")])  # fmt: skip
+    assert some.exit_code == 0 and "uio: not run (system: expected a linear" in " ".join(some.output.split())
+    assert (tmp_path / "some" / "estimates_uise.csv").is_file()
 
 
 def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one():

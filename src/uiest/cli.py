@@ -28,6 +28,7 @@ from uiest.detectability import certify_delta_ioss, certify_reduced_model, certi
 from uiest.errors import BoundWarning, CertificationError, ModelError, OptionError, UiestError
 from uiest.estimate import (
     ALL,
+    ESTIMATORS,
     build_all,
     build_estimator,
     check_lag,
@@ -345,7 +346,9 @@ def _build_estimators(
 ) -> tuple[dict[str, Any], dict[str, str], dict[str, str]]:
     """The estimators asked for (none: the recommended one; ``all``: every one the model admits).
 
-    Returns ``(built, notes, skipped)``: per kind the estimator, the note on its weights, and why it was skipped.
+    Returns ``(built, notes, skipped)``: per kind the estimator, the note on its weights, and why it was skipped. One
+    that the model does not admit, or that cannot be built on the record, is skipped and the others run; where none
+    can be, the first refusal is the error.
     """
     if not kinds:
         status.update("analysing the model")
@@ -353,20 +356,28 @@ def _build_estimators(
         console.print(f"recommended: {kind}: {why} (`uiest analyse` shows the whole analysis). {RUN_DESIGNS_ITS_OWN}",
                       markup=False, highlight=False, soft_wrap=True)  # fmt: skip
         kinds = [kind]
+    unknown = [kind for kind in kinds if kind not in (*ESTIMATORS, ALL)]
+    if unknown:
+        raise OptionError(f"--estimator: expected one of {[*ESTIMATORS, ALL]}, got {unknown[0]!r}")
     if ALL in kinds:
         status.update("building every estimator the model admits")
         return build_all(entry, system, prior, **options)
     built: dict[str, Any] = {}
     notes: dict[str, str] = {}
-    for kind in kinds:
+    skipped: dict[str, str] = {}
+    refused: list[Exception] = []
+    for kind in dict.fromkeys(kinds):
         status.update(f"building {kind}")
         try:
             built[kind], notes[kind] = build_estimator(kind, entry, system, prior, **options)
-        except (ModelError, CertificationError) as exc:  # the model does not admit it: say which one was asked for
-            if type(exc) not in (ModelError, CertificationError):
+        except (ModelError, CertificationError, OptionError) as exc:  # not admitted, or not built on this record
+            if type(exc) not in (ModelError, CertificationError, OptionError):
                 raise
-            raise type(exc)(f"--estimator {kind}: {exc}") from None
-    return built, notes, {}
+            refused.append(type(exc)(f"--estimator {kind}: {exc}"))
+            skipped[kind] = str(exc)
+    if not built:  # none to run: the first refusal is the command's error
+        raise refused[0] from None
+    return built, notes, skipped
 
 
 def _print_estimates(
