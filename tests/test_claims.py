@@ -74,3 +74,21 @@ def test_paper_claims_rest_on_per_run_ratios_of_the_study():
                 expected.append(rmse["UISE"] / rmse["standard MHE"])
             np.testing.assert_allclose(np.sort(claim.effect.ratios), np.sort(expected))
     assert isinstance(tables["rmse"], pd.DataFrame) and set(tables["rmse"].columns) == {"UISE", "standard MHE"}
+
+
+def test_a_run_whose_estimator_mostly_failed_measures_no_claim():
+    # a study where 200 of 202 steps failed said "holds: the standard MHE's error grows" from the propagated estimates
+    import dataclasses
+
+    from uiest.experiments.claims import MOSTLY_FAILED
+
+    study = run_study(tiny().with_overrides(runs=2), solver="gn")
+    steps = study.steps.copy()
+    mhe = (steps.estimator == "standard MHE") & (steps.run == 0)
+    steps.loc[mhe & (steps.k % 4 != 0), "outcome"] = "failed"  # 3 of 4 steps: more than MOSTLY_FAILED
+    claims = paper_claims(dataclasses.replace(study, steps=steps))
+    assert MOSTLY_FAILED < 0.75
+    for claim in claims:
+        if "standard MHE" in claim.statement:
+            case_runs = 1 if claim.case in set(steps.case[mhe]) else 2
+            assert claim.effect is not None and len(claim.effect.ratios) == case_runs

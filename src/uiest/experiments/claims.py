@@ -21,6 +21,7 @@ import numpy as np
 from uiest.box import FloatArray
 from uiest.experiments.metrics import state_names
 from uiest.experiments.runner import StudyResult
+from uiest.health import FAILURES
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -28,6 +29,7 @@ if TYPE_CHECKING:
 __all__ = [
     "FILTER_KINDS",
     "MIN_EFFECT",
+    "MOSTLY_FAILED",
     "Claim",
     "ClaimVerdict",
     "Effect",
@@ -165,11 +167,17 @@ class Claim:
                 f"{relative(e.center, self.below, self.above)}{span}{detail})")  # fmt: skip
 
 
+MOSTLY_FAILED = 0.5
+"""A run whose estimator failed (:data:`uiest.health.FAILURES`) in more than this share of its settled steps measures
+nothing about it: the claims leave it out (a claim on no run is "not measured")."""
+
+
 def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
     """Per-run tables, index (case, run), one column per estimator: focus RMSE, error growth, time per sample.
 
     RMSE after ``settle``; growth: mean ``|error|`` over the last quarter of the run over that of the
-    quarter after ``settle``; time: the mean CPU time per sample (s, whole steps).
+    quarter after ``settle``; time: the mean CPU time per sample (s, whole steps). NaN for a run whose estimator
+    failed in more than :data:`MOSTLY_FAILED` of its settled steps.
     """
     scenario, frame = study.scenario, study.steps
     quarter = max(1, (scenario.steps - scenario.settle) // 4)
@@ -182,10 +190,12 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
     def table(values: pd.Series, rows: pd.Series) -> pd.DataFrame:
         return values[rows].groupby([frame.loc[rows, key] for key in keys]).mean().unstack("estimator")
 
+    failed = frame["outcome"].isin([outcome.value for outcome in FAILURES]).astype(float)
+    measured = table(failed, settled) <= MOSTLY_FAILED
     return {
-        "rmse": np.sqrt(table(err**2, settled)),
-        "growth": table(err, late) / table(err, early),
-        "seconds": table(frame["cpu_time"], frame["k"] >= 0),
+        "rmse": np.sqrt(table(err**2, settled)).where(measured),
+        "growth": (table(err, late) / table(err, early)).where(measured),
+        "seconds": table(frame["cpu_time"], frame["k"] >= 0).where(measured),
     }
 
 
