@@ -421,3 +421,14 @@ def test_a_store_needs_the_model_by_name_or_file(tmp_path):
     models.register("registered-here", entry.build, setup=entry.setup, replace=True)
     with pytest.raises(OptionError, match=r"^store: .*registered at run time"):
         run_study(dataclasses.replace(tiny(), model="registered-here"), store=tmp_path)
+
+
+def test_noise_leaving_v_is_counted_and_reported(tmp_path):
+    # a sweep's noise_scale = 3 put 90 % of the samples outside V, and neither the runs nor the report said so
+    base = tiny()
+    loud = base.with_overrides(runs=1, cases=("noisy",), noise_scale=3.0, estimators=(base.estimators[0],))
+    with pytest.warns(UserWarning, match="v left V"):
+        study = run_study(loud)
+    assert study.runs.iloc[0]["v_outside"] > 0
+    write_report(study, tmp_path, wall_time=1.0)
+    assert "The noise left V in 1 runs" in (tmp_path / "report.md").read_text()

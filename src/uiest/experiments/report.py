@@ -325,6 +325,12 @@ def outcome_lines(study: StudyResult) -> list[str]:
     if outside.sum():
         lines.append(f"**The true state left X in {int((outside > 0).sum())} runs ({int(outside.sum())} samples): "
                      "the estimators constrain their estimates to X there.**")  # fmt: skip
+    if "v_outside" in runs:  # (runs stored before the column was added have none)
+        noise = runs.drop_duplicates(["case", "run"])["v_outside"]
+        noise = noise[noise >= 0]
+        if noise.sum():
+            lines.append(f"**The noise left V in {int((noise > 0).sum())} runs ({int(noise.sum())} samples): the "
+                         "guarantees' bounds assume the noise in V.**")  # fmt: skip
     counts = health(study)
     held = counts[counts["on_boundary"] > 0]
     if len(held):

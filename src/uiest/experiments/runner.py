@@ -161,7 +161,8 @@ class StudyResult:
         ``<name>_at_bound``.
     runs : pandas.DataFrame
         One row per (case, run, estimator): ``x0``, wall time, ``x_outside`` (samples where the true
-        state left X), ``error`` (type and message if the estimator raised, else empty) and the step
+        state left X), ``v_outside`` (samples where the noise left V; -1 for both where the run was not simulated),
+        ``error`` (type and message if the estimator raised, else empty) and the step
         counts of :meth:`EstimationResult.counts` (``failures``, ``fallbacks``, ``at_bound``,
         ``at_bound_<state>``, ``held``, ``propagated``, ``on_boundary``, ``window_at_bound``; -1 when
         the estimator raised).
@@ -397,8 +398,8 @@ def run_case(
         x_names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(truth.x.shape[1]))
         counts = result.counts() if result is not None else dict.fromkeys(count_names(x_names), -1)
         rows.append({"case": case, "run": run, "estimator": spec.name, "x0": list(map(float, truth.x[0])),
-                     "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()), "error": error,
-                     **counts})  # fmt: skip
+                     "wall_time_s": wall, "x_outside": int(truth.x_outside.sum()),
+                     "v_outside": int(truth.v_outside.sum()), "error": error, **counts})  # fmt: skip
     return RunOutcome(case=case, run=run, truth=truth, results=results, frames=frames, rows=rows)
 
 
@@ -406,7 +407,7 @@ def _failed_simulation(scenario: Scenario, case: str, run: int, study: StudyMode
     """The outcome of a run whose simulation failed: every estimator's row carries ``error``, counts -1."""
     names = study.system.x.names
     rows = [{"case": case, "run": run, "estimator": spec.name, "x0": [float("nan")] * len(names), "wall_time_s": 0.0,
-             "x_outside": -1, "error": error, **dict.fromkeys(count_names(names), -1)}
+             "x_outside": -1, "v_outside": -1, "error": error, **dict.fromkeys(count_names(names), -1)}
             for spec in scenario.estimators]  # fmt: skip
     return RunOutcome(case=case, run=run, truth=None, results={}, frames=[], rows=rows)
 
