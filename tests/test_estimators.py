@@ -623,3 +623,32 @@ def test_ctrl_c_during_ipopt_solves_stops_the_run():
         time.sleep(0.05)
         raise RuntimeError("the solver failed")
     assert signal.getsignal(signal.SIGINT) is handler
+
+
+def test_a_run_whose_steps_mostly_fail_warns():
+    # 60 of 61 steps failed and only the step table said so
+    from uiest import FailureWarning
+    from uiest.estimators import base
+
+    system, scenario = crop_growth.system(), crop_growth.DEFAULT_SCENARIO
+    truth = simulate(system, scenario.x0, 10, w=crop_growth.UnknownInputLaw(), v=scenario.noise(), seed=1)
+    estimator = UISE(system, weights=UISEWeights.from_scales(system, 0.48, output=1e6), N=3,
+                     x0_prior=scenario.prior(truth.y[0]), solver="gn")  # fmt: skip
+    with pytest.warns(FailureWarning, match=r"UISE: 11 of 11 steps failed \(100 %\)"):
+        base.collect_run(_FailingSteps(estimator), truth.u, truth.y)
+
+
+class _FailingSteps:
+    """An estimator whose every step reports a failure (its window problem not solved)."""
+
+    def __init__(self, estimator):
+        self._estimator = estimator
+        self.system, self.estimator_name, self.N = estimator.system, "UISE", estimator.N
+        self.guarantee, self.options = estimator.guarantee, estimator.options
+
+    def step(self, u_prev, y):
+        import dataclasses
+
+        from uiest.health import Outcome
+
+        return dataclasses.replace(self._estimator.step(u_prev, y), outcome=Outcome.FAILED)

@@ -374,7 +374,9 @@ def test_a_stored_study_reads_its_finished_runs_back_and_computes_only_the_other
     files[2].write_bytes(pickle.dumps({"key": files[2].stem, "outcome": "not a run"}))  # its key, not a run: the same
     kept = {path: path.stat().st_mtime_ns for path in files[3:]}
     labels = []
-    again = run_study(tiny(), store=store, progress=labels.append)
+    with pytest.warns(UserWarning, match=r"could not be read .*set aside as .*corrupt") as caught:
+        again = run_study(tiny(), store=store, progress=labels.append)
+    assert sum("set aside" in str(w.message) for w in caught) == 2  # said, not silent
     assert len(labels) == 3 * 2  # three (case, run)s of two estimators computed; the other read back
     assert len(list((store / "corrupt").iterdir())) == 2 and len(list(store.glob("*.pickle"))) == 4
     assert {path: path.stat().st_mtime_ns for path in files[3:]} == kept

@@ -25,7 +25,7 @@ from uiest.atomic import staged_folder, write_file, write_text
 from uiest.box import as_vector
 from uiest.checks import check_samples
 from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
-from uiest.errors import BoundWarning, CertificationError, ModelError, OptionError, UiestError
+from uiest.errors import BoundWarning, CertificationError, FailureWarning, ModelError, OptionError, UiestError
 from uiest.estimate import (
     ALL,
     ESTIMATORS,
@@ -292,11 +292,13 @@ def estimate(
         status.update(f"estimating over {record.steps} steps")
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", BoundWarning)
+            warnings.simplefilter("always", FailureWarning)
             results = run_estimators(built, record, prior)
-    title = f"{entry.name}: {record.steps} steps from {data}; {_prior_text(system, record, prior, x0, entry)}"
+    steps = f"{record.steps} step{'s' * (record.steps != 1)}"
+    title = f"{entry.name}: {steps} from {data}; {_prior_text(system, record, prior, x0, entry)}"
     _print_estimates(title, system, record, results, notes, skipped)
     for caught_warning in caught:  # as messages, not as Python warnings with a source line
-        if issubclass(caught_warning.category, BoundWarning):
+        if issubclass(caught_warning.category, (BoundWarning, FailureWarning)):
             error_console.print(f"warning: {caught_warning.message}", style="yellow", soft_wrap=True, markup=False)
         else:
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
@@ -685,8 +687,15 @@ def sweep(
                        description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
                        f"lost {state.lost}, remaining {state.remaining}")  # fmt: skip
 
-        results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update,
-                            retry_failed=retry_failed)  # fmt: skip
+        try:
+            results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update,
+                                retry_failed=retry_failed)  # fmt: skip
+        except KeyboardInterrupt:
+            stored = last.skipped + last.done
+            error_console.print(f"interrupted: {stored} of {total} tasks are stored in {out / 'runs'} (those that "
+                                "finished before); the same command with the same --out computes only the others",
+                                markup=False, soft_wrap=True)  # fmt: skip
+            raise typer.Exit(code=130) from None
     keys = results["key"].nunique() if not results.empty else 0
     failed = int(results.groupby("key")["error"].apply(lambda e: (e != "").any()).sum()) if keys else 0
     console.print(f"{keys} of {total} tasks stored ({failed} with an error), {last.lost} lost this run; "

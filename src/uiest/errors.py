@@ -11,6 +11,7 @@ __all__ = [
     "CertificationError",
     "DataError",
     "DomainWarning",
+    "FailureWarning",
     "HorizonError",
     "ModelError",
     "OptionError",
@@ -91,3 +92,7 @@ class DomainWarning(UserWarning):
 
 class BoundWarning(UserWarning):
     """A run's estimates lie at a side of the state domain X in many steps: X may be too narrow."""
+
+
+class FailureWarning(UserWarning):
+    """A run's estimator failed in many of its steps (the model propagated the last estimate there)."""

@@ -46,7 +46,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import all_true, any_true, check_flag, user_stacklevel
-from uiest.errors import BoundWarning, CertificationError, DataError, OptionError, SolverError
+from uiest.errors import BoundWarning, CertificationError, DataError, FailureWarning, OptionError, SolverError
 from uiest.estimators.checks import held_on_boundary, window_bounds
 from uiest.estimators.history import RowHistory
 from uiest.estimators.horizon import InformationHorizon, information_horizon
@@ -846,6 +846,14 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
                             constrained=isinstance(estimator, WindowEstimator))  # fmt: skip
     if message is not None:
         warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
+    failed = sum(Outcome(value).failed for value in outcome)
+    if failed > FAILURE_SHARE * (K + 1):
+        warnings.warn(
+            f"{estimator.estimator_name}: {failed} of {K + 1} steps failed ({100 * failed / (K + 1):.0f} %): the model "
+            "propagated the last estimate there (the result's outcome and solver_status say why)",
+            FailureWarning,
+            stacklevel=user_stacklevel(),
+        )
     W = getattr(estimator, "w_domain", None)  # an estimator whose model bounds the unknown input
     if W is not None:
         message = input_bound_message(estimator.estimator_name, at_bound(W, w_hat, s.w.scale), w_hat, W, s.w.names)
@@ -872,6 +880,10 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
         cpu_time=cpu_time,
     )
+
+
+FAILURE_SHARE = 0.05
+"""A run warns (:class:`~uiest.errors.FailureWarning`) where more than this share of its steps failed."""
 
 
 def _breaks_assumptions(outcome: list[str], y: FloatArray, on_boundary: list[Any]) -> NDArray[np.bool_]:

@@ -21,6 +21,7 @@ import json
 import os
 import pickle
 import time
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -110,10 +111,13 @@ class StudyStore:
                 raise ValueError("the file holds another run")
             if expected is not None and not isinstance(record["outcome"], expected):
                 raise TypeError(f"the file holds a {type(record['outcome']).__name__}")
-        except Exception:  # any damage: set it aside, the run is computed again
+        except Exception as exc:  # any damage: set it aside, the run is computed again
             aside = self.folder / "corrupt"
             aside.mkdir(exist_ok=True)
-            os.replace(path, aside / f"{path.stem}.{time.time_ns()}{SUFFIX}")
+            target = aside / f"{path.stem}.{time.time_ns()}{SUFFIX}"
+            os.replace(path, target)
+            warnings.warn(f"runs: the stored run file {path.name} could not be read ({type(exc).__name__}); set aside "
+                          f"as {target} and computed again", UserWarning, stacklevel=2)  # fmt: skip
             return None
         return record["outcome"]
 

@@ -107,10 +107,13 @@ def _store(frame: pd.DataFrame, folder: Path, key: str) -> None:
     write_file(folder / f"{key}.parquet", lambda tmp: frame.to_parquet(tmp, index=False))
 
 
-def _set_aside(path: Path) -> None:
+def _set_aside(path: Path, why: Exception) -> None:
     aside = path.parent / "corrupt"
     aside.mkdir(exist_ok=True)
-    os.replace(path, aside / f"{path.stem}.{time.time_ns()}.parquet")
+    target = aside / f"{path.stem}.{time.time_ns()}.parquet"
+    os.replace(path, target)
+    warnings.warn(f"runs: the stored task file {path.name} could not be read ({type(why).__name__}); set aside as "
+                  f"{target} and computed again", UserWarning, stacklevel=2)  # fmt: skip
 
 
 def _read(path: Path) -> pd.DataFrame | None:
@@ -121,8 +124,8 @@ def _read(path: Path) -> pd.DataFrame | None:
         frame = pq.read_table(path).to_pandas()
         if "key" not in frame or not (frame["key"] == path.stem).all():
             raise ValueError("rows of another task")
-    except Exception:  # any damage (footer, pages, contents): set it aside, the task is computed again
-        _set_aside(path)
+    except Exception as exc:  # any damage (footer, pages, contents): set it aside, the task is computed again
+        _set_aside(path, exc)
         return None
     return frame
 
