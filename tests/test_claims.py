@@ -92,3 +92,4 @@ def test_a_run_whose_estimator_mostly_failed_measures_no_claim():
         if "standard MHE" in claim.statement:
             case_runs = 1 if claim.case in set(steps.case[mhe]) else 2
             assert claim.effect is not None and len(claim.effect.ratios) == case_runs
+            assert "1 run left out: an estimator failed in most of its steps" in claim.text()  # said, not silent

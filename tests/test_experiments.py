@@ -173,7 +173,7 @@ def test_a_state_leaving_x_is_counted_and_reported(tmp_path):
     assert len(per_state) == 2 and max(per_state) <= row["at_bound"] <= sum(per_state)
     write_report(study, tmp_path, wall_time=1.0)
     report = (tmp_path / "report.md").read_text()
-    assert "The true state left X in 1 runs" in report and "held on the boundary of X" in report
+    assert "The true state left X in 1 run (" in report and "held on the boundary of X" in report
     health = pd.read_csv(tmp_path / "health.csv")
     assert health.loc[0, "at_bound"] == row["at_bound"] and health.loc[0, "failures"] == row["failures"]
     share = 100 * row["at_bound"] / row["steps"]
@@ -433,4 +433,4 @@ def test_noise_leaving_v_is_counted_and_reported(tmp_path):
         study = run_study(loud)
     assert study.runs.iloc[0]["v_outside"] > 0
     write_report(study, tmp_path, wall_time=1.0)
-    assert "The noise left V in 1 runs" in (tmp_path / "report.md").read_text()
+    assert "The noise left V in 1 run (" in (tmp_path / "report.md").read_text()

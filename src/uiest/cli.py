@@ -691,10 +691,9 @@ def sweep(
             results = run_sweep(plan, out, workers=workers, scheduler=scheduler, solver=solver, progress=update,
                                 retry_failed=retry_failed)  # fmt: skip
         except KeyboardInterrupt:
-            stored = last.skipped + last.done
-            error_console.print(f"interrupted: {stored} of {total} tasks are stored in {out / 'runs'} (those that "
-                                "finished before); the same command with the same --out computes only the others",
-                                markup=False, soft_wrap=True)  # fmt: skip
+            message = (f"interrupted: the tasks that finished are stored in {out / 'runs'}; the same command with "
+                       "the same --out computes only the others")  # fmt: skip
+            error_console.print(message, markup=False, soft_wrap=True)
             raise typer.Exit(code=130) from None
     keys = results["key"].nunique() if not results.empty else 0
     failed = int(results.groupby("key")["error"].apply(lambda e: (e != "").any()).sum()) if keys else 0

@@ -95,4 +95,4 @@ class BoundWarning(UserWarning):
 
 
 class FailureWarning(UserWarning):
-    """A run's estimator failed in many of its steps (the model propagated the last estimate there)."""
+    """A run's estimator failed in many of its steps (their estimates are propagated or kept)."""

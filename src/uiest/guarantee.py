@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -90,8 +91,8 @@ class Guarantee:
         (:mod:`uiest.estimators.horizon`; None: no such limit, or no window).
     suspended : (int, int) or None
         A run's guarantee only (:meth:`for_run`): the first and last steps whose data or solve broke what the
-        bound assumes (an output missing, a window not solved, or an estimate the data put beyond a side of X);
-        None when none did.
+        bound assumes (an output missing, a window not solved, or from :attr:`settling_steps` on an estimate the
+        data put beyond a side of X); None when none did.
     suspended_steps : int
         How many steps between them did (0 without :attr:`suspended`).
     resumes : int or None
@@ -145,14 +146,20 @@ class Guarantee:
         """A theorem that does not apply, and why."""
         return cls(theorem=theorem, applies=False, reason=reason, x_width=x_width, names=names, units=units)
 
-    def for_run(self, broken: np.ndarray) -> Guarantee:
+    def for_run(self, broken: np.ndarray, outside: Sequence[bool] | np.ndarray | None = None) -> Guarantee:
         """The guarantee as a run of ``K + 1`` steps met it (:attr:`suspended`, :attr:`resumes`).
 
-        ``broken`` (K+1,) bool marks the steps whose data or solve broke what the bound assumes; the guarantee itself
-        where none did or it does not apply.
+        ``broken`` (K+1,) bool marks the steps whose data or solve broke what the bound assumes; ``outside`` (K+1,)
+        bool the estimates the data put beyond a side of X (the true state may have left X), which count from
+        :attr:`settling_steps` on (before, an estimate far from a wrong prior's start is the transient the bound
+        allows). The guarantee itself where none did or it does not apply.
         """
         if not self.applies:
             return self
+        if outside is not None and self.settling_steps is not None:
+            late = np.asarray(outside, dtype=bool).copy()
+            late[: self.settling_steps] = False
+            broken = np.asarray(broken, dtype=bool) | late
         steps = np.flatnonzero(broken)
         if not steps.size:
             return dataclasses.replace(self, run_steps=len(broken))
@@ -240,14 +247,14 @@ class Guarantee:
                 steps = f"k = {first}..{last}"
             else:
                 steps = f"{self.suspended_steps} steps from k = {first} to {last}"
-            text += (f". Suspended in this run: an output was missing, a window not solved or the data put the state "
-                     f"beyond X's side at {steps}, and the bound assumes every output measured, every window solved "
-                     "and the state in X")  # fmt: skip
+            text += (f". Suspended in this run: an output was missing, a window not solved or the data put the "
+                     f"estimate beyond X's side at {steps}, and the bound assumes every output measured, every window "
+                     "solved and the state in X")  # fmt: skip
             if self.resumes is not None:
                 beyond = end is not None and self.resumes > end
                 text += f"; it applies again from k = {self.resumes}" + (f", after the run's end (k = {end})" * beyond)
             elif self.grows and self.horizon is None and self.settling_steps is not None:
-                text += "; it does not apply again (the growing window keeps the missing outputs)"
+                text += "; it does not apply again (the growing window keeps the steps that broke it)"
         elif end is not None and self.settling_steps is not None and self.settling_steps > end:
             text += f". The run ends at k = {end}, before the bound applies"
         return text

@@ -21,7 +21,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from uiest.box import Box, FloatArray
-from uiest.errors import BoundWarning, DataError
+from uiest.errors import BoundWarning, DataError, FailureWarning
 
 Params = ParamSpec("Params")
 Result = TypeVar("Result")
@@ -258,13 +258,14 @@ def _at_sides(
 
 @contextmanager
 def quiet_bound_warnings() -> Iterator[None]:
-    """Silence :class:`~uiest.errors.BoundWarning` inside: for runs whose at-bound steps the caller counts itself.
+    """Silence :class:`~uiest.errors.BoundWarning` and :class:`~uiest.errors.FailureWarning` inside.
 
-    Design trials, filter tuning and studies run many estimators whose results the user never sees
-    one by one; their at-bound steps are counted where they are reported.
+    For runs whose at-bound and failed steps the caller counts itself: design trials, filter tuning and studies run
+    many estimators whose results the user never sees one by one; their steps are counted where they are reported.
     """
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", BoundWarning)
+        warnings.simplefilter("ignore", FailureWarning)
         yield
 
 

@@ -164,8 +164,9 @@ def zero_text(a: ModelAnalysis, zero: Zero, degree: int | None = None) -> str:
             "plant: analyse again with more substeps or method='collocation')"
         )
     if zero.exact is not None:
-        text += (f" (the linearisation sampled exactly has it at {complex_number(zero.exact)}: the model's "
-                 "discretisation moves it; see System.from_ode's warnings)")  # fmt: skip
+        text += (f" (the continuous linearisation sampled exactly has it at {complex_number(zero.exact)}: the "
+                 "model's discretisation, see System.from_ode's warnings, or the motion within a sample away from an "
+                 "equilibrium moves it)")  # fmt: skip
     return text
 
 

@@ -129,8 +129,9 @@ class ModelAnalysis:
             if z.limit is not None:
                 notes.append(f"{number(z.limit)} as dt -> 0")
             if z.exact is not None:
-                notes.append(f"sampled exactly, the linearisation has it at {complex_number(z.exact)}: the model's "
-                             "discretisation moved it")  # fmt: skip
+                notes.append(f"the continuous linearisation sampled exactly has it at {complex_number(z.exact)}: "
+                             "the model's discretisation, or the motion within a sample away from an equilibrium, "
+                             "moves it")  # fmt: skip
             parts.append(complex_number(z.value) + (f" ({'; '.join(notes)})" if notes else ""))
         return ", ".join(parts)
 

@@ -53,7 +53,8 @@ class Zero:
     exact : complex or None
         The zero of the continuous linearisation sampled exactly (:func:`exactly_sampled_zeros`) that this one pairs
         with, where they lie apart (:data:`DISCRETISATION_TOL`): the model's discretisation (its integrator, or the
-        unknown input's direction fixed at X's centre) moved the zero.
+        unknown input's direction fixed at X's centre) moved the zero, or, away from an equilibrium, the motion
+        within a sample (which the frozen linearisation leaves out) does.
 
     """
 
@@ -194,7 +195,7 @@ def _zeros_at(A: FloatArray, B: FloatArray, C: FloatArray, A_c: FloatArray | Non
     if A_c is None or G is None:
         return tuple(Zero(value=complex(z)) for z in found)
     sampling = np.isnan(paired(found, np.exp(invariant_zeros(A_c, G, C) * dt)))
-    # a zero apart from the exactly sampled linearisation's: the model's discretisation moved it
+    # a zero apart from the exactly sampled linearisation's: the discretisation (or the motion in a sample) moved it
     exact = paired(found, exactly_sampled_zeros(A_c, G, C, dt))
     moved = {i: complex(exact[i]) for i in range(len(found)) if np.isfinite(exact[i]) and _apart(found[i], exact[i])}
     if step is not None and rk4_grows(np.linalg.eigvals(A_c), step).any():

@@ -849,8 +849,9 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
     failed = sum(Outcome(value).failed for value in outcome)
     if failed > FAILURE_SHARE * (K + 1):
         warnings.warn(
-            f"{estimator.estimator_name}: {failed} of {K + 1} steps failed ({100 * failed / (K + 1):.0f} %): the model "
-            "propagated the last estimate there (the result's outcome and solver_status say why)",
+            f"{estimator.estimator_name}: {failed} of {K + 1} steps failed ({100 * failed / (K + 1):.0f} %): their "
+            "estimates are the model's propagation of the last one, or the last one kept (the result's outcome and "
+            "solver_status say which and why)",
             FailureWarning,
             stacklevel=user_stacklevel(),
         )
@@ -871,7 +872,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         missing=np.isnan(y_arr),
         estimator=estimator.estimator_name,
         horizon=estimator.N,
-        guarantee=estimator.guarantee.for_run(_breaks_assumptions(outcome, y_arr, health["on_boundary"])),
+        guarantee=estimator.guarantee.for_run(_breaks_assumptions(outcome, y_arr), outside=health["on_boundary"]),
         names={"x": s.x.names, "w": s.w.names},
         time_unit=s.time_unit,
         x_lag=x_lag if lag else None,
@@ -886,16 +887,14 @@ FAILURE_SHARE = 0.05
 """A run warns (:class:`~uiest.errors.FailureWarning`) where more than this share of its steps failed."""
 
 
-def _breaks_assumptions(outcome: list[str], y: FloatArray, on_boundary: list[Any]) -> NDArray[np.bool_]:
+def _breaks_assumptions(outcome: list[str], y: FloatArray) -> NDArray[np.bool_]:
     """(K+1,) bool: the steps whose data or solve break what a guarantee's bound assumes.
 
-    Every output measured, every window solved, the state in X: a missing output, an outcome other than solved,
-    updated, the prior or algebraic, or an estimate the data put beyond a side of X (``on_boundary``: X, not the
-    data, holds it there, and the true state may have left X).
+    Every output measured, every window solved: a missing output, or an outcome other than solved, updated, the
+    prior or algebraic.
     """
     unbroken = {Outcome.SOLVED.value, Outcome.UPDATED.value, Outcome.PRIOR.value, Outcome.ALGEBRAIC.value}
-    solved = np.array([value in unbroken for value in outcome], dtype=bool)
-    return np.isnan(y).any(axis=1) | ~solved | np.asarray(on_boundary, dtype=bool)
+    return np.isnan(y).any(axis=1) | np.array([value not in unbroken for value in outcome], dtype=bool)
 
 
 __all__ = ["StreamingEstimator", "WindowEstimator", "WindowOptions", "collect_run"]

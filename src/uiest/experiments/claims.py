@@ -196,7 +196,17 @@ def per_run(study: StudyResult, focus: str) -> dict[str, pd.DataFrame]:
         "rmse": np.sqrt(table(err**2, settled)).where(measured),
         "growth": (table(err, late) / table(err, early)).where(measured),
         "seconds": table(frame["cpu_time"], frame["k"] >= 0).where(measured),
+        "measured": measured,
     }
+
+
+def _left_out(measured: pd.DataFrame, case: str, names: Sequence[str]) -> str:
+    """``"; 2 runs left out (...)"`` where some of the case's runs failed for one of ``names``, else ``""``."""
+    if case not in measured.index.get_level_values(0):
+        return ""
+    columns = [name for name in names if name in measured.columns]
+    count = int((~measured.loc[case, columns].all(axis=1)).sum())
+    return f"; {count} run{'s' * (count != 1)} left out: an estimator failed in most of its steps" if count else ""
 
 
 def _column(table: pd.DataFrame, case: str, name: str) -> pd.Series:
@@ -243,7 +253,7 @@ def paper_claims(study: StudyResult) -> list[Claim]:
     focus = state_names(study)[scenario.focus_state]
     names = [s.name for s in scenario.estimators if s.weights == "explicit" and s.kind not in FILTER_KINDS]
     tables = per_run(study, focus)
-    rmse, growth, seconds = tables["rmse"], tables["growth"], tables["seconds"]
+    rmse, growth, seconds, measured = tables["rmse"], tables["growth"], tables["seconds"], tables["measured"]
     claims = []
     for case in scenario.cases:
         if "standard MHE" in names:
@@ -252,19 +262,23 @@ def paper_claims(study: StudyResult) -> list[Claim]:
                 if name == "standard MHE":
                     continue
                 ours = _column(rmse, case, name)
-                detail = f"mean RMSE {ours.mean():.3g} vs {mhe.mean():.3g}" if len(ours) and len(mhe) else ""
+                both = ours.index.intersection(mhe.index)  # the runs both measured
+                detail = f"mean RMSE {ours[both].mean():.3g} vs {mhe[both].mean():.3g}" if len(both) else ""
+                detail += _left_out(measured, case, (name, "standard MHE"))
                 claims.append(_claim(case, f"the {name} has a smaller {focus} error than the standard MHE",
                                      f"RMSE ratio {name} / standard MHE", _ratios(rmse, case, name, "standard MHE"),
-                                     ("smaller", "larger"), detail))  # fmt: skip
+                                     ("smaller", "larger"), detail.removeprefix("; ")))  # fmt: skip
+            left_out = _left_out(measured, case, ("standard MHE",)).removeprefix("; ")
             claims.append(_claim(case, f"the standard MHE's {focus} error grows over the run",
                                  "late/early mean |error|", _column(growth, case, "standard MHE").to_numpy(),
-                                 ("decrease", "growth"), "", claimed_below=False))  # fmt: skip
+                                 ("decrease", "growth"), left_out, claimed_below=False))  # fmt: skip
         if "two-stage UISE" in names:
             for other in (n for n in names if n != "two-stage UISE"):
                 claims.append(_claim(case, f"the two-stage UISE takes less time per sample than the {other}",
                                      f"time per sample ratio two-stage UISE / {other}",
                                      _ratios(seconds, case, "two-stage UISE", other), ("less", "more"),
-                                     "paired by run", min_effect=MIN_TIME_EFFECT))  # fmt: skip
+                                     "paired by run" + _left_out(measured, case, ("two-stage UISE", other)),
+                                     min_effect=MIN_TIME_EFFECT))  # fmt: skip
     return claims
 
 

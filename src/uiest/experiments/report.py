@@ -323,14 +323,16 @@ def outcome_lines(study: StudyResult) -> list[str]:
     outside = runs.drop_duplicates(["case", "run"])["x_outside"]
     outside = outside[outside >= 0]  # -1: the run was not simulated
     if outside.sum():
-        lines.append(f"**The true state left X in {int((outside > 0).sum())} runs ({int(outside.sum())} samples): "
-                     "the estimators constrain their estimates to X there.**")  # fmt: skip
+        runs_out, samples = int((outside > 0).sum()), int(outside.sum())
+        lines.append(f"**The true state left X in {runs_out} run{'s' * (runs_out != 1)} ({samples} samples): the "
+                     "estimators constrain their estimates to X there.**")  # fmt: skip
     if "v_outside" in runs:  # (runs stored before the column was added have none)
         noise = runs.drop_duplicates(["case", "run"])["v_outside"]
         noise = noise[noise >= 0]
         if noise.sum():
-            lines.append(f"**The noise left V in {int((noise > 0).sum())} runs ({int(noise.sum())} samples): the "
-                         "guarantees' bounds assume the noise in V.**")  # fmt: skip
+            runs_out = int((noise > 0).sum())
+            lines.append(f"**The noise left V in {runs_out} run{'s' * (runs_out != 1)} ({int(noise.sum())} samples): "
+                         "the guarantees' bounds assume the noise in V.**")  # fmt: skip
     counts = health(study)
     held = counts[counts["on_boundary"] > 0]
     if len(held):
