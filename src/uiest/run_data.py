@@ -5,14 +5,12 @@ Index convention: ``u[k]`` acts between k and k+1; a run has ``u (K, nu)`` and `
 
 from __future__ import annotations
 
-import math
 from typing import TYPE_CHECKING
 
-import numba
 import numpy as np
 
 from uiest.box import FloatArray, as_vector
-from uiest.checks import DOMAIN_TOL, any_true, real_array
+from uiest.checks import DOMAIN_TOL, all_finite, any_true, real_array
 from uiest.errors import DataError
 
 if TYPE_CHECKING:
@@ -34,24 +32,18 @@ def check_u_prev(system: System, u_prev: ArrayLike | None, k: int) -> FloatArray
         if nu == 0:
             return np.zeros(0)
         raise DataError(f"u_prev: expected the known input u[{k - 1}] of shape ({nu},), got None")
-    if type(u_prev) is np.ndarray and u_prev.dtype == np.float64 and u_prev.shape == (nu,):  # every step's case
-        lower, upper = system.u.bounds.sides(DOMAIN_TOL)
-        if _finite_inside(u_prev, lower, upper):
-            return u_prev.copy()
+    if (
+        type(u_prev) is np.ndarray  # every step's case: a float array of the right shape, finite and in U
+        and u_prev.dtype == np.float64
+        and u_prev.shape == (nu,)
+        and all_finite(u_prev)
+        and system.u.bounds.contains(u_prev, tol=DOMAIN_TOL)
+    ):
+        return u_prev.copy()
     u_vec = as_vector(u_prev, nu, "u_prev")
     if not system.u.bounds.contains(u_vec, tol=DOMAIN_TOL):
         _check_in_U(system, u_vec[None], "u_prev", k - 1)
     return u_vec
-
-
-@numba.njit(cache=True)
-def _finite_inside(values, lower, upper):  # pragma: no cover (compiled)
-    """Whether every entry of ``values`` is finite and within ``[lower, upper]`` (one compiled pass)."""
-    for i in range(values.size):
-        value = values[i]
-        if not (math.isfinite(value) and lower[i] <= value <= upper[i]):
-            return False
-    return True
 
 
 def _check_in_U(system: System, u: FloatArray, name: str, first: int = 0) -> None:
