@@ -5,8 +5,9 @@ noisy crop scenario (seed 1, the estimators and weights of ``uiest bench``), eac
 record once untimed (numba's cache, the problems' construction), then once timed with the chosen Gauss-Newton
 backend (``gn``: qrqp; ``gn-riccati``: the stage-wise kernel). Over the samples with full windows (k >= N),
 ``time.thread_time`` times every call of a CasADi Function through :class:`~uiest.window.buffered.BufferedFunction`
-by the Function's name (``gn_qp`` is qrqp, ``gn_evaluation`` the fused point evaluation; the buffer's Python
-copies included), every call of the compiled QP (``riccati kernel``: the scatter, guess, kernel and multipliers in
+by the Function's name (``gn_qp`` is qrqp, ``gn_model_terms`` the point's ``r, J, g, G``; the buffer's Python
+copies included), every call of the compiled pass that forms ``J^T J``, ``J^T r`` and the tests from them
+(``normal terms``), every call of the compiled QP (``riccati kernel``: the scatter, guess, kernel and multipliers in
 one compiled call), the Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around it (``QP wrapper``), and
 the whole step. Printed per estimator: CPU per sample and its share of the step for
 each, calls per sample, CPU per call; the QP's iterations (qrqp's active-set changes, or the kernel's active-set
@@ -28,13 +29,16 @@ import numpy as np
 from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
-from uiest.window import buffered, stage_qp
+from uiest.window import buffered, normal_terms, stage_qp
 
 PYTHON_TARGET = 0.1
 """Issue 38's target for the Python outside the QP and CasADi, ms per full-window sample at N = 30."""
 
 KERNEL = "riccati kernel"
 """The name the compiled stage-wise QP's calls (scatter, guess, kernel, multipliers) are reported under."""
+
+TERMS = "normal terms"
+"""The name the compiled pass of :mod:`uiest.window.normal_terms` is reported under."""
 
 WRAPPER = "QP wrapper"
 """The Python of :meth:`~uiest.window.stage_qp.StageForm.solve` around the compiled QP."""
@@ -54,6 +58,7 @@ class _Timer:
         self._call = buffered.BufferedFunction.__call__
         self._kernel = stage_qp._solve_form
         self._stage_solve = stage_qp.StageForm.solve
+        self._terms = normal_terms._terms
 
     def _record(self, name: str, start: float, end: float, iterations: tuple[int, int] | None) -> None:
         self.cpu[name] += end - start
@@ -65,7 +70,7 @@ class _Timer:
                 self._first = False
 
     def __enter__(self) -> _Timer:
-        call, kernel, stage_solve, timer = self._call, self._kernel, self._stage_solve, self
+        call, kernel, stage_solve, terms, timer = self._call, self._kernel, self._stage_solve, self._terms, self
 
         def timed(function: buffered.BufferedFunction, *args: Any) -> list[np.ndarray]:
             start = time.thread_time()
@@ -88,6 +93,14 @@ class _Timer:
                 timer.overhead += time.thread_time() - end
             return code
 
+        def timed_terms(*args: Any) -> None:
+            start = time.thread_time()
+            terms(*args)
+            if timer.on:
+                end = time.thread_time()
+                timer._record(TERMS, start, end, None)
+                timer.overhead += time.thread_time() - end
+
         def timed_stage_solve(form: stage_qp.StageForm, *args: Any, **kwargs: Any) -> Any:
             start, kernel_before = time.thread_time(), timer.cpu[KERNEL]
             out = stage_solve(form, *args, **kwargs)
@@ -101,12 +114,14 @@ class _Timer:
         buffered.BufferedFunction.__call__ = timed  # type: ignore[method-assign]
         stage_qp._solve_form = timed_kernel
         stage_qp.StageForm.solve = timed_stage_solve  # type: ignore[method-assign]
+        normal_terms._terms = timed_terms
         return self
 
     def __exit__(self, *exc: object) -> None:
         buffered.BufferedFunction.__call__ = self._call  # type: ignore[method-assign]
         stage_qp._solve_form = self._kernel
         stage_qp.StageForm.solve = self._stage_solve  # type: ignore[method-assign]
+        normal_terms._terms = self._terms
 
     def wrap(self, estimator: Any, N: int) -> None:
         step = estimator.step

@@ -12,9 +12,10 @@ valley, or taken one only after poor corrections, the rest of the solve uses ``H
 ``S_+`` the residuals' and constraints' curvature that Gauss-Newton leaves out, convexified
 (:class:`~uiest.window.curvature.BlockCurvature`, built when first needed).
 
-Evaluation: one CasADi Function evaluates a point (``|r|^2``, the violation of ``lbg <= g <= ubg``,
-``J^T r``, ``J^T J``, ``g``, sparse ``G`` and the KKT stationarity measure), called through CasADi's buffer
-interface with two buffers that take turns (current and trial point). The QP is solved by CasADi's
+Evaluation: :class:`~uiest.window.normal_terms.NormalTerms` evaluates a point (``|r|^2``, the violation of
+``lbg <= g <= ubg``, ``J^T r``, ``J^T J``, ``g``, sparse ``G`` and the KKT stationarity measure; CasADi for the
+model's terms through its buffer interface, one compiled pass for the products) into two sets of arrays that
+take turns (current and trial point). The QP is solved by CasADi's
 active-set solver ``qrqp``, its cost scaled so that its largest curvature is :data:`QP_SCALE`, with
 positive curvatures too small for qrqp raised (:data:`FLAT_CURVATURE`). qrqp's active set starts as the
 bounds and inequalities the starting point sits on, then as the previous iteration's, without the sides
@@ -80,6 +81,7 @@ from uiest.checks import all_finite, all_true, check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import BlockCurvature, IndexArray
+from uiest.window.normal_terms import NormalTerms
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
@@ -389,34 +391,6 @@ class _Point(NamedTuple):
 
 _Step = tuple[FloatArray, float]
 """A QP step ``dz`` and the decrease of ``|r|^2`` it predicts."""
-
-
-def _tests(problem: WindowProblem, z: ca.SX, lam_g: ca.SX, jtr: ca.SX, G: ca.SX) -> list[ca.SX]:
-    """``|r|^2``, the violation of ``lbg <= g <= ubg`` (the merit's and the largest entry), and the KKT measure.
-
-    The merit's violation is the sum of the entries' excess over :data:`VIOLATION_FLOOR`.
-
-    The KKT measure is ``|s|_inf`` with ``s = J^T r + G^T lam_g`` (``jtr = J^T r``) where ``z`` is free, its
-    outward part where ``z`` is on a bound (see :meth:`GaussNewtonSolver._stationary`); the
-    cost's gradient is ``2 J^T r``, the QP's multipliers are those of ``|r|^2 / 2``.
-    """
-    r, g = problem.r, problem.g
-    lbg, ubg, lbx, ubx = (ca.DM(bound) for bound in (problem.lbg, problem.ubg, problem.lbx, problem.ubx))
-    below, above = ca.fmax(lbg - g, 0.0), ca.fmax(g - ubg, 0.0)
-    beyond_rounding = ca.fmax(below + above - VIOLATION_FLOOR, 0.0)
-    s = jtr + ca.mtimes(G.T, lam_g)
-    s = ca.if_else(z >= ubx, ca.fmax(s, 0.0), ca.if_else(z <= lbx, ca.fmin(s, 0.0), s))
-    worst = ca.mmax(ca.fmax(below, above)) if g.numel() else ca.SX(0.0)
-    violation = ca.sum1(beyond_rounding) if g.numel() else ca.SX(0.0)
-    return [ca.sumsqr(r), violation, ca.fmax(worst, 0.0), ca.mmax(ca.fabs(s))]
-
-
-def _raise_flat(H: ca.SX) -> ca.SX:
-    """``H`` with each positive diagonal entry below :data:`FLAT_CURVATURE` times the largest raised to it."""
-    diagonal = ca.diag(H)
-    floor = FLAT_CURVATURE * ca.mmax(diagonal)
-    raised = ca.if_else(ca.logic_and(diagonal > 0.0, diagonal < floor), floor - diagonal, 0.0)
-    return ca.project(H + ca.diag(raised), H.sparsity())
 
 
 def _released(
@@ -768,19 +742,9 @@ class GaussNewtonSolver:
                 raise OptionError(f"solver_options: {name}: expected True or False, got {value!r}")
         self.fallback = bool(fallback)
         self.polish = bool(polish)
-        z, p = problem.z, problem.p
-        lam_g = ca.SX.sym("lam_g", problem.n_con)
-        J = ca.jacobian(problem.r, z)
-        G = ca.jacobian(problem.g, z)
-        # J^T J with its whole diagonal structurally present (Levenberg-Marquardt adds to it)
-        H = _raise_flat(ca.project(ca.mtimes(J.T, J), ca.mtimes(J.T, J).sparsity() + ca.Sparsity.diag(problem.n_var)))
-        self._h_sparsity, self._a_sparsity = H.sparsity(), G.sparsity()
+        self._terms = NormalTerms(problem, flat_curvature=FLAT_CURVATURE, violation_floor=VIOLATION_FLOOR)
+        self._h_sparsity, self._a_sparsity = self._terms.h_sparsity, self._terms.a_sparsity
         self._a_rows, self._a_cols = (np.asarray(index, dtype=np.int64) for index in self._a_sparsity.get_triplet())
-        jtr = ca.densify(ca.mtimes(J.T, problem.r))
-        evaluation = ca.Function(
-            "gn_evaluation", [z, p, lam_g], [*_tests(problem, z, lam_g, jtr, G), jtr, H, ca.densify(problem.g), G]
-        )
-        self._buffers = (BufferedFunction(evaluation), BufferedFunction(evaluation))
         self._no_multipliers = np.zeros(problem.n_con)
         # the first QP's active set: the bounds and the inequalities (not the equalities) the start sits on
         self._x_edges = (*_edges(problem.lbx, problem.ubx), np.ones(problem.n_var, dtype=np.bool_))
@@ -814,8 +778,7 @@ class GaussNewtonSolver:
         """
         slot = 1 - keep.slot if keep is not None else 0
         lam = self._no_multipliers if lam_g is None else lam_g
-        cost, violation, worst, stationarity, q, h, g, a = self._buffers[slot](z, p, lam)
-        return _Point(z, slot, float(cost[0]), float(violation[0]), float(worst[0]), float(stationarity[0]), q, h, g, a)
+        return _Point(z, slot, *self._terms(slot, z, p, lam))
 
     def _stationary(self, point: _Point, lam_a: FloatArray, largest: float | None = None) -> bool:
         """KKT stationarity at ``point`` with the constraint multipliers ``lam_a`` it was evaluated with.
