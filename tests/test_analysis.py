@@ -425,5 +425,12 @@ def test_every_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_u
 
     A = np.array([[0.5, 0, 0.1, 0], [0, 0.5, 0, 0.1], [0.3, 0, 1.5, 0], [0, 0.3, 0, 1.2]])
     system = linear_system(A, np.eye(4)[:, :2], np.eye(4)[:2], x_bounds=(-20, 20), v_bounds=(-0.01, 0.01))
-    floor = analyse(system, points=2).near_zeros.error_floor
+    a = analyse(system, points=2)
+    floor = a.near_zeros.error_floor
     assert np.all(floor[:2] < 0.05) and np.all(floor[2:] == np.inf)
+    # each state's floor is named with the motion that reaches it: the 1.5-fold one hides x3 only
+    assert a.near_zeros.state_z[2:] == pytest.approx((1.5, 1.2))
+    assert "growing 1.5-fold per sample moves x[2] by any amount (more than X's width 40); one growing 1.2-fold " \
+           "per sample moves x[3] by any amount" in a.reason  # fmt: skip
+    assert "x[3] unbounded (at z = 1.2, more than X's width)" in str(a)
+    assert a.to_dict()["near_zeros"]["state_z"][3] == pytest.approx([1.2, 0.0])

@@ -88,6 +88,10 @@ class NearZeros:
         The frequency at which the floor's largest share of X's width is reached.
     floor_point : ndarray (nx,) or None
         The linearisation point of ``floor_z``.
+    state_z : tuple of complex or None, length nx
+        The frequency at which each state's floor is reached (None without ``noise``).
+    state_point : tuple of ndarray (nx,) or None, length nx
+        The linearisation point of each ``state_z``.
 
     """
 
@@ -98,6 +102,8 @@ class NearZeros:
     error_floor: FloatArray
     floor_z: complex | None
     floor_point: FloatArray | None
+    state_z: tuple[complex | None, ...]
+    state_point: tuple[FloatArray | None, ...]
 
     def to_dict(self) -> dict[str, object]:
         """Plain data for JSON (inf and NaN as floats)."""
@@ -109,6 +115,8 @@ class NearZeros:
             "error_floor": [float(f) for f in self.error_floor],
             "floor_z": None if self.floor_z is None else [self.floor_z.real, self.floor_z.imag],
             "floor_point": None if self.floor_point is None else self.floor_point.tolist(),
+            "state_z": [None if z is None else [z.real, z.imag] for z in self.state_z],
+            "state_point": [None if x is None else x.tolist() for x in self.state_point],
         }
 
 
@@ -169,6 +177,9 @@ def _floor(
     return floors
 
 
+SAME_FLOOR = 1e-6
+"""A state's floor at the frequency that sets the largest share is its floor where it is within this share of it."""
+
 ZERO_RTOL = 1e-8
 """At a computed invariant zero, the outputs' gain along the zero's input direction is rounding: below this share of
 the largest it counts as none (:func:`invariant_zeros` finds zeros to a relative 1e-9)."""
@@ -178,23 +189,46 @@ UNSEEN_MOTION = 1e-9
 (relative to ``|(zI - A)^-1 Q|``): below it the motion is rounding, and the direction bounds the state."""
 
 
-def _floor_at_outer_zeros(
-    lin: Linearisations, bases: list[FloatArray], C_noise: list[FloatArray], scale: FloatArray, width: FloatArray
-) -> tuple[complex, FloatArray, FloatArray] | None:
-    """The floor at the invariant zeros with ``|z| >= 1`` (module docstring), or None where there is none.
+class _Floor:
+    """The error floor per state as frequencies and points are searched, with where each state's is reached."""
 
-    ``(z, floor, point)``: the largest floor per state over every such zero at every point, and the zero (with its
-    point) whose floor has the largest share of X's ``width``.
+    def __init__(self, nx: int) -> None:
+        self.value = np.zeros(nx)
+        self.z: list[complex | None] = [None] * nx
+        self.point: list[FloatArray | None] = [None] * nx
+
+    def raise_to(self, floor: FloatArray, z: complex, point: FloatArray) -> None:
+        """Take ``floor`` (nx,) at ``z`` and ``point`` where it is larger than the floor so far."""
+        for i in np.flatnonzero(floor > self.value):
+            self.value[i], self.z[i], self.point[i] = floor[i], z, point
+
+    def attribute(self, floor: FloatArray, z: complex, point: FloatArray) -> None:
+        """Name ``z`` and ``point`` for the states whose floor ``floor`` (nx,) there reaches, to :data:`SAME_FLOOR`.
+
+        A measured state's floor is its noise at every frequency: it is named with the frequency that sets the others.
+        """
+        for i in np.flatnonzero(floor >= (1.0 - SAME_FLOOR) * self.value):
+            self.z[i], self.point[i] = z, point
+
+
+def _floor_at_outer_zeros(
+    lin: Linearisations, bases: list[FloatArray], C_noise: list[FloatArray], scale: FloatArray, width: FloatArray,
+    found: _Floor,
+) -> tuple[complex, FloatArray, FloatArray] | None:  # fmt: skip
+    """Raise ``found`` to the floor at the invariant zeros with ``|z| >= 1`` (module docstring).
+
+    Returns the zero whose floor has the largest share of X's ``width``, with its point and that floor (nx,), or
+    None where there is no such zero.
     """
-    floor, found, share = np.zeros(len(scale)), None, -1.0
+    best, share = None, -1.0
     for i in range(lin.count):
         zeros = invariant_zeros(lin.A[i], lin.B[i], lin.C[i])
         for z in zeros[np.abs(zeros) >= 1.0]:
             at = _floor(lin.A[i], bases[i], C_noise[i], scale, np.array([z]), unseen_rtol=ZERO_RTOL)[0]
-            floor = np.maximum(floor, at)
+            found.raise_to(at, complex(z), lin.x[i] * 1.0)
             if np.max(at / width) > share:
-                share, found = float(np.max(at / width)), (complex(z), lin.x[i] * 1.0)
-    return None if found is None else (found[0], floor, found[1])
+                share, best = float(np.max(at / width)), (complex(z), lin.x[i] * 1.0, at)
+    return best
 
 
 def _solved(M: np.ndarray, Q: FloatArray) -> np.ndarray:
@@ -250,12 +284,15 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         ring = FrequencyMinimum(z=complex(grid[j]), sigma=float(values[p, j]), point=lin.x[p] * 1.0)
 
     eps = output_noise(system, lin.D[0])
-    floor = np.full(system.nx, np.nan)
+    found = _Floor(system.nx)
     floor_z = floor_point = None
     if eps is not None:
         C_noise = [lin.C[i] * (system.y.scale / eps)[:, None] for i in range(lin.count)]
         width = np.where(np.isfinite(system.x.bounds.width), system.x.bounds.width, system.x.scale)
         floors = np.array([_floor(lin.A[i], bases[i], C_noise[i], system.x.scale, circle) for i in range(lin.count)])
+        for i in range(lin.count):
+            for j in np.unique(np.argmax(floors[i], axis=0)):
+                found.raise_to(floors[i, j], complex(circle[j]), lin.x[i] * 1.0)
         share = np.max(floors / width[None, None, :], axis=2)
         p, j = np.unravel_index(int(np.argmax(share)), share.shape)
         A, Q = lin.A[p], bases[p]
@@ -266,20 +303,22 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
 
         theta = _refine(negative_share, angles, int(j)) if np.isfinite(share[p, j]) else float(angles[j])
         floor_z = complex(np.exp(1j * theta))
-        refined = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
-        floor = np.maximum(np.max(floors, axis=(0, 1)), refined)
         floor_point = lin.x[p] * 1.0
-        outside = _floor_at_outer_zeros(lin, bases, C_noise, system.x.scale, width)
-        if outside is not None:
-            if np.max(outside[1] / width) > np.max(floor / width):
-                floor_z, floor_point = outside[0], outside[2]
-            floor = np.maximum(floor, outside[1])
+        at_floor_z = _floor(A, Q, C_noise[p], system.x.scale, np.array([floor_z]))[0]
+        found.raise_to(at_floor_z, floor_z, floor_point)
+        on_circle = float(np.max(found.value / width))
+        outside = _floor_at_outer_zeros(lin, bases, C_noise, system.x.scale, width, found)
+        if outside is not None and np.max(found.value / width) > on_circle:
+            floor_z, floor_point, at_floor_z = outside
+        found.attribute(at_floor_z, floor_z, floor_point)
     return NearZeros(
         unit_circle=unit,
         ring=ring,
         ring_radius=radius,
         noise=eps,
-        error_floor=floor,
+        error_floor=found.value if eps is not None else np.full(system.nx, np.nan),
         floor_z=floor_z,
         floor_point=floor_point,
+        state_z=tuple(found.z),
+        state_point=tuple(found.point),
     )

@@ -191,21 +191,28 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
     if not np.max(share) >= FLOOR_SHARE:
         return None
     moved = [i for i in range(len(share)) if share[i] >= 0.5 * np.max(share)]
-    parts = []
-    for i in moved:
-        floor, unit = near.error_floor[i], a.state_units[i]
+    groups: dict[tuple[complex | None, tuple[float, ...]], list[str]] = {}  # the states each frequency and point moves
+    for i in sorted(moved, key=lambda i: near.state_z[i] != near.floor_z):  # floor_z's states first
+        floor, unit, point = near.error_floor[i], a.state_units[i], near.state_point[i]
         beyond = f" (more than X's width {amount(width[i], unit)})" if floor > width[i] else ""
-        parts.append(f"{a.state_names[i]} by {'any amount' if np.isinf(floor) else amount(floor, unit)}{beyond}")
+        key = near.state_z[i], () if point is None else tuple(point)
+        groups.setdefault(key, []).append(
+            f"{a.state_names[i]} by {'any amount' if np.isinf(floor) else amount(floor, unit)}{beyond}"
+        )
     noise = ", ".join(f"{y} {amount(e, u)}" for y, e, u in zip(a.output_names, near.noise, a.output_units,
                                                                 strict=True))  # fmt: skip
-    near_zero = "" if limiting_zero(a) is not None else _near_zero_text(a, near.floor_z)
     inputs = ", ".join(a.input_names)
-    where = ""
-    if not a.linear and near.floor_point is not None:
-        where = f"in the model linearised at {point_text(a.state_names, near.floor_point)}, "
-    return (f"{where}an unknown input ({inputs}) {frequency_text(near.floor_z)}{near_zero} moves {' and '.join(parts)} "
-            f"while the outputs move within their noise ({noise}), an error no estimator that allows arbitrary "
-            "unknown inputs can rule out")  # fmt: skip
+    clauses = []
+    for (z, point), parts in groups.items():
+        z = near.floor_z if z is None else z
+        where = ""
+        if not a.linear and point:
+            where = f"in the model linearised at {point_text(a.state_names, np.array(point))}, "
+        near_zero = "" if z != near.floor_z or limiting_zero(a) is not None else _near_zero_text(a, z)
+        subject = f"an unknown input ({inputs})" if not clauses else "one"
+        clauses.append(f"{where}{subject} {frequency_text(z)}{near_zero} moves {' and '.join(parts)}")
+    return (f"{'; '.join(clauses)} while the outputs move within their noise ({noise}), an error no estimator that "
+            "allows arbitrary unknown inputs can rule out")  # fmt: skip
 
 
 def _near_zero_text(a: ModelAnalysis, z: complex) -> str:

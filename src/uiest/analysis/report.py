@@ -201,11 +201,16 @@ class ModelAnalysis:
         if near.noise is None:
             lines.append("  error floor: not computed (V unbounded, or an output without its own noise)")
         else:
+
+            def notes(f: float, w: float, z: complex | None) -> str:
+                said = [] if z is None or z == near.floor_z else [f"at z = {complex_number(z)}"]
+                said += ["more than X's width"] if f > w else []
+                return f" ({', '.join(said)})" if said else ""
+
             floors = ", ".join(
-                f"{name} {'unbounded' if np.isinf(f) else amount(f, unit)}"
-                + (" (more than X's width)" if f > w else "")
-                for name, f, unit, w in zip(self.state_names, near.error_floor, self.state_units, self.x_width,
-                                            strict=True)
+                f"{name} {'unbounded' if np.isinf(f) else amount(f, unit)}{notes(f, w, z)}"
+                for name, f, unit, w, z in zip(self.state_names, near.error_floor, self.state_units, self.x_width,
+                                               near.state_z, strict=True)
             )  # fmt: skip
             where = "" if near.floor_z is None else f" at z = {complex_number(near.floor_z)}"
             lines.append(f"  error floor of any estimator allowing arbitrary unknown inputs{where}: {floors}")
