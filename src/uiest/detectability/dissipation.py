@@ -138,8 +138,10 @@ class IncrementalModel:
         return ca.Function("J", [point], [J]), ca.Function("G", [point], [G])
 
     def covered_jacobians(self) -> tuple[ca.Function, ca.Function, Box]:
-        """The scaled J and G as functions of the cover's variable, and its box: ``(z, u, d)`` over :attr:`domain`,
-        or ``q`` over the lift's Q."""
+        """The scaled J and G as functions of the cover's variable, and that variable's box.
+
+        ``(z, u, d)`` over :attr:`domain`, or ``q`` over the lift's Q.
+        """
         if self.lift is None:
             return (*self.jacobians(), self.domain)
         q = ca.SX.sym("q", self.lift.box.size)
@@ -359,10 +361,7 @@ def _covered_vertices(
     n = model.n
     J = covered.vertices[:, :n, :]
     G_center = np.asarray(G_fun(domain.center), dtype=float)
-    if output_constant:
-        G = np.repeat(G_center[None], len(J), axis=0)
-    else:
-        G = covered.vertices[:, n:, :]
+    G = np.repeat(G_center[None], len(J), axis=0) if output_constant else covered.vertices[:, n:, :]
     channels = tuple(size for _, size in model.channels)
     return G_center, covered, output_constant, Vertices.build(J, G, channels, n)
 
@@ -410,7 +409,9 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
     joint = Box(np.concatenate([model.z_box.lower, model.d_box.lower]),
                 np.concatenate([model.z_box.upper, model.d_box.upper]))  # fmt: skip
     extremes = solution.cover.extremes
-    anchors = None if extremes is None or model.lift is not None else np.hstack([extremes[:, :n], extremes[:, n + nu :]])
+    anchors = None
+    if extremes is not None and model.lift is None:  # a lift's extremes are points of Q
+        anchors = np.hstack([extremes[:, :n], extremes[:, n + nu :]])
     channels = tuple(f"{name}[{i}]" for name, size in model.channels for i in range(size))
     labels = tuple(f"z[{i}]" for i in range(n)) + channels + tuple(f"u[{i}]" for i in range(nu))
     found = falsify.search(ca.Function("dissipation_terms", [a, b, u], [lhs, rhs]), joint, model.u_box,
@@ -439,10 +440,7 @@ def _decided_at_samples(
     """
     n = model.n
     J = covered.samples[:, :n, :]
-    if output_constant:
-        G = np.repeat(G_center[None], len(J), axis=0)
-    else:
-        G = covered.samples[:, n:, :]
+    G = np.repeat(G_center[None], len(J), axis=0) if output_constant else covered.samples[:, n:, :]
     bisection = lmi.bisect_rate(RateStage(Vertices.build(J, G, channels, n), structure, kappa).probe, tol=tol)
     where = f"{len(J)} sampled points of the domain"
     if bisection.outcome == lmi.INFEASIBLE:
