@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from uiest import System, simulate
+from uiest import ModelError, System, simulate
 from uiest.detectability import certify_reduced_ioss, certify_reduced_model
 from uiest.estimators import TwoStageUISE
 from uiest.models import linear
@@ -82,3 +82,18 @@ def test_a_rotated_linear_reduction_certifies_the_same_on_the_states_in_x_as_on_
     assert lifted.certified and boxed.certified, (lifted.reason, boxed.reason)
     assert lifted.mu_min == pytest.approx(0.36, abs=2e-3) and boxed.mu_min == pytest.approx(0.36, abs=2e-3)
     assert lifted.verify(2000, seed=2).holds
+
+
+def test_a_reduction_that_cannot_be_cut_to_x_names_the_box_that_leaves_x():
+    def rhs(x, u, w):
+        return [u[0] - 0.5 * np.sqrt(x[0]) - w[0], 0.5 * np.sqrt(x[0]) - 0.4 * np.sqrt(x[1])]
+
+    # y = h1 + v^3: psi is not affine in v, so x(z_sharp, gamma, v) is not affine and the certificate keeps the box
+    tanks = System.from_ode(rhs, lambda x, v: [x[0] + v[0] ** 3], nx=2, nu=1, nw=1, nv=1, dt=0.5, substeps=2,
+                            x_bounds=(0.1, 1.6), u_bounds=(0.2, 0.6), v_bounds=(-0.17, 0.17), name="tanks")  # fmt: skip
+    red = reduce_quasi_state_affine(tanks)
+    with pytest.raises(ModelError, match=r"beyond X = \[0.1, 1.6\] x \[0.1, 1.6\]") as caught:
+        certify_reduced_model(red, **FAST)
+    text = str(caught.value)
+    assert "z_sharp in [-0.006953, 1.59]" in text and "x [-0.0009401, 1.701]" in text
+    assert "psi affine in (gamma, v)" in text

@@ -295,19 +295,25 @@ def certify_reduced_model(reduced: ReducedModel, **options: Any) -> ReducedIOSS:
     gamma_box, gamma_note = range_box(h, XV, "h(X, V)", int(options.get("seed", 0)))
     u_box = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
     lift = _reduced_domain(reduced, u_box) if options.get("lift") is None else options.pop("lift")
-    cert = certify_reduced_ioss(
-        reduced.f_sharp,
-        reduced.h_sharp,
-        z_bounds=reduced.z_bounds,
-        gamma_bounds=gamma_box,
-        v_bounds=system.v.bounds,
-        u_bounds=u_box if system.nu else None,
-        z_scale=reduced.z_scale,
-        gamma_scale=system.y.scale,
-        v_scale=system.v.scale,
-        lift=lift,
-        **options,
-    )
+    try:
+        cert = certify_reduced_ioss(
+            reduced.f_sharp,
+            reduced.h_sharp,
+            z_bounds=reduced.z_bounds,
+            gamma_bounds=gamma_box,
+            v_bounds=system.v.bounds,
+            u_bounds=u_box if system.nu else None,
+            z_scale=reduced.z_scale,
+            gamma_scale=system.y.scale,
+            v_scale=system.v.scale,
+            lift=lift,
+            **options,
+        )
+    except ModelError as exc:
+        beyond = None if lift is not None else _beyond_x(reduced, gamma_box, int(options.get("seed", 0)))
+        if beyond is None:
+            raise
+        raise ModelError(f"{exc}. {beyond}") from exc
     unproved = "; ".join(note for note in (reduced.z_bounds_note, gamma_note) if note)
     if not (unproved and cert.certified):
         return cert
@@ -350,3 +356,35 @@ def _reduced_domain(reduced: ReducedModel, u_box: Box) -> LiftedDomain | None:
         output_jacobian=ca.Function("dH", [q], [ca.jacobian(output, x) @ dx + ca.jacobian(output, v) @ picks_v]),
         description="the points with x = T^-1(psi(gamma, z_sharp, v), z_sharp) in X",
     )
+
+
+def _beyond_x(reduced: ReducedModel, gamma_box: Box, seed: int) -> str | None:
+    """Why a certificate kept on the whole box may meet an undefined model: the box's full states leave X.
+
+    None where they stay in X (or cannot be bounded).
+    """
+    system = reduced.system
+    n, ny, nv = reduced.n_sharp, system.ny, system.nv
+    p = ca.SX.sym("p", n + ny + nv)
+    try:
+        x_of = reduced.T_inv(ca.vertcat(reduced.psi(p[n : n + ny], p[:n], p[n + ny :]), p[:n]))
+        box = Box(np.concatenate([reduced.z_bounds.lower, gamma_box.lower, system.v.bounds.lower]),
+                  np.concatenate([reduced.z_bounds.upper, gamma_box.upper, system.v.bounds.upper]))  # fmt: skip
+        reach, _ = range_box(ca.Function("x_of", [p], [x_of]), box, "x(z_sharp, gamma, v)", seed)
+    except (NotImplementedError, RuntimeError, TypeError, ModelError):
+        return None
+    X = system.x.bounds
+    if np.all(reach.lower >= X.lower) and np.all(reach.upper <= X.upper):
+        return None
+    return (
+        f"The reduced model's domain, z_sharp in {_text(reduced.z_bounds)}, gamma in {_text(gamma_box)}, v in "
+        f"{_text(system.v.bounds)}, holds full states x = T^-1(psi(gamma, z_sharp, v), z_sharp) in {_text(reach)}, "
+        f"beyond X = {_text(X)}, where f may be undefined; x(z_sharp, gamma, v) is not affine, so the certificate "
+        "cannot be cut to the states in X. Give a reduction with a linear T and a psi affine in (gamma, v) (its "
+        "certificate covers only the states in X), or an X whose reduced box keeps the full states where f is "
+        "defined"
+    )
+
+
+def _text(box: Box) -> str:
+    return " x ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in zip(box.lower, box.upper, strict=True))
