@@ -294,7 +294,8 @@ def certify_reduced_model(reduced: ReducedModel, **options: Any) -> ReducedIOSS:
              np.concatenate([system.x.bounds.upper, system.v.bounds.upper]))  # fmt: skip
     gamma_box, gamma_note = range_box(h, XV, "h(X, V)", int(options.get("seed", 0)))
     u_box = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
-    lift = _reduced_domain(reduced, u_box) if options.get("lift") is None else options.pop("lift")
+    lift = options.pop("lift", None)  # a given cut, else the states in X where the map to them is affine
+    lift = _reduced_domain(reduced, u_box) if lift is None else lift
     try:
         cert = certify_reduced_ioss(
             reduced.f_sharp,
