@@ -196,10 +196,12 @@ def test_crop_reduced_tradeoff_matches_the_exact_rates_at_each_bound_on_cond_p()
     table = cert.tradeoff()
     assert [row.max_condition for row in table.rows] == [1e6, 1e8, 1e10, 1e12]
     assert all(row.status == "certified" for row in table.rows), str(table)
-    # the exact answer on the certificate's own cover (its output map sees one of the two reduced states)
-    J_fun, G_fun = cert.model.jacobians()
-    vertices = cover(J_fun, cert.model.domain, samples=4000, seed=0).vertices
-    G = np.asarray(G_fun(cert.model.domain.center), dtype=float)
+    # the exact answer on the certificate's own cover (its output map sees one of the two reduced states), over the
+    # points whose full state lies in X (the lifted domain: x is affine in (z_sharp, gamma, v) for the crop)
+    assert cert.model.lift is not None
+    J_fun, G_fun, domain = cert.model.covered_jacobians()
+    vertices = cover(J_fun, domain, samples=4000, seed=0).vertices
+    G = np.asarray(G_fun(domain.center), dtype=float)
     exact = [kernel_rate(vertices, G, row.max_condition) for row in table.rows]
     np.testing.assert_allclose([row.mu_min for row in table.rows], exact, atol=2e-3)
     # issue 33's independent figures (50-digit arithmetic) at 1e8 and 1e10: 0.985 and 0.866, to two digits

@@ -56,6 +56,7 @@ from uiest.detectability.cover import Cover
 from uiest.detectability.dissipation_design import ROUNDING, Finished, design_and_check
 from uiest.detectability.dissipation_lmi import Vertices
 from uiest.detectability.dissipation_rate import RateStage
+from uiest.detectability.lifted import LiftedDomain
 from uiest.detectability.tradeoff import check_condition
 from uiest.errors import OptionError
 
@@ -80,6 +81,9 @@ class IncrementalModel:
         Positive nominal magnitudes; the LMI is solved in ``z / z_scale`` etc.
     channels : tuple of (str, int)
         Names and sizes partitioning ``d``; each channel gets one scalar weight.
+    lift : LiftedDomain, optional
+        Restricts the domain to the points of the box that it maps into its box Q; the Jacobians are then covered
+        over Q (:mod:`uiest.detectability.lifted`). None: the whole box.
 
     """
 
@@ -92,6 +96,7 @@ class IncrementalModel:
     d_scale: FloatArray
     y_scale: FloatArray
     channels: tuple[tuple[str, int], ...]
+    lift: LiftedDomain | None = None
 
     @property
     def n(self) -> int:
@@ -131,6 +136,19 @@ class IncrementalModel:
         J = ca.diag(1.0 / self.z_scale) @ ca.jacobian(self.step(z, u, d), zd) @ ca.diag(col)
         G = ca.diag(1.0 / self.y_scale) @ ca.jacobian(self.output(z, d), zd) @ ca.diag(col)
         return ca.Function("J", [point], [J]), ca.Function("G", [point], [G])
+
+    def covered_jacobians(self) -> tuple[ca.Function, ca.Function, Box]:
+        """The scaled J and G as functions of the cover's variable, and that variable's box.
+
+        ``(z, u, d)`` over :attr:`domain`, or ``q`` over the lift's Q.
+        """
+        if self.lift is None:
+            return (*self.jacobians(), self.domain)
+        q = ca.SX.sym("q", self.lift.box.size)
+        col = ca.diag(np.concatenate([self.z_scale, self.d_scale]))
+        J = ca.diag(1.0 / self.z_scale) @ self.lift.step_jacobian(q) @ col
+        G = ca.diag(1.0 / self.y_scale) @ self.lift.output_jacobian(q) @ col
+        return ca.Function("J", [q], [J]), ca.Function("G", [q], [G]), self.lift.box
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -251,7 +269,7 @@ def solve(
         raise OptionError(f"structure: expected one of {STRUCTURES}, got {structure!r}")
     mu = check_rate(mu, "mu")
     kappa = check_condition(max_condition)
-    G_fun, covered, output_constant, vertices = _covered_vertices(model, parameters, cover, samples, seed)
+    G_center, covered, output_constant, vertices = _covered_vertices(model, parameters, cover, samples, seed)
     n = model.n
     channels = tuple(size for _, size in model.channels)
     stage = RateStage(vertices, structure, kappa)
@@ -287,7 +305,7 @@ def solve(
                   f"the current output does not see")  # fmt: skip
         if covered.kind == covers.CONSTANT:
             return fail(lmi.INFEASIBLE, f"{reason}{note}")
-        outcome, reason, mu_min = _decided_at_samples(covered, G_fun, model, channels, structure, kappa, mu, tol,
+        outcome, reason, mu_min = _decided_at_samples(covered, G_center, model, channels, structure, kappa, mu, tol,
                                                       output_constant, reason)  # fmt: skip
         return fail(outcome, f"{reason}{note}", mu_min)
     mu_min = bisection.rate
@@ -328,24 +346,24 @@ def solve(
 
 def _covered_vertices(
     model: IncrementalModel, parameters: ca.Function | None, cover: str, samples: int, seed: int
-) -> tuple[ca.Function, Cover, bool, Vertices]:
+) -> tuple[FloatArray, Cover, bool, Vertices]:
     """The cover of J (and of G where the output map varies) and the LMI's vertices.
 
-    Returns ``(G_fun, cover, output_constant, vertices)``.
+    Over the lift's Q where the model has one and no ``parameters`` (functions of ``(z, u, d)``) are given; over
+    the box otherwise (which contains the lifted domain). Returns ``(G at the centre, cover, output_constant,
+    vertices)``.
     """
-    J_fun, G_fun = model.jacobians()
+    J_fun, G_fun, domain = model.covered_jacobians() if parameters is None else (*model.jacobians(), model.domain)
     point = ca.SX.sym("p", J_fun.numel_in(0))
     output_constant = not ca.depends_on(ca.vec(G_fun(point)), point)
     stacked = J_fun if output_constant else ca.Function("JG", [point], [ca.vertcat(J_fun(point), G_fun(point))])
-    covered = covers.cover(stacked, model.domain, parameters=parameters, method=cover, samples=samples, seed=seed)
+    covered = covers.cover(stacked, domain, parameters=parameters, method=cover, samples=samples, seed=seed)
     n = model.n
     J = covered.vertices[:, :n, :]
-    if output_constant:
-        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
-    else:
-        G = covered.vertices[:, n:, :]
+    G_center = np.asarray(G_fun(domain.center), dtype=float)
+    G = np.repeat(G_center[None], len(J), axis=0) if output_constant else covered.vertices[:, n:, :]
     channels = tuple(size for _, size in model.channels)
-    return G_fun, covered, output_constant, Vertices.build(J, G, channels, n)
+    return G_center, covered, output_constant, Vertices.build(J, G, channels, n)
 
 
 def _checked_reason(finished: Finished, mu_used: float, mu_min: float, kappa: float, note: str) -> str:
@@ -369,7 +387,8 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
 
     Scaled, per pair ``(z, d), (z~, d~)`` and shared u: ``lhs = |F(z,u,d) - F(z~,u,d~)|_P^2`` against
     ``rhs = mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2``. Unsolved solutions
-    are returned as they are.
+    are returned as they are. With a lift, pairs with a point outside its domain are not scored (NaN), and the
+    cover's extremes (points of Q, not of the box) are not used as anchors.
     """
     if solution.outcome != lmi.FEASIBLE:
         return solution
@@ -382,11 +401,17 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
     weights = np.repeat(solution.q, [size for _, size in model.channels]) if model.channels else np.zeros(0)
     P = ca.DM(solution.P)
     lhs = ca.bilin(P, dz_next, dz_next)
+    if model.lift is not None:
+        inside = ca.logic_and(model.lift.indicator(ca.vertcat(a[:n], u, a[n:])),
+                              model.lift.indicator(ca.vertcat(b[:n], u, b[n:])))  # fmt: skip
+        lhs = ca.if_else(inside, lhs, float("nan"))
     rhs = solution.mu * ca.bilin(P, dz, dz) + ca.dot(ca.DM(weights), dd * dd) + solution.r * ca.sumsqr(dy)
     joint = Box(np.concatenate([model.z_box.lower, model.d_box.lower]),
                 np.concatenate([model.z_box.upper, model.d_box.upper]))  # fmt: skip
     extremes = solution.cover.extremes
-    anchors = None if extremes is None else np.hstack([extremes[:, :n], extremes[:, n + nu :]])
+    anchors = None
+    if extremes is not None and model.lift is None:  # a lift's extremes are points of Q
+        anchors = np.hstack([extremes[:, :n], extremes[:, n + nu :]])
     channels = tuple(f"{name}[{i}]" for name, size in model.channels for i in range(size))
     labels = tuple(f"z[{i}]" for i in range(n)) + channels + tuple(f"u[{i}]" for i in range(nu))
     found = falsify.search(ca.Function("dissipation_terms", [a, b, u], [lhs, rhs]), joint, model.u_box,
@@ -397,7 +422,7 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
 
 def _decided_at_samples(
     covered: Cover,
-    G_fun: ca.Function,
+    G_center: FloatArray,
     model: IncrementalModel,
     channels: tuple[int, ...],
     structure: str,
@@ -415,10 +440,7 @@ def _decided_at_samples(
     """
     n = model.n
     J = covered.samples[:, :n, :]
-    if output_constant:
-        G = np.repeat(np.asarray(G_fun(model.domain.center), dtype=float)[None], len(J), axis=0)
-    else:
-        G = covered.samples[:, n:, :]
+    G = np.repeat(G_center[None], len(J), axis=0) if output_constant else covered.samples[:, n:, :]
     bisection = lmi.bisect_rate(RateStage(Vertices.build(J, G, channels, n), structure, kappa).probe, tol=tol)
     where = f"{len(J)} sampled points of the domain"
     if bisection.outcome == lmi.INFEASIBLE:
@@ -462,7 +484,8 @@ def check_pairs(
     """Test the inequality in original units on random pairs with the nonlinear F and H.
 
     ``weights[c]`` is the (size_c, size_c) weight matrix of channel c, ``R`` the output weight.
-    Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`).
+    Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`); with a lift, only
+    pairs whose two points lie in its domain are scored.
     """
     rng = np.random.default_rng(seed)
     n = model.n
@@ -487,4 +510,6 @@ def check_pairs(
     lhs = quad(dz_next, P)
     rhs = mu * quad(z - zt, P) + quad(d - dt, W) + quad(dy, R)
     used = rhs > 0.0
+    if model.lift is not None:
+        used &= model.lift.inside(np.hstack([z, u, d])) & model.lift.inside(np.hstack([zt, u, dt]))
     return PairCheck(worst_ratio=float((lhs[used] / rhs[used]).max(initial=-np.inf)), pairs=int(used.sum()))

@@ -31,6 +31,7 @@ from uiest.box import Box, FloatArray
 from uiest.detectability import dissipation
 from uiest.detectability.certificate import DEFAULT_MAX_CONDITION, NOT_PROVED, MuCertificate, Verification
 from uiest.detectability.interval import range_box
+from uiest.detectability.lifted import LiftedDomain
 from uiest.detectability.lmi import finite_box
 from uiest.errors import ModelError
 
@@ -153,6 +154,7 @@ class ReducedIOSS(MuCertificate):
             "c_y": self.c_y if ok else None,
             "c_gamma": self.c_gamma if ok else None,
             "z_box": self.model.z_box.to_dict(),
+            "domain": "the box" if self.model.lift is None else self.model.lift.description,
         }
 
 
@@ -185,6 +187,7 @@ def certify_reduced_ioss(
     v_scale: Any = None,
     mu: float | None = None,
     max_condition: float = DEFAULT_MAX_CONDITION,
+    lift: LiftedDomain | None = None,
     **options: Any,
 ) -> ReducedIOSS:
     """Certify exponential i-IOSS (Assumption 4.7 of Guo et al.) of a reduced-order model by LMIs.
@@ -205,6 +208,9 @@ def certify_reduced_ioss(
     max_condition : float
         Largest cond(P) in scaled coordinates (:data:`~uiest.detectability.certificate.DEFAULT_MAX_CONDITION`);
         a larger bound can buy a faster rate for larger weights (:meth:`ReducedIOSS.tradeoff`).
+    lift : LiftedDomain, optional
+        Certify only on the points ``(z, u, gamma, v)`` of the boxes that it maps into its box
+        (:mod:`uiest.detectability.lifted`); None: on the whole product of the boxes.
     **options
         Passed to :func:`uiest.detectability.dissipation.solve` (parameters, cover, samples, tol, seed).
 
@@ -227,6 +233,16 @@ def certify_reduced_ioss(
     v_box = _finite(Box.coerce(v_bounds, nv, "v_bounds"), "v_bounds")
     u_box = _finite(Box.coerce(u_bounds, nu, "u_bounds"), "u_bounds") if nu else Box(np.zeros(0), np.zeros(0))
     g_scale = _scale(g_box, gamma_scale, "gamma_scale")
+    if lift is not None and (
+        lift.point.numel_in(0) != n + nu + p + nv
+        or lift.step_jacobian.size_out(0) != (n, n + p + nv)
+        or lift.output_jacobian.size_out(0) != (p, n + p + nv)
+    ):
+        raise ModelError(
+            f"lift: expected a point map of (z, u, gamma, v) ({n + nu + p + nv} entries) and Jacobians of shapes "
+            f"({n}, {n + p + nv}) and ({p}, {n + p + nv}), got {lift.point.numel_in(0)} entries, "
+            f"{lift.step_jacobian.size_out(0)} and {lift.output_jacobian.size_out(0)}"
+        )
     z, u, d = ca.SX.sym("z", n), ca.SX.sym("u", nu), ca.SX.sym("d", p + nv)
     model = dissipation.IncrementalModel(
         step=ca.Function("step", [z, u, d], [f_sharp(z, d[:p], u, d[p:])]),
@@ -238,11 +254,12 @@ def certify_reduced_ioss(
         d_scale=np.concatenate([g_scale, _scale(v_box, v_scale, "v_scale")]),
         y_scale=g_scale,
         channels=(("gamma", p), ("v", nv)),
+        lift=lift,
     )
     solution = dissipation.solve(model, mu=mu, max_condition=max_condition, **options)
     recertify = functools.partial(certify_reduced_ioss, f_sharp, h_sharp, z_bounds=z_box, gamma_bounds=g_box,
                                   v_bounds=v_box, u_bounds=u_box if nu else None, z_scale=model.z_scale,
-                                  gamma_scale=g_scale, v_scale=model.d_scale[p:], **options)  # fmt: skip
+                                  gamma_scale=g_scale, v_scale=model.d_scale[p:], lift=lift, **options)  # fmt: skip
     return ReducedIOSS(**solution.certificate_fields(model.z_scale, time.perf_counter() - start), model=model,
                        q=solution.q, r=solution.r, recertify=recertify)  # fmt: skip
 
@@ -250,7 +267,12 @@ def certify_reduced_ioss(
 def certify_reduced_model(reduced: ReducedModel, **options: Any) -> ReducedIOSS:
     """:func:`certify_reduced_ioss` of a :class:`~uiest.reduction.ReducedModel` on its domain, in its ``z_scale``.
 
-    gamma ranges over Y (``h(X, V)``, bounded by interval arithmetic), v over V, u over U. The reduced state is
+    gamma ranges over Y (``h(X, V)``, bounded by interval arithmetic), v over V, u over U. Where
+    ``x(z_sharp, gamma, v) = T^-1(psi(gamma, z_sharp, v), z_sharp)`` is affine (a linear T and a psi affine in
+    gamma and v, as in :func:`~uiest.reduction.reduce_quasi_state_affine` with the identity phi and an output
+    affine in v), the certificate covers only the points of those boxes with x in X
+    (:mod:`uiest.detectability.lifted`): the only points the two-stage UISE's theorem compares, and inside the model's
+    domain although the boxes' product reaches beyond X. Elsewhere it covers the whole product. The reduced state is
     scaled by ``reduced.z_scale`` (from the state scales; T(X)'s widths only where they are smaller), as the
     two-stage UISE's window is: a wide X with small state scales costs no digits. Where T(X) or h(X, V) was bounded
     at a grid rather than proved, a certificate that holds there is returned as not proved (``status``
@@ -272,20 +294,98 @@ def certify_reduced_model(reduced: ReducedModel, **options: Any) -> ReducedIOSS:
              np.concatenate([system.x.bounds.upper, system.v.bounds.upper]))  # fmt: skip
     gamma_box, gamma_note = range_box(h, XV, "h(X, V)", int(options.get("seed", 0)))
     u_box = finite_box(system.u.bounds, system.u.bounds.center, system.u.scale)
-    cert = certify_reduced_ioss(
-        reduced.f_sharp,
-        reduced.h_sharp,
-        z_bounds=reduced.z_bounds,
-        gamma_bounds=gamma_box,
-        v_bounds=system.v.bounds,
-        u_bounds=u_box if system.nu else None,
-        z_scale=reduced.z_scale,
-        gamma_scale=system.y.scale,
-        v_scale=system.v.scale,
-        **options,
-    )
+    lift = options.pop("lift", None)  # a given cut, else the states in X where the map to them is affine
+    lift = _reduced_domain(reduced, u_box) if lift is None else lift
+    try:
+        cert = certify_reduced_ioss(
+            reduced.f_sharp,
+            reduced.h_sharp,
+            z_bounds=reduced.z_bounds,
+            gamma_bounds=gamma_box,
+            v_bounds=system.v.bounds,
+            u_bounds=u_box if system.nu else None,
+            z_scale=reduced.z_scale,
+            gamma_scale=system.y.scale,
+            v_scale=system.v.scale,
+            lift=lift,
+            **options,
+        )
+    except ModelError as exc:
+        beyond = None if lift is not None else _beyond_x(reduced, gamma_box, int(options.get("seed", 0)))
+        if beyond is None:
+            raise
+        raise ModelError(f"{exc}. {beyond}") from exc
     unproved = "; ".join(note for note in (reduced.z_bounds_note, gamma_note) if note)
     if not (unproved and cert.certified):
         return cert
     return dataclasses.replace(cert, certified=False, status=NOT_PROVED, sound=False,
                                reason=f"{NOT_PROVED}: {unproved}; {cert.reason}")  # fmt: skip
+
+
+def _reduced_domain(reduced: ReducedModel, u_box: Box) -> LiftedDomain | None:
+    """The points ``(z_sharp, u, gamma, v)`` with ``x = T^-1(psi(gamma, z_sharp, v), z_sharp)`` in X.
+
+    None where that map is not affine in ``(z_sharp, gamma, v)`` (then the cut is not convex in general and
+    the certificate keeps the whole box), where X is unbounded, or where the maps are not SX-expressible. The
+    Jacobians are those of ``T_sharp(f(x, u, w_nominal))`` and ``h(x, v)`` composed with the map's constant
+    Jacobian: the chain rule of ``f_sharp`` and ``h_sharp``'s own definition, so equal to theirs on the cut.
+    """
+    system = reduced.system
+    if not system.x.bounds.is_bounded:
+        return None
+    n, ny, nu, nv = reduced.n_sharp, system.ny, system.nu, system.nv
+    z, u, g, v, x = (ca.SX.sym(name, size) for name, size in (("z", n), ("u", nu), ("gamma", ny), ("v", nv),
+                                                                ("x", system.nx)))  # fmt: skip
+    try:
+        x_of = reduced.T_inv(ca.vertcat(reduced.psi(g, z, v), z))
+        step = reduced.T(system.f(x, u, ca.DM(system.nominal_w)))[reduced.n_flat :]
+        output = system.h(x, v)
+    except (NotImplementedError, RuntimeError, TypeError):  # MX maps: no exact forms to cover
+        return None
+    p = ca.vertcat(z, u, g, v)
+    dx = ca.jacobian(x_of, ca.vertcat(z, g, v))
+    if ca.depends_on(ca.vec(dx), p):
+        return None
+    picks_v = ca.horzcat(ca.SX.zeros(nv, n + ny), ca.SX.eye(nv))
+    q = ca.vertcat(x, u, v)
+    box = Box(np.concatenate([system.x.bounds.lower, u_box.lower, system.v.bounds.lower]),
+              np.concatenate([system.x.bounds.upper, u_box.upper, system.v.bounds.upper]))  # fmt: skip
+    return LiftedDomain(
+        point=ca.Function("x_u_v", [p], [ca.vertcat(x_of, u, v)]),
+        box=box,
+        step_jacobian=ca.Function("dF", [q], [ca.jacobian(step, x) @ dx]),
+        output_jacobian=ca.Function("dH", [q], [ca.jacobian(output, x) @ dx + ca.jacobian(output, v) @ picks_v]),
+        description="the points with x = T^-1(psi(gamma, z_sharp, v), z_sharp) in X",
+    )
+
+
+def _beyond_x(reduced: ReducedModel, gamma_box: Box, seed: int) -> str | None:
+    """Why a certificate kept on the whole box may meet an undefined model: the box's full states leave X.
+
+    None where they stay in X (or cannot be bounded).
+    """
+    system = reduced.system
+    n, ny, nv = reduced.n_sharp, system.ny, system.nv
+    p = ca.SX.sym("p", n + ny + nv)
+    try:
+        x_of = reduced.T_inv(ca.vertcat(reduced.psi(p[n : n + ny], p[:n], p[n + ny :]), p[:n]))
+        box = Box(np.concatenate([reduced.z_bounds.lower, gamma_box.lower, system.v.bounds.lower]),
+                  np.concatenate([reduced.z_bounds.upper, gamma_box.upper, system.v.bounds.upper]))  # fmt: skip
+        reach, _ = range_box(ca.Function("x_of", [p], [x_of]), box, "x(z_sharp, gamma, v)", seed)
+    except (NotImplementedError, RuntimeError, TypeError, ModelError):
+        return None
+    X = system.x.bounds
+    if np.all(reach.lower >= X.lower) and np.all(reach.upper <= X.upper):
+        return None
+    return (
+        f"The reduced model's domain, z_sharp in {_text(reduced.z_bounds)}, gamma in {_text(gamma_box)}, v in "
+        f"{_text(system.v.bounds)}, holds full states x = T^-1(psi(gamma, z_sharp, v), z_sharp) in {_text(reach)}, "
+        f"beyond X = {_text(X)}, where f may be undefined; x(z_sharp, gamma, v) is not affine, so the certificate "
+        "cannot be cut to the states in X. Give a reduction with a linear T and a psi affine in (gamma, v) (its "
+        "certificate covers only the states in X), or an X whose reduced box keeps the full states where f is "
+        "defined"
+    )
+
+
+def _text(box: Box) -> str:
+    return " x ".join(f"[{lo:.4g}, {hi:.4g}]" for lo, hi in zip(box.lower, box.upper, strict=True))

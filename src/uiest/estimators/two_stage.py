@@ -131,7 +131,9 @@ class TwoStageUISE(WindowEstimator):
     projection : {"clip", "exact", "none"}
         The projection of Eq. (35).
     state_constraints : bool
-        Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (Eq. (30)).
+        Impose ``T^-1(psi(y_j, z_j, v_j), z_j) in X`` at the window's nodes (Eq. (30)). A certificate from
+        :func:`~uiest.detectability.certify_reduced_model` that covers only such points (its ``to_dict()["domain"]``)
+        carries Theorem 4.8 only with them.
     **options
         As for :class:`~uiest.estimators.UISE`. ``polish=True`` refines each window solution where the data
         barely determine a direction (design notes: window solvers).
@@ -289,6 +291,10 @@ class TwoStageUISE(WindowEstimator):
         else:
             theorem = self.theorem
             missing = self._horizon_missing("reduced e-IOSS", TWO_STAGE_HORIZON)
+            lifted = getattr(getattr(self.certificate, "model", None), "lift", None) is not None
+            if not missing and not self.state_constraints and lifted:
+                missing = ("state_constraints=False: the certificate covers only nodes whose full state lies in X "
+                           "(its domain), and the window's nodes are then not held there")  # fmt: skip
             if missing:
                 return self._no_guarantee(theorem, missing)
             assert self.weights is not None and self.N is not None and self.certificate is not None

@@ -1,0 +1,99 @@
+"""The reduced certificate's domain: the points whose full state lies in X, not the box around T(X) x Y x V."""
+
+import numpy as np
+import pytest
+
+from uiest import ModelError, System, simulate
+from uiest.detectability import certify_reduced_ioss, certify_reduced_model
+from uiest.estimators import TwoStageUISE
+from uiest.models import linear
+from uiest.reduction import reduce_quasi_state_affine
+
+FAST = {"samples": 500}
+
+
+def _tanks() -> System:
+    """Two tanks in series, sampled by RK4: a leak w on tank 1, its level measured; sqrt(h) needs h >= 0."""
+
+    def rhs(x, u, w):
+        return [u[0] - 0.5 * np.sqrt(x[0]) - w[0], 0.5 * np.sqrt(x[0]) - 0.4 * np.sqrt(x[1])]
+
+    return System.from_ode(rhs, lambda x, v: [x[0] + v[0]], nx=2, nu=1, nw=1, nv=1, dt=0.5, substeps=2,
+                           x_bounds=(0.1, 1.6), u_bounds=(0.2, 0.6), v_bounds=(-0.005, 0.005),
+                           x_names=["h1", "h2"], x_units=["m", "m"], name="tanks")  # fmt: skip
+
+
+def test_two_tanks_reduction_designs_and_the_two_stage_uise_estimates_under_an_unknown_leak():
+    tanks = _tanks()
+    red = reduce_quasi_state_affine(tanks)
+    # the box T_sharp(X) x Y x V holds points whose full state has h2 < 0, where sqrt has no bound (the old cover
+    # of that box raised ModelError: "interval arithmetic finds entry [0, 0] unbounded over the domain")
+    corner = red.full_state([0.1 - 0.005], red.z_bounds.lower, tanks.v.bounds.upper)  # y = 0.095 is in h(X, V)
+    assert corner[1] < 0.0
+    prior = np.array([1.5, 0.15])
+    with pytest.warns(UserWarning, match=r"not informative for \['h2'\]"):  # h1 is read from the output
+        est = TwoStageUISE.design(red, x0_prior=prior, max_horizon=40, trials=1, steps=60)
+    cert = est.certificate
+    assert cert.certified and cert.sound, cert.reason
+    assert "in X" in cert.to_dict()["domain"]
+    # verify scores only the pairs whose two points have their full state in X
+    check = cert.verify(2000, seed=1)
+    assert check.holds and 0 < check.pairs_used < 2000
+    steps = 160
+    rng = np.random.default_rng(3)
+    u = (0.4 + 0.1 * np.sign(np.sin(0.05 * np.arange(steps))))[:, None]
+    leak = np.repeat(rng.uniform(-0.4, 0.3, steps // 20), 20)
+
+    def w(k, x):  # the leak, held where it would take h1 out of [0.15, 0.8]
+        f0 = tanks.step(x, u[k], [0.0])[0]
+        g = tanks.step(x, u[k], [1.0])[0] - f0
+        return [float(np.clip(leak[k], *sorted(((0.8 - f0) / g, (0.15 - f0) / g))))]
+
+    truth = simulate(tanks, [0.12, 1.55], steps, u=u, w=w, seed=0)
+    assert np.all((truth.x >= 0.1) & (truth.x <= 1.6))
+    result = est.run(truth.u, truth.y)
+    error = np.abs(result.x_hat - truth.x)[60:]
+    assert error.max() < 0.02 < np.abs(truth.w).max()
+    # the certificate covers only nodes held in X: without the node constraints Theorem 4.8 does not apply
+    free = TwoStageUISE(red, certificate=cert, N=est.N, x0_prior=prior, state_constraints=False)
+    assert est.guarantee.applies and not free.guarantee.applies
+    assert "state_constraints=False" in free.guarantee.reason
+
+
+def test_a_rotated_linear_reduction_certifies_the_same_on_the_states_in_x_as_on_the_box():
+    system, *_ = linear.with_invariant_zeros([0.6, -0.3], seed=4, x_bounds=(-2.0, 2.0), v_bounds=(-0.01, 0.01))
+    red = reduce_quasi_state_affine(system)
+    T = np.asarray(red.T(np.eye(3)), dtype=float)  # columns: T(e_i), T linear
+    assert np.count_nonzero(np.abs(T) > 1e-6) > 3  # a rotation, not a selection of states
+    lifted = certify_reduced_model(red, **FAST)
+    model = lifted.model
+    boxed = certify_reduced_ioss(
+        red.f_sharp,
+        red.h_sharp,
+        z_bounds=model.z_box,
+        gamma_bounds=(model.d_box.lower[: system.ny], model.d_box.upper[: system.ny]),
+        v_bounds=system.v.bounds,
+        z_scale=model.z_scale,
+        gamma_scale=model.d_scale[: system.ny],
+        v_scale=model.d_scale[system.ny :],
+        **FAST,
+    )
+    assert model.lift is not None and boxed.model.lift is None
+    assert lifted.certified and boxed.certified, (lifted.reason, boxed.reason)
+    assert lifted.mu_min == pytest.approx(0.36, abs=2e-3) and boxed.mu_min == pytest.approx(0.36, abs=2e-3)
+    assert lifted.verify(2000, seed=2).holds
+
+
+def test_a_reduction_that_cannot_be_cut_to_x_names_the_box_that_leaves_x():
+    def rhs(x, u, w):
+        return [u[0] - 0.5 * np.sqrt(x[0]) - w[0], 0.5 * np.sqrt(x[0]) - 0.4 * np.sqrt(x[1])]
+
+    # y = h1 + v^3: psi is not affine in v, so x(z_sharp, gamma, v) is not affine and the certificate keeps the box
+    tanks = System.from_ode(rhs, lambda x, v: [x[0] + v[0] ** 3], nx=2, nu=1, nw=1, nv=1, dt=0.5, substeps=2,
+                            x_bounds=(0.1, 1.6), u_bounds=(0.2, 0.6), v_bounds=(-0.17, 0.17), name="tanks")  # fmt: skip
+    red = reduce_quasi_state_affine(tanks)
+    with pytest.raises(ModelError, match=r"beyond X = \[0.1, 1.6\] x \[0.1, 1.6\]") as caught:
+        certify_reduced_model(red, **FAST)
+    text = str(caught.value)
+    assert "z_sharp in [-0.006953, 1.59]" in text and "x [-0.0009401, 1.701]" in text
+    assert "psi affine in (gamma, v)" in text
