@@ -7,6 +7,11 @@ closed loop; printed per row: the Gauss-Newton backend's IPOPT fallbacks and fai
 IPOPT's failed samples, the median per-sample CPU time (``time.thread_time``, whole steps after N
 warm-up samples) of each backend and their ratio, mean Gauss-Newton iterations, and the largest
 difference of the two runs' estimates in state scales. The machine's load average is printed first.
+With ``--same-window``, IPOPT also re-solves each of the Gauss-Newton backend's full-length windows from the same
+start (:func:`uiest.experiments.solver_bench.same_window_deviation`), and the row adds the largest deviation of the
+window's last node (state scales), the windows whose Gauss-Newton cost exceeds IPOPT's by more than 1e-8 and the
+largest relative cost excess (negative: the Gauss-Newton optimum is the lower): where the two runs' estimates
+differ, this says which backend found the lower cost.
 
 Models: a noisy Henon map (x1 measured, the message w in x1), the CSTR of examples/reactor.py
 (temperature measured, an actuator fault), a Van der Pol oscillator (position measured, a force
@@ -27,6 +32,7 @@ import numpy as np
 
 from uiest import System, Trajectory, UniformNoise, simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, UISEWeights
+from uiest.experiments.solver_bench import _record_full_windows, same_window_deviation
 from uiest.models import get, load
 
 STEPS = 200
@@ -81,12 +87,15 @@ MODELS = {"henon": henon, "reactor": reactor, "van der pol": van_der_pol, "pendu
           "closed-form": closed_form}  # fmt: skip
 
 
-def run(system: System, traj: Trajectory, prior: np.ndarray, estimator: str, N: int, solver: str) -> dict[str, Any]:
-    """One closed-loop run; per-sample CPU of whole steps."""
+def run(
+    system: System, traj: Trajectory, prior: np.ndarray, estimator: str, N: int, solver: str, record: bool = False
+) -> dict[str, Any]:
+    """One closed-loop run; per-sample CPU of whole steps; ``record``: keep the full-length windows' solves."""
     if estimator == "UISE":
         est: Any = UISE(system, weights=UISEWeights.from_scales(system, 0.6), N=N, x0_prior=prior, solver=solver)
     else:
         est = StandardMHE(system, weights=MHEWeights.from_scales(system, 0.6), N=N, x0_prior=prior, solver=solver)
+    recorder = _record_full_windows(est, est.N) if record else None
     step, cpu = est.step, []
 
     def timed(u_prev: Any, y: Any) -> Any:
@@ -101,6 +110,7 @@ def run(system: System, traj: Trajectory, prior: np.ndarray, estimator: str, N: 
         "result": result,
         "cpu_ms": 1e3 * float(np.median(cpu[N:])),
         "fallbacks": result.fallbacks,
+        "recorder": recorder,
     }
 
 
@@ -109,20 +119,30 @@ def main() -> None:
     parser.add_argument("-N", dest="horizons", type=int, action="append", help="window length (repeat; default 10 30)")
     parser.add_argument("--steps", type=int, default=STEPS, help="samples per record")
     parser.add_argument("--solver", default="gn", help="the Gauss-Newton backend: gn (qrqp) or gn-riccati")
+    parser.add_argument("--same-window", action="store_true", help="IPOPT re-solves gn's full windows too")
     args = parser.parse_args()
     print(f"load average {os.getloadavg()[0]:.2f}; {args.steps} samples per record")
     print(f"{'model':12s} {'estimator':12s} {'N':>3s} {'gn fallb':>8s} {'gn fail':>7s} {'ipopt fail':>10s} "
-          f"{'gn cpu ms':>9s} {'ipopt cpu ms':>12s} {'ratio':>6s} {'gn iter':>7s} {'max est diff':>12s}")  # fmt: skip
+          f"{'gn cpu ms':>9s} {'ipopt cpu ms':>12s} {'ratio':>6s} {'gn iter':>7s} {'max est diff':>12s}"
+          + (f" {'window dev':>10s} {'cost>+1e-8':>10s} {'cost exc':>9s}" if args.same_window else ""))  # fmt: skip
     for name, make in MODELS.items():
         system, traj, prior = make(args.steps)
         for N in args.horizons or [10, 30]:
             for estimator in ("UISE", "standard MHE"):
-                gn, ipopt = (run(system, traj, prior, estimator, N, solver) for solver in (args.solver, "ipopt"))
+                gn = run(system, traj, prior, estimator, N, args.solver, record=args.same_window)
+                ipopt = run(system, traj, prior, estimator, N, "ipopt")
                 diff = np.nanmax(np.abs(gn["result"].x_hat - ipopt["result"].x_hat) / system.x.scale)
+                same = ""
+                if args.same_window:
+                    agreement = same_window_deviation(gn["recorder"])
+                    compared = agreement["windows_compared"]
+                    same = (f" {agreement['max_dev_vs_ipopt']:10.1e} "
+                            f"{str(agreement['windows_cost_above_ipopt_plus_1e-8']) + '/' + str(compared):>10s} "
+                            f"{agreement['max_cost_excess_vs_ipopt']:9.1e}")  # fmt: skip
                 print(
                     f"{name:12s} {estimator:12s} {N:3d} {gn['fallbacks']:8d} {gn['result'].failures:7d} "
                     f"{ipopt['result'].failures:10d} {gn['cpu_ms']:9.2f} {ipopt['cpu_ms']:12.2f} "
-                    f"{ipopt['cpu_ms'] / gn['cpu_ms']:6.1f} {np.mean(gn['result'].iterations):7.2f} {diff:12.1e}",
+                    f"{ipopt['cpu_ms'] / gn['cpu_ms']:6.1f} {np.mean(gn['result'].iterations):7.2f} {diff:12.1e}{same}",
                     flush=True,
                 )
 
