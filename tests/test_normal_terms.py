@@ -7,7 +7,6 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from uiest import simulate
 from uiest.estimators import UISE, MHEWeights, StandardMHE, TwoStageUISE, TwoStageWeights, UISEWeights
 from uiest.models import crop_growth
 from uiest.window.normal_terms import NormalTerms
