@@ -193,18 +193,18 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
     moved = [i for i in range(len(share)) if share[i] >= 0.5 * np.max(share)]
     groups: dict[tuple[complex | None, tuple[float, ...]], list[str]] = {}  # the states each frequency and point moves
     for i in sorted(moved, key=lambda i: near.state_z[i] != near.floor_z):  # floor_z's states first
-        floor, unit, point = near.error_floor[i], a.state_units[i], near.state_point[i]
+        floor, unit, at = near.error_floor[i], a.state_units[i], near.state_point[i]
         beyond = f" (more than X's width {amount(width[i], unit)})" if floor > width[i] else ""
-        key = near.state_z[i], () if point is None else tuple(point)
+        key = near.state_z[i], () if at is None else tuple(at)
         groups.setdefault(key, []).append(
             f"{a.state_names[i]} by {'any amount' if np.isinf(floor) else amount(floor, unit)}{beyond}"
         )
     noise = ", ".join(f"{y} {amount(e, u)}" for y, e, u in zip(a.output_names, near.noise, a.output_units,
                                                                 strict=True))  # fmt: skip
     inputs = ", ".join(a.input_names)
-    clauses = []
-    for (z, point), parts in groups.items():
-        z = near.floor_z if z is None else z
+    clauses: list[str] = []
+    for (state_z, point), parts in groups.items():
+        z = near.floor_z if state_z is None else state_z
         where = ""
         if not a.linear and point:
             where = f"in the model linearised at {point_text(a.state_names, np.array(point))}, "
