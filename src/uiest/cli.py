@@ -681,7 +681,7 @@ def sweep(
             if not console.is_terminal:
                 if lines is None:
                     lines = ProgressLines("sweep", total, done=state.skipped, unit="tasks")
-                lines.advance(finished - lines.done)
+                lines.advance(state.skipped + state.done - lines.done, lost=state.lost - lines.lost)
                 return
             bar.update(task, completed=finished,
                        description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
@@ -700,7 +700,9 @@ def sweep(
     console.print(f"{keys} of {total} tasks stored ({failed} with an error), {last.lost} lost this run; "
                   f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}")  # fmt: skip
     if last.lost:
-        error_console.print(f"error: {last.lost} tasks were not computed (see {out / 'lost_tasks.log'}); run again")
+        why = " (the model file changed during the run)" if last.model_changed else ""
+        error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
+                            f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)
     if keys == 0 or bool((results["error"] != "").all()):  # no estimator of any task gave a result
         error_console.print("error: every task failed; see the 'error' column of results.parquet")
