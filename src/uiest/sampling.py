@@ -123,7 +123,12 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
     if len(t) > 1:
         gaps = np.diff(position)
         off_grid = np.abs(steps - position) > STEP_TOLERANCE * np.maximum(1.0, np.abs(position))
-        if off_grid.any() or np.any(gaps < 1) or gaps.min() != 1:
+        if not off_grid.any() and np.any(gaps < 1):
+            bad = int(np.argmax(gaps < 1)) + 1
+            got = f"row {bad} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
+                f"row {bad} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
+            raise DataError(f"frame[t]: expected increasing times, one row per time; {got} (row 0 is the first data row)")
+        if off_grid.any() or gaps.min() != 1:
             step = np.diff(t)
             raise DataError(
                 f"frame[t]: expected increasing times spaced by the model's dt = {system.dt} (gaps of whole "
