@@ -113,7 +113,7 @@ def test_a_repeated_or_earlier_time_is_refused_naming_its_row(name):
     system, traj = _record(name, steps=20)
     frame = traj.to_pandas().reset_index(drop=True)
     repeated = frame.iloc[[*range(10), 9, *range(10, 21)]].reset_index(drop=True)
-    with pytest.raises(DataError, match=rf"frame\[t\]: .* row 10 repeats t = {9 * system.dt:g} \(row 0 is the first"):
+    with pytest.raises(DataError, match=rf"frame\[t\]: .* row 10 repeats t = {9 * system.dt:g} \(row 0: the first"):
         Trajectory.from_pandas(repeated, system)
     swapped = frame.iloc[[*range(5), 6, 5, *range(7, 21)]].reset_index(drop=True)
     with pytest.raises(DataError, match=rf"row 6 goes back to t = {5 * system.dt:g} after t = {6 * system.dt:g}"):

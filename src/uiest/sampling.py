@@ -127,7 +127,7 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
             bad = int(np.argmax(gaps < 1)) + 1
             got = f"row {bad} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
                 f"row {bad} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
-            raise DataError(f"frame[t]: expected increasing times, one row per time; {got} (row 0 is the first data row)")
+            raise DataError(f"frame[t]: expected increasing times, one row per time; {got} (row 0: the first data row)")
         if off_grid.any() or gaps.min() != 1:
             step = np.diff(t)
             raise DataError(
