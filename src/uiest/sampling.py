@@ -20,7 +20,7 @@ from uiest.errors import DataError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["on_time_grid", "warn_absent"]
+__all__ = ["on_time_grid", "warn_absent", "warn_text_as_missing"]
 
 FILLED_BYTES_LIMIT = 2**30
 """Largest table (rows x columns x 8 bytes) that gaps may be filled to: 1 GiB.
@@ -101,6 +101,56 @@ def warn_absent(filled: np.ndarray, column: str) -> None:
             UserWarning,
             stacklevel=user_stacklevel(),
         )
+
+
+NAN_SPELLINGS = ("nan", "+nan", "-nan")
+"""Cells a CSV reader reads as NaN that spell the number itself (lower case): missing on purpose, no warning."""
+
+
+def warn_text_as_missing(path: Any, frame: pd.DataFrame, system: Any) -> None:
+    """Warn, per column of ``system``'s signals, of the text cells of the CSV file ``path`` read as NaN (``n/a``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file ``frame`` was read from by :func:`pandas.read_csv` (its default NA strings).
+    frame : pandas.DataFrame
+        Its rows as read, one per file row (before any index is set); accepted as a record of ``system``.
+    system : System
+        Names the columns checked (its signals' names) and gives ``dt``.
+
+    Notes
+    -----
+    An empty cell and a spelling of NaN (:data:`NAN_SPELLINGS`) are missing on purpose; another text that the reader
+    turns into NaN (``n/a``, ``NA``, ``null``, ``None``, ``#N/A``, ...) is a placeholder, counted with its distinct
+    spellings and the first time index k it sits at (from ``t``, else a ``k`` column, else the row).
+
+    """
+    import pandas as pd  # imported when used (a frame is given): not by `import uiest`
+
+    names = {name for sig in system.signals for name in sig.names}
+    columns = [c for c in frame.columns if c in names and frame[c].isna().any()]
+    if not columns:
+        return
+    cells = pd.read_csv(path, dtype=str, keep_default_na=False, usecols=columns)
+    if len(cells) != len(frame):
+        return  # not the same rows: nothing to say about them
+    if "t" in frame.columns:
+        k = np.rint((frame["t"].to_numpy(dtype=float) - frame["t"].min()) / float(system.dt))
+    else:
+        k = (frame["k"] - frame["k"].min()).to_numpy(dtype=float) if "k" in frame.columns else np.arange(len(frame))
+    for column in columns:
+        text = cells[column].str.strip()
+        placeholder = (frame[column].isna() & (text != "") & ~text.str.lower().isin(NAN_SPELLINGS)).to_numpy()
+        count = int(placeholder.sum())
+        if count:
+            spellings = ", ".join(repr(word) for word in dict.fromkeys(text[placeholder]))
+            where = f", first at k = {int(k[placeholder].min())}" if count > 1 else f" at k = {int(k[placeholder][0])}"
+            warnings.warn(
+                f"data: {count} value{'s' * (count != 1)} read as missing ({spellings}) in {column}{where}",
+                UserWarning,
+                stacklevel=user_stacklevel(),
+            )
 
 
 def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
