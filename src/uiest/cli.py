@@ -40,7 +40,7 @@ from uiest.estimate import (
     write_estimates,
 )
 from uiest.estimators import UISE, StandardMHE, TwoStageUISE
-from uiest.experiments import Scenario, run_study, write_report
+from uiest.experiments import Scenario, provenance, run_study, write_report
 from uiest.experiments.paper_study import study_of
 from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
 from uiest.experiments.study_store import StudyStore
@@ -303,8 +303,26 @@ def estimate(
         else:
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
                                    caught_warning.lineno)  # fmt: skip
-    written = write_estimates(out, system, record, results)
-    console.print(f"wrote {', '.join(str(p) for p in written)}")
+    source = {"model": model, "data": data, "estimators": list(results), "not_run": skipped,
+              "options": {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}}  # fmt: skip
+    written = write_estimates(out, system, record, results, manifest=_estimate_manifest(prior=prior, **source))
+    console.print(f"wrote {', '.join(str(p) for p in written)}", markup=False, soft_wrap=True)
+
+
+def _estimate_manifest(*, model: str, data: Path, prior: Any, **run: Any) -> dict[str, Any]:
+    """``uiest estimate``'s manifest.json: the model and the record (path, SHA-256), the prior, the estimators.
+
+    Also those not run (with why), the options, and the call (:func:`uiest.experiments.provenance.stamp`).
+    """
+    path = str(Path(model).resolve()) if model.endswith(".py") else model
+    return {
+        "command": "estimate",
+        "model": {"name": path, "sha256": provenance.model_digest(model)},
+        "data": {"path": str(data.resolve()), "sha256": provenance.file_digest(data)},
+        "prior_x0": [float(value) for value in prior],
+        **run,
+        **provenance.stamp(),
+    }
 
 
 def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:

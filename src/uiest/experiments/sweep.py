@@ -290,11 +290,8 @@ def _write_manifest(
         calls = []
     scenario = design.scenario
     calls.append({
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
-        "stored_for_other_designs_or_code": other, "code_version": provenance.code_version(),
-        "git_revision": provenance.git_revision(), "versions": provenance.versions(), "machine": provenance.machine(),
-        "model_sha256": provenance.model_digest(scenario.model),
+        **provenance.stamp(), "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
+        "stored_for_other_designs_or_code": other, "model_sha256": provenance.model_digest(scenario.model),
     })  # fmt: skip
     manifest = {
         "design": design.to_dict(),
