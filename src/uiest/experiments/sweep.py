@@ -181,8 +181,9 @@ def sweep(
     design : Sweep
     out : Path
         Folder; finished tasks go to ``out/runs/<key>.parquet``, the union to ``out/results.parquet``,
-        the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png`` and the
-        provenance of every call to ``out/manifest.json``.
+        the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png``, the
+        provenance of every call to ``out/manifest.json`` and the tasks this call lost to
+        ``out/lost_tasks.log`` (an earlier call's log is removed first).
     workers : int, optional
         Worker processes (default: all cores; 1 with no scheduler: serial in this process).
     scheduler : str, optional
