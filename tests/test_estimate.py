@@ -307,7 +307,8 @@ def test_estimate_writes_a_manifest_of_its_record_and_removes_the_estimates_of_a
     assert f"warning: out: removed estimates_ukf.csv from {out}: written by an earlier run" in result.stderr
     assert sorted(p.name for p in out.iterdir()) == ["estimates.png", "estimates_ekf.csv", "manifest.json", "notes.txt"]
     manifest = json.loads((out / "manifest.json").read_text())
-    assert manifest["data"] == {"path": str(second.resolve()), "sha256": hashlib.sha256(second.read_bytes()).hexdigest()}
-    assert manifest["model"] == {"name": str(model.resolve()), "sha256": hashlib.sha256(model.read_bytes()).hexdigest()}
+    digest = {path: hashlib.sha256(path.read_bytes()).hexdigest() for path in (second, model)}
+    assert manifest["data"] == {"path": str(second.resolve()), "sha256": digest[second]}
+    assert manifest["model"] == {"name": str(model.resolve()), "sha256": digest[model]}
     assert manifest["estimators"] == ["ekf"] and manifest["files"] == ["estimates.png", "estimates_ekf.csv"]
     assert manifest["options"]["w_variance"] == 0.01 and manifest["code_version"]

@@ -265,7 +265,7 @@ def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_
     said = " ".join(first.stderr.split())  # the warning line, unwrapped
     assert f"warning: the model file {model} changed during the run: the tasks begun after the change were refused " \
         "(1 lost), and the 1 task finished before it is stored for the file's earlier content" in said  # fmt: skip
-    assert "error: 1 task was not computed (the model file changed during the run)" in first.stderr
+    assert "error: 1 task was not computed: the model file changed during the run (see" in first.stderr
     assert len(log.read_text().splitlines()) == 1 and "earlier run" not in log.read_text()  # this run's lost task
     monkeypatch.setattr(sweep_module, "run_task", run_task)
     second = CliRunner().invoke(app, command, terminal_width=300)

@@ -716,9 +716,10 @@ def sweep(
     keys = results["key"].nunique() if not results.empty else 0
     failed = int(results.groupby("key")["error"].apply(lambda e: (e != "").any()).sum()) if keys else 0
     console.print(f"{keys} of {total} tasks stored ({failed} with an error), {last.lost} lost this run; "
-                  f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}")  # fmt: skip
+                  f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}", markup=False,
+                  soft_wrap=True)  # fmt: skip
     if last.lost:
-        why = " (the model file changed during the run)" if last.model_changed else ""
+        why = ": the model file changed during the run" if last.model_changed else ""
         error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
                             f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)
