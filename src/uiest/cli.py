@@ -303,9 +303,10 @@ def estimate(
         else:
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
                                    caught_warning.lineno)  # fmt: skip
-    source = {"model": model, "data": data, "estimators": list(results), "not_run": skipped,
-              "options": {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}}  # fmt: skip
-    written = write_estimates(out, system, record, results, manifest=_estimate_manifest(prior=prior, **source))
+    given = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}
+    manifest = _estimate_manifest(model=model, data=data, prior=prior, estimators=list(results), not_run=skipped,
+                                  options=given)  # fmt: skip
+    written = write_estimates(out, system, record, results, manifest=manifest)
     console.print(f"wrote {', '.join(str(p) for p in written)}", markup=False, soft_wrap=True)
 
 
