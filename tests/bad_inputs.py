@@ -1245,6 +1245,12 @@ def cli_cases(tmp: Path) -> list[CliCase]:
         CliCase("reproduce --steps 0", ("reproduce", "--steps", "0", "--out", out), 2, "--steps"),
         CliCase("reproduce a missing scenario", ("reproduce", "--scenario", str(tmp / "none.toml")), 2, "cannot read"),
         CliCase("reproduce an empty scenario", ("reproduce", "--scenario", str(empty)), 2, "missing"),
+        CliCase(  # the two TOML forms: a sweep file nests the scenario in [scenario]
+            "reproduce a sweep file",
+            ("reproduce", "--scenario", str(_sweep_file(tmp, "grid = {N = [2, 3]}")), "--out", out),
+            2,
+            "looks like a sweep file (a [scenario] table); run it with `uiest sweep`",
+        ),
         CliCase("reproduce to an unwritable folder", ("reproduce", "--quick", "--out", bad), 2, "cannot write"),
         CliCase(
             "reproduce where every run fails",

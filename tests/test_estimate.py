@@ -277,3 +277,38 @@ def test_a_lag_longer_than_the_default_window_lengthens_it_without_a_horizon(tmp
     assert np.isfinite(lagged["x1_lag"].to_numpy()[:25]).all()  # row j: x[j] from the window at j + 35
     refused = CliRunner().invoke(app, [*base, "--lag", "35", "--horizon", "20", "--out", str(tmp_path / "out2")])
     assert refused.exit_code == 2 and "--lag: expected an integer below the horizon (--horizon = 20)" in refused.output
+
+
+def test_estimate_writes_a_manifest_of_its_record_and_removes_the_estimates_of_an_earlier_one(tmp_path):
+    # the folder kept estimates_ukf.csv of another record beside the new estimates, and nothing named the record
+    import hashlib
+    import json
+
+    out = tmp_path / "out"
+    first = tmp_path / "closed_form.csv"
+    entry = get("closed-form")
+    setup = entry.simulation()
+    simulate(entry.build(), setup.x0, 20, u=setup.u, w=setup.w, v=setup.noise, seed=1).to_pandas().to_csv(first)
+    kinds = ["--estimator", "ekf", "--estimator", "ukf", "--w-variance", "0.01"]
+    result = CliRunner().invoke(app, ["estimate", "closed-form", "--data", str(first), *kinds, "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["estimators"] == ["ekf", "ukf"] and manifest["model"] == {"name": "closed-form", "sha256": ""}
+    assert manifest["files"] == ["estimates.png", "estimates_ekf.csv", "estimates_ukf.csv"]
+    (out / "notes.txt").write_text("mine")
+    model = tmp_path / "gain.py"
+    model.write_text((Path(__file__).parent / "gain_model.py").read_text())
+    gain = load(model)
+    second = tmp_path / "gain.csv"
+    simulate(gain.build(), [0.0, 1.0], 15, w=np.full((15, 1), 0.1)).to_pandas().to_csv(second)
+    command = ["estimate", str(model), "--data", str(second), "--estimator", "ekf", "--w-variance", "0.01"]
+    result = CliRunner().invoke(app, [*command, "--out", str(out)], terminal_width=300)
+    assert result.exit_code == 0, result.output
+    assert f"warning: out: removed estimates_ukf.csv from {out}: written by an earlier run" in result.stderr
+    assert sorted(p.name for p in out.iterdir()) == ["estimates.png", "estimates_ekf.csv", "manifest.json", "notes.txt"]
+    manifest = json.loads((out / "manifest.json").read_text())
+    digest = {path: hashlib.sha256(path.read_bytes()).hexdigest() for path in (second, model)}
+    assert manifest["data"] == {"path": str(second.resolve()), "sha256": digest[second]}
+    assert manifest["model"] == {"name": str(model.resolve()), "sha256": digest[model]}
+    assert manifest["estimators"] == ["ekf"] and manifest["files"] == ["estimates.png", "estimates_ekf.csv"]
+    assert manifest["options"]["w_variance"] == 0.01 and manifest["code_version"]

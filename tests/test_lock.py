@@ -84,7 +84,7 @@ def test_a_lock_left_by_a_killed_run_is_taken_over_with_a_note(tmp_path):
     assert result.exit_code == 0, result.output
     note = [line for line in result.output.splitlines() if line.startswith("warning: --out: took over the lock")]
     assert len(note) == 1 and f"pid {holder.pid} on host" in note[0] and "removed the 1 unfinished write" in note[0]
-    assert sorted(p.name for p in folder.iterdir()) == ["estimates.png", "estimates_ekf.csv"]
+    assert sorted(p.name for p in folder.iterdir()) == ["estimates.png", "estimates_ekf.csv", "manifest.json"]
 
 
 def test_the_lock_is_reentrant_in_one_process_and_released_on_errors(tmp_path):

@@ -1,5 +1,6 @@
 """Measured records are read as written: gaps stay missing samples, masks are missing values, booleans are no data."""
 
+import re
 import warnings
 
 import numpy as np
@@ -105,3 +106,41 @@ def test_boolean_outputs_are_refused(tmp_path):
     frame.to_parquet(path)
     with pytest.raises(DataError, match=r"frame\[y\]: expected real numbers"):
         read_record(path, system)
+
+
+@pytest.mark.parametrize("name", ["linear-example", "closed-form"])
+def test_a_repeated_or_earlier_time_is_refused_naming_its_row(name):
+    # the message said "got steps from 0 to 1", naming neither the row nor the repeat
+    system, traj = _record(name, steps=20)
+    frame = traj.to_pandas().reset_index(drop=True)
+    repeated = frame.iloc[[*range(10), 9, *range(10, 21)]].reset_index(drop=True)
+    with pytest.raises(DataError, match=rf"frame\[t\]: .* row 10 repeats t = {9 * system.dt:g} \(row 0: the first"):
+        Trajectory.from_pandas(repeated, system)
+    swapped = frame.iloc[[*range(5), 6, 5, *range(7, 21)]].reset_index(drop=True)
+    with pytest.raises(DataError, match=rf"row 6 goes back to t = {5 * system.dt:g} after t = {6 * system.dt:g}"):
+        Trajectory.from_pandas(swapped, system)
+
+
+@pytest.mark.parametrize("name", ["linear-example", "closed-form"])
+def test_text_read_as_missing_is_named_per_column_with_its_count_and_first_k(tmp_path, name):
+    # "n/a" in an output column became a missing sample without a word
+    system, traj = _record(name, steps=20)
+    column = system.y.names[0]
+    frame = traj.to_pandas()
+    frame[column] = frame[column].astype(object)
+    frame.loc[[9, 14], column] = ["n/a", "NA"]
+    frame.loc[12, column] = np.nan  # an empty cell: missing on purpose, not counted
+    placed = frame.drop(index=[5, 6] if system.nu == 0 else []).assign(t=lambda f: f["t"] + 50 * system.dt)
+    placed.reset_index(drop=True).to_csv(tmp_path / "t.csv", index=False)  # placed by t: the cells keep their k
+    frame.to_csv(tmp_path / "k.csv")  # a k column, no gap
+    for path in ("t.csv", "k.csv"):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            record = read_record(tmp_path / path, system)
+        said = [str(w.message) for w in caught if "read as missing" in str(w.message)]
+        assert said == [f"data: 2 values read as missing ('n/a', 'NA') in {column}, first at k = 9"], said
+        assert np.isnan(record.y[[9, 12, 14], 0]).all() and np.isfinite(record.y[[8, 10, 13], 0]).all()
+    frame.loc[14, column] = 0.5
+    frame.to_csv(tmp_path / "one.csv")
+    with pytest.warns(UserWarning, match=rf"^data: 1 value read as missing \('n/a'\) in {re.escape(column)} at k = 9$"):
+        read_record(tmp_path / "one.csv", system)

@@ -40,7 +40,7 @@ from uiest.estimate import (
     write_estimates,
 )
 from uiest.estimators import UISE, StandardMHE, TwoStageUISE
-from uiest.experiments import Scenario, run_study, write_report
+from uiest.experiments import Scenario, provenance, run_study, write_report
 from uiest.experiments.paper_study import study_of
 from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, table_row
 from uiest.experiments.study_store import StudyStore
@@ -303,8 +303,27 @@ def estimate(
         else:
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
                                    caught_warning.lineno)  # fmt: skip
-    written = write_estimates(out, system, record, results)
-    console.print(f"wrote {', '.join(str(p) for p in written)}")
+    given = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}
+    manifest = _estimate_manifest(model=model, data=data, prior=prior, estimators=list(results), not_run=skipped,
+                                  options=given)  # fmt: skip
+    written = write_estimates(out, system, record, results, manifest=manifest)
+    console.print(f"wrote {', '.join(str(p) for p in written)}", markup=False, soft_wrap=True)
+
+
+def _estimate_manifest(*, model: str, data: Path, prior: Any, **run: Any) -> dict[str, Any]:
+    """``uiest estimate``'s manifest.json: the model and the record (path, SHA-256), the prior, the estimators.
+
+    Also those not run (with why), the options, and the call (:func:`uiest.experiments.provenance.stamp`).
+    """
+    path = str(Path(model).resolve()) if model.endswith(".py") else model
+    return {
+        "command": "estimate",
+        "model": {"name": path, "sha256": provenance.model_digest(model)},
+        "data": {"path": str(data.resolve()), "sha256": provenance.file_digest(data)},
+        "prior_x0": [float(value) for value in prior],
+        **run,
+        **provenance.stamp(),
+    }
 
 
 def _prior_option(x0: str | None, entry: Any, system: Any) -> Any:
@@ -681,7 +700,7 @@ def sweep(
             if not console.is_terminal:
                 if lines is None:
                     lines = ProgressLines("sweep", total, done=state.skipped, unit="tasks")
-                lines.advance(finished - lines.done)
+                lines.advance(state.skipped + state.done - lines.done, lost=state.lost - lines.lost)
                 return
             bar.update(task, completed=finished,
                        description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "
@@ -698,9 +717,12 @@ def sweep(
     keys = results["key"].nunique() if not results.empty else 0
     failed = int(results.groupby("key")["error"].apply(lambda e: (e != "").any()).sum()) if keys else 0
     console.print(f"{keys} of {total} tasks stored ({failed} with an error), {last.lost} lost this run; "
-                  f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}")  # fmt: skip
+                  f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}", markup=False,
+                  soft_wrap=True)  # fmt: skip
     if last.lost:
-        error_console.print(f"error: {last.lost} tasks were not computed (see {out / 'lost_tasks.log'}); run again")
+        why = ": the model file changed during the run" if last.model_changed else ""
+        error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
+                            f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)
     if keys == 0 or bool((results["error"] != "").all()):  # no estimator of any task gave a result
         error_console.print("error: every task failed; see the 'error' column of results.parquet")

@@ -32,9 +32,11 @@ model certifies:
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
 the step health fields of :meth:`~uiest.results.EstimationResult.to_pandas`, and ``<state>_lag``
-columns with a lag) and ``estimates.png`` (measured outputs beside each
+columns with a lag), ``estimates.png`` (measured outputs beside each
 estimator's predicted output ``h(x_hat, 0)``, the state and unknown-input estimates, and the
-truth where the record has it).
+truth where the record has it) and ``manifest.json`` (the record's and the model's files with their SHA-256, the
+estimators, the options, versions and machine); it removes the ``estimates_*.csv`` of an earlier run it did not
+write.
 
 Examples
 --------
@@ -59,6 +61,7 @@ simulated record, which also holds the true states):
 
 from __future__ import annotations
 
+import json
 import warnings
 from dataclasses import replace
 from pathlib import Path
@@ -68,8 +71,9 @@ import numpy as np
 
 from uiest import estimators as est
 from uiest.analysis import Recommendation, analyse
-from uiest.atomic import staged_folder, write_file
+from uiest.atomic import staged_folder, storage_error, write_file, write_text
 from uiest.box import FloatArray
+from uiest.checks import user_stacklevel
 from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
@@ -388,14 +392,25 @@ def run_estimators(estimators: dict[str, Any], record: Trajectory, x0: FloatArra
 
 
 @holds_folder("out")
-def write_estimates(out: Path, system: System, record: Trajectory, results: dict[str, EstimationResult]) -> list[Path]:
-    """``estimates_<label>.csv`` per estimator and ``estimates.png`` (module docstring); returns the paths.
+def write_estimates(
+    out: Path,
+    system: System,
+    record: Trajectory,
+    results: dict[str, EstimationResult],
+    *,
+    manifest: dict[str, Any] | None = None,
+) -> list[Path]:
+    """``estimates_<label>.csv`` per estimator, ``estimates.png`` and ``manifest.json``; returns the paths.
 
-    The files replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`); the
-    folder is held against other runs while they are written (:mod:`uiest.lock`).
+    The files (module docstring) replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`);
+    the folder is held against other runs while they are written (:mod:`uiest.lock`). ``manifest.json`` holds
+    ``manifest`` (where the record and the model came from) and the names of the files written; without
+    ``manifest`` none is written. Then the ``estimates_*.csv`` files of an earlier run that this one did not write
+    are removed, with a warning naming them: they belong to another record or other estimators.
     """
     out = Path(out)
     names = {label: plain_name(label, "results") for label in results}
+    written = [out / f"estimates_{names[label]}.csv" for label in results] + [out / "estimates.png"]
     figure = plot_record(system, record, results)
     with staged_folder(out) as stage:
         for label, result in results.items():
@@ -403,7 +418,32 @@ def write_estimates(out: Path, system: System, record: Trajectory, results: dict
             frame["t"] = record.t  # the data's own times
             write_file(stage / f"estimates_{names[label]}.csv", frame.to_csv)
         save_figure(figure, stage / "estimates.png")
-    return [*(out / f"estimates_{names[label]}.csv" for label in results), out / "estimates.png"]
+        if manifest is not None:
+            files = sorted(path.name for path in written)
+            write_text(stage / "manifest.json", json.dumps({**manifest, "files": files}, indent=2))
+    if manifest is not None:
+        written.append(out / "manifest.json")
+    _remove_stale(out, written)
+    return written
+
+
+def _remove_stale(out: Path, written: list[Path]) -> None:
+    """Remove the ``estimates_*.csv`` files in ``out`` that are not ``written``, with a warning naming them."""
+    stale = sorted(path for path in out.glob("estimates_*.csv") if path not in written)
+    for path in stale:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            raise storage_error(exc, path) from None
+    if stale:
+        warnings.warn(
+            f"out: removed {', '.join(path.name for path in stale)} from {out}: written by an earlier run (another "
+            "record or other estimators), not by this one",
+            UserWarning,
+            stacklevel=user_stacklevel(),
+        )
 
 
 def errors_against_truth(record: Trajectory, results: dict[str, EstimationResult]) -> dict[str, FloatArray]:

@@ -26,6 +26,9 @@ def duration(seconds: float) -> str:
 class ProgressLines:
     """Writes ``"<what>: D of T runs done, L left, about E left"`` lines as runs (or other units) finish.
 
+    Runs that ended without a result (a sweep's lost tasks) are counted apart, as ``", N lost"``: neither done
+    nor left.
+
     Parameters
     ----------
     what : str
@@ -50,25 +53,31 @@ class ProgressLines:
                  stream: TextIO | None = None, clock: Callable[[], float] = time.monotonic,
                  unit: str = "runs") -> None:  # fmt: skip
         self.what, self.total, self.done, self.before, self.unit = what, total, done, done, unit
+        self.lost = 0
         self.interval, self.stream, self.clock = interval, stream, clock
         self.start = clock()
         self.last: float | None = None
 
     def line(self) -> str:
         """The current line (no newline)."""
-        left = self.total - self.done
+        left = self.total - self.done - self.lost
         stored = f" ({self.before} stored before)" if self.before else ""
-        text = f"{self.what}: {self.done} of {self.total} {self.unit} done{stored}, {left} left"
-        computed = self.done - self.before
-        if left and computed:
-            text += f", about {duration((self.clock() - self.start) / computed * left)} left"
+        lost = f", {self.lost} lost" if self.lost else ""
+        text = f"{self.what}: {self.done} of {self.total} {self.unit} done{stored}{lost}, {left} left"
+        ended = self.done - self.before + self.lost  # the runs this process finished, with or without a result
+        if left and ended:
+            text += f", about {duration((self.clock() - self.start) / ended * left)} left"
         return text
 
-    def advance(self, runs: int = 1) -> None:
-        """Count ``runs`` more finished runs; write a line if the interval has passed (or at the first or last)."""
+    def advance(self, runs: int = 1, *, lost: int = 0) -> None:
+        """Count ``runs`` more finished runs (and ``lost`` without a result); write a line if the interval has passed.
+
+        The first line and the last (every run finished or lost) are written at once.
+        """
         self.done += runs
+        self.lost += lost
         now = self.clock()
-        if self.last is None or now - self.last >= self.interval or self.done >= self.total:
+        if self.last is None or now - self.last >= self.interval or self.done + self.lost >= self.total:
             self.last = now
             stream = self.stream if self.stream is not None else sys.stderr
             stream.write(self.line() + "\n")

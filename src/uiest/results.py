@@ -23,7 +23,7 @@ from uiest.checks import real_array, shown
 from uiest.errors import DataError
 from uiest.guarantee import Guarantee
 from uiest.health import FAILURES, Outcome, status_text
-from uiest.sampling import on_time_grid, warn_absent
+from uiest.sampling import on_time_grid, warn_absent, warn_text_as_missing
 from uiest.system import System
 
 if TYPE_CHECKING:
@@ -616,6 +616,8 @@ def read_record(path: Any, system: Any) -> Trajectory:
     """:meth:`Trajectory.from_pandas` of a CSV or Parquet file (a ``k`` column, from ``to_pandas``, is the index).
 
     Gaps in ``k`` or ``t`` are missing samples (rows of NaN); a file with neither is taken as contiguous (a warning).
+    A CSV cell of text that pandas reads as missing (``n/a``, ``NA``, ``null``, ...; not an empty cell or ``nan``) is a
+    missing sample too, with a warning per column (:func:`uiest.sampling.warn_text_as_missing`).
     """
     import pandas as pd  # imported when used: pandas takes most of `import uiest`'s time otherwise
 
@@ -635,6 +637,7 @@ def read_record(path: Any, system: Any) -> Trajectory:
         raise
     except Exception as exc:  # a damaged file: name it
         raise DataError(f"data: could not read {file} ({type(exc).__name__}: {exc})") from exc
-    if "k" in frame.columns:
-        frame = frame.set_index("k").sort_index()
-    return Trajectory.from_pandas(frame, system)
+    record = Trajectory.from_pandas(frame.set_index("k").sort_index() if "k" in frame.columns else frame, system)
+    if file.suffix.lower() == ".csv":
+        warn_text_as_missing(file, frame, system)
+    return record

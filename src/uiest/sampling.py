@@ -20,7 +20,7 @@ from uiest.errors import DataError
 if TYPE_CHECKING:
     import pandas as pd
 
-__all__ = ["on_time_grid", "warn_absent"]
+__all__ = ["on_time_grid", "warn_absent", "warn_text_as_missing"]
 
 FILLED_BYTES_LIMIT = 2**30
 """Largest table (rows x columns x 8 bytes) that gaps may be filled to: 1 GiB.
@@ -103,6 +103,56 @@ def warn_absent(filled: np.ndarray, column: str) -> None:
         )
 
 
+NAN_SPELLINGS = ("nan", "+nan", "-nan")
+"""Cells a CSV reader reads as NaN that spell the number itself (lower case): missing on purpose, no warning."""
+
+
+def warn_text_as_missing(path: Any, frame: pd.DataFrame, system: Any) -> None:
+    """Warn, per column of ``system``'s signals, of the text cells of the CSV file ``path`` read as NaN (``n/a``).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The CSV file ``frame`` was read from by :func:`pandas.read_csv` (its default NA strings).
+    frame : pandas.DataFrame
+        Its rows as read, one per file row (before any index is set); accepted as a record of ``system``.
+    system : System
+        Names the columns checked (its signals' names) and gives ``dt``.
+
+    Notes
+    -----
+    An empty cell and a spelling of NaN (:data:`NAN_SPELLINGS`) are missing on purpose; another text that the reader
+    turns into NaN (``n/a``, ``NA``, ``null``, ``None``, ``#N/A``, ...) is a placeholder, counted with its distinct
+    spellings and the first time index k it sits at (from ``t``, else a ``k`` column, else the row).
+
+    """
+    import pandas as pd  # imported when used (a frame is given): not by `import uiest`
+
+    names = {name for sig in system.signals for name in sig.names}
+    columns = [c for c in frame.columns if c in names and frame[c].isna().any()]
+    if not columns:
+        return
+    cells = pd.read_csv(path, dtype=str, keep_default_na=False, usecols=columns)
+    if len(cells) != len(frame):
+        return  # not the same rows: nothing to say about them
+    if "t" in frame.columns:
+        k = np.rint((frame["t"].to_numpy(dtype=float) - frame["t"].min()) / float(system.dt))
+    else:
+        k = (frame["k"] - frame["k"].min()).to_numpy(dtype=float) if "k" in frame.columns else np.arange(len(frame))
+    for column in columns:
+        text = cells[column].str.strip()
+        placeholder = (frame[column].isna() & (text != "") & ~text.str.lower().isin(NAN_SPELLINGS)).to_numpy()
+        count = int(placeholder.sum())
+        if count:
+            spellings = ", ".join(repr(word) for word in dict.fromkeys(text[placeholder]))
+            where = f", first at k = {int(k[placeholder].min())}" if count > 1 else f" at k = {int(k[placeholder][0])}"
+            warnings.warn(
+                f"data: {count} value{'s' * (count != 1)} read as missing ({spellings}) in {column}{where}",
+                UserWarning,
+                stacklevel=user_stacklevel(),
+            )
+
+
 def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
     """Each row's time index ``round((t - t[0]) / dt)``; times off the grid, repeated or out of order refused."""
     import pandas as pd  # imported when used (a frame is given): not by `import uiest`
@@ -123,7 +173,12 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
     if len(t) > 1:
         gaps = np.diff(position)
         off_grid = np.abs(steps - position) > STEP_TOLERANCE * np.maximum(1.0, np.abs(position))
-        if off_grid.any() or np.any(gaps < 1) or gaps.min() != 1:
+        if not off_grid.any() and np.any(gaps < 1):
+            bad = int(np.argmax(gaps < 1)) + 1
+            got = f"row {bad} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
+                f"row {bad} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
+            raise DataError(f"frame[t]: expected increasing times, one row per time; {got} (row 0: the first data row)")
+        if off_grid.any() or gaps.min() != 1:
             step = np.diff(t)
             raise DataError(
                 f"frame[t]: expected increasing times spaced by the model's dt = {system.dt} (gaps of whole "

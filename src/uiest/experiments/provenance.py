@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime as dt
 import functools
 import hashlib
 import os
@@ -12,7 +13,16 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-__all__ = ["code_version", "git_revision", "keyed_scenario", "machine", "model_digest", "versions"]
+__all__ = [
+    "code_version",
+    "file_digest",
+    "git_revision",
+    "keyed_scenario",
+    "machine",
+    "model_digest",
+    "stamp",
+    "versions",
+]
 
 PACKAGE = Path(__file__).resolve().parents[1]
 """The ``uiest`` package folder."""
@@ -96,15 +106,29 @@ def keyed_scenario(scenario: Any) -> dict[str, Any]:
     return data
 
 
+def stamp() -> dict[str, Any]:
+    """What every manifest records of the call that wrote it: when (UTC), machine, versions, git revision, code."""
+    return {
+        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
+        "machine": machine(),
+        "versions": versions(),
+        "git_revision": git_revision(),
+        "code_version": code_version(),
+    }
+
+
+def file_digest(path: str | os.PathLike[str]) -> str:
+    """The SHA-256 (hex) of a file's bytes; ``"unreadable: <reason>"`` for a file that cannot be read."""
+    try:
+        return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    except OSError as exc:
+        return f"unreadable: {exc.strerror or exc}"
+
+
 def model_digest(model: str) -> str:
     """The SHA-256 (hex) of a model file's bytes; ``""`` for a registered name (built-ins: in :func:`code_version`).
 
     Keys of stored runs include it, so an edited model file is computed again, never taken from the store.
     A file that cannot be read gives ``"unreadable: <reason>"`` (loading it then fails with the reason).
     """
-    if not model.endswith(".py"):
-        return ""
-    try:
-        return hashlib.sha256(Path(model).read_bytes()).hexdigest()
-    except OSError as exc:
-        return f"unreadable: {exc.strerror or exc}"
+    return file_digest(model) if model.endswith(".py") else ""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import datetime as dt
 import functools
 import json
 import math
@@ -565,12 +564,8 @@ def _manifest(study: StudyResult, out: Path, written: list[Path], wall_time: flo
     scenario = study.scenario
     return {
         "scenario": scenario.to_dict(),
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "machine": provenance.machine(),
+        **provenance.stamp(),
         "solver": study.solver,
-        "versions": provenance.versions(),
-        "git_revision": provenance.git_revision(),
-        "code_version": provenance.code_version(),
         "model": {"name": scenario.model, "sha256": provenance.model_digest(scenario.model)},
         "wall_time_s": wall_time,
         "certificates": list(study.certificates),

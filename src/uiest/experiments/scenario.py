@@ -325,7 +325,14 @@ class Scenario:
         A model file is Python code: loading the scenario's model runs it, with your rights (like a
         ``setup.py``), in this process and in every worker. Run scenarios whose model files you trust.
         """
-        return cls.from_dict(model_beside(read_toml(path, "scenario"), Path(path)))
+        data = read_toml(path, "scenario")
+        if isinstance(data.get("scenario"), dict):  # unknown at the top level: the table a sweep file nests it in
+            unknown = sorted(set(data) - {f.name for f in fields(cls)})
+            raise OptionError(
+                f"scenario: unknown keys {unknown}: {path} looks like a sweep file (a [scenario] table); run it with "
+                "`uiest sweep`, or move the [scenario] table's keys to the top level"
+            )
+        return cls.from_dict(model_beside(data, Path(path)))
 
 
 def is_model_file(model: object) -> bool:

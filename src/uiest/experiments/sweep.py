@@ -34,7 +34,7 @@ import numpy as np
 
 from uiest import models
 from uiest.atomic import storage_error, write_file, write_text
-from uiest.checks import check_callable, check_flag, shown
+from uiest.checks import check_callable, check_flag, shown, user_stacklevel
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
 from uiest.experiments.runner import BUILDERS, simulate_run
@@ -155,7 +155,11 @@ class SweepProgress:
     remaining: int
     skipped: int
     lost: int = 0
-    """Tasks not computed (a cluster failure, other code on a worker): not stored, left for the next run."""
+    """Tasks not computed (a cluster failure, other code on a worker, an edited model file): not stored, left for the
+    next run."""
+    model_changed: bool = False
+    """The model file's bytes changed during the run: tasks begun after the change were refused (lost), and those
+    finished before it are stored under the earlier content's keys, not this design's as the file now is."""
 
 
 @holds_folder("out")
@@ -177,8 +181,9 @@ def sweep(
     design : Sweep
     out : Path
         Folder; finished tasks go to ``out/runs/<key>.parquet``, the union to ``out/results.parquet``,
-        the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png`` and the
-        provenance of every call to ``out/manifest.json``.
+        the per-point summary to ``out/summary.csv``, plots to ``out/sweep_*.png``, the
+        provenance of every call to ``out/manifest.json`` and the tasks this call lost to
+        ``out/lost_tasks.log`` (an earlier call's log is removed first).
     workers : int, optional
         Worker processes (default: all cores; 1 with no scheduler: serial in this process).
     scheduler : str, optional
@@ -223,20 +228,46 @@ def sweep(
     if max_tasks is not None:
         todo = todo[:max_tasks]
     _write_manifest(design, out, solver, workers, scheduler, new=len(todo), other=other)
+    _clear_lost_log(out)  # the log lists this run's lost tasks only
     done = failed = lost = 0
+    changed = False
     if progress is not None:
         progress(SweepProgress(0, 0, len(todo), skipped))
     for task, frame, why in executors.results(todo, run_task, workers, scheduler):
         if frame is None or not (frame["key"] == task.key).all():
             lost += 1
             _log_lost(out, task, why or "its rows carry another key (other code on the worker)")
+            changed = changed or provenance.model_digest(task.scenario.model) != task.model_sha256
         else:
             _store(frame, runs_dir, task.key)
             done += 1
             failed += int((frame["error"] != "").any())
         if progress is not None:
-            progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost))
+            progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost, changed))
+    if changed:
+        _warn_model_changed(design.scenario.model, done, lost)
     return collect(design, out, solver)
+
+
+def _warn_model_changed(model: str, done: int, lost: int) -> None:
+    """Warn that ``model`` (a file) changed during a run that stored ``done`` tasks and lost ``lost``."""
+    before = (f", and the {done} task{'s' * (done != 1)} finished before it {'are' if done != 1 else 'is'} stored for "
+              "the file's earlier content, not for the file as it is now") if done else ""  # fmt: skip
+    warnings.warn(
+        f"the model file {model} changed during the run: the tasks begun after the change were refused ({lost} lost)"
+        f"{before}; run the same command again to compute the design for the file as it is now",
+        UserWarning,
+        stacklevel=user_stacklevel(),
+    )
+
+
+def _clear_lost_log(out: Path) -> None:
+    """Remove ``out/lost_tasks.log`` of an earlier run (its tasks are stored by now, or lost again and listed anew)."""
+    path = out / "lost_tasks.log"
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as exc:
+        raise storage_error(exc, path) from None
 
 
 def _log_lost(out: Path, task: Task, why: str) -> None:
@@ -260,11 +291,8 @@ def _write_manifest(
         calls = []
     scenario = design.scenario
     calls.append({
-        "created": dt.datetime.now(dt.UTC).isoformat(timespec="seconds"),
-        "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
-        "stored_for_other_designs_or_code": other, "code_version": provenance.code_version(),
-        "git_revision": provenance.git_revision(), "versions": provenance.versions(), "machine": provenance.machine(),
-        "model_sha256": provenance.model_digest(scenario.model),
+        **provenance.stamp(), "solver": solver, "workers": workers, "scheduler": scheduler, "new_tasks": new,
+        "stored_for_other_designs_or_code": other, "model_sha256": provenance.model_digest(scenario.model),
     })  # fmt: skip
     manifest = {
         "design": design.to_dict(),
