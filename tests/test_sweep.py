@@ -9,7 +9,7 @@ from uiest import OptionError
 from uiest.errors import DomainWarning
 from uiest.experiments import EstimatorSpec, Scenario
 from uiest.experiments import runner as runner_module
-from uiest.experiments.sweep import Sweep, collect, sweep
+from uiest.experiments.sweep import Sweep, collect, run_task, sweep
 
 
 def design():
@@ -26,6 +26,15 @@ def design():
         estimators=(EstimatorSpec("UISE", "uise", N=3, mu=0.64, output_weight=1e4),),
     )
     return Sweep(scenario, grid={"N": (2, 4), "noise_scale": (0.5,)})
+
+
+def test_each_row_counts_the_samples_whose_noise_left_v():
+    # a sweep over noise_scale put the noise outside V, and its rows said nothing (a study's runs count it)
+    loud = Sweep(design().scenario, grid={"noise_scale": (0.5, 3.0)})
+    with pytest.warns(UserWarning, match="v left V"):
+        rows = pd.concat([run_task(task) for task in loud.tasks()])
+    by_scale = rows.groupby("noise_scale")["v_outside"].max()
+    assert by_scale[0.5] == 0 and by_scale[3.0] > 0
 
 
 def numbers(frame):

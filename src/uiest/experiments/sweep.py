@@ -79,7 +79,7 @@ def run_task(task: Task) -> pd.DataFrame:
     except Exception as exc:  # recorded, whatever it is
         return pd.DataFrame([{**base, "estimator": "", "error": f"{type(exc).__name__}: {exc}"}])
     names = truth.names.get("x") or tuple(f"x[{i}]" for i in range(system.nx))
-    base["x_outside"] = int(truth.x_outside.sum())
+    base["x_outside"], base["v_outside"] = int(truth.x_outside.sum()), int(truth.v_outside.sum())
     rows = []
     for spec in scenario.estimators:
         row: dict[str, Any] = {**base, "estimator": spec.name, "error": ""}
