@@ -75,7 +75,7 @@ def test_the_compiled_terms_equal_the_expressions(name):
         p, lam_g = rng.uniform(-1.0, 1.0, n_par), rng.normal(size=problem.n_con)
         expected = [np.asarray(out.nonzeros()) for out in expressions(z, p, lam_g)]
         got = terms(trial % 2, z, p, lam_g)
-        for want, have in zip(expected, got, strict=True):
+        for want, have in zip(expected, got[2:], strict=True):  # after z and the slot
             np.testing.assert_allclose(np.atleast_1d(have), want, rtol=1e-12, atol=1e-12 * (1 + np.abs(want).max()))
 
 

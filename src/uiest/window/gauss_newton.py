@@ -81,7 +81,7 @@ from uiest.checks import all_finite, all_true, check_int, check_real
 from uiest.errors import OptionError
 from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import BlockCurvature, IndexArray
-from uiest.window.normal_terms import NormalTerms
+from uiest.window.normal_terms import NormalTerms, Point
 from uiest.window.polish import refine
 from uiest.window.problem import WindowProblem
 from uiest.window.solvers import FEASIBILITY_TOL, IpoptSolver, WindowSolution
@@ -369,26 +369,6 @@ def _solve_qrqp(
     return _QPSolution(x.copy(), float(cost[0]) / c, lam_x, lam_a, released)
 
 
-class _Point(NamedTuple):
-    """An evaluated point.
-
-    ``z``, its buffer, ``|r|^2``, the violation of ``lbg <= g <= ubg`` (the merit's: the sum of the
-    rows' excess over :data:`VIOLATION_FLOOR`; and the largest row's, raw), the stationarity
-    measure, and the nonzeros of ``J^T r``, ``J^T J``, ``g`` and ``G``.
-    """
-
-    z: FloatArray
-    slot: int
-    cost: float
-    violation: float
-    worst: float
-    stationarity: float
-    q: FloatArray
-    h: FloatArray
-    g: FloatArray
-    a: FloatArray
-
-
 _Step = tuple[FloatArray, float]
 """A QP step ``dz`` and the decrease of ``|r|^2`` it predicts."""
 
@@ -427,7 +407,7 @@ def _no_decrease_left(predicted: float, cost: float, cost_tol: float) -> bool:
     return abs(predicted) <= cost_tol * (1.0 + cost)
 
 
-def _only_restores_rounding(predicted: float, point: _Point) -> bool:
+def _only_restores_rounding(predicted: float, point: Point) -> bool:
     """The step predicts no decrease of ``|r|^2`` from a point feasible to rounding (see :data:`VIOLATION_FLOOR`).
 
     All it would do is remove the rounding from the constraints, at the cost's expense: nothing is left to gain.
@@ -437,7 +417,7 @@ def _only_restores_rounding(predicted: float, point: _Point) -> bool:
     return predicted <= 0.0 and point.violation == 0.0
 
 
-def _ratio(point: _Point, trial: _Point, predicted: float, nu: float) -> float:
+def _ratio(point: Point, trial: Point, predicted: float, nu: float) -> float:
     """Actual over predicted decrease of the merit ``|r|^2 + nu |violation|_1`` from ``point`` to ``trial``.
 
     The QP step satisfies the linearised constraints: the model predicts the violation gone.
@@ -546,15 +526,15 @@ class _Correction(NamedTuple):
     """A second-order correction: its step, its evaluated point and its QP's multipliers ``(lam_x, lam_a)``."""
 
     dz: FloatArray
-    point: _Point
+    point: Point
     multipliers: tuple[FloatArray, FloatArray]
 
 
 def _corrected(
-    correct: Callable[[FloatArray, _Point], _Correction | None],
-    ratio_of: Callable[[_Point], float],
+    correct: Callable[[FloatArray, Point], _Correction | None],
+    ratio_of: Callable[[Point], float],
     dz: FloatArray,
-    trial: _Point,
+    trial: Point,
 ) -> tuple[_Correction, float] | None:
     """The second-order correction to take for a rejected step ``dz`` (trial point ``trial``), with its ratio.
 
@@ -621,7 +601,7 @@ class SolveState:
     ----------
     p : ndarray (n_par,)
         The window's parameters.
-    point : _Point
+    point : Point
         The current iterate, evaluated.
     damping : Damping
     qp_scale : float
@@ -645,7 +625,7 @@ class SolveState:
     """
 
     p: FloatArray
-    point: _Point
+    point: Point
     damping: Damping
     qp_scale: float
     lam_x: FloatArray
@@ -769,8 +749,8 @@ class GaussNewtonSolver:
 
     # ------------------------------------------------------------------ evaluations
     def _evaluate(
-        self, z: FloatArray, p: FloatArray, keep: _Point | None = None, lam_g: FloatArray | None = None
-    ) -> _Point:
+        self, z: FloatArray, p: FloatArray, keep: Point | None = None, lam_g: FloatArray | None = None
+    ) -> Point:
         """The point ``z``, with the stationarity measure for the constraint multipliers ``lam_g`` (default 0).
 
         Evaluated into the buffer that ``keep`` (a point still in use) does not occupy; the
@@ -778,9 +758,9 @@ class GaussNewtonSolver:
         """
         slot = 1 - keep.slot if keep is not None else 0
         lam = self._no_multipliers if lam_g is None else lam_g
-        return _Point(z, slot, *self._terms(slot, z, p, lam))
+        return self._terms(slot, z, p, lam)
 
-    def _stationary(self, point: _Point, lam_a: FloatArray, largest: float | None = None) -> bool:
+    def _stationary(self, point: Point, lam_a: FloatArray, largest: float | None = None) -> bool:
         """KKT stationarity at ``point`` with the constraint multipliers ``lam_a`` it was evaluated with.
 
         ``s = J^T r + G^T lam_g`` must vanish at free variables and point outwards at active
@@ -795,7 +775,7 @@ class GaussNewtonSolver:
 
     # ------------------------------------------------------------------ QP
     def _qp(
-        self, form: _QPForm, h: FloatArray, point: _Point, warm: bool, release_tol: float
+        self, form: _QPForm, h: FloatArray, point: Point, warm: bool, release_tol: float
     ) -> tuple[FloatArray, float, FloatArray, FloatArray] | None:
         """``(dz, QP cost, lam_x, lam_a)`` of the QP at ``point`` with Hessian ``h`` (cost of ``|r|^2`` units), or None.
 
@@ -819,7 +799,7 @@ class GaussNewtonSolver:
         state.released = solved.released
         return solved.dz, solved.cost, solved.lam_x, solved.lam_a
 
-    def _model(self, point: _Point) -> tuple[_QPForm, FloatArray]:
+    def _model(self, point: Point) -> tuple[_QPForm, FloatArray]:
         """The QP's form and Hessian at ``point``: ``J^T J``, or once the solve is curved ``J^T J + S_+``.
 
         ``S_+`` takes the multipliers at hand when the first curved QP at the point is set up (those of the
@@ -847,7 +827,7 @@ class GaussNewtonSolver:
             self._state.curved = curved
         return curved
 
-    def _step(self, point: _Point, damping: float, warm: bool) -> _Step | None:
+    def _step(self, point: Point, damping: float, warm: bool) -> _Step | None:
         """The QP step ``dz`` with ``damping`` added to the model's Hessian, and the decrease of ``|r|^2`` it predicts.
 
         ``warm``: the QP starts from the running solve's multipliers, and from scratch if that fails; they
@@ -875,7 +855,7 @@ class GaussNewtonSolver:
         return (dz, predicted) if math.isfinite(predicted) else None
 
     def _second_order_correction(
-        self, point: _Point, trial: _Point, dz: FloatArray, damping: float, p: FloatArray
+        self, point: Point, trial: Point, dz: FloatArray, damping: float, p: FloatArray
     ) -> _Correction | None:
         """The step re-solved with the constraints' curvature seen at the rejected trial point.
 
@@ -1003,8 +983,8 @@ class GaussNewtonSolver:
         return step
 
     def _correct(
-        self, state: SolveState, dz: FloatArray, trial: _Point, predicted: float, nu: float
-    ) -> tuple[FloatArray, _Point, float]:
+        self, state: SolveState, dz: FloatArray, trial: Point, predicted: float, nu: float
+    ) -> tuple[FloatArray, Point, float]:
         """A rejected step's second-order correction if one is taken (:func:`_corrected`), else the step itself.
 
         Returns the step, its point and its ratio; a taken correction's multipliers become the solve's, and one

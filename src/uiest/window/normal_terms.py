@@ -24,16 +24,19 @@ from uiest.window.buffered import BufferedFunction
 from uiest.window.curvature import IndexArray
 from uiest.window.problem import WindowProblem
 
-__all__ = ["NormalTerms", "PointTerms"]
+__all__ = ["NormalTerms", "Point"]
 
 
-class PointTerms(NamedTuple):
-    """The terms at one point.
+class Point(NamedTuple):
+    """An evaluated point.
 
-    ``|r|^2``, the merit's and the largest row's violation, the KKT measure, and the nonzeros of ``J^T r``
-    (n_var), ``J^T J`` (in ``h_sparsity``), ``g`` (n_con) and ``G``.
+    ``z`` (n_var), the slot whose arrays hold its terms, ``|r|^2``, the violation of ``lbg <= g <= ubg`` (the merit's:
+    the sum of the rows' excess over the violation floor; and the largest row's, raw), the KKT measure, and the
+    nonzeros of ``J^T r`` (n_var), ``J^T J`` (in ``h_sparsity``), ``g`` (n_con) and ``G``.
     """
 
+    z: FloatArray
+    slot: int
     cost: float
     violation: float
     worst: float
@@ -81,8 +84,8 @@ class NormalTerms:
         n_var, nnz_h = problem.n_var, self.h_sparsity.nnz()
         self._out = [(np.empty(4), np.empty(n_var), np.empty(nnz_h)) for _ in range(2)]
 
-    def __call__(self, slot: int, z: FloatArray, p: FloatArray, lam_g: FloatArray) -> PointTerms:
-        """The terms at ``z`` (n_var) with parameters ``p`` and constraint multipliers ``lam_g`` (n_con).
+    def __call__(self, slot: int, z: FloatArray, p: FloatArray, lam_g: FloatArray) -> Point:
+        """The point ``z`` (n_var) with parameters ``p`` and constraint multipliers ``lam_g`` (n_con).
 
         Written into ``slot``'s arrays (0 or 1), which the next call with the same slot overwrites.
         """
@@ -91,7 +94,7 @@ class NormalTerms:
         _terms(z, r, j, g, a, lam_g, self._products, self._columns, self._diagonal, self._bounds, self._settings,
                tests, q, h)  # fmt: skip
         cost, violation, worst, stationarity = tests.tolist()
-        return PointTerms(cost, violation, worst, stationarity, q, h, g, a)
+        return Point(z, slot, cost, violation, worst, stationarity, q, h, g, a)
 
 
 _Columns = tuple[IndexArray, IndexArray]
