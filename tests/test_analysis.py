@@ -434,3 +434,24 @@ def test_every_zero_outside_the_unit_circle_leaves_the_states_its_motion_moves_u
            "per sample moves x[3] by any amount" in a.reason  # fmt: skip
     assert "x[3] unbounded (at z = 1.2, more than X's width)" in str(a)
     assert a.to_dict()["near_zeros"]["state_z"][3] == pytest.approx([1.2, 0.0])
+
+
+def test_a_measured_states_floor_names_no_frequency_and_a_shared_point_is_named_once():
+    # the zeros at 1.7 and 1.2 of a nonlinear model linearised at one point: the sentence named that point twice,
+    # and the measured x[0], whose floor is its noise at every frequency, got a stray "at z = -0.682+0.7314j"
+    import casadi as ca
+
+    from uiest.analysis.recommend import hidden_motion
+
+    A = np.array([[0.5, 0, 0.1, 0], [0, 0.5, 0, 0.1], [0.3, 0, 1.5, 0], [0, 0.3, 0, 1.2]])
+    x, u, w, v = ca.SX.sym("x", 4), ca.SX.sym("u", 0), ca.SX.sym("w", 2), ca.SX.sym("v", 2)
+    curved = ca.vertcat(0.05 * ca.sin(x[2]), 0, 0.2 * ca.sin(x[2]), 0.1 * ca.cos(x[3]))
+    x_next = ca.mtimes(ca.DM(A), x) + ca.mtimes(ca.DM(np.eye(4)[:, :2]), w) + curved
+    system = System.from_expressions(x, u, w, v, x_next, ca.mtimes(ca.DM(np.eye(4)[:2]), x) + v,
+                                     x_bounds=(-20, 20), v_bounds=(-0.01, 0.01))  # fmt: skip
+    a = analyse(system, points=4)
+    assert a.near_zeros.state_z[0] is None and a.near_zeros.state_z[2:] == pytest.approx((1.7, 1.2))
+    sentence = hidden_motion(a)
+    assert sentence is not None and sentence.count("linearised at") == 1
+    assert "; one growing 1.2-fold per sample moves x[3] by any amount" in sentence
+    assert "x[0] 0.01, x[1] 0.01, x[2] unbounded" in str(a)

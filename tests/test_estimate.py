@@ -312,3 +312,12 @@ def test_estimate_writes_a_manifest_of_its_record_and_removes_the_estimates_of_a
     assert manifest["model"] == {"name": str(model.resolve()), "sha256": digest[model]}
     assert manifest["estimators"] == ["ekf"] and manifest["files"] == ["estimates.png", "estimates_ekf.csv"]
     assert manifest["options"]["w_variance"] == 0.01 and manifest["code_version"]
+    from uiest.estimate import write_estimates
+    from uiest.estimators import EKF
+
+    # written from Python without a manifest, the estimates of a third record leave no manifest of the second
+    third = simulate(gain.build(), [0.0, 2.0], 10, w=np.full((10, 1), 0.2))
+    estimator = EKF(gain.build(), x0_prior=[0.0, 1.0], w_variance=0.01)
+    with pytest.warns(UserWarning, match="removed estimates_ekf.csv, manifest.json"):
+        write_estimates(out, gain.build(), third, {"EKF": estimator.run(third.u, third.y)})
+    assert sorted(p.name for p in out.iterdir()) == ["estimates.png", "estimates_EKF.csv", "notes.txt"]

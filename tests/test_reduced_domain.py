@@ -82,6 +82,9 @@ def test_a_rotated_linear_reduction_certifies_the_same_on_the_states_in_x_as_on_
     assert lifted.certified and boxed.certified, (lifted.reason, boxed.reason)
     assert lifted.mu_min == pytest.approx(0.36, abs=2e-3) and boxed.mu_min == pytest.approx(0.36, abs=2e-3)
     assert lifted.verify(2000, seed=2).holds
+    # a certificate on part of the boxes says so where it is read
+    assert lifted.reason.endswith("over the points with x = T^-1(psi(gamma, z_sharp, v), z_sharp) in X")
+    assert "over the points" not in boxed.reason
 
 
 def test_a_reduction_that_cannot_be_cut_to_x_names_the_box_that_leaves_x():

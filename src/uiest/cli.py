@@ -272,7 +272,11 @@ def estimate(
         ),
     ] = None,
 ) -> None:
-    """Estimate states and unknown inputs from measurements; write estimates_<estimator>.csv and estimates.png."""
+    """Estimate states and unknown inputs from measurements.
+
+    Writes estimates_<estimator>.csv, estimates.png and manifest.json (the record and model files) to --out, and
+    removes the estimates_*.csv an earlier run left there.
+    """
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")
     check_lag(lag, horizon)

@@ -405,8 +405,9 @@ def write_estimates(
     The files (module docstring) replace earlier ones all together or not at all (:func:`uiest.atomic.staged_folder`);
     the folder is held against other runs while they are written (:mod:`uiest.lock`). ``manifest.json`` holds
     ``manifest`` (where the record and the model came from) and the names of the files written; without
-    ``manifest`` none is written. Then the ``estimates_*.csv`` files of an earlier run that this one did not write
-    are removed, with a warning naming them: they belong to another record or other estimators.
+    ``manifest`` none is written. Then the ``estimates_*.csv`` files of an earlier run that this one did not write,
+    and without ``manifest`` an earlier run's ``manifest.json``, are removed with a warning naming them: they
+    belong to another record or other estimators.
     """
     out = Path(out)
     names = {label: plain_name(label, "results") for label in results}
@@ -428,8 +429,9 @@ def write_estimates(
 
 
 def _remove_stale(out: Path, written: list[Path]) -> None:
-    """Remove the ``estimates_*.csv`` files in ``out`` that are not ``written``, with a warning naming them."""
-    stale = sorted(path for path in out.glob("estimates_*.csv") if path not in written)
+    """Remove the ``estimates_*.csv`` and ``manifest.json`` in ``out`` that are not ``written``, naming them."""
+    stale = sorted(path for path in [*out.glob("estimates_*.csv"), out / "manifest.json"]
+                   if path.exists() and path not in written)  # fmt: skip
     for path in stale:
         try:
             path.unlink()

@@ -89,7 +89,8 @@ class NearZeros:
     floor_point : ndarray (nx,) or None
         The linearisation point of ``floor_z``.
     state_z : tuple of complex or None, length nx
-        The frequency at which each state's floor is reached (None without ``noise``).
+        The frequency at which each state's floor is reached; None without ``noise``, and for a state whose floor is
+        the same at every frequency on the circle (a measured state's: its noise).
     state_point : tuple of ndarray (nx,) or None, length nx
         The linearisation point of each ``state_z``.
 
@@ -177,8 +178,10 @@ def _floor(
     return floors
 
 
-SAME_FLOOR = 1e-6
-"""A state's floor at the frequency that sets the largest share is its floor where it is within this share of it."""
+SAME_FLOOR = 1e-3
+"""Two floors of a state within this share of each other are the same: a state's floor is named with the frequency
+that sets the largest share where it reaches its own floor there, and with none where it is the same at every
+frequency on the circle."""
 
 ZERO_RTOL = 1e-8
 """At a computed invariant zero, the outputs' gain along the zero's input direction is rounding: below this share of
@@ -201,6 +204,17 @@ class _Floor:
         """Take ``floor`` (nx,) at ``z`` and ``point`` where it is larger than the floor so far."""
         for i in np.flatnonzero(floor > self.value):
             self.value[i], self.z[i], self.point[i] = floor[i], z, point
+
+    def unname_flat(self, floors: FloatArray, points: FloatArray) -> None:
+        """No frequency for the states whose floor is the same, to :data:`SAME_FLOOR`, at every frequency on the circle.
+
+        ``floors`` (points, frequencies, nx), the floors on the circle at the linearisation ``points`` (points, nx).
+        A measured state's floor is its noise at every frequency: the largest of them is no frequency of its own.
+        """
+        for i, point in enumerate(self.point):
+            at = next((k for k in range(len(points)) if point is not None and np.array_equal(points[k], point)), None)
+            if at is not None and np.min(floors[at, :, i]) >= (1.0 - SAME_FLOOR) * np.max(floors[at, :, i]) > 0.0:
+                self.z[i] = None
 
     def attribute(self, floor: FloatArray, z: complex, point: FloatArray) -> None:
         """Name ``z`` and ``point`` for the states whose floor ``floor`` (nx,) there reaches, to :data:`SAME_FLOOR`.
@@ -293,6 +307,7 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         for i in range(lin.count):
             for j in np.unique(np.argmax(floors[i], axis=0)):
                 found.raise_to(floors[i, j], complex(circle[j]), lin.x[i] * 1.0)
+        found.unname_flat(floors, lin.x)
         share = np.max(floors / width[None, None, :], axis=2)
         p, j = np.unravel_index(int(np.argmax(share)), share.shape)
         A, Q = lin.A[p], bases[p]

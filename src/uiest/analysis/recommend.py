@@ -203,11 +203,13 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
                                                                 strict=True))  # fmt: skip
     inputs = ", ".join(a.input_names)
     clauses: list[str] = []
+    said: tuple[float, ...] = ()  # the linearisation point the clauses so far named
     for (state_z, point), parts in groups.items():
         z = near.floor_z if state_z is None else state_z
         where = ""
-        if not a.linear and point:
-            where = f"in the model linearised at {point_text(a.state_names, np.array(point))}, "
+        if not a.linear and point and point != said:
+            prefix = "at" if clauses else "in the model linearised at"
+            where, said = f"{prefix} {point_text(a.state_names, np.array(point))}, ", point
         near_zero = "" if z != near.floor_z or limiting_zero(a) is not None else _near_zero_text(a, z)
         subject = f"an unknown input ({inputs})" if not clauses else "one"
         clauses.append(f"{where}{subject} {frequency_text(z)}{near_zero} moves {' and '.join(parts)}")

@@ -260,8 +260,11 @@ def certify_reduced_ioss(
     recertify = functools.partial(certify_reduced_ioss, f_sharp, h_sharp, z_bounds=z_box, gamma_bounds=g_box,
                                   v_bounds=v_box, u_bounds=u_box if nu else None, z_scale=model.z_scale,
                                   gamma_scale=g_scale, v_scale=model.d_scale[p:], lift=lift, **options)  # fmt: skip
-    return ReducedIOSS(**solution.certificate_fields(model.z_scale, time.perf_counter() - start), model=model,
-                       q=solution.q, r=solution.r, recertify=recertify)  # fmt: skip
+    fields = solution.certificate_fields(model.z_scale, time.perf_counter() - start)
+    if lift is not None:  # a certificate on part of the boxes says so
+        fields["reason"] = f"{fields['reason']}; over {lift.description}"
+        fields["coverage"] = f"{fields['coverage']}; over {lift.description}"
+    return ReducedIOSS(**fields, model=model, q=solution.q, r=solution.r, recertify=recertify)
 
 
 def certify_reduced_model(reduced: ReducedModel, **options: Any) -> ReducedIOSS:

@@ -1,10 +1,9 @@
 r"""A window point's Gauss-Newton terms: CasADi evaluates ``r, J, g, G``; one compiled pass forms the rest.
 
 The Gauss-Newton solver needs at each point ``|r|^2``, ``J^T r``, ``J^T J`` (with its flat diagonal raised),
-the violation of ``lbg <= g <= ubg`` and the KKT stationarity measure. Formed as CasADi expressions, ``J^T J``
-and the tests take about 1.6 times the instructions of ``r, J, g, G`` themselves; here the model's part is
-evaluated by CasADi (through its buffer) and the products by one numba pass over index lists built once from
-the sparsities (design notes: estimator step).
+the violation of ``lbg <= g <= ubg`` and the KKT stationarity measure. The model's part is evaluated by CasADi
+(through its buffer), and the products and tests, which as CasADi expressions would cost more than the model's part,
+by one numba pass over index lists built once from the sparsities (design notes: estimator step).
 
 Index convention: ``z`` is the window's stacked variables (``n_var``), ``r`` its residuals (``n_res``), ``g``
 its constraint rows (``n_con``). Sparse matrices are their nonzeros in CasADi's column-major order: ``J``
