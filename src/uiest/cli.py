@@ -726,7 +726,9 @@ def sweep(
                   f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}", markup=False,
                   soft_wrap=True)  # fmt: skip
     if last.lost:
-        why = ": the model file changed during the run" if last.model_changed else ""
+        model_lost = last.lost_to_model_change
+        why = (": the model file changed during the run" if model_lost == last.lost else
+               f" ({model_lost} because the model file changed during the run)" if model_lost else "")  # fmt: skip
         error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
                             f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)
