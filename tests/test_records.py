@@ -54,7 +54,7 @@ def test_gaps_where_a_known_input_is_needed_and_bad_time_indices_are_refused():
         with pytest.raises(DataError, match="row 10 is absent from the record"):
             Trajectory.from_pandas(frame.drop(index=[10]), system)
     disagree = frame.drop(index=[10]).assign(t=lambda f: np.arange(len(f)) * system.dt)
-    with pytest.raises(DataError, match="the k index and the t column disagree at row 10"):
+    with pytest.raises(DataError, match=r"the k index and the t column disagree at k = 11 \(t = "):
         Trajectory.from_pandas(disagree, system)
     repeated = frame.iloc[[0, 1, 1, 2]]
     with pytest.raises(DataError, match="the k index must increase without repeats"):
@@ -121,6 +121,17 @@ def test_a_repeated_or_earlier_time_is_refused_naming_its_row(name):
         Trajectory.from_pandas(swapped, system)
 
 
+def test_a_repeated_time_in_a_file_sorted_by_k_is_named_by_its_k_not_its_sorted_position(tmp_path):
+    # read_record sorts by k before t is checked: "row 10" counted rows after sorting, not the file's lines
+    system, traj = _record("closed-form", steps=20)
+    frame = traj.to_pandas()
+    frame.loc[10, "t"] = frame.loc[9, "t"]
+    shuffled = frame.iloc[np.random.default_rng(0).permutation(len(frame))]
+    shuffled.to_csv(tmp_path / "shuffled.csv")  # the k column first, its rows out of order
+    with pytest.raises(DataError, match=rf"the row with k = 10 repeats t = {frame.loc[9, 't']:g}$"):
+        read_record(tmp_path / "shuffled.csv", system)
+
+
 @pytest.mark.parametrize("name", ["linear-example", "closed-form"])
 def test_text_read_as_missing_is_named_per_column_with_its_count_and_first_k(tmp_path, name):
     # "n/a" in an output column became a missing sample without a word
@@ -133,12 +144,15 @@ def test_text_read_as_missing_is_named_per_column_with_its_count_and_first_k(tmp
     placed = frame.drop(index=[5, 6] if system.nu == 0 else []).assign(t=lambda f: f["t"] + 50 * system.dt)
     placed.reset_index(drop=True).to_csv(tmp_path / "t.csv", index=False)  # placed by t: the cells keep their k
     frame.to_csv(tmp_path / "k.csv")  # a k column, no gap
-    for path in ("t.csv", "k.csv"):
+    later = frame.set_axis(frame.index + 100)  # a k column from 100: the record's k = 9 is the file's k = 109
+    later.rename_axis("k").to_csv(tmp_path / "later.csv")
+    at_t = f"the file's t = {frame.loc[9, 't'] + 50 * system.dt:g}"
+    for path, own in (("t.csv", f" ({at_t})"), ("k.csv", ""), ("later.csv", " (the file's k = 109)")):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             record = read_record(tmp_path / path, system)
         said = [str(w.message) for w in caught if "read as missing" in str(w.message)]
-        assert said == [f"data: 2 values read as missing ('n/a', 'NA') in {column}, first at k = 9"], said
+        assert said == [f"data: 2 values read as missing ('n/a', 'NA') in {column}, first at k = 9{own}"], said
         assert np.isnan(record.y[[9, 12, 14], 0]).all() and np.isfinite(record.y[[8, 10, 13], 0]).all()
     frame.loc[14, column] = 0.5
     frame.to_csv(tmp_path / "one.csv")

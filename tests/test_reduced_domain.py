@@ -1,5 +1,7 @@
 """The reduced certificate's domain: the points whose full state lies in X, not the box around T(X) x Y x V."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -85,6 +87,30 @@ def test_a_rotated_linear_reduction_certifies_the_same_on_the_states_in_x_as_on_
     # a certificate on part of the boxes says so where it is read
     assert lifted.reason.endswith("over the points with x = T^-1(psi(gamma, z_sharp, v), z_sharp) in X")
     assert "over the points" not in boxed.reason
+    # the falsifier's text counts the pairs it scored: with the lift, the pairs with both points in D
+    found = lifted.falsification
+    assert 0 < found.scored < found.pairs // 2, found
+    assert f"over {found.scored:,} pairs scored of {found.pairs:,} drawn and" in lifted.falsification.text()
+    assert lifted.to_dict()["falsification"]["pairs_scored"] == found.scored
+    every = boxed.falsification  # without a lift every pair is scored, and the text says so as before
+    assert every.scored == every.pairs >= 20_000 and f"over {every.pairs:,} pairs and" in every.text()
+
+
+def test_the_lifted_certificate_holds_on_d_although_the_inequality_fails_outside_x():
+    # a cubic term in x2 (slope 0.06 x2^2): small in X = [-2, 2]^3, growing past it, where the box's points go
+    _, A, B, C = linear.with_invariant_zeros([0.6, -0.3], seed=4)
+    cubic = System.from_callables(lambda x, u, w: A @ x + B @ w + 0.02 * np.eye(3)[1] * x[1] ** 3,
+                                  lambda x, v: C @ x + v, nx=3, nw=1, nv=1, x_bounds=(-2.0, 2.0),
+                                  v_bounds=(-0.01, 0.01), name="cubic")  # fmt: skip
+    cert = certify_reduced_model(reduce_quasi_state_affine(cubic), **FAST)
+    # the falsifier scores only pairs in D (unmasked, its pairs outside X refute the certificate)
+    assert cert.certified, cert.reason
+    assert not cert.falsification.refuted and cert.falsification.scored < cert.falsification.pairs
+    check = cert.verify(20000, seed=1)
+    assert check.holds and 0 < check.pairs_used < check.pairs_drawn
+    unlifted = dataclasses.replace(cert, model=dataclasses.replace(cert.model, lift=None))
+    outside = unlifted.verify(20000, seed=1)
+    assert outside.pairs_used == outside.pairs_drawn and outside.worst_ratio > 1.5
 
 
 def test_a_reduction_that_cannot_be_cut_to_x_names_the_box_that_leaves_x():

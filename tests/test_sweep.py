@@ -177,7 +177,10 @@ def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_
     model.write_text(text)
     design = Sweep(gain_sweep(model).scenario, grid={"w_gain": (1.0, 2.0)})
 
+    states = []
+
     def edit(state):
+        states.append(state)
         if state.done == 1:  # after the first task: the second would run another model than its key says
             model.write_text(text.replace("GAIN = 0.5", "GAIN = 0.25"))
 
@@ -186,7 +189,8 @@ def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_
     assert results.empty  # the one stored task belongs to the file before the edit
     assert len(list((tmp_path / "out" / "runs").glob("*.parquet"))) == 1
     log = (tmp_path / "out" / "lost_tasks.log").read_text()
-    assert "CodeMismatchError: the model file" in log and "changed after the sweep started" in log
+    assert "ModelChangedError: the model file" in log and "changed after the sweep started" in log
+    assert states[-1].lost == states[-1].lost_to_model_change == 1 and states[-1].model_changed
 
 
 def test_task_keys_do_not_change_with_the_run_count_or_the_spelling_of_a_model_file_s_path(tmp_path, monkeypatch):
@@ -281,3 +285,44 @@ def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_
     assert second.exit_code == 0, second.output
     assert "sweep: 2 of 2 tasks done, 0 left" in second.stderr and "2 of 2 tasks stored" in second.stdout
     assert not log.exists()  # every task stored: no task of this folder is lost
+
+
+def test_a_sweep_counts_the_tasks_lost_to_a_model_edit_apart_from_those_lost_otherwise(tmp_path, monkeypatch):
+    # every lost task was blamed on the edit: "2 tasks were not computed: the model file changed", "(2 lost)"
+    from pathlib import Path
+
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+    from uiest.experiments import sweep as sweep_module
+
+    model = tmp_path / "gain.py"
+    text = (Path(__file__).parent / "gain_model.py").read_text()
+    model.write_text(text)
+    path = tmp_path / "gain.toml"
+    path.write_text(
+        "[scenario]\nname = 'gain'\nmodel = 'gain.py'\nsteps = 20\nruns = 1\ncases = ['noise-free']\nsettle = 2\n"
+        "[[scenario.estimators]]\nname = 'EKF'\nkind = 'ekf'\nw_variance = 1.0\n"
+        "[sweep]\ngrid = {w_gain = [1.0, 2.0, 3.0]}\n"
+    )
+    run_task = sweep_module.run_task
+    seen: list[float] = []
+
+    def edit_after_the_first_and_lose_the_second(task):
+        seen.append(dict(task.params)["w_gain"])
+        if len(seen) == 2:
+            raise RuntimeError("the worker's connection dropped")  # lost, not for the edit
+        rows = run_task(task)  # the third is refused: the file changed
+        model.write_text(text.replace("GAIN = 0.5", "GAIN = 0.25"))
+        return rows
+
+    monkeypatch.setattr(sweep_module, "run_task", edit_after_the_first_and_lose_the_second)
+    result = CliRunner().invoke(app, ["sweep", str(path), "--out", str(tmp_path / "out"), "--workers", "1"],
+                                terminal_width=300)  # fmt: skip
+    assert result.exit_code == 1, result.output
+    said = " ".join(result.stderr.split())
+    assert "the tasks begun after the change were refused (1 lost), and the 1 task finished before it is stored" in said
+    assert "; 1 other task was lost for other reasons (see lost_tasks.log)" in said
+    assert "error: 2 tasks were not computed (1 because the model file changed during the run) (see" in said
+    log = (tmp_path / "out" / "lost_tasks.log").read_text().splitlines()
+    assert len(log) == 2 and "RuntimeError" in log[0] and "ModelChangedError" in log[1]

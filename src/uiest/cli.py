@@ -486,7 +486,8 @@ def certify(
                 continue
             check = cert.verify(verify, seed=seed)
             records.append({"certificate": label, **cert.to_dict(), "verify_worst_ratio": check.worst_ratio,
-                            "verify_pairs": check.pairs_used, "time_s": time.perf_counter() - start,
+                            "verify_pairs": check.pairs_used, "verify_pairs_drawn": check.pairs_drawn,
+                            "time_s": time.perf_counter() - start,
                             "guarantee": _estimator_guarantee(cert, estimator)})  # fmt: skip
     table = Table(title=f"certificates of {model}")
     table.add_column("")
@@ -547,7 +548,7 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
     """Table cells of one certificate record, in the order of ``ROWS``."""
     time_s = f"{record['time_s']:.2f} s"
     found = record.get("falsification")
-    search = "-" if not found else (f"{found['worst_ratio']:.4g} ({found['pairs']} pairs, "
+    search = "-" if not found else (f"{found['worst_ratio']:.4g} ({_pairs(found['pairs_scored'], found['pairs'])}, "
                                     f"{found['local_searches']} local)")  # fmt: skip
     if not record["certified"]:
         return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", "-",
@@ -564,11 +565,16 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
     else:
         gains = "Q_w, Q_v, R: see JSON"
     cover = record["cover_kind"]
-    ratio = f"{record['verify_worst_ratio']:.4g} ({record['verify_pairs']} pairs)"
+    ratio = f"{record['verify_worst_ratio']:.4g} ({_pairs(record['verify_pairs'], record['verify_pairs_drawn'])})"
     guarantee = record.get("guarantee")
     verdict = "-" if guarantee is None else f"{guarantee['estimator']}: {guarantee.get('verdict', 'none')}"
     return [record["status"], _number(record["rate"]), _number(record["rate_min"]), f"{cond:.3g}", gains, noise,
             str(record["min_horizon"]), verdict, cover, search, ratio, time_s]  # fmt: skip
+
+
+def _pairs(scored: int, drawn: int) -> str:
+    """``"20000 pairs"``, or ``"2892 of 20000 pairs scored"`` when some drawn pairs were not scored."""
+    return f"{drawn} pairs" if scored == drawn else f"{scored} of {drawn} pairs scored"
 
 
 def _number(value: Any) -> str:
@@ -724,7 +730,9 @@ def sweep(
                   f"{len(results)} rows in {out / 'results.parquet'}, summary {out / 'summary.csv'}", markup=False,
                   soft_wrap=True)  # fmt: skip
     if last.lost:
-        why = ": the model file changed during the run" if last.model_changed else ""
+        model_lost = last.lost_to_model_change
+        why = (": the model file changed during the run" if model_lost == last.lost else
+               f" ({model_lost} because the model file changed during the run)" if model_lost else "")  # fmt: skip
         error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
                             f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)

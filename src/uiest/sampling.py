@@ -67,7 +67,7 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
         if position is not None and not np.array_equal(position, k):
             bad = int(np.argmax(position != k))
             raise DataError(
-                f"frame: the k index and the t column disagree at row {bad} (k = {frame.index[bad]}, t = "
+                f"frame: the k index and the t column disagree at k = {frame.index[bad]} (t = "
                 f"{float(frame['t'].iloc[bad]):g}, dt = {dt}); expected t = t[0] + (k - k[0]) dt"
             )
         position = k
@@ -123,7 +123,9 @@ def warn_text_as_missing(path: Any, frame: pd.DataFrame, system: Any) -> None:
     -----
     An empty cell and a spelling of NaN (:data:`NAN_SPELLINGS`) are missing on purpose; another text that the reader
     turns into NaN (``n/a``, ``NA``, ``null``, ``None``, ``#N/A``, ...) is a placeholder, counted with its distinct
-    spellings and the first time index k it sits at (from ``t``, else a ``k`` column, else the row).
+    spellings and the first time index k of the record it sits at (from a ``k`` column, else ``t``, else the row),
+    with the file's own value there (``the file's k = 109`` where the file's k does not start at 0; ``the file's
+    t = 5.4`` for a file placed by t).
 
     """
     import pandas as pd  # imported when used (a frame is given): not by `import uiest`
@@ -135,17 +137,24 @@ def warn_text_as_missing(path: Any, frame: pd.DataFrame, system: Any) -> None:
     cells = pd.read_csv(path, dtype=str, keep_default_na=False, usecols=columns)
     if len(cells) != len(frame):
         return  # not the same rows: nothing to say about them
-    if "t" in frame.columns:
-        k = np.rint((frame["t"].to_numpy(dtype=float) - frame["t"].min()) / float(system.dt))
-    else:
-        k = (frame["k"] - frame["k"].min()).to_numpy(dtype=float) if "k" in frame.columns else np.arange(len(frame))
+    name = "k" if "k" in frame.columns else "t" if "t" in frame.columns else ""
+    own = frame[name].to_numpy(dtype=float) if name else np.arange(len(frame), dtype=float)  # else: the data row
+    k = np.rint((own - np.nanmin(own)) / float(system.dt)) if name == "t" else own - np.nanmin(own)
+
+    def at(row: int) -> str:
+        """``k = 9``, with the file's t or k at that row where it differs from the record's k."""
+        said = f"k = {int(k[row])}"
+        return f"{said} (the file's {name} = {own[row]:g})" if name == "t" or own[row] != k[row] else said
+
     for column in columns:
         text = cells[column].str.strip()
         placeholder = (frame[column].isna() & (text != "") & ~text.str.lower().isin(NAN_SPELLINGS)).to_numpy()
         count = int(placeholder.sum())
         if count:
             spellings = ", ".join(repr(word) for word in dict.fromkeys(text[placeholder]))
-            where = f", first at k = {int(k[placeholder].min())}" if count > 1 else f" at k = {int(k[placeholder][0])}"
+            rows = np.flatnonzero(placeholder)
+            first = int(rows[np.argmin(k[rows])])
+            where = f", first at {at(first)}" if count > 1 else f" at {at(first)}"
             warnings.warn(
                 f"data: {count} value{'s' * (count != 1)} read as missing ({spellings}) in {column}{where}",
                 UserWarning,
@@ -164,10 +173,15 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
             f"{system.dt}, got {column.dtype} values such as {column.iloc[0]!r}; convert timestamps to elapsed time"
         )
     t = real_array(column.to_numpy(), "frame[t]", "times")
+
+    def row(i: int) -> str:
+        """Where row i is: its k (a frame indexed by k, which ``read_record`` sorts by k), else its position."""
+        return f"the row with k = {frame.index[i]}" if frame.index.name == "k" else f"row {i}"
+
+    first = "" if frame.index.name == "k" else " (row 0: the first data row)"
     if not np.all(np.isfinite(t)):
-        raise DataError(
-            f"frame[t]: expected finite times, got {t[~np.isfinite(t)][0]} at row {int(np.argmin(np.isfinite(t)))}"
-        )
+        bad = int(np.argmin(np.isfinite(t)))
+        raise DataError(f"frame[t]: expected finite times, got {t[bad]} at {row(bad)}{first}")
     steps = (t - t[0]) / dt
     position = np.rint(steps)
     if len(t) > 1:
@@ -175,9 +189,9 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
         off_grid = np.abs(steps - position) > STEP_TOLERANCE * np.maximum(1.0, np.abs(position))
         if not off_grid.any() and np.any(gaps < 1):
             bad = int(np.argmax(gaps < 1)) + 1
-            got = f"row {bad} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
-                f"row {bad} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
-            raise DataError(f"frame[t]: expected increasing times, one row per time; {got} (row 0: the first data row)")
+            got = f"{row(bad)} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
+                f"{row(bad)} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
+            raise DataError(f"frame[t]: expected increasing times, one row per time; {got}{first}")
         if off_grid.any() or gaps.min() != 1:
             step = np.diff(t)
             raise DataError(

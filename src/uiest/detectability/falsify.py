@@ -62,7 +62,10 @@ class Falsification:
     Attributes
     ----------
     pairs : int
-        Pairs evaluated by sampling (uniform, close, anchored).
+        Pairs drawn by sampling (uniform, close, anchored).
+    scored : int
+        Of those, the pairs whose ratio was scored: not NaN (a pair with a point outside a lifted domain, or
+        where the model is undefined) and at least :data:`MIN_SEPARATION` apart.
     searches : int
         Local maximisations run.
     evaluations : int
@@ -81,6 +84,7 @@ class Falsification:
     """
 
     pairs: int
+    scored: int
     searches: int
     evaluations: int
     worst_ratio: float
@@ -110,7 +114,12 @@ class Falsification:
 
     def text(self) -> str:
         """One sentence: the search's size and its worst ratio (and pair when refuted)."""
-        size = f"{self.pairs:,} pairs and {self.searches} local searches"
+        drawn = (
+            f"{self.pairs:,} pairs"
+            if self.scored == self.pairs
+            else f"{self.scored:,} pairs scored of {self.pairs:,} drawn"
+        )
+        size = f"{drawn} and {self.searches} local searches"
         if self.refuted:
             return f"refuted: the pair {self.pair_text()} gives lhs / rhs = {self.worst_ratio:.4g} > 1 ({size})"
         return f"no violation found: worst lhs / rhs {self.worst_ratio:.4g} over {size}"
@@ -119,6 +128,7 @@ class Falsification:
         """Plain data for JSON."""
         return {
             "pairs": self.pairs,
+            "pairs_scored": self.scored,
             "local_searches": self.searches,
             "evaluations": self.evaluations,
             "worst_ratio": self.worst_ratio,
@@ -180,7 +190,8 @@ def search(
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(rhs > 0.0, lhs / rhs, np.where(lhs > 0.0, np.inf, -np.inf))
     floor = MIN_SEPARATION * float(np.linalg.norm(np.where(domain.width > 0, domain.width, 0.0) / scale))
-    ratio = np.where(np.isnan(ratio) | (np.linalg.norm((a - b) / scale, axis=1) < floor), -np.inf, ratio)
+    scored = ~(np.isnan(lhs) | np.isnan(rhs) | np.isnan(ratio)) & (np.linalg.norm((a - b) / scale, axis=1) >= floor)
+    ratio = np.where(scored, ratio, -np.inf)
     best = int(np.argmax(ratio))
     worst = (float(ratio[best]), a[best], b[best], s[best])
     evaluations = 0
@@ -195,6 +206,7 @@ def search(
                 worst = (value, point[:n], point[n : 2 * n], point[2 * n :])
     return Falsification(
         pairs=len(a),
+        scored=int(scored.sum()),
         searches=started,
         evaluations=evaluations,
         worst_ratio=worst[0],

@@ -19,8 +19,8 @@ with ``point`` affine and the Jacobians given as functions of ``q = point(p)`` o
 - at a point of D the Jacobian equals ``jacobian(point(p))`` with ``point(p)`` in Q, so a cover of the
   Jacobian over the box Q (the cover's usual domain) contains every Jacobian the pairs of D meet.
 
-The pairs the falsification search and ``verify`` score are drawn from D (pairs with a point outside are not
-scored): the certificate claims nothing outside.
+The falsification search and ``verify`` draw their pairs from the box and score only those with both points in D
+(``Falsification.scored``, ``Verification.pairs_used`` count them): the certificate claims nothing outside.
 """
 
 from __future__ import annotations

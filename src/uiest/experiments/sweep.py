@@ -60,17 +60,22 @@ class CodeMismatchError(RuntimeError):
     """The worker runs other code than the sweep's: its results must not be stored under this key."""
 
 
+class ModelChangedError(CodeMismatchError):
+    """The model file's bytes differ from those the sweep's keys were made for (edited during the run)."""
+
+
 def run_task(task: Task) -> pd.DataFrame:
     """Simulate and estimate one task; one row per estimator (errors are recorded, never raised).
 
-    Raises :class:`CodeMismatchError` when this process runs other code than the task was made for.
+    Raises :class:`CodeMismatchError` when this process runs other code than the task was made for
+    (:class:`ModelChangedError` when the model file's bytes changed).
     """
     import pandas as pd
 
     if provenance.code_version() != task.code:
         raise CodeMismatchError(f"this worker runs code {provenance.code_version()}, the sweep {task.code}")
     if provenance.model_digest(task.scenario.model) != task.model_sha256:
-        raise CodeMismatchError(f"the model file {task.scenario.model} changed after the sweep started")
+        raise ModelChangedError(f"the model file {task.scenario.model} changed after the sweep started")
     scenario = task.scenario
     base = {"key": task.key, **dict(task.params), "case": task.case, "run": task.run, "solver": task.solver}
     try:
@@ -157,9 +162,14 @@ class SweepProgress:
     lost: int = 0
     """Tasks not computed (a cluster failure, other code on a worker, an edited model file): not stored, left for the
     next run."""
-    model_changed: bool = False
-    """The model file's bytes changed during the run: tasks begun after the change were refused (lost), and those
-    finished before it are stored under the earlier content's keys, not this design's as the file now is."""
+    lost_to_model_change: int = 0
+    """Of the ``lost``, the tasks refused because the model file's bytes changed during the run (those finished before
+    the change are stored under the earlier content's keys, not this design's as the file now is)."""
+
+    @property
+    def model_changed(self) -> bool:
+        """True when a task was refused because the model file changed during the run."""
+        return self.lost_to_model_change > 0
 
 
 @holds_folder("out")
@@ -229,33 +239,35 @@ def sweep(
         todo = todo[:max_tasks]
     _write_manifest(design, out, solver, workers, scheduler, new=len(todo), other=other)
     _clear_lost_log(out)  # the log lists this run's lost tasks only
-    done = failed = lost = 0
-    changed = False
+    done = failed = lost = model_lost = 0
     if progress is not None:
         progress(SweepProgress(0, 0, len(todo), skipped))
     for task, frame, why in executors.results(todo, run_task, workers, scheduler):
         if frame is None or not (frame["key"] == task.key).all():
             lost += 1
             _log_lost(out, task, why or "its rows carry another key (other code on the worker)")
-            changed = changed or provenance.model_digest(task.scenario.model) != task.model_sha256
+            model_lost += why.startswith(f"{ModelChangedError.__name__}:")  # the executors' "Type: message"
         else:
             _store(frame, runs_dir, task.key)
             done += 1
             failed += int((frame["error"] != "").any())
         if progress is not None:
-            progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost, changed))
-    if changed:
-        _warn_model_changed(design.scenario.model, done, lost)
+            progress(SweepProgress(done, failed, len(todo) - done - lost, skipped, lost, model_lost))
+    if model_lost:
+        _warn_model_changed(design.scenario.model, done, model_lost, lost - model_lost)
     return collect(design, out, solver)
 
 
-def _warn_model_changed(model: str, done: int, lost: int) -> None:
-    """Warn that ``model`` (a file) changed during a run that stored ``done`` tasks and lost ``lost``."""
+def _warn_model_changed(model: str, done: int, refused: int, other: int) -> None:
+    """Warn that ``model`` (a file) changed during a run: ``done`` tasks stored, ``refused`` lost to the change."""
     before = (f", and the {done} task{'s' * (done != 1)} finished before it {'are' if done != 1 else 'is'} stored for "
               "the file's earlier content, not for the file as it is now") if done else ""  # fmt: skip
+    others = (f"; {other} other task{'s were' if other != 1 else ' was'} lost for other reasons (see lost_tasks.log)"
+              if other else "")  # fmt: skip
     warnings.warn(
-        f"the model file {model} changed during the run: the tasks begun after the change were refused ({lost} lost)"
-        f"{before}; run the same command again to compute the design for the file as it is now",
+        f"the model file {model} changed during the run: the tasks begun after the change were refused "
+        f"({refused} lost){before}{others}; run the same command again to compute the design for the file as it "
+        "is now",
         UserWarning,
         stacklevel=user_stacklevel(),
     )
