@@ -114,11 +114,15 @@ def test_a_repeated_or_earlier_time_is_refused_naming_its_row(name):
     system, traj = _record(name, steps=20)
     frame = traj.to_pandas().reset_index(drop=True)
     repeated = frame.iloc[[*range(10), 9, *range(10, 21)]].reset_index(drop=True)
-    with pytest.raises(DataError, match=rf"frame\[t\]: .* row 10 repeats t = {9 * system.dt:g} \(row 0: the first"):
+    with pytest.raises(DataError, match=rf"frame\[t\]: .* row 10 repeats t = {9 * system.dt:.15g} \(row 0: the first"):
         Trajectory.from_pandas(repeated, system)
     swapped = frame.iloc[[*range(5), 6, 5, *range(7, 21)]].reset_index(drop=True)
-    with pytest.raises(DataError, match=rf"row 6 goes back to t = {5 * system.dt:g} after t = {6 * system.dt:g}"):
+    with pytest.raises(DataError, match=rf"row 6 goes back to t = {5 * system.dt:.15g} after t = {6 * system.dt:.15g}"):
         Trajectory.from_pandas(swapped, system)
+    late = repeated.assign(t=repeated["t"] + 1.7e9)  # epoch seconds: every digit of the repeated time is named
+    with pytest.raises(DataError, match=rf"row 10 repeats t = {1.7e9 + 9 * system.dt:.15g} \("):
+        Trajectory.from_pandas(late, system)
+    assert f"{1.7e9 + 9 * system.dt:.15g}".startswith("17000000")
 
 
 def test_a_repeated_time_in_a_file_sorted_by_k_is_named_by_its_k_not_its_sorted_position(tmp_path):
@@ -128,7 +132,7 @@ def test_a_repeated_time_in_a_file_sorted_by_k_is_named_by_its_k_not_its_sorted_
     frame.loc[10, "t"] = frame.loc[9, "t"]
     shuffled = frame.iloc[np.random.default_rng(0).permutation(len(frame))]
     shuffled.to_csv(tmp_path / "shuffled.csv")  # the k column first, its rows out of order
-    with pytest.raises(DataError, match=rf"the row with k = 10 repeats t = {frame.loc[9, 't']:g}$"):
+    with pytest.raises(DataError, match=rf"the row with the file's k = 10 repeats t = {frame.loc[9, 't']:.15g}$"):
         read_record(tmp_path / "shuffled.csv", system)
 
 
@@ -146,7 +150,7 @@ def test_text_read_as_missing_is_named_per_column_with_its_count_and_first_k(tmp
     frame.to_csv(tmp_path / "k.csv")  # a k column, no gap
     later = frame.set_axis(frame.index + 100)  # a k column from 100: the record's k = 9 is the file's k = 109
     later.rename_axis("k").to_csv(tmp_path / "later.csv")
-    at_t = f"the file's t = {frame.loc[9, 't'] + 50 * system.dt:g}"
+    at_t = f"the file's t = {frame.loc[9, 't'] + 50 * system.dt:.15g}"
     for path, own in (("t.csv", f" ({at_t})"), ("k.csv", ""), ("later.csv", " (the file's k = 109)")):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

@@ -7,6 +7,7 @@ import pytest
 
 from uiest import ModelError, System, simulate
 from uiest.detectability import certify_reduced_ioss, certify_reduced_model
+from uiest.detectability.falsify import pairs_text
 from uiest.estimators import TwoStageUISE
 from uiest.models import linear
 from uiest.reduction import reduce_quasi_state_affine
@@ -92,6 +93,8 @@ def test_a_rotated_linear_reduction_certifies_the_same_on_the_states_in_x_as_on_
     assert 0 < found.scored < found.pairs // 2, found
     assert f"over {found.scored:,} pairs scored of {found.pairs:,} drawn and" in lifted.falsification.text()
     assert lifted.to_dict()["falsification"]["pairs_scored"] == found.scored
+    assert pairs_text(1, 1) == "1 pair" and pairs_text(1, 20_000) == "1 pair scored of 20,000 drawn"
+    assert pairs_text(0, 500) == "no pairs scored of 500 drawn"
     every = boxed.falsification  # without a lift every pair is scored, and the text says so as before
     assert every.scored == every.pairs >= 20_000 and f"over {every.pairs:,} pairs and" in every.text()
 

@@ -190,7 +190,7 @@ def test_a_model_file_edited_during_a_sweep_leaves_the_later_tasks_unstored(tmp_
     assert len(list((tmp_path / "out" / "runs").glob("*.parquet"))) == 1
     log = (tmp_path / "out" / "lost_tasks.log").read_text()
     assert "ModelChangedError: the model file" in log and "changed after the sweep started" in log
-    assert states[-1].lost == states[-1].lost_to_model_change == 1 and states[-1].model_changed
+    assert states[-1].lost == states[-1].lost_to_model_change == 1
 
 
 def test_task_keys_do_not_change_with_the_run_count_or_the_spelling_of_a_model_file_s_path(tmp_path, monkeypatch):
@@ -276,8 +276,8 @@ def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_
     assert first.exit_code == 1, first.output
     assert "sweep: 1 of 2 tasks done, 1 lost, 0 left" in first.stderr
     said = " ".join(first.stderr.split())  # the warning line, unwrapped
-    assert f"warning: the model file {model} changed during the run: the tasks begun after the change were refused " \
-        "(1 lost), and the 1 task finished before it is stored for the file's earlier content" in said  # fmt: skip
+    assert f"warning: the model file {model} changed during the run: 1 task begun after it was refused, and the 1 " \
+        "task finished before it is stored for the file's earlier content" in said  # fmt: skip
     assert "error: 1 task was not computed: the model file changed during the run (see" in first.stderr
     assert len(log.read_text().splitlines()) == 1 and "earlier run" not in log.read_text()  # this run's lost task
     monkeypatch.setattr(sweep_module, "run_task", run_task)
@@ -321,8 +321,8 @@ def test_a_sweep_counts_the_tasks_lost_to_a_model_edit_apart_from_those_lost_oth
                                 terminal_width=300)  # fmt: skip
     assert result.exit_code == 1, result.output
     said = " ".join(result.stderr.split())
-    assert "the tasks begun after the change were refused (1 lost), and the 1 task finished before it is stored" in said
-    assert "; 1 other task was lost for other reasons (see lost_tasks.log)" in said
-    assert "error: 2 tasks were not computed (1 because the model file changed during the run) (see" in said
+    assert "1 task begun after it was refused, and the 1 task finished before it is stored" in said
+    assert "; 1 more task was lost for another reason (see lost_tasks.log)" in said
+    assert "error: 2 tasks were not computed, 1 because the model file changed during the run (see" in said
     log = (tmp_path / "out" / "lost_tasks.log").read_text().splitlines()
     assert len(log) == 2 and "RuntimeError" in log[0] and "ModelChangedError" in log[1]

@@ -25,6 +25,7 @@ from uiest.atomic import staged_folder, write_file, write_text
 from uiest.box import as_vector
 from uiest.checks import check_samples
 from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
+from uiest.detectability.falsify import pairs_text
 from uiest.errors import BoundWarning, CertificationError, FailureWarning, ModelError, OptionError, UiestError
 from uiest.estimate import (
     ALL,
@@ -548,7 +549,7 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
     """Table cells of one certificate record, in the order of ``ROWS``."""
     time_s = f"{record['time_s']:.2f} s"
     found = record.get("falsification")
-    search = "-" if not found else (f"{found['worst_ratio']:.4g} ({_pairs(found['pairs_scored'], found['pairs'])}, "
+    search = "-" if not found else (f"{found['worst_ratio']:.4g} ({pairs_text(found['pairs_scored'], found['pairs'])}, "
                                     f"{found['local_searches']} local)")  # fmt: skip
     if not record["certified"]:
         return [record["status"], "-", _number(record.get("rate_min")), "-", "-", "-", "-", "-",
@@ -565,16 +566,11 @@ def _certificate_cells(record: dict[str, Any], state_names: tuple[str, ...], uni
     else:
         gains = "Q_w, Q_v, R: see JSON"
     cover = record["cover_kind"]
-    ratio = f"{record['verify_worst_ratio']:.4g} ({_pairs(record['verify_pairs'], record['verify_pairs_drawn'])})"
+    ratio = f"{record['verify_worst_ratio']:.4g} ({pairs_text(record['verify_pairs'], record['verify_pairs_drawn'])})"
     guarantee = record.get("guarantee")
     verdict = "-" if guarantee is None else f"{guarantee['estimator']}: {guarantee.get('verdict', 'none')}"
     return [record["status"], _number(record["rate"]), _number(record["rate_min"]), f"{cond:.3g}", gains, noise,
             str(record["min_horizon"]), verdict, cover, search, ratio, time_s]  # fmt: skip
-
-
-def _pairs(scored: int, drawn: int) -> str:
-    """``"20000 pairs"``, or ``"2892 of 20000 pairs scored"`` when some drawn pairs were not scored."""
-    return f"{drawn} pairs" if scored == drawn else f"{scored} of {drawn} pairs scored"
 
 
 def _number(value: Any) -> str:
@@ -732,7 +728,7 @@ def sweep(
     if last.lost:
         model_lost = last.lost_to_model_change
         why = (": the model file changed during the run" if model_lost == last.lost else
-               f" ({model_lost} because the model file changed during the run)" if model_lost else "")  # fmt: skip
+               f", {model_lost} because the model file changed during the run" if model_lost else "")  # fmt: skip
         error_console.print(f"error: {last.lost} task{'s were' if last.lost != 1 else ' was'} not computed{why} (see "
                             f"{out / 'lost_tasks.log'}); run again", markup=False, soft_wrap=True)  # fmt: skip
         raise typer.Exit(code=1)

@@ -68,7 +68,7 @@ def on_time_grid(frame: pd.DataFrame, system: Any) -> tuple[pd.DataFrame, np.nda
             bad = int(np.argmax(position != k))
             raise DataError(
                 f"frame: the k index and the t column disagree at k = {frame.index[bad]} (t = "
-                f"{float(frame['t'].iloc[bad]):g}, dt = {dt}); expected t = t[0] + (k - k[0]) dt"
+                f"{float(frame['t'].iloc[bad]):.15g}, dt = {dt}); expected t = t[0] + (k - k[0]) dt"
             )
         position = k
     assert position is not None
@@ -144,7 +144,7 @@ def warn_text_as_missing(path: Any, frame: pd.DataFrame, system: Any) -> None:
     def at(row: int) -> str:
         """``k = 9``, with the file's t or k at that row where it differs from the record's k."""
         said = f"k = {int(k[row])}"
-        return f"{said} (the file's {name} = {own[row]:g})" if name == "t" or own[row] != k[row] else said
+        return f"{said} (the file's {name} = {own[row]:.15g})" if name == "t" or own[row] != k[row] else said
 
     for column in columns:
         text = cells[column].str.strip()
@@ -176,7 +176,7 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
 
     def row(i: int) -> str:
         """Where row i is: its k (a frame indexed by k, which ``read_record`` sorts by k), else its position."""
-        return f"the row with k = {frame.index[i]}" if frame.index.name == "k" else f"row {i}"
+        return f"the row with the file's k = {frame.index[i]}" if frame.index.name == "k" else f"row {i}"
 
     first = "" if frame.index.name == "k" else " (row 0: the first data row)"
     if not np.all(np.isfinite(t)):
@@ -189,8 +189,8 @@ def _positions_from_t(frame: pd.DataFrame, system: Any) -> np.ndarray:
         off_grid = np.abs(steps - position) > STEP_TOLERANCE * np.maximum(1.0, np.abs(position))
         if not off_grid.any() and np.any(gaps < 1):
             bad = int(np.argmax(gaps < 1)) + 1
-            got = f"{row(bad)} repeats t = {t[bad]:g}" if gaps[bad - 1] == 0 else \
-                f"{row(bad)} goes back to t = {t[bad]:g} after t = {t[bad - 1]:g}"  # fmt: skip
+            got = f"{row(bad)} repeats t = {t[bad]:.15g}" if gaps[bad - 1] == 0 else \
+                f"{row(bad)} goes back to t = {t[bad]:.15g} after t = {t[bad - 1]:.15g}"  # fmt: skip
             raise DataError(f"frame[t]: expected increasing times, one row per time; {got}{first}")
         if off_grid.any() or gaps.min() != 1:
             step = np.diff(t)
@@ -213,5 +213,7 @@ def _positions_from_k(frame: pd.DataFrame) -> np.ndarray:
         raise DataError(f"frame: the k index must hold integers, got {k[np.isfinite(k) & (k != np.rint(k))][:3]}")
     if len(k) > 1 and np.any(np.diff(k) < 1):
         bad = int(np.argmax(np.diff(k) < 1)) + 1
-        raise DataError(f"frame: the k index must increase without repeats, got k = {k[bad - 1]:g} then {k[bad]:g}")
+        raise DataError(
+            f"frame: the k index must increase without repeats, got k = {k[bad - 1]:.15g} then {k[bad]:.15g}"
+        )
     return (k - k[0]).astype(np.int64)

@@ -206,21 +206,21 @@ class _Floor:
             self.value[i], self.z[i], self.point[i] = floor[i], z, point
 
     def unname_flat(self, floors: FloatArray, points: FloatArray) -> None:
-        """No frequency for the states whose floor is the same, to :data:`SAME_FLOOR`, at every frequency on the circle.
+        """No frequency for a state whose floor is reached at every frequency on the circle (to :data:`SAME_FLOOR`).
 
         ``floors`` (points, frequencies, nx), the floors on the circle at the linearisation ``points`` (points, nx).
         A measured state's floor is its noise at every frequency: the largest of them is no frequency of its own.
         """
         for i, point in enumerate(self.point):
             at = next((k for k in range(len(points)) if point is not None and np.array_equal(points[k], point)), None)
-            if at is not None and np.min(floors[at, :, i]) >= (1.0 - SAME_FLOOR) * np.max(floors[at, :, i]) > 0.0:
+            if at is None:
+                continue
+            low, high = np.min(floors[at, :, i]), np.max(floors[at, :, i])
+            if low >= (1.0 - SAME_FLOOR) * high > 0.0 and self.value[i] <= (1.0 + SAME_FLOOR) * high:
                 self.z[i] = None
 
     def attribute(self, floor: FloatArray, z: complex, point: FloatArray) -> None:
-        """Name ``z`` and ``point`` for the states whose floor ``floor`` (nx,) there reaches, to :data:`SAME_FLOOR`.
-
-        A measured state's floor is its noise at every frequency: it is named with the frequency that sets the others.
-        """
+        """Name ``z`` and ``point`` for the states whose floor ``floor`` (nx,) there reaches, to :data:`SAME_FLOOR`."""
         for i in np.flatnonzero(floor >= (1.0 - SAME_FLOOR) * self.value):
             self.z[i], self.point[i] = z, point
 
@@ -307,7 +307,6 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         for i in range(lin.count):
             for j in np.unique(np.argmax(floors[i], axis=0)):
                 found.raise_to(floors[i, j], complex(circle[j]), lin.x[i] * 1.0)
-        found.unname_flat(floors, lin.x)
         share = np.max(floors / width[None, None, :], axis=2)
         p, j = np.unravel_index(int(np.argmax(share)), share.shape)
         A, Q = lin.A[p], bases[p]
@@ -326,6 +325,7 @@ def find_near_zeros(system: System, lin: Linearisations, rate: float | None = No
         if outside is not None and np.max(found.value / width) > on_circle:
             floor_z, floor_point, at_floor_z = outside
         found.attribute(at_floor_z, floor_z, floor_point)
+        found.unname_flat(floors, lin.x)
     return NearZeros(
         unit_circle=unit,
         ring=ring,

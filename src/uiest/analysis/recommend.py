@@ -190,12 +190,15 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
         return None
     if not np.max(share) >= FLOOR_SHARE:
         return None
+    floor_z = near.floor_z
+    # each state's frequency; None: its floor is reached at every one (a measured state's noise)
+    frequency = [floor_z if z is None else z for z in near.state_z]
     moved = [i for i in range(len(share)) if share[i] >= 0.5 * np.max(share)]
-    groups: dict[tuple[complex | None, tuple[float, ...]], list[str]] = {}  # the states each frequency and point moves
-    for i in sorted(moved, key=lambda i: near.state_z[i] != near.floor_z):  # floor_z's states first
+    groups: dict[tuple[complex, tuple[float, ...]], list[str]] = {}  # the states each frequency and point moves
+    for i in sorted(moved, key=lambda i: frequency[i] != floor_z):  # floor_z's states first
         floor, unit, at = near.error_floor[i], a.state_units[i], near.state_point[i]
         beyond = f" (more than X's width {amount(width[i], unit)})" if floor > width[i] else ""
-        key = near.state_z[i], () if at is None else tuple(at)
+        key = frequency[i], () if at is None else tuple(at)
         groups.setdefault(key, []).append(
             f"{a.state_names[i]} by {'any amount' if np.isinf(floor) else amount(floor, unit)}{beyond}"
         )
@@ -204,13 +207,12 @@ def hidden_motion(a: ModelAnalysis) -> str | None:
     inputs = ", ".join(a.input_names)
     clauses: list[str] = []
     said: tuple[float, ...] = ()  # the linearisation point the clauses so far named
-    for (state_z, point), parts in groups.items():
-        z = near.floor_z if state_z is None else state_z
+    for (z, point), parts in groups.items():
         where = ""
         if not a.linear and point and point != said:
             prefix = "at" if clauses else "in the model linearised at"
             where, said = f"{prefix} {point_text(a.state_names, np.array(point))}, ", point
-        near_zero = "" if z != near.floor_z or limiting_zero(a) is not None else _near_zero_text(a, z)
+        near_zero = "" if z != floor_z or limiting_zero(a) is not None else _near_zero_text(a, z)
         subject = f"an unknown input ({inputs})" if not clauses else "one"
         clauses.append(f"{where}{subject} {frequency_text(z)}{near_zero} moves {' and '.join(parts)}")
     return (f"{'; '.join(clauses)} while the outputs move within their noise ({noise}), an error no estimator that "

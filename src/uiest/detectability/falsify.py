@@ -33,7 +33,7 @@ import numpy as np
 from uiest.box import Box, FloatArray
 from uiest.detectability.certificate import sample_pairs
 
-__all__ = ["MIN_SEPARATION", "Falsification", "search"]
+__all__ = ["MIN_SEPARATION", "Falsification", "pairs_text", "search"]
 
 PAIRS = 20_000
 """Sampled pairs (half of them close), besides the anchored ones."""
@@ -114,14 +114,11 @@ class Falsification:
 
     def text(self) -> str:
         """One sentence: the search's size and its worst ratio (and pair when refuted)."""
-        drawn = (
-            f"{self.pairs:,} pairs"
-            if self.scored == self.pairs
-            else f"{self.scored:,} pairs scored of {self.pairs:,} drawn"
-        )
-        size = f"{drawn} and {self.searches} local searches"
+        size = f"{pairs_text(self.scored, self.pairs)} and {self.searches} local searches"
         if self.refuted:
             return f"refuted: the pair {self.pair_text()} gives lhs / rhs = {self.worst_ratio:.4g} > 1 ({size})"
+        if not self.scored:
+            return f"not searched: {size}"
         return f"no violation found: worst lhs / rhs {self.worst_ratio:.4g} over {size}"
 
     def to_dict(self) -> dict[str, object]:
@@ -137,6 +134,13 @@ class Falsification:
                            "shared": self.shared.tolist()},
             "cpu_s": self.seconds,
         }  # fmt: skip
+
+
+def pairs_text(scored: int, drawn: int) -> str:
+    """``"20,000 pairs"``, or ``"2,929 pairs scored of 20,000 drawn"`` where some drawn pairs were not scored."""
+    if scored == drawn:
+        return f"{drawn:,} pair{'s' * (drawn != 1)}"
+    return f"{'no' if not scored else f'{scored:,}'} pair{'s' * (scored != 1)} scored of {drawn:,} drawn"
 
 
 def search(

@@ -166,11 +166,6 @@ class SweepProgress:
     """Of the ``lost``, the tasks refused because the model file's bytes changed during the run (those finished before
     the change are stored under the earlier content's keys, not this design's as the file now is)."""
 
-    @property
-    def model_changed(self) -> bool:
-        """True when a task was refused because the model file changed during the run."""
-        return self.lost_to_model_change > 0
-
 
 @holds_folder("out")
 def sweep(
@@ -262,12 +257,13 @@ def _warn_model_changed(model: str, done: int, refused: int, other: int) -> None
     """Warn that ``model`` (a file) changed during a run: ``done`` tasks stored, ``refused`` lost to the change."""
     before = (f", and the {done} task{'s' * (done != 1)} finished before it {'are' if done != 1 else 'is'} stored for "
               "the file's earlier content, not for the file as it is now") if done else ""  # fmt: skip
-    others = (f"; {other} other task{'s were' if other != 1 else ' was'} lost for other reasons (see lost_tasks.log)"
+    others = (f"; {other} more task{'s were' if other != 1 else ' was'} lost for another reason (see lost_tasks.log)"
               if other else "")  # fmt: skip
+    refusal = f"the {refused} tasks begun after it were refused" if refused != 1 else "1 task begun after it was" \
+        " refused"  # fmt: skip
     warnings.warn(
-        f"the model file {model} changed during the run: the tasks begun after the change were refused "
-        f"({refused} lost){before}{others}; run the same command again to compute the design for the file as it "
-        "is now",
+        f"the model file {model} changed during the run: {refusal}{before}{others}; run the same command again to "
+        "compute the design for the file as it is now",
         UserWarning,
         stacklevel=user_stacklevel(),
     )
