@@ -242,15 +242,9 @@ def test_a_sweep_file_that_cannot_be_read_leaves_no_output_folder(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_not_counted_done(tmp_path, monkeypatch):
-    # the progress line said "2 of 2 tasks done, 0 left" beside "0 of 2 tasks stored, 1 lost", without the cause; a
-    # later run that stored every task left lost_tasks.log listing the task as lost
+def _gain_sweep_file(tmp_path, w_gains):
+    """The gain model's file, its text, and a sweep file over ``w_gains`` (a TOML list) of an EKF on it."""
     from pathlib import Path
-
-    from typer.testing import CliRunner
-
-    from uiest.cli import app
-    from uiest.experiments import sweep as sweep_module
 
     model = tmp_path / "gain.py"
     text = (Path(__file__).parent / "gain_model.py").read_text()
@@ -258,8 +252,22 @@ def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_
     path = tmp_path / "gain.toml"
     path.write_text(
         "[scenario]\nname = 'gain'\nmodel = 'gain.py'\nsteps = 20\nruns = 1\ncases = ['noise-free']\nsettle = 2\n"
-        "[[scenario.estimators]]\nname = 'EKF'\nkind = 'ekf'\nw_variance = 1.0\n[sweep]\ngrid = {w_gain = [1.0, 2.0]}\n"
+        "[[scenario.estimators]]\nname = 'EKF'\nkind = 'ekf'\nw_variance = 1.0\n"
+        f"[sweep]\ngrid = {{w_gain = {w_gains}}}\n"
     )
+    return model, text, path
+
+
+def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_not_counted_done(tmp_path, monkeypatch):
+    # the progress line said "2 of 2 tasks done, 0 left" beside "0 of 2 tasks stored, 1 lost", without the cause; a
+    # later run that stored every task left lost_tasks.log listing the task as lost
+
+    from typer.testing import CliRunner
+
+    from uiest.cli import app
+    from uiest.experiments import sweep as sweep_module
+
+    model, text, path = _gain_sweep_file(tmp_path, "[1.0, 2.0]")
     run_task = sweep_module.run_task
 
     def edit_after_the_first(task):
@@ -289,22 +297,13 @@ def test_a_model_file_edited_during_a_cli_sweep_is_named_and_its_lost_tasks_are_
 
 def test_a_sweep_counts_the_tasks_lost_to_a_model_edit_apart_from_those_lost_otherwise(tmp_path, monkeypatch):
     # every lost task was blamed on the edit: "2 tasks were not computed: the model file changed", "(2 lost)"
-    from pathlib import Path
 
     from typer.testing import CliRunner
 
     from uiest.cli import app
     from uiest.experiments import sweep as sweep_module
 
-    model = tmp_path / "gain.py"
-    text = (Path(__file__).parent / "gain_model.py").read_text()
-    model.write_text(text)
-    path = tmp_path / "gain.toml"
-    path.write_text(
-        "[scenario]\nname = 'gain'\nmodel = 'gain.py'\nsteps = 20\nruns = 1\ncases = ['noise-free']\nsettle = 2\n"
-        "[[scenario.estimators]]\nname = 'EKF'\nkind = 'ekf'\nw_variance = 1.0\n"
-        "[sweep]\ngrid = {w_gain = [1.0, 2.0, 3.0]}\n"
-    )
+    model, text, path = _gain_sweep_file(tmp_path, "[1.0, 2.0, 3.0]")
     run_task = sweep_module.run_task
     seen: list[float] = []
 
