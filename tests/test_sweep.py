@@ -37,6 +37,17 @@ def test_each_row_counts_the_samples_whose_noise_left_v():
     assert by_scale[0.5] == 0 and by_scale[3.0] > 0
 
 
+def test_a_later_design_in_the_same_folder_leaves_no_plot_or_summary_of_the_earlier_one(tmp_path):
+    # sweep_noise_scale.png of a design over N and noise_scale stayed beside the results of one over N alone
+    sweep(design(), tmp_path, workers=1)
+    assert {p.name for p in tmp_path.glob("sweep_*.png")} == {"sweep_N.png", "sweep_noise_scale.png"}
+    later = Sweep(design().scenario, grid={"N": (3,)})
+    with pytest.warns(UserWarning, match=r"removed sweep_noise_scale.png from .*: made from an earlier design's"):
+        results = sweep(later, tmp_path, workers=1)
+    assert {p.name for p in tmp_path.glob("sweep_*.png")} == {"sweep_N.png"}
+    assert set(pd.read_parquet(tmp_path / "results.parquet")["N"]) == set(results["N"]) == {3}
+
+
 def numbers(frame):
     """Everything but timings, in a canonical order."""
     cols = [c for c in frame.columns if not c.endswith("_ms")]

@@ -15,12 +15,12 @@ import os
 import shutil
 import tempfile
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from pathlib import Path
 
 from uiest.errors import StorageError
 
-__all__ = ["staged_folder", "storage_error", "write_bytes", "write_file", "write_text"]
+__all__ = ["remove_unwritten", "staged_folder", "storage_error", "write_bytes", "write_file", "write_text"]
 
 STAGED_PREFIX, STAGED_SUFFIX = ".staged-", ".tmp"
 """How the temporary folders of :func:`staged_folder` are named (a run killed while writing leaves one)."""
@@ -30,6 +30,22 @@ def storage_error(exc: OSError, path: Path | str) -> StorageError:
     """The one-line :class:`StorageError` of a failed write of ``path``: the path and the system's cause."""
     cause = exc.strerror or str(exc) or type(exc).__name__
     return StorageError(f"cannot write {path}: {cause}", str(path))
+
+
+def remove_unwritten(candidates: Iterable[Path], written: Collection[Path]) -> list[Path]:
+    """Remove the ``candidates`` that exist and are not ``written`` (an earlier run's outputs); returns them, sorted.
+
+    Raises :class:`~uiest.errors.StorageError` naming a file that cannot be removed.
+    """
+    stale = sorted(path for path in set(candidates) if path not in written and path.exists())
+    for path in stale:
+        try:
+            path.unlink()
+        except FileNotFoundError:
+            continue
+        except OSError as exc:
+            raise storage_error(exc, path) from None
+    return stale
 
 
 def _temporary_name(path: Path) -> Path:

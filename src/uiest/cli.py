@@ -702,11 +702,11 @@ def sweep(
         def update(state: SweepProgress) -> None:
             nonlocal last, lines
             last = state
-            finished = state.skipped + state.done + state.lost
+            finished = state.skipped + state.done  # lost tasks are neither: the bar stops short of the total
             if not console.is_terminal:
                 if lines is None:
                     lines = ProgressLines("sweep", total, done=state.skipped, unit="tasks")
-                lines.advance(state.skipped + state.done - lines.done, lost=state.lost - lines.lost)
+                lines.advance(finished - lines.done, lost=state.lost - lines.lost)
                 return
             bar.update(task, completed=finished,
                        description=f"done {state.done} (skipped {state.skipped}), failed {state.failed}, "

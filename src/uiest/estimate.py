@@ -71,7 +71,7 @@ import numpy as np
 
 from uiest import estimators as est
 from uiest.analysis import Recommendation, analyse
-from uiest.atomic import staged_folder, storage_error, write_file, write_text
+from uiest.atomic import remove_unwritten, staged_folder, write_file, write_text
 from uiest.box import FloatArray
 from uiest.checks import user_stacklevel
 from uiest.delay import delayed_system, matching_ranks
@@ -430,15 +430,7 @@ def write_estimates(
 
 def _remove_stale(out: Path, written: list[Path]) -> None:
     """Remove the ``estimates_*.csv`` and ``manifest.json`` in ``out`` that are not ``written``, naming them."""
-    stale = sorted(path for path in [*out.glob("estimates_*.csv"), out / "manifest.json"]
-                   if path.exists() and path not in written)  # fmt: skip
-    for path in stale:
-        try:
-            path.unlink()
-        except FileNotFoundError:
-            continue
-        except OSError as exc:
-            raise storage_error(exc, path) from None
+    stale = remove_unwritten([*out.glob("estimates_*.csv"), out / "manifest.json"], written)
     if stale:
         warnings.warn(
             f"out: removed {', '.join(path.name for path in stale)} from {out}: written by an earlier run (another "

@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from uiest import models
-from uiest.atomic import storage_error, write_file, write_text
+from uiest.atomic import remove_unwritten, storage_error, write_file, write_text
 from uiest.checks import check_callable, check_flag, shown, user_stacklevel
 from uiest.errors import OptionError
 from uiest.experiments import executors, provenance
@@ -335,31 +335,39 @@ def collect(design: Sweep, out: Path, solver: str | None = None) -> pd.DataFrame
         frame = _read(path) if path.exists() else None
         if frame is not None:
             frames.append(frame)
-    if not frames:
-        if runs_dir.exists() and any(runs_dir.glob("*.parquet")):
-            warnings.warn(
-                f"{runs_dir} holds results, but none of this design with solver {solver!r}, this code version "
-                f"({provenance.code_version()}) and this model file content",
-                stacklevel=2,
-            )
-        return pd.DataFrame()
-    results = pd.concat(frames, ignore_index=True)
-    write_file(out / "results.parquet", lambda tmp: results.to_parquet(tmp, index=False))
+    if not frames and runs_dir.exists() and any(runs_dir.glob("*.parquet")):
+        warnings.warn(
+            f"{runs_dir} holds results, but none of this design with solver {solver!r}, this code version "
+            f"({provenance.code_version()}) and this model file content",
+            stacklevel=2,
+        )
+    results = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    written = [write_file(out / "results.parquet", lambda tmp: results.to_parquet(tmp, index=False))]
     swept = [k for k in SWEEPABLE if (k in design.grid or k in design.ranges) and k != "estimator"]
     metrics = [c for c in results.columns if c.startswith(("rmse_", "max_abs_", "final_abs_")) or c.endswith("_ms")]
-    ok = results[results["error"] == ""]
+    ok = results[results["error"] == ""] if frames else results
     if not ok.empty and metrics:
         summary = ok.groupby([*swept, "case", "estimator"], dropna=False)[metrics].mean().reset_index()
-        write_file(out / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False))
-        _plots(summary, swept, design.scenario, out)
+        written.append(write_file(out / "summary.csv", lambda tmp: summary.to_csv(tmp, index=False)))
+        written += _plots(summary, swept, design.scenario, out)
+    stale = remove_unwritten([out / "summary.csv", *out.glob("sweep_*.png")], written)
+    if stale:
+        warnings.warn(
+            f"out: removed {', '.join(path.name for path in stale)} from {out}: made from an earlier design's or "
+            "model file's results, not from this one's",
+            UserWarning,
+            stacklevel=user_stacklevel(),
+        )
     return results
 
 
-def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Path) -> None:
+def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Path) -> list[Path]:
+    """``out/sweep_<parameter>.png`` for each numeric swept parameter; returns their paths."""
     import pandas as pd
 
     names = models.load(scenario.model).build().x.names
     focus = f"rmse_{names[scenario.focus_state]}"
+    written = []
     for param in swept:
         if param in ("estimator", "solver") or not pd.api.types.is_numeric_dtype(summary[param]):
             continue
@@ -377,6 +385,8 @@ def _plots(summary: pd.DataFrame, swept: list[str], scenario: Scenario, out: Pat
         axes[0].legend(fontsize=7)
         fig.tight_layout()
         try:
-            write_file(out / f"sweep_{param}.png", functools.partial(fig.savefig, dpi=130, format="png"))
+            png = functools.partial(fig.savefig, dpi=130, format="png")
+            written.append(write_file(out / f"sweep_{param}.png", png))
         finally:
             pyplot().close(fig)
+    return written
