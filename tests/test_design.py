@@ -415,3 +415,33 @@ def test_the_designs_own_noise_trial_names_the_prior_when_it_fails():
         UISE.design(henon, x0_prior=[3.0, 0.0, 0.0], max_horizon=15, trials=1, steps=60)
     with pytest.raises(ModelError, match=r"x0_prior: the design.s noise trial.*pass records="):
         UISE.design(henon, x0_prior=[2.4, -2.4, 2.4], max_horizon=15, trials=1, steps=60)
+
+
+def test_a_designs_trial_runs_count_their_failed_steps_without_warning(monkeypatch):
+    # each trial run is the design's business: FailureWarning (more than 5 % of a run's steps failed) belongs to the
+    # user's own runs, and a design whose trials fail in a third of their solves stays silent
+    from uiest import FailureWarning
+    from uiest.estimators import design_search
+    from uiest.window import gauss_newton
+
+    zero, *_ = linear.with_invariant_zeros([0.6], seed=3, x_bounds=(-10.0, 10.0), v_bounds=(-1e-3, 1e-3))
+    solve, calls = gauss_newton.GaussNewtonSolver.solve, []
+
+    def flaky(self, *args, **kwargs):
+        calls.append(1)
+        if len(calls) % 3 == 0:
+            raise RuntimeError("a failed solve")
+        return solve(self, *args, **kwargs)
+
+    monkeypatch.setattr(gauss_newton.GaussNewtonSolver, "solve", flaky)
+    options = {"x0_prior": np.zeros(zero.nx), "rates": (0.5,), "trials": 1, "steps": 60, "max_horizon": 10}
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        designed = UISE.design(zero, **options)
+    assert not [w for w in caught if issubclass(w.category, FailureWarning)] and len(calls) > 100
+    truth = simulate(zero, np.zeros(zero.nx), 40, w=np.zeros((40, zero.nw)), seed=0)
+    with pytest.warns(FailureWarning, match="steps failed"):  # the same failures in a run of the user's
+        designed.run(truth.u, truth.y)
+    monkeypatch.setattr(design_search, "_design", design_search._design.__wrapped__)  # control: not silenced
+    with pytest.warns(FailureWarning):
+        UISE.design(zero, **options)
