@@ -87,6 +87,10 @@ BOUND_SHARE = 0.05
 """A run warns (:func:`bound_message`) when some state's estimate lies at a side of X in more than this share of
 its steps."""
 
+FAILURE_SHARE = 0.05
+"""A run warns (:func:`failure_message`, :class:`~uiest.errors.FailureWarning`) when more than this share of its
+steps failed."""
+
 
 def at_bound(box: Box, x: FloatArray, scale: FloatArray) -> NDArray[np.bool_]:
     """Which entries of ``x (..., n)`` lie on or beyond a finite side of ``box`` (:data:`AT_BOUND_RTOL`).
@@ -181,6 +185,20 @@ def status_text(
     if on_boundary:
         parts.append("held there against the data (output residual above 10x the noise)")
     return "; ".join(parts)
+
+
+def failure_message(estimator: str, outcome: list[str]) -> str | None:
+    """The warning of a run whose steps failed in more than :data:`FAILURE_SHARE` of them, or None.
+
+    ``outcome``: one :class:`Outcome` value per step.
+    """
+    steps = len(outcome)
+    failed = int(np.isin(outcome, [value.value for value in FAILURES]).sum())
+    if failed <= FAILURE_SHARE * steps:
+        return None
+    return (f"{estimator}: {failed} of {steps} steps failed ({100 * failed / steps:.0f} %): their estimates are the "
+            "model's propagation of the last one, or the last one kept (the result's outcome and solver_status say "
+            "which and why)")  # fmt: skip
 
 
 def bound_message(
@@ -284,10 +302,12 @@ __all__ = [
     "AT_BOUND_RTOL",
     "BOUND_SHARE",
     "FAILURES",
+    "FAILURE_SHARE",
     "BoundTest",
     "Outcome",
     "at_bound",
     "bound_message",
+    "failure_message",
     "input_bound_message",
     "quiet_bound_warnings",
     "status_text",

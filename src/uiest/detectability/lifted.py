@@ -71,7 +71,7 @@ class LiftedDomain:
     def inside(self, p: FloatArray) -> np.ndarray:
         """Which rows of ``p`` (m, n + nu + nd) lie in D's cut (``point(p)`` in Q); shape (m,)."""
         q = np.asarray(self.point.map(len(p))(np.asarray(p, dtype=float).T), dtype=float).T
-        return np.all((q >= self.box.lower) & (q <= self.box.upper), axis=1)
+        return np.asarray(self.box.contains(q), dtype=bool)
 
     def indicator(self, p: ca.SX) -> ca.SX:
         """A symbolic 1/0: ``point(p)`` in Q."""

@@ -52,7 +52,7 @@ from uiest.estimators.history import RowHistory
 from uiest.estimators.horizon import InformationHorizon, information_horizon
 from uiest.estimators.weights import Schedule
 from uiest.guarantee import Guarantee
-from uiest.health import BoundTest, Outcome, at_bound, bound_message, input_bound_message
+from uiest.health import BoundTest, Outcome, at_bound, bound_message, failure_message, input_bound_message
 from uiest.results import HEALTH_FIELDS, EstimationResult, StepEstimate
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -846,15 +846,9 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
                             constrained=isinstance(estimator, WindowEstimator))  # fmt: skip
     if message is not None:
         warnings.warn(message, BoundWarning, stacklevel=user_stacklevel())
-    failed = sum(Outcome(value).failed for value in outcome)
-    if failed > FAILURE_SHARE * (K + 1):
-        warnings.warn(
-            f"{estimator.estimator_name}: {failed} of {K + 1} steps failed ({100 * failed / (K + 1):.0f} %): their "
-            "estimates are the model's propagation of the last one, or the last one kept (the result's outcome and "
-            "solver_status say which and why)",
-            FailureWarning,
-            stacklevel=user_stacklevel(),
-        )
+    message = failure_message(estimator.estimator_name, outcome)
+    if message is not None:
+        warnings.warn(message, FailureWarning, stacklevel=user_stacklevel())
     W = getattr(estimator, "w_domain", None)  # an estimator whose model bounds the unknown input
     if W is not None:
         message = input_bound_message(estimator.estimator_name, at_bound(W, w_hat, s.w.scale), w_hat, W, s.w.names)
@@ -881,10 +875,6 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
         cpu_time=cpu_time,
     )
-
-
-FAILURE_SHARE = 0.05
-"""A run warns (:class:`~uiest.errors.FailureWarning`) where more than this share of its steps failed."""
 
 
 def _breaks_assumptions(outcome: list[str], y: FloatArray) -> NDArray[np.bool_]:

@@ -233,7 +233,7 @@ def sweep(
     if max_tasks is not None:
         todo = todo[:max_tasks]
     _write_manifest(design, out, solver, workers, scheduler, new=len(todo), other=other)
-    _clear_lost_log(out)  # the log lists this run's lost tasks only
+    remove_unwritten([out / "lost_tasks.log"], ())  # the log lists this run's lost tasks only
     done = failed = lost = model_lost = 0
     if progress is not None:
         progress(SweepProgress(0, 0, len(todo), skipped))
@@ -267,15 +267,6 @@ def _warn_model_changed(model: str, done: int, refused: int, other: int) -> None
         UserWarning,
         stacklevel=user_stacklevel(),
     )
-
-
-def _clear_lost_log(out: Path) -> None:
-    """Remove ``out/lost_tasks.log`` of an earlier run (its tasks are stored by now, or lost again and listed anew)."""
-    path = out / "lost_tasks.log"
-    try:
-        path.unlink(missing_ok=True)
-    except OSError as exc:
-        raise storage_error(exc, path) from None
 
 
 def _log_lost(out: Path, task: Task, why: str) -> None:
