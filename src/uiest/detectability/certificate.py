@@ -8,7 +8,7 @@ scaled coordinates ``z / scale`` and given in original units by :attr:`Certifica
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any, ClassVar
@@ -378,6 +378,40 @@ def sample_pairs(
     step = 10.0 ** rng.uniform(-6.0, -1.0, (int(close.sum()), 1)) * float(np.linalg.norm(width / scale))
     zt[close] = box.clip(z[close] + step * d * scale)
     return z, zt
+
+
+ADMIT_DRAWS = 50
+"""Where a predicate admits only part of the box (:func:`sample_admitted_pairs`), at most this many times the
+requested pairs are drawn."""
+
+
+def sample_admitted_pairs(
+    rng: np.random.Generator,
+    box: Box,
+    shared: Box,
+    n_pairs: int,
+    scale: FloatArray,
+    admit: Callable[[FloatArray, FloatArray, FloatArray], np.ndarray],
+    directions: FloatArray | None = None,
+) -> tuple[FloatArray, FloatArray, FloatArray, int]:
+    """Up to ``n_pairs`` pairs ``(z, z~)`` of :func:`sample_pairs` with a shared point ``s`` that ``admit`` accepts.
+
+    Batches of ``n_pairs`` pairs (and ``s`` from ``shared``) are drawn until ``n_pairs`` are admitted or
+    :data:`ADMIT_DRAWS` times ``n_pairs`` were drawn; the admitted pairs of the last batch needed are a random
+    subset. ``admit(z (m, n), z~ (m, n), s (m, ns))`` returns a boolean mask (m,). Returns ``z, z~`` (k, n),
+    ``s`` (k, ns) with ``k <= n_pairs``, and the number of pairs drawn.
+    """
+    kept: list[tuple[FloatArray, FloatArray, FloatArray]] = []
+    count = drawn = 0
+    while count < n_pairs and drawn < ADMIT_DRAWS * n_pairs:
+        a, b = sample_pairs(rng, box, n_pairs, scale, directions)
+        s = shared.sample(rng, n_pairs)
+        drawn += n_pairs
+        take = rng.permutation(np.flatnonzero(admit(a, b, s)))[: n_pairs - count]
+        kept.append((a[take], b[take], s[take]))
+        count += len(take)
+    a, b, s = (np.vstack([part[i] for part in kept]) for i in range(3))
+    return a, b, s, drawn
 
 
 def quad(d: FloatArray, W: FloatArray) -> FloatArray:

@@ -126,7 +126,7 @@ class DeltaIOSS(Certificate):
         return Verification(
             worst_ratio=check.worst_ratio,
             pairs_used=check.pairs,
-            pairs_drawn=n_pairs,
+            pairs_drawn=check.drawn,
             note="ratio = LHS / RHS of Schiller et al. eq. (4)",
         )
 

@@ -49,6 +49,7 @@ from uiest.detectability.certificate import (
     UNDECIDED,
     check_rate,
     quad,
+    sample_admitted_pairs,
     sample_pairs,
     verdict,
 )
@@ -387,8 +388,8 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
 
     Scaled, per pair ``(z, d), (z~, d~)`` and shared u: ``lhs = |F(z,u,d) - F(z~,u,d~)|_P^2`` against
     ``rhs = mu |z - z~|_P^2 + sum_c q_c |d_c - d~_c|^2 + r |H(z,d) - H(z~,d~)|^2``. Unsolved solutions
-    are returned as they are. With a lift, pairs with a point outside its domain are not scored (NaN), and the
-    cover's extremes (points of Q, not of the box) are not used as anchors.
+    are returned as they are. With a lift, the search draws pairs until enough lie in its domain, a point outside it
+    scores NaN (the local searches), and the cover's extremes (points of Q, not of the box) are not used as anchors.
     """
     if solution.outcome != lmi.FEASIBLE:
         return solution
@@ -414,9 +415,11 @@ def falsify_solution(model: IncrementalModel, solution: DissipationSolution, see
         anchors = np.hstack([extremes[:, :n], extremes[:, n + nu :]])
     channels = tuple(f"{name}[{i}]" for name, size in model.channels for i in range(size))
     labels = tuple(f"z[{i}]" for i in range(n)) + channels + tuple(f"u[{i}]" for i in range(nu))
+    lift = model.lift
+    admit = None if lift is None else (lambda a, b, u: lift.admits(a, b, u, n))
     found = falsify.search(ca.Function("dissipation_terms", [a, b, u], [lhs, rhs]), joint, model.u_box,
                            np.concatenate([model.z_scale, model.d_scale]), anchors=anchors, labels=labels,
-                           seed=seed)  # fmt: skip
+                           admit=admit, seed=seed)  # fmt: skip
     return dataclasses.replace(solution, falsification=found)
 
 
@@ -470,6 +473,9 @@ class PairCheck:
 
     worst_ratio: float
     pairs: int
+    """The pairs scored."""
+    drawn: int
+    """The pairs drawn (more than requested where a lift admits only part of the box)."""
 
 
 def check_pairs(
@@ -484,8 +490,9 @@ def check_pairs(
     """Test the inequality in original units on random pairs with the nonlinear F and H.
 
     ``weights[c]`` is the (size_c, size_c) weight matrix of channel c, ``R`` the output weight.
-    Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`); with a lift, only
-    pairs whose two points lie in its domain are scored.
+    Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`); with a lift, pairs
+    are drawn until ``n_pairs`` have both points in its domain (:func:`~uiest.detectability.certificate.
+    sample_admitted_pairs`), and only those are scored.
     """
     rng = np.random.default_rng(seed)
     n = model.n
@@ -493,12 +500,18 @@ def check_pairs(
         np.concatenate([model.z_box.lower, model.d_box.lower]), np.concatenate([model.z_box.upper, model.d_box.upper])
     )
     scale = np.concatenate([model.z_scale, model.d_scale])
-    a, b = sample_pairs(rng, joint, n_pairs, scale)
+    lift = model.lift
+    if lift is None:
+        a, b = sample_pairs(rng, joint, n_pairs, scale)
+        u = model.u_box.sample(rng, n_pairs)
+        drawn = n_pairs
+    else:
+        a, b, u, drawn = sample_admitted_pairs(rng, joint, model.u_box, n_pairs, scale,
+                                               lambda a, b, u: lift.admits(a, b, u, n))  # fmt: skip
     z, d, zt, dt = a[:, :n], a[:, n:], b[:, :n], b[:, n:]
-    u = model.u_box.sample(rng, n_pairs)
 
     def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
-        return np.asarray(fun.map(n_pairs)(*[c.T for c in cols]), dtype=float).T
+        return np.asarray(fun.map(len(a))(*[c.T for c in cols]), dtype=float).T
 
     dz_next = run(model.step, z, u, d) - run(model.step, zt, u, dt)
     dy = run(model.output, z, d) - run(model.output, zt, dt)
@@ -510,6 +523,5 @@ def check_pairs(
     lhs = quad(dz_next, P)
     rhs = mu * quad(z - zt, P) + quad(d - dt, W) + quad(dy, R)
     used = rhs > 0.0
-    if model.lift is not None:
-        used &= model.lift.inside(np.hstack([z, u, d])) & model.lift.inside(np.hstack([zt, u, dt]))
-    return PairCheck(worst_ratio=float((lhs[used] / rhs[used]).max(initial=-np.inf)), pairs=int(used.sum()))
+    return PairCheck(worst_ratio=float((lhs[used] / rhs[used]).max(initial=-np.inf)), pairs=int(used.sum()),
+                     drawn=drawn)  # fmt: skip

@@ -17,7 +17,8 @@ and disturbance of each trajectory). Before a ``certify_*`` function returns a c
 A ratio above ``1 + REFUTE_RTOL`` refutes the certificate (:attr:`Falsification.refuted`); the
 tolerance sits far above the rounding of the ratio for pairs at least :data:`MIN_SEPARATION` of the
 box's scaled diameter apart, and closer pairs (which clipping at a side or a local maximisation can
-make) are not scored.
+make) are not scored. Where the domain is only part of the boxes (a reduced certificate's lift), pairs are drawn
+until enough lie in it (``admit``).
 Not finding a violation proves nothing; finding one disproves the certificate.
 """
 
@@ -31,7 +32,7 @@ import casadi as ca
 import numpy as np
 
 from uiest.box import Box, FloatArray
-from uiest.detectability.certificate import sample_pairs
+from uiest.detectability.certificate import sample_admitted_pairs, sample_pairs
 
 __all__ = ["MIN_SEPARATION", "Falsification", "pairs_text", "search"]
 
@@ -62,10 +63,10 @@ class Falsification:
     Attributes
     ----------
     pairs : int
-        Pairs drawn by sampling (uniform, close, anchored).
+        Pairs drawn by sampling (uniform, close, anchored), those a domain's ``admit`` rejected included.
     scored : int
-        Of those, the pairs whose ratio was scored: not NaN (a pair with a point outside a lifted domain, or
-        where the model is undefined) and at least :data:`MIN_SEPARATION` apart.
+        Of those, the pairs whose ratio was scored: admitted, not NaN (where the model is undefined) and at least
+        :data:`MIN_SEPARATION` apart.
     searches : int
         Local maximisations run.
     evaluations : int
@@ -152,6 +153,7 @@ def search(
     directions: FloatArray | None = None,
     anchors: FloatArray | None = None,
     labels: tuple[str, ...] | None = None,
+    admit: Callable[[FloatArray, FloatArray, FloatArray], np.ndarray] | None = None,
     pairs: int = PAIRS,
     searches: int = SEARCHES,
     seed: int = 0,
@@ -174,13 +176,22 @@ def search(
         Points to take close pairs at (outside points are clipped into the domain).
     labels : tuple of str, optional
         Names of a's entries then s's, for the text.
+    admit : callable, optional
+        ``admit(a (m, n), b (m, n), s (m, ns))``: a boolean mask (m,) of the pairs in the domain, where it is only
+        part of the boxes; pairs are drawn until ``pairs`` of them are admitted (or
+        :data:`~uiest.detectability.certificate.ADMIT_DRAWS` times that many were drawn). ``terms`` must still
+        return NaN outside the domain, where the local searches go.
 
     """
     start = time.thread_time()
     n, ns = domain.size, shared.size
     labels = labels or tuple(f"z[{i}]" for i in range(n)) + tuple(f"s[{i}]" for i in range(ns))
     rng = np.random.default_rng(seed)
-    a, b = sample_pairs(rng, domain, pairs, scale, directions)
+    if admit is None:
+        a, b = sample_pairs(rng, domain, pairs, scale, directions)
+        s, drawn = np.zeros((0, ns)), pairs
+    else:
+        a, b, s, drawn = sample_admitted_pairs(rng, domain, shared, pairs, scale, admit, directions)
     if anchors is not None and len(anchors):
         base = np.repeat(domain.clip(np.asarray(anchors, dtype=float)), ANCHORED, axis=0)
         basis = np.eye(n) if directions is None else directions
@@ -189,7 +200,8 @@ def search(
         width = np.where(domain.width > 0, domain.width, scale)
         step = 10.0 ** rng.uniform(-6.0, 0.0, (len(base), 1)) * float(np.linalg.norm(width / scale))
         a, b = np.vstack([a, base]), np.vstack([b, domain.clip(base + step * d * scale)])
-    s = shared.sample(rng, len(a))
+        drawn += len(base)
+    s = np.vstack([s, shared.sample(rng, len(a) - len(s))])
     lhs, rhs = (np.asarray(v, dtype=float).ravel() for v in terms.map(len(a))(a.T, b.T, s.T))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(rhs > 0.0, lhs / rhs, np.where(lhs > 0.0, np.inf, -np.inf))
@@ -209,7 +221,7 @@ def search(
             if value > worst[0]:
                 worst = (value, point[:n], point[n : 2 * n], point[2 * n :])
     return Falsification(
-        pairs=len(a),
+        pairs=drawn,
         scored=int(scored.sum()),
         searches=started,
         evaluations=evaluations,

@@ -19,8 +19,10 @@ with ``point`` affine and the Jacobians given as functions of ``q = point(p)`` o
 - at a point of D the Jacobian equals ``jacobian(point(p))`` with ``point(p)`` in Q, so a cover of the
   Jacobian over the box Q (the cover's usual domain) contains every Jacobian the pairs of D meet.
 
-The falsification search and ``verify`` draw their pairs from the box and score only those with both points in D
-(``Falsification.scored``, ``Verification.pairs_used`` count them): the certificate claims nothing outside.
+The falsification search and ``verify`` draw their pairs from the box until the pairs requested have both points
+in D (or fifty times that many were drawn; :func:`~uiest.detectability.certificate.sample_admitted_pairs`) and score
+only those (``Falsification.scored``, ``Verification.pairs_used`` count them, ``pairs``/``pairs_drawn`` count every
+pair drawn): the certificate claims nothing outside.
 """
 
 from __future__ import annotations
@@ -72,6 +74,10 @@ class LiftedDomain:
         """Which rows of ``p`` (m, n + nu + nd) lie in D's cut (``point(p)`` in Q); shape (m,)."""
         q = np.asarray(self.point.map(len(p))(np.asarray(p, dtype=float).T), dtype=float).T
         return np.asarray(self.box.contains(q), dtype=bool)
+
+    def admits(self, a: FloatArray, b: FloatArray, u: FloatArray, n: int) -> np.ndarray:
+        """Which pairs have both points in D: rows ``a, b = (z (n,), d)`` with the shared ``u``; shape (m,)."""
+        return self.inside(np.hstack([a[:, :n], u, a[:, n:]])) & self.inside(np.hstack([b[:, :n], u, b[:, n:]]))
 
     def indicator(self, p: ca.SX) -> ca.SX:
         """A symbolic 1/0: ``point(p)`` in Q."""

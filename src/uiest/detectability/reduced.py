@@ -140,7 +140,7 @@ class ReducedIOSS(MuCertificate):
         return Verification(
             worst_ratio=check.worst_ratio,
             pairs_used=check.pairs,
-            pairs_drawn=n_pairs,
+            pairs_drawn=check.drawn,
             note="ratio = LHS / RHS of V+ <= mu V + ...",
         )
 
