@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from uiest import ModelError, OptionError, System
+from uiest import Box, ModelError, OptionError, System
 from uiest.ode import input_integral
 
 
@@ -148,3 +148,34 @@ def test_an_input_integral_that_varies_over_x_is_warned_of_and_the_rk4_channel_i
     (said,) = sampled()
     assert "that integral differs from it by" in said and "input_channel='rk4'" in said
     assert not sampled(input_channel="rk4")
+
+
+def _runaway_cstr(**options):
+    """Seborg's exothermic CSTR (minutes, mol/L, K) over a wide domain: thermal runaway at high T and C_A."""
+
+    def rhs(x, u, w):
+        rate = 7.2e10 * np.exp(-8750.0 / x[1]) * x[0]
+        return [1.0 - x[0] - rate, 350.0 - x[1] + 209.2 * rate + 2.092 * (u[0] + w[0] - x[1])]
+
+    spec = {"x_bounds": Box(lower=(0.0, 300.0), upper=(10.0, 500.0)), "u_bounds": (280.0, 320.0),
+            "v_bounds": (-0.1, 0.1), "dt": 0.05}  # fmt: skip
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nu=1, nw=1, nv=1, **{**spec, **options})
+    return [str(c.message) for c in caught]
+
+
+def test_collocation_whose_newton_iterations_do_not_converge_somewhere_in_x_is_warned_of():
+    # at (C_A, T) = (5, 400) the reaction runs away within a sample: six Newton iterations from zero stage
+    # derivatives leave the stage equations unsolved (the sampled step gave T = 714 K where the flow reaches 1295 K)
+    said = [m for m in _runaway_cstr(method="collocation", input_channel="rk4") if "Newton" in m]
+    assert len(said) == 1 and "leave its stage equations unsolved at x = [" in said[0] and "more substeps" in said[0]
+    # where they converge (the same reactor away from the runaway: C_A <= 1, T <= 330 K) it is silent
+    mild = Box(lower=(0.0, 300.0), upper=(1.0, 330.0))
+    assert not [m for m in _runaway_cstr(method="collocation", input_channel="rk4", x_bounds=mild) if "Newton" in m]
+
+
+def test_an_input_integral_that_overflows_in_x_is_warned_of_not_raised():
+    # over the runaway region exp(A dt) overflows: the spread was a numpy LinAlgError ("SVD did not converge")
+    said = [m for m in _runaway_cstr(method="collocation") if "per-sample integral" in m]
+    assert len(said) == 1 and "more than doubles can hold" in said[0]

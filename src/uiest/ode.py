@@ -39,14 +39,15 @@ from uiest.box import Box
 from uiest.checks import check_int
 from uiest.errors import ModelError, OptionError
 
-__all__ = ["ContinuousModel", "discretise", "input_integral", "rk4_instability"]
+__all__ = ["ContinuousModel", "collocation_unconverged", "discretise", "input_integral", "rk4_instability"]
 
 INPUT_CHANNELS = ("integral", "rk4")
 METHODS = ("rk4", "collocation")
 NEWTON_ITERATIONS = 6
 """Newton iterations per collocation step, from zero stage derivatives (the stage points at x): exact
 for a linear model after one; for a stiff nonlinear model the step must be small enough that six
-converge (the residual is not checked inside the expression)."""
+converge (the residual is not checked inside the expression; :func:`collocation_unconverged` checks it over X
+when the model is built)."""
 RADAU_A = np.array([[5.0 / 12.0, -1.0 / 12.0], [3.0 / 4.0, 1.0 / 4.0]])
 RADAU_B = np.array([3.0 / 4.0, 1.0 / 4.0])
 MAX_SUBSTEPS = 1000
@@ -104,6 +105,46 @@ def radau_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float
             guess = newton(guess, x, u, *([w] if isinstance(w, ca.SX) else []))
         x = x + h * sum(RADAU_B[j] * guess[j * n : (j + 1) * n] for j in range(stages))
     return x
+
+
+COLLOCATION_RTOL = 1e-6
+"""The stage equations' residual after the Newton iterations, relative to the stage derivatives' size, above which
+:func:`collocation_unconverged` reports a point."""
+
+
+def collocation_unconverged(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, h: float) -> str | None:
+    """Where one collocation step of length ``h`` leaves its stage equations unsolved in ``box``, or None.
+
+    At the points of :func:`_probe_jacobians` (u at ``u_ref``, w at ``w_ref``), the residual ``k - F(stage points)``
+    after the :data:`NEWTON_ITERATIONS` Newton iterations against :data:`COLLOCATION_RTOL` times ``1 + max |k|``
+    (NaN counts as unsolved).
+    """
+    points, _ = _probe_jacobians(rhs, box, u_ref, w_ref)
+    if not len(points):
+        return None
+    n, stages, m = box.size, RADAU_A.shape[0], len(points)
+    k, x0 = ca.SX.sym("k", n * stages), ca.SX.sym("x0", n)
+    u, w = ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
+    stage_points = [x0 + h * sum(RADAU_A[i, j] * k[j * n : (j + 1) * n] for j in range(stages)) for i in range(stages)]
+    residual = k - ca.vertcat(*[rhs(p, u, w) for p in stage_points])
+    newton = ca.Function("newton", [k, x0, u, w], [k - ca.solve(ca.jacobian(residual, k), residual)])
+    guess = ca.SX.zeros(n * stages)
+    for _ in range(NEWTON_ITERATIONS):
+        guess = newton(guess, x0, u, w)
+    left = ca.Function("stage_residual", [k, x0, u, w], [residual])
+    solved = ca.Function("unsolved", [x0, u, w], [left(guess, x0, u, w), guess]).map(m)
+    with np.errstate(over="ignore", invalid="ignore"):
+        r, ks = (np.asarray(v, dtype=float) for v in solved(points.T, np.tile(u_ref, (m, 1)).T,
+                                                            np.tile(w_ref, (m, 1)).T))  # fmt: skip
+        relative = np.abs(r).max(axis=0) / (1.0 + np.abs(ks).max(axis=0))
+    relative = np.where(np.isfinite(relative), relative, np.inf)
+    worst = int(np.argmax(relative))
+    if relative[worst] <= COLLOCATION_RTOL:
+        return None
+    size = f"{relative[worst]:.2g} of the stage derivatives' size" if np.isfinite(relative[worst]) else "not finite"
+    return (f"collocation's {NEWTON_ITERATIONS} Newton iterations leave its stage equations unsolved at x = "
+            f"{np.round(points[worst], 6).tolist()} (residual {size}, step {h:.4g}): the sampled model is wrong "
+            "there; more substeps")  # fmt: skip
 
 
 RK4_REAL_LIMIT = 2.785
@@ -188,10 +229,14 @@ def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarra
     if not len(points) or not np.all(np.isfinite(A_ref)):
         return None
     reference = input_integral(A_ref, G, dt)
-    size = np.linalg.norm(reference, 2)
-    with np.errstate(over="ignore", invalid="ignore"):
-        spread = np.array([np.linalg.norm(input_integral(A, G, dt) - reference, 2) for A in J]) / max(size, 1e-300)
-    spread = np.where(np.isnan(spread), np.inf, spread)
+    size = max(float(np.linalg.norm(reference, 2)), 1e-300)
+
+    def spread_at(A: np.ndarray) -> float:  # inf where the integral overflows (a runaway mode over the sample)
+        with np.errstate(over="ignore", invalid="ignore"):
+            difference = input_integral(A, G, dt) - reference
+        return float(np.linalg.norm(difference, 2)) / size if np.all(np.isfinite(difference)) else np.inf
+
+    spread = np.array([spread_at(A) for A in J])
     worst = int(np.argmax(spread))
     if spread[worst] <= INPUT_SPREAD:
         return None

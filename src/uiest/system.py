@@ -476,11 +476,10 @@ class System:
         w_ref = np.zeros(nw) if w_range is None else Box.coerce(w_range, nw, "w_range").center
         f, channel = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel=input_channel, method=method,
                                     x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
-        unstable = None
-        if method == "rk4":
-            unstable = ode.rk4_instability(rhs_f, X, u_ref, w_ref, dt / substeps)
-            if unstable:
-                warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
+        check = ode.rk4_instability if method == "rk4" else ode.collocation_unconverged
+        unstable = check(rhs_f, X, u_ref, w_ref, dt / substeps)
+        if unstable:
+            warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
         spread = ode.input_spread(rhs_f, X, u_ref, w_ref, dt) if channel == "integral" else None
         if spread:
             warnings.warn(f"from_ode: {spread}", UserWarning, stacklevel=2)
