@@ -116,3 +116,20 @@ def test_a_simulation_that_escapes_x_does_not_set_the_scales():
     np.testing.assert_allclose(scaled.x.scale, [1.264, 0.378], rtol=1e-3)
     designed = UISE.design(henon, x0_prior=[0.0, 0.0], trials=1, steps=60)
     assert designed.guarantee.informative
+
+
+def test_without_a_record_the_known_input_over_u_moves_the_states_it_drives():
+    # a DC motor (current, speed), voltage in U = +-24 V, the load torque unknown: from rest with the voltage at U's
+    # centre (0 V) the current barely moves (3.5e-3 A, mostly through the load), and its width of 40 A was taken for
+    # "no scale" and replaced; the voltage drawn over U drives it to amperes, as the record's voltage does
+    def rhs(x, u, w):
+        return [(u[0] - x[0] - 0.01 * x[1]) / 0.5, (0.01 * x[0] - 0.1 * x[1] - w[0]) / 0.01]
+
+    spec = {"x_bounds": ((-20.0, -50.0), (20.0, 50.0)), "u_bounds": (-24.0, 24.0), "v_bounds": (-0.01, 0.01)}
+    motor = System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nu=1, nw=1, nv=1, dt=0.01, **spec)
+    peaks = state_peaks(motor, np.zeros(2))
+    assert peaks[0] > 1.0  # amperes: the excited run's voltage
+    kept = data_scales(motor, np.zeros(2))
+    assert kept is motor and kept.x.scale_source == (ScaleSource.WIDTH, ScaleSource.WIDTH)
+    record = simulate(motor, np.zeros(2), 60, u=np.full((60, 1), 12.0), w=np.zeros((60, 1)))
+    assert data_scales(motor, np.zeros(2), record=record) is motor  # the record's voltage: the same decision

@@ -63,8 +63,8 @@ def design_uise(system: System, x0: ArrayLike, *, design: DesignOptions | None =
     Raises
     ------
     CertificationError
-        When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest certified window) when no
-        certified rate has an admissible N within ``max_horizon`` (or ``fallback_horizon``, if given).
+        When no rate certifies; :class:`~uiest.errors.HorizonError` (with the shortest window of the certificates
+        found) when no certified rate has an admissible N within ``max_horizon`` (or ``fallback_horizon``, if given).
 
     Examples
     --------

@@ -7,9 +7,10 @@ the user did not give,
 
 - a state scale from X's width wider than :data:`WIDE_DOMAIN` times the state's magnitude, and a
   unit scale (X unbounded), by that magnitude: the largest ``|x_i|`` of the prior ``x0`` and of
-  two short simulations from it (:data:`SIMULATION_STEPS` steps, the known input of the record or
-  U's centre, the unknown input at its nominal value and, in the second, moved by up to its scale
-  uniformly at random, seed :data:`SIMULATION_SEED`), each stopped where it leaves X or stops
+  two short simulations from it (:data:`SIMULATION_STEPS` steps; the unknown input at its nominal value
+  and, in the second, moved by up to its scale uniformly at random; the known input the record's in
+  both, or without a record U's centre and, in the second, uniform draws from U; seed
+  :data:`SIMULATION_SEED`), each stopped where it leaves X or stops
   being finite (where one leaves X and the other does not, only the one that stays counts);
 - then the output scales derived from the replaced state scales (``ScaleSource.OUTPUT``) by the
   measured outputs' magnitudes (``max_k |y_j[k]|`` of the record, NaN ignored) or, without a
@@ -98,9 +99,9 @@ def state_peaks(system: System, x0: FloatArray, record: Any = None) -> FloatArra
     """
     rng = np.random.default_rng(SIMULATION_SEED)
     steps = SIMULATION_STEPS
-    u = _known_input(system, record, steps)
     w = np.stack([np.tile(system.nominal_w, (steps, 1)),
                   system.nominal_w + system.w.scale * rng.uniform(-1.0, 1.0, (steps, system.nw))])  # fmt: skip
+    u = _known_input(system, record, steps, rng)
     x = np.tile(x0, (2, 1))
     live = np.ones(2, dtype=bool)
     peak = np.zeros((2, system.nx))
@@ -108,7 +109,7 @@ def state_peaks(system: System, x0: FloatArray, record: Any = None) -> FloatArra
         rows = np.flatnonzero(live)
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # a model evaluated outside its domain may warn (overflow, ...)
-            nxt = system.step(x[rows], np.tile(u[k], (len(rows), 1)), w[rows, k])
+            nxt = system.step(x[rows], u[rows, k], w[rows, k])
         ok = np.all(np.isfinite(nxt), axis=1) & np.asarray(system.x.bounds.contains(nxt), dtype=bool)
         live[rows[~ok]] = False
         if not ok.any():
@@ -155,11 +156,19 @@ def _output_peaks(system: System, record: Any) -> FloatArray:
         return np.nanmax(np.abs(y), axis=0) if len(y) else np.full(system.ny, np.nan)
 
 
-def _known_input(system: System, record: Any, steps: int) -> FloatArray:
-    """The simulations' known input (steps, nu): the record's (U's centre where missing), else U's centre."""
-    centre = np.tile(system.u.bounds.center, (steps, 1))
+def _known_input(system: System, record: Any, steps: int, rng: np.random.Generator) -> FloatArray:
+    """The two simulations' known inputs (2, steps, nu).
+
+    With a record, its u in both (U's centre where missing or beyond the record); without, U's centre in the first
+    and uniform draws from U in the excited one (U's centre in a component with an infinite side).
+    """
+    U = system.u.bounds
+    centre = np.tile(U.center, (steps, 1))
     if record is None or not system.nu:
-        return centre
+        bounded = np.isfinite(U.lower) & np.isfinite(U.upper)
+        drawn = np.where(bounded, rng.uniform(np.where(bounded, U.lower, 0.0), np.where(bounded, U.upper, 0.0),
+                                              (steps, system.nu)), centre)  # fmt: skip
+        return np.stack([centre, drawn])
     given = np.asarray(record.u, dtype=float).reshape(-1, system.nu)[:steps]
     centre[: len(given)] = np.where(np.isfinite(given), given, centre[: len(given)])
-    return centre
+    return np.stack([centre, centre])

@@ -461,9 +461,9 @@ def _design(
         shortest = min(cert.min_horizon() for cert in certificates)
         name = "max_horizon" if limit == search.max_horizon else "fallback_horizon"
         raise HorizonError(
-            f"{name}: no certified rate has an admissible horizon <= {limit} (the shortest certified "
-            f"window: {shortest}; {name}={shortest} admits it, and the estimator built from a certificate "
-            "with a shorter N runs without a guarantee)",
+            f"{name}: no certified rate has an admissible horizon <= {limit} (the shortest window of the "
+            f"certificates found at the rates tried: {shortest}; {name}={shortest} admits it, and the estimator "
+            "built from a certificate with a shorter N runs without a guarantee)",
             limit,
             shortest,
         )
