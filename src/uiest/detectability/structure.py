@@ -221,24 +221,26 @@ def _input_directions(
 
 
 def _fail_matching(rank_B: int, rank_CB: int, pointwise: int) -> NoReturn:
-    """ModelError: the matching condition rank(C B) = rank(B) fails; why, and what to do."""
-    varying = (
-        f" for the span B of the input directions: the direction of df/dw varies over the domain (its span has "
-        f"dimension {rank_B} while df/dw has rank "
-        f"{pointwise} at a point: w does not enter through a constant input matrix, e.g. an RK4 step of an ODE; "
-        "keep the input's direction constant: System.from_ode does where dx/dt = F(x, u) + G w with a constant G "
-        "(its input channel 'integral'); where G varies with the state, take G(x) w's varying factor into the "
-        "unknown input (w' = g(x) w))"
-        if pointwise < rank_B
-        else ""
+    """ModelError: the outputs do not see every direction of the span B the certificate eliminates; why, and what to do.
+
+    Where ``df/dw`` has full rank at each point but its direction varies (``pointwise < rank_B``), the pointwise
+    matching condition may hold; the span over the domain is what the outputs miss.
+    """
+    if pointwise < rank_B:
+        raise ModelError(
+            f"the unknown input's direction varies over the domain: df/dw has rank {pointwise} at a point, but its "
+            f"directions over the domain span {rank_B} dimensions, of which the next output sees {rank_CB} "
+            f"(rank(C B) = {rank_CB} < {rank_B} for that span B), so w cannot be eliminated through a constant "
+            "input matrix; this happens where w does not enter through one, e.g. an RK4 step of an ODE. Keep the "
+            "input's direction constant: System.from_ode does where dx/dt = F(x, u) + G w with a constant G (its "
+            "input channel 'integral'); where G varies with the state, take G(x) w's varying factor into the "
+            "unknown input (w' = g(x) w)"
+        )
+    raise ModelError(
+        f"matching fails: rank(C B) = {rank_CB} < rank(B) = {rank_B}: the unknown input can move the state without "
+        "changing the next output, so the system is not strongly detectable (x[k] cannot be estimated from y[..k]; "
+        "a delayed estimate may exist)"
     )
-    consequence = (
-        ""
-        if varying
-        else ": the unknown input can move the state without changing the next output, so the "
-        "system is not strongly detectable (x[k] cannot be estimated from y[..k]; a delayed estimate may exist)"
-    )
-    raise ModelError(f"matching fails: rank(C B) = {rank_CB} < rank(B) = {rank_B}{consequence}{varying}")
 
 
 def _form_directions(fun: ca.Function, nx: int, nw: int) -> tuple[list[FloatArray], int]:
