@@ -27,7 +27,10 @@ model certifies:
   increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
   dw[k]``) fitted to the record with the EKF's default prior, and ``max_horizon`` as for the UISE; its
   certificate's weights where their guarantee is informative, otherwise (with a record) the window prior from the
-  EKF's settled covariance on the record (:func:`uiest.tuning.arrival_covariance`), as for ``mhe``.
+  EKF's settled covariance on the record (:func:`uiest.tuning.arrival_covariance`), as for ``mhe``, and the discount
+  eta among the design's and :data:`~uiest.tuning.SMOOTH_DISCOUNTS` above it whose run on the record predicts the
+  outputs best one step ahead (:func:`uiest.tuning.prediction_error`; no true states); the note gives each eta's
+  error.
 - ``uio``: the linear UIO (linear models only).
 
 :func:`write_estimates` writes ``estimates_<estimator>.csv`` (t, x_hat, w_hat, the status line and
@@ -78,6 +81,7 @@ from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
 from uiest.estimators import EKF, SmoothInputMHE, StandardMHE, UISEWeights, smooth_mhe
+from uiest.health import quiet_bound_warnings
 from uiest.input_model import InputModel
 from uiest.lock import holds_folder
 from uiest.models import ModelEntry
@@ -87,7 +91,7 @@ from uiest.reduction import ReducedModel
 from uiest.results import EstimationResult, Trajectory
 from uiest.run_data import check_run_data
 from uiest.system import System
-from uiest.tuning import arrival_covariance, fit_standard_mhe, likelihood_weights
+from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariance, fit_standard_mhe, likelihood_weights, prediction_error
 from uiest.window import size as window_size
 
 if TYPE_CHECKING:
@@ -324,13 +328,23 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
     prior = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
-    data_prior = SmoothInputMHE(system, weights=weights, dw_variance=variance, dw_bound=mhe.dw_bound, N=mhe.N,
-                                x0_prior=x0, **options)  # fmt: skip
+    errors: dict[float, float] = {}
+    for eta in (weights.eta, *(eta for eta in SMOOTH_DISCOUNTS if eta > weights.eta)):
+        candidate = SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance,
+                                   dw_bound=mhe.dw_bound, N=mhe.N, x0_prior=x0, **options)  # fmt: skip
+        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
+            result = candidate.run(u if system.nu else None, y, x0_prior=x0)
+        errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
+    chosen = min(errors, key=lambda eta: errors[eta])
+    data_prior = SmoothInputMHE(system, weights=replace(weights, eta=chosen), dw_variance=variance,
+                                dw_bound=mhe.dw_bound, N=mhe.N, x0_prior=x0, **options)  # fmt: skip
     data_prior.why_uncertified = (
         f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
     )
+    tried = ", ".join(f"{eta:.3g}: {error:.3g}" for eta, error in errors.items())
     note = (f"no informative certified design (its guarantee says why); window prior: the EKF's settled covariance "
-            f"of (x, w) on the data, eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}")  # fmt: skip
+            f"of (x, w) on the data, eta={chosen:.3g} (the smallest one-step output prediction error over the "
+            f"record's second half, in output scales: {tried}), N={mhe.N}, {increments}")  # fmt: skip
     return data_prior, note
 
 

@@ -32,6 +32,10 @@ from uiest.likelihood import ProfileShape, Score, check_grid, maximise_likelihoo
 from uiest.run_data import check_run_data
 from uiest.system import System
 
+SMOOTH_DISCOUNTS = (0.95, 0.99)
+"""Discounts ``uiest estimate`` tries for the data-tuned smooth-input MHE beside its design's eta (those above it),
+choosing by :func:`prediction_error`."""
+
 ARRIVAL_FLOOR = 1e-6
 """The smallest standard deviation, in scales of x, of :func:`arrival_covariance` along any direction (a window solve
 resolves about 1e-8 of a scale)."""
@@ -142,6 +146,29 @@ def likelihood_weights(
     white = WhiteInputEKF(system, w_variance=w_variance, x0_prior=x0_prior, v_covariance=v_covariance, P0=P0)
     return MHEWeights.from_variances(system, eta, w_variance=w_variance, v_covariance=v_covariance,
                                      P0=arrival_covariance(white, u_arr, y_arr), at=x0_prior)  # fmt: skip
+
+
+def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: FloatArray, y: FloatArray) -> float:
+    """The RMS one-step output prediction error of a run over the record's second half, in output scales.
+
+    ``y[k+1] - h(f(x_hat[k], u[k], w))`` (no noise) for ``k = K // 2 .. K - 1``, with ``w`` the newest estimate of the
+    unknown input at time k (``w_hat[k-1]``, else ``w_hat[k-2]``, else ``nominal_w``): x_hat[k] has seen ``y[..k]``
+    only, so this scores an estimator without the true states. ``x_hat (K+1, nx)``, ``w_hat (K, nw)``, ``u (K, nu)``,
+    ``y (K+1, ny)``; missing outputs are left out; inf where no output or prediction is finite.
+    """
+    K = len(y) - 1
+    errors = []
+    for k in range(K // 2, K):
+        newest = [w_hat[j] for j in (k - 1, k - 2) if 0 <= j < len(w_hat) and np.all(np.isfinite(w_hat[j]))]
+        w = newest[0] if newest else system.nominal_w
+        if not np.all(np.isfinite(x_hat[k])):
+            continue
+        with np.errstate(all="ignore"):
+            errors.append((y[k + 1] - system.output(system.step(x_hat[k], u[k], w))) / system.y.scale)
+    squares = np.square(np.asarray(errors, dtype=float))
+    if not np.isfinite(squares).any():
+        return float("inf")
+    return float(np.sqrt(np.nanmean(np.where(np.isfinite(squares), squares, np.nan))))
 
 
 def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray, *, with_input: bool = False) -> FloatArray:
