@@ -43,7 +43,7 @@ from uiest.input_model import InputModel
 from uiest.models import SimulationSetup
 from uiest.noise import UniformNoise
 from uiest.run_data import check_run_data
-from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariance, fit_standard_mhe, prediction_error
+from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariance, fit_standard_mhe, prediction_error, preferred_discount
 
 ONE = 1.0 - 1e-9
 ROOT = Path(__file__).resolve().parents[1]
@@ -140,7 +140,10 @@ def runs(entry: models.ModelEntry, seed: int, prior: str) -> dict[str, dict[str,
         weights = replace(standard.weights, eta=FALLBACK_RATE if eta is None else eta)
         out[f"mhe {label}"] = score(StandardMHE(system, weights=weights, N=DEFAULT_HORIZON, x0_prior=x0))
     library = ["smooth design"] + [f"smooth {eta:g}" for eta in SMOOTH_DISCOUNTS]  # the set uiest estimate tries
-    out["smooth by prediction"] = min((out[label] for label in library), key=lambda r: r["predicted"])
+    errors = {float(design.weights.eta if label == "smooth design" else label.split()[1]): out[label]["predicted"]
+              for label in library}  # fmt: skip
+    chosen = preferred_discount(errors, design.weights.eta)
+    out["smooth by prediction"] = out["smooth design" if chosen == design.weights.eta else f"smooth {chosen:g}"]
     out["mhe by prediction"] = min(
         (r for label, r in out.items() if label.startswith("mhe")), key=lambda r: r["predicted"]
     )

@@ -3,6 +3,7 @@
 import dataclasses
 import json
 
+import casadi as ca
 import numpy as np
 import pytest
 from exact_rates import contraction_rate
@@ -330,6 +331,18 @@ def test_a_narrow_diagonal_ridge_in_the_coupling_is_not_certified():
     assert exact.cover.vertices[:, 1, 2].max() >= 2.1 - 1e-9  # the coupling's bound covers the ridge
     sampled = certify_strong_detectability(_ridge(), cover="sampled")
     assert not sampled.certified and sampled.status in ("holds at the samples, not proved", "refuted")
+
+
+def test_a_varying_input_direction_the_output_never_sees_is_a_matching_failure():
+    # w enters along (cos x3, sin x3, 0), y = x3: the output sees no direction of w at any point (matching fails
+    # everywhere), which a constant input direction would not mend
+    def f(x, u, w):
+        return [0.5 * x[0] + w[0] * ca.cos(x[2]), 0.5 * x[1] + w[0] * ca.sin(x[2]), 0.9 * x[2] + 0.1 * x[0]]
+
+    system = System.from_callables(f, lambda x, v: [x[2] + v[0]], nx=3, nw=1, nv=1, x_bounds=(-1.0, 1.0),
+                                   v_bounds=(-1e-3, 1e-3))  # fmt: skip
+    with pytest.raises(ModelError, match=r"^matching fails: rank\(C B\) = 0 < rank\(B\) = 2"):
+        certify_strong_detectability(system)
 
 
 def test_an_input_that_leaks_into_an_unmeasured_state_on_a_narrow_band_is_refused():

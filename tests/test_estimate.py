@@ -327,25 +327,41 @@ def test_the_one_step_prediction_error_of_the_true_states_is_the_output_noise():
     from uiest.noise import UniformNoise
     from uiest.tuning import prediction_error
 
-    # a constant unknown input: f(x[k], u[k], w[k-1]) is x[k+1], and y[k+1] - h(x[k+1]) is the noise v[k+1]
+    # x[k+1] = f(x[k], u[k], w[k]): with the true states and the newest estimate w_hat[k-1] equal to the true w[k]
+    # (the truth shifted by one step), y[k+1] - h(f(...)) is the noise v[k+1]
     system = linear_models.linear_system([[0.9, 0.2], [0.0, 0.7]], [[1.0], [0.5]], [[1.0, 0.0]], x_bounds=(-50, 50),
                                          v_bounds=(-0.1, 0.1))  # fmt: skip
-    truth = simulate(system, [1.0, -1.0], 80, w=np.full((80, 1), 0.3), v=UniformNoise.symmetric(0.1), seed=2)
-    error = prediction_error(system, truth.x, truth.w, np.zeros((80, 0)), truth.y)
+    w = np.sin(0.3 * np.arange(80))[:, None]
+    truth = simulate(system, [1.0, -1.0], 80, w=w, v=UniformNoise.symmetric(0.1), seed=2)
+    newest = np.vstack([w[1:], [[np.nan]]])  # w_hat[k-1] = w[k]
+    u = np.zeros((80, 0))
+    error = prediction_error(system, truth.x, newest, u, truth.y)
     noise = truth.v[41:, 0] / system.y.scale[0]
     assert error == pytest.approx(np.sqrt(np.mean(noise**2)), rel=1e-12)
+    assert prediction_error(system, truth.x, w, u, truth.y) > 1.5 * error  # w_hat[k] taken for w[k]: one step late
     # a missing output is left out; estimates that are not finite anywhere score inf
     y = truth.y.copy()
     y[60] = np.nan
-    assert prediction_error(system, truth.x, truth.w, np.zeros((80, 0)), y) == pytest.approx(
+    assert prediction_error(system, truth.x, newest, u, y) == pytest.approx(
         np.sqrt(np.mean(np.delete(noise, 60 - 41) ** 2)), rel=1e-12
     )
-    assert prediction_error(system, np.full_like(truth.x, np.nan), truth.w, np.zeros((80, 0)), y) == np.inf
+    assert prediction_error(system, np.full_like(truth.x, np.nan), newest, u, y) == np.inf
+
+
+def test_another_discount_replaces_the_design_only_when_it_predicts_more_than_two_percent_better():
+    from uiest.tuning import preferred_discount
+
+    assert preferred_discount({0.8: 1.0, 0.95: 0.99, 0.99: 0.985}, 0.8) == 0.8  # within the scatter
+    assert preferred_discount({0.8: 1.0, 0.95: 0.97, 0.99: 0.975}, 0.8) == 0.95
+    assert (
+        preferred_discount({0.8: 1.0, 0.95: np.inf}, 0.8) == 0.8
+        and preferred_discount({0.8: np.inf, 0.95: 1.0}, 0.8) == 0.95
+    )
 
 
 def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_outputs_best():
     from uiest.estimate import build_estimator
-    from uiest.tuning import SMOOTH_DISCOUNTS, prediction_error
+    from uiest.tuning import SMOOTH_DISCOUNTS, prediction_error, preferred_discount
 
     # the crop model's augmented model does not certify: the window prior is the EKF's settled covariance on the
     # data, and the discount (0.8 by default) is chosen among it, 0.95 and 0.99 by the one-step prediction error
@@ -353,12 +369,11 @@ def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_out
     system, setup = entry.build(), entry.simulation()
     record = simulate(system, setup.x0, 100, u=setup.u, w=setup.w, v=setup.noise, seed=1)
     smooth, note = build_estimator("smooth", entry, system, setup.x0, record=record)
-    tried = dict(
-        (float(eta), float(error)) for eta, error in
-        (part.split(": ") for part in note.split("in output scales: ")[1].split("), N=")[0].split(", "))
-    )  # fmt: skip
-    assert list(tried)[1:] == list(SMOOTH_DISCOUNTS) and next(iter(tried)) < SMOOTH_DISCOUNTS[0]
-    assert smooth.weights.eta == min(tried, key=lambda eta: tried[eta]) and f"eta={smooth.weights.eta:.3g} (" in note
+    listed = note.split("; in output scales ")[1].split("), N=")[0]
+    tried = {float(eta): float(error) for eta, error in (part.split(": ") for part in listed.split(", "))}
+    design = next(iter(tried))
+    assert list(tried)[1:] == list(SMOOTH_DISCOUNTS) and design < SMOOTH_DISCOUNTS[0]
+    assert smooth.weights.eta == preferred_discount(tried, design) and f"eta={smooth.weights.eta:.3g} (" in note
     result = smooth.run(record.u, record.y, x0_prior=setup.x0)  # the chosen estimator's own run scores as noted
     chosen = prediction_error(system, result.x_hat, result.w_hat, record.u, record.y)
     assert chosen == pytest.approx(tried[smooth.weights.eta], rel=1e-3)

@@ -179,3 +179,17 @@ def test_an_input_integral_that_overflows_in_x_is_warned_of_not_raised():
     # over the runaway region exp(A dt) overflows: the spread was a numpy LinAlgError ("SVD did not converge")
     said = [m for m in _runaway_cstr(method="collocation") if "per-sample integral" in m]
     assert len(said) == 1 and "more than doubles can hold" in said[0]
+
+
+def test_the_collocation_check_does_not_depend_on_the_states_units():
+    # dx/dt = -100 x^3 / s^2 over X = [-s, s], one step of 1: the Newton iterations stall (the step lands at -0.25 s
+    # where the flow reaches 0.07 s) in whatever unit s the state is written
+    def said(s):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            spec = {"x_bounds": (-s, s), "v_bounds": (-0.01 * s, 0.01 * s), "dt": 1.0, "method": "collocation"}
+            System.from_ode(lambda x, u, w: [-(100.0 / s**2) * x[0] ** 3 + w[0]], lambda x, v: [x[0] + v[0]], nx=1,
+                            nw=1, nv=1, **spec)  # fmt: skip
+        return [str(c.message).split(" (")[1].split(",")[0] for c in caught if "Newton" in str(c.message)]
+
+    assert said(1.0) == said(1e-7) == ["the step's error from them 0.63 of X's width"]

@@ -130,3 +130,29 @@ def test_a_reduction_that_cannot_be_cut_to_x_names_the_box_that_leaves_x():
     text = str(caught.value)
     assert "z_sharp in [-0.006953, 1.59]" in text and "x [-0.0009401, 1.701]" in text
     assert "psi affine in (gamma, v)" in text
+
+
+def test_pairs_admitted_from_a_thin_domain_are_half_close_and_none_admitted_is_reported_not_raised():
+    import casadi as ca
+
+    from uiest.box import Box
+    from uiest.detectability import falsify
+    from uiest.detectability.certificate import ADMIT_DRAWS, sample_admitted_pairs
+
+    box, shared, scale = Box((-1.0, -1.0), (1.0, 1.0)), Box((0.0,), (1.0,)), np.ones(2)
+
+    def slab(a, b, s):  # both points in 0.5 <= z0 <= 1: a close pair lands there four times as often as a far one
+        return (a[:, 0] >= 0.5) & (b[:, 0] >= 0.5)
+
+    a, b, s, drawn = sample_admitted_pairs(np.random.default_rng(0), box, shared, 400, scale, slab)
+    assert len(a) == len(b) == len(s) == 400 < drawn <= ADMIT_DRAWS * 400 and slab(a, b, s).all()
+    distance = np.linalg.norm(a - b, axis=1)  # close pairs first: sample_pairs' steps of at most 0.1 sqrt(8)
+    assert np.all(distance[:200] <= 0.1 * np.sqrt(8.0)) and np.median(distance[200:]) > 0.1 * np.sqrt(8.0)
+    nothing = sample_admitted_pairs(np.random.default_rng(0), box, shared, 40, scale, lambda a, b, s: a[:, 0] > 2.0)
+    assert nothing[0].shape == (0, 2) and nothing[3] == ADMIT_DRAWS * 40
+    # the search over a domain no drawn pair lies in scores none and says so
+    x, y, u = ca.SX.sym("x", 2), ca.SX.sym("y", 2), ca.SX.sym("u", 1)
+    terms = ca.Function("terms", [x, y, u], [ca.sumsqr(x - y), 2.0 * ca.sumsqr(x - y)])
+    found = falsify.search(terms, box, shared, scale, admit=lambda a, b, s: a[:, 0] > 2.0, pairs=40)
+    assert found.scored == 0 and found.pairs == ADMIT_DRAWS * 40 and not found.refuted
+    assert f"no pairs scored of {ADMIT_DRAWS * 40:,} drawn" in found.text()

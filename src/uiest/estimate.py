@@ -81,6 +81,7 @@ from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
 from uiest.estimators import EKF, SmoothInputMHE, StandardMHE, UISEWeights, smooth_mhe
+from uiest.estimators.design_search import ERROR_TOLERANCE
 from uiest.health import quiet_bound_warnings
 from uiest.input_model import InputModel
 from uiest.lock import holds_folder
@@ -91,7 +92,14 @@ from uiest.reduction import ReducedModel
 from uiest.results import EstimationResult, Trajectory
 from uiest.run_data import check_run_data
 from uiest.system import System
-from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariance, fit_standard_mhe, likelihood_weights, prediction_error
+from uiest.tuning import (
+    SMOOTH_DISCOUNTS,
+    arrival_covariance,
+    fit_standard_mhe,
+    likelihood_weights,
+    prediction_error,
+    preferred_discount,
+)
 from uiest.window import size as window_size
 
 if TYPE_CHECKING:
@@ -328,24 +336,42 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
     prior = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
-    errors: dict[float, float] = {}
-    for eta in (weights.eta, *(eta for eta in SMOOTH_DISCOUNTS if eta > weights.eta)):
-        candidate = SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance,
-                                   dw_bound=mhe.dw_bound, N=mhe.N, x0_prior=x0, **options)  # fmt: skip
-        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
-            result = candidate.run(u if system.nu else None, y, x0_prior=x0)
-        errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
-    chosen = min(errors, key=lambda eta: errors[eta])
+    chosen, why_eta = _smooth_discount(system, weights, variance, mhe, x0, options, u, y)
     data_prior = SmoothInputMHE(system, weights=replace(weights, eta=chosen), dw_variance=variance,
                                 dw_bound=mhe.dw_bound, N=mhe.N, x0_prior=x0, **options)  # fmt: skip
     data_prior.why_uncertified = (
         f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
     )
-    tried = ", ".join(f"{eta:.3g}: {error:.3g}" for eta, error in errors.items())
     note = (f"no informative certified design (its guarantee says why); window prior: the EKF's settled covariance "
-            f"of (x, w) on the data, eta={chosen:.3g} (the smallest one-step output prediction error over the "
-            f"record's second half, in output scales: {tried}), N={mhe.N}, {increments}")  # fmt: skip
+            f"of (x, w) on the data, eta={chosen:.3g} ({why_eta}), N={mhe.N}, {increments}")  # fmt: skip
     return data_prior, note
+
+
+def _smooth_discount(system: System, weights: Any, variance: FloatArray, design: SmoothInputMHE, x0: FloatArray,
+                     options: dict[str, Any], u: FloatArray, y: FloatArray) -> tuple[float, str]:  # fmt: skip
+    """The data-tuned smooth-input MHE's eta, and why: the design's, or one of :data:`SMOOTH_DISCOUNTS` above it.
+
+    Each candidate runs on the record and is scored by its one-step output prediction error
+    (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`).
+    """
+    candidates = (weights.eta, *(eta for eta in SMOOTH_DISCOUNTS if eta > weights.eta))
+    if len(candidates) == 1:
+        return weights.eta, f"the design's, above {max(SMOOTH_DISCOUNTS):g}"
+    errors: dict[float, float] = {}
+    for eta in candidates:
+        candidate = SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance,
+                                   dw_bound=design.dw_bound, N=design.N, x0_prior=x0, **options)  # fmt: skip
+        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
+            result = candidate.run(u if system.nu else None, y, x0_prior=x0)
+        errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
+    chosen = preferred_discount(errors, weights.eta)
+    tried = ", ".join(f"{eta:.3g}: {error:.4g}" for eta, error in errors.items())
+    margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
+    what = "the one-step output prediction error over the record's second half"
+    rule = (f"{what} is more than {margin} below the design eta's" if chosen != weights.eta
+            else f"the design's: no other eta's {what} is more than {margin} below it")  # fmt: skip
+    rule = f"{rule}; in output scales {tried}"
+    return chosen, rule
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],

@@ -92,59 +92,70 @@ def rk4_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, 
 def radau_step(rhs: ca.Function, x: ca.SX, u: ca.SX, w: ca.SX | ca.DM, dt: float, substeps: int) -> ca.SX:
     """``substeps`` two-stage Radau IIA steps of ``dx/dt = rhs(x, u, w)`` over ``dt`` (module docstring)."""
     h, n = dt / substeps, x.numel()
-    stages = RADAU_A.shape[0]
-    k = ca.SX.sym("k", n * stages)
-    x0 = ca.SX.sym("x0", n)
-    points = [x0 + h * sum(RADAU_A[i, j] * k[j * n : (j + 1) * n] for j in range(stages)) for i in range(stages)]
-    residual = k - ca.vertcat(*[rhs(p, u, w) for p in points])
-    newton = ca.Function("newton", [k, x0, u] + ([w] if isinstance(w, ca.SX) else []),
-                         [k - ca.solve(ca.jacobian(residual, k), residual)])  # fmt: skip
+    symbols = [u] + ([w] if isinstance(w, ca.SX) else [])
+    newton, _ = _radau_newton(rhs, n, h, u, w, symbols)
     for _ in range(substeps):
-        guess = ca.SX.zeros(n * stages)
+        guess = ca.SX.zeros(n * RADAU_A.shape[0])
         for _ in range(NEWTON_ITERATIONS):
-            guess = newton(guess, x, u, *([w] if isinstance(w, ca.SX) else []))
-        x = x + h * sum(RADAU_B[j] * guess[j * n : (j + 1) * n] for j in range(stages))
+            guess = newton(guess, x, *symbols)
+        x = x + h * sum(RADAU_B[j] * guess[j * n : (j + 1) * n] for j in range(RADAU_A.shape[0]))
     return x
 
 
+def _radau_newton(
+    rhs: ca.Function, n: int, h: float, u: ca.SX, w: ca.SX | ca.DM, symbols: list[ca.SX]
+) -> tuple[ca.Function, ca.Function]:
+    """One Newton iteration on a Radau IIA step's stage equations, and their residual, as Functions.
+
+    Both take ``(k (n stages,), x0 (n,), *symbols)``: the stacked stage derivatives, the step's start, then the
+    symbols ``u`` and ``w`` are among. The residual is ``k - rhs(stage points)``.
+    """
+    stages = RADAU_A.shape[0]
+    k, x0 = ca.SX.sym("k", n * stages), ca.SX.sym("x0", n)
+    points = [x0 + h * sum(RADAU_A[i, j] * k[j * n : (j + 1) * n] for j in range(stages)) for i in range(stages)]
+    residual = k - ca.vertcat(*[rhs(p, u, w) for p in points])
+    newton = ca.Function("newton", [k, x0, *symbols], [k - ca.solve(ca.jacobian(residual, k), residual)])
+    return newton, ca.Function("stage_residual", [k, x0, *symbols], [residual])
+
+
 COLLOCATION_RTOL = 1e-6
-"""The stage equations' residual after the Newton iterations, relative to the stage derivatives' size, above which
-:func:`collocation_unconverged` reports a point."""
+"""The step's error from the stage equations' residual after the Newton iterations (``h |residual|``), relative to the
+state's width in X, above which :func:`collocation_unconverged` reports a point."""
 
 
 def collocation_unconverged(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, h: float) -> str | None:
     """Where one collocation step of length ``h`` leaves its stage equations unsolved in ``box``, or None.
 
-    At the points of :func:`_probe_jacobians` (u at ``u_ref``, w at ``w_ref``), the residual ``k - F(stage points)``
-    after the :data:`NEWTON_ITERATIONS` Newton iterations against :data:`COLLOCATION_RTOL` times ``1 + max |k|``
-    (NaN counts as unsolved).
+    At the points of :func:`_probe_jacobians` (u at ``u_ref``, w at ``w_ref``), the residual ``r = k - F(stage
+    points)`` after the :data:`NEWTON_ITERATIONS` Newton iterations: a point is reported where ``h |r_i|`` (state i,
+    either stage) exceeds :data:`COLLOCATION_RTOL` times state i's width in ``box`` (``1 + |x_i|`` where the width is
+    not finite); NaN counts as unsolved.
     """
     points, _ = _probe_jacobians(rhs, box, u_ref, w_ref)
     if not len(points):
         return None
     n, stages, m = box.size, RADAU_A.shape[0], len(points)
-    k, x0 = ca.SX.sym("k", n * stages), ca.SX.sym("x0", n)
-    u, w = ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
-    stage_points = [x0 + h * sum(RADAU_A[i, j] * k[j * n : (j + 1) * n] for j in range(stages)) for i in range(stages)]
-    residual = k - ca.vertcat(*[rhs(p, u, w) for p in stage_points])
-    newton = ca.Function("newton", [k, x0, u, w], [k - ca.solve(ca.jacobian(residual, k), residual)])
+    x0, u, w = ca.SX.sym("x0", n), ca.SX.sym("u", u_ref.size), ca.SX.sym("w", w_ref.size)
+    newton, left = _radau_newton(rhs, n, h, u, w, [u, w])
     guess = ca.SX.zeros(n * stages)
     for _ in range(NEWTON_ITERATIONS):
         guess = newton(guess, x0, u, w)
-    left = ca.Function("stage_residual", [k, x0, u, w], [residual])
-    solved = ca.Function("unsolved", [x0, u, w], [left(guess, x0, u, w), guess]).map(m)
+    unsolved = ca.Function("unsolved", [x0, u, w], [left(guess, x0, u, w)]).map(m)
     with np.errstate(over="ignore", invalid="ignore"):
-        r, ks = (np.asarray(v, dtype=float) for v in solved(points.T, np.tile(u_ref, (m, 1)).T,
-                                                            np.tile(w_ref, (m, 1)).T))  # fmt: skip
-        relative = np.abs(r).max(axis=0) / (1.0 + np.abs(ks).max(axis=0))
+        r = np.asarray(unsolved(points.T, np.tile(u_ref, (m, 1)).T, np.tile(w_ref, (m, 1)).T), dtype=float)
+        error = h * np.abs(r.reshape(stages, n, m)).max(axis=0)  # (n, m): each state's step error
+        width = np.where(np.isfinite(box.width) & (box.width > 0), box.width, 0.0)[:, None]
+        relative = (error / np.where(width > 0, width, 1.0 + np.abs(points.T))).max(axis=0)
     relative = np.where(np.isfinite(relative), relative, np.inf)
     worst = int(np.argmax(relative))
     if relative[worst] <= COLLOCATION_RTOL:
         return None
-    size = f"{relative[worst]:.2g} of the stage derivatives' size" if np.isfinite(relative[worst]) else "not finite"
-    return (f"collocation's {NEWTON_ITERATIONS} Newton iterations leave its stage equations unsolved at x = "
-            f"{np.round(points[worst], 6).tolist()} (residual {size}, step {h:.4g}): the sampled model is wrong "
-            "there; more substeps")  # fmt: skip
+    size = f"{relative[worst]:.2g} of X's width" if np.isfinite(relative[worst]) else "not finite"
+    where = [float(f"{value:.6g}") for value in points[worst]]
+    return (
+        f"collocation's {NEWTON_ITERATIONS} Newton iterations leave its stage equations unsolved at x = {where} "
+        f"(the step's error from them {size}, step {h:.4g}): the sampled model is wrong there; more substeps"
+    )
 
 
 RK4_REAL_LIMIT = 2.785

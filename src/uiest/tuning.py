@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray
 from uiest.errors import OptionError
+from uiest.estimators.design_search import ERROR_TOLERANCE
 from uiest.estimators.kalman import EKF
 from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.weights import MHEWeights
@@ -169,6 +170,16 @@ def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: Fl
     if not np.isfinite(squares).any():
         return float("inf")
     return float(np.sqrt(np.nanmean(np.where(np.isfinite(squares), squares, np.nan))))
+
+
+def preferred_discount(errors: dict[float, float], design: float) -> float:
+    """The eta to use of ``errors`` (eta -> :func:`prediction_error`).
+
+    The design's, unless another's error is smaller by more than the design search's ``ERROR_TOLERANCE`` (a
+    smaller difference is within a record's scatter).
+    """
+    best = min(errors, key=lambda eta: errors[eta])
+    return best if errors[best] * ERROR_TOLERANCE < errors[design] else design
 
 
 def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray, *, with_input: bool = False) -> FloatArray:

@@ -397,20 +397,25 @@ def sample_admitted_pairs(
     """Up to ``n_pairs`` pairs ``(z, z~)`` of :func:`sample_pairs` with a shared point ``s`` that ``admit`` accepts.
 
     Batches of ``n_pairs`` pairs (and ``s`` from ``shared``) are drawn until ``n_pairs`` are admitted or
-    :data:`ADMIT_DRAWS` times ``n_pairs`` were drawn; the admitted pairs of the last batch needed are a random
-    subset. ``admit(z (m, n), z~ (m, n), s (m, ns))`` returns a boolean mask (m,). Returns ``z, z~`` (k, n),
-    ``s`` (k, ns) with ``k <= n_pairs``, and the number of pairs drawn.
+    :data:`ADMIT_DRAWS` times ``n_pairs`` were drawn. The close pairs and the others are admitted up to half each (a
+    close pair lies in a thin domain more often than two independent points), a random subset of the last batch
+    needed. ``admit(z (m, n), z~ (m, n), s (m, ns))`` returns a boolean mask (m,). Returns ``z, z~`` (k, n) (the close
+    pairs first), ``s`` (k, ns) with ``0 <= k <= n_pairs``, and the number of pairs drawn.
     """
-    kept: list[tuple[FloatArray, FloatArray, FloatArray]] = []
-    count = drawn = 0
-    while count < n_pairs and drawn < ADMIT_DRAWS * n_pairs:
+    close_quota = n_pairs // 2
+    kept: list[list[tuple[FloatArray, FloatArray, FloatArray]]] = [[], []]  # close pairs, the others
+    wanted = [close_quota, n_pairs - close_quota]
+    drawn = 0
+    while any(wanted) and drawn < ADMIT_DRAWS * n_pairs:
         a, b = sample_pairs(rng, box, n_pairs, scale, directions)
         s = shared.sample(rng, n_pairs)
         drawn += n_pairs
-        take = rng.permutation(np.flatnonzero(admit(a, b, s)))[: n_pairs - count]
-        kept.append((a[take], b[take], s[take]))
-        count += len(take)
-    a, b, s = (np.vstack([part[i] for part in kept]) for i in range(3))
+        admitted = np.asarray(admit(a, b, s), dtype=bool)
+        for part, rows in enumerate((np.arange(close_quota), np.arange(close_quota, n_pairs))):
+            take = rng.permutation(rows[admitted[rows]])[: wanted[part]]
+            kept[part].append((a[take], b[take], s[take]))
+            wanted[part] -= len(take)
+    a, b, s = (np.vstack([piece[i] for part in kept for piece in part]) for i in range(3))
     return a, b, s, drawn
 
 

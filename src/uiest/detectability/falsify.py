@@ -202,6 +202,11 @@ def search(
         a, b = np.vstack([a, base]), np.vstack([b, domain.clip(base + step * d * scale)])
         drawn += len(base)
     s = np.vstack([s, shared.sample(rng, len(a) - len(s))])
+    if not len(a):  # a domain so thin that no drawn pair lies in it
+        nothing = np.full(n, np.nan)
+        return Falsification(pairs=drawn, scored=0, searches=0, evaluations=0, worst_ratio=-np.inf, first=nothing,
+                             second=nothing.copy(), shared=np.full(ns, np.nan), labels=labels,
+                             seconds=time.thread_time() - start)  # fmt: skip
     lhs, rhs = (np.asarray(v, dtype=float).ravel() for v in terms.map(len(a))(a.T, b.T, s.T))
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = np.where(rhs > 0.0, lhs / rhs, np.where(lhs > 0.0, np.inf, -np.inf))

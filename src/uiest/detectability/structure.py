@@ -223,10 +223,11 @@ def _input_directions(
 def _fail_matching(rank_B: int, rank_CB: int, pointwise: int) -> NoReturn:
     """ModelError: the outputs do not see every direction of the span B the certificate eliminates; why, and what to do.
 
-    Where ``df/dw`` has full rank at each point but its direction varies (``pointwise < rank_B``), the pointwise
-    matching condition may hold; the span over the domain is what the outputs miss.
+    Where the next output sees as many directions as ``df/dw`` has at a point (``rank_CB >= pointwise``) but that
+    direction varies over the domain (``pointwise < rank_B``), the matching condition may hold at each point; the span
+    over the domain is what the outputs miss. Otherwise matching fails.
     """
-    if pointwise < rank_B:
+    if pointwise <= rank_CB < rank_B:
         raise ModelError(
             f"the unknown input's direction varies over the domain: df/dw has rank {pointwise} at a point, but its "
             f"directions over the domain span {rank_B} dimensions, of which the next output sees {rank_CB} "
