@@ -294,6 +294,7 @@ def test_estimate_writes_a_manifest_of_its_record_and_removes_the_estimates_of_a
     assert result.exit_code == 0, result.output
     manifest = json.loads((out / "manifest.json").read_text())
     assert manifest["estimators"] == ["ekf", "ukf"] and manifest["model"] == {"name": "closed-form", "sha256": ""}
+    assert list(manifest["weights"]) == ["ekf", "ukf"] and "random-walk variance 0.01" in manifest["weights"]["ekf"]
     assert manifest["files"] == ["estimates.png", "estimates_ekf.csv", "estimates_ukf.csv"]
     (out / "notes.txt").write_text("mine")
     model = tmp_path / "gain.py"

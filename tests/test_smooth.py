@@ -1,6 +1,7 @@
 """The smooth-input MHE: the augmented model, known answers (Kalman filter, the window's least squares), sampled
 mechanical systems whose sampling zero defeats the UISE, jumps, guarantees, bad input, CLI and study."""
 
+import json
 import warnings
 
 import numpy as np
@@ -387,7 +388,8 @@ def test_uiest_estimate_runs_the_smooth_input_mhe_on_a_model_file(tmp_path, pend
     # without --w-variance: the EKF's random-walk variance fitted to the record by likelihood, as its increments'
     fitted = CliRunner().invoke(app, ["estimate", str(model), "--data", str(data), "--estimator", "smooth",
                                       "--x0", "0.5,0", "--out", str(out)], terminal_width=400)  # fmt: skip
-    assert fitted.exit_code == 0 and "increment variance" in fitted.output, fitted.output
+    assert fitted.exit_code == 0, fitted.output
+    assert "increment variance" in json.loads((out / "manifest.json").read_text())["weights"]["smooth"]
     estimates = pd.read_csv(out / "estimates_smooth.csv")
     assert rms(estimates["omega_hat"][20:] - x[20:, 1]) < 0.03
     from uiest.estimate import build_estimator

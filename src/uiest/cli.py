@@ -309,7 +309,8 @@ def estimate(
             warnings.warn_explicit(caught_warning.message, caught_warning.category, caught_warning.filename,
                                    caught_warning.lineno)  # fmt: skip
     given = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}
-    manifest = _estimate_manifest(model=model, data=data, prior=prior, estimators=list(results), not_run=skipped,
+    manifest = _estimate_manifest(model=model, data=data, prior=prior, estimators=list(results),
+                                  weights={kind: notes[kind] for kind in results}, not_run=skipped,
                                   options=given)  # fmt: skip
     written = write_estimates(out, system, record, results, manifest=manifest)
     console.print(f"wrote {', '.join(str(p) for p in written)}", markup=False, soft_wrap=True)
@@ -318,7 +319,8 @@ def estimate(
 def _estimate_manifest(*, model: str, data: Path, prior: Any, **run: Any) -> dict[str, Any]:
     """``uiest estimate``'s manifest.json: the model and the record (path, SHA-256), the prior, the estimators.
 
-    Also those not run (with why), the options, and the call (:func:`uiest.experiments.provenance.stamp`).
+    Also how each estimator's weights were chosen (the table's column), those not run (with why), the options, and the
+    call (:func:`uiest.experiments.provenance.stamp`).
     """
     path = str(Path(model).resolve()) if model.endswith(".py") else model
     return {
