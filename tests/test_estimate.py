@@ -370,11 +370,35 @@ def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_out
     system, setup = entry.build(), entry.simulation()
     record = simulate(system, setup.x0, 100, u=setup.u, w=setup.w, v=setup.noise, seed=1)
     smooth, note = build_estimator("smooth", entry, system, setup.x0, record=record)
-    listed = note.split("; in output scales ")[1].split("), N=")[0]
-    tried = {float(eta): float(error) for eta, error in (part.split(": ") for part in listed.split(", "))}
+    tried = _tried_discounts(note)
     design = next(iter(tried))
     assert list(tried)[1:] == list(SMOOTH_DISCOUNTS) and design < SMOOTH_DISCOUNTS[0]
-    assert smooth.weights.eta == preferred_discount(tried, design) and f"eta={smooth.weights.eta:.3g} (" in note
+    assert smooth.weights.eta == preferred_discount(tried, design) != design  # 0.95 or 0.99 predicts better here
+    assert f"eta={smooth.weights.eta:.3g} (its one-step output prediction error" in note
     result = smooth.run(record.u, record.y, x0_prior=setup.x0)  # the chosen estimator's own run scores as noted
     chosen = prediction_error(system, result.x_hat, result.w_hat, record.u, record.y)
     assert chosen == pytest.approx(tried[smooth.weights.eta], rel=1e-3)
+    # on the closed-form model the three predict alike: the design's eta stays, and the note says why
+    entry = get("closed-form")
+    system, setup = entry.build(), entry.simulation()
+    record = simulate(system, setup.x0, 100, u=setup.u, w=setup.w, v=setup.noise, seed=1)
+    smooth, note = build_estimator("smooth", entry, system, setup.x0, record=record)
+    tried = _tried_discounts(note)
+    assert smooth.weights.eta == pytest.approx(next(iter(tried)), rel=1e-3) and next(iter(tried)) < SMOOTH_DISCOUNTS[0]
+    assert "(the design's: no other eta's one-step output prediction error over the record's second half is" in note
+
+
+def _tried_discounts(note):
+    """The etas and prediction errors a data-tuned smooth MHE's note lists."""
+    listed = note.split("; the errors in output scales: ")[1].split("), N=")[0]
+    return {float(eta): float(error) for eta, error in (part[len("eta ") :].split(": ") for part in listed.split(", "))}
+
+
+def test_a_design_eta_above_every_discount_tried_is_kept_without_a_trial_run():
+    from types import SimpleNamespace
+
+    from uiest.estimate import _smooth_discount
+
+    system = get("closed-form").build()  # no run: the design (None) and the record are never read
+    eta, why = _smooth_discount(system, SimpleNamespace(eta=0.995), np.ones(1), None, np.zeros(2), {}, None, None)
+    assert eta == 0.995 and why == "the design's; none of 0.95, 0.99 is above it"

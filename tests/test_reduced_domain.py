@@ -156,3 +156,12 @@ def test_pairs_admitted_from_a_thin_domain_are_half_close_and_none_admitted_is_r
     found = falsify.search(terms, box, shared, scale, admit=lambda a, b, s: a[:, 0] > 2.0, pairs=40)
     assert found.scored == 0 and found.pairs == ADMIT_DRAWS * 40 and not found.refuted
     assert f"no pairs scored of {ADMIT_DRAWS * 40:,} drawn" in found.text()
+    # verify on such a domain tests nothing: no ratio (NaN), so it does not hold
+    from types import SimpleNamespace
+
+    from uiest.detectability import dissipation
+
+    model = SimpleNamespace(n=2, z_box=box, d_box=Box((-1.0,), (1.0,)), z_scale=scale, d_scale=np.ones(1), u_box=shared,
+                            lift=SimpleNamespace(admits=lambda a, b, u, n: np.zeros(len(a), dtype=bool)))  # fmt: skip
+    check = dissipation.check_pairs(model, np.eye(2), 0.9, [np.eye(1)], np.eye(1), 10, 0)
+    assert check.pairs == 0 and check.drawn == ADMIT_DRAWS * 10 and np.isnan(check.worst_ratio)

@@ -275,8 +275,8 @@ def estimate(
 ) -> None:
     """Estimate states and unknown inputs from measurements.
 
-    Writes estimates_<estimator>.csv, estimates.png and manifest.json (the record and model files) to --out, and
-    removes the estimates_*.csv an earlier run left there.
+    Writes estimates_<estimator>.csv, estimates.png and manifest.json (the record and model files, how each
+    estimator's weights were chosen) to --out, and removes the estimates_*.csv an earlier run left there.
     """
     _positive(lag, "--lag", allow_zero=True)
     _positive(horizon, "--horizon")

@@ -356,7 +356,7 @@ def _smooth_discount(system: System, weights: Any, variance: FloatArray, design:
     """
     candidates = (weights.eta, *(eta for eta in SMOOTH_DISCOUNTS if eta > weights.eta))
     if len(candidates) == 1:
-        return weights.eta, f"the design's, above {max(SMOOTH_DISCOUNTS):g}"
+        return weights.eta, f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
     errors: dict[float, float] = {}
     for eta in candidates:
         candidate = SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance,
@@ -365,12 +365,12 @@ def _smooth_discount(system: System, weights: Any, variance: FloatArray, design:
             result = candidate.run(u if system.nu else None, y, x0_prior=x0)
         errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
     chosen = preferred_discount(errors, weights.eta)
-    tried = ", ".join(f"{eta:.3g}: {error:.4g}" for eta, error in errors.items())
+    tried = ", ".join(f"eta {eta:.3g}: {error:#.4g}" for eta, error in errors.items())
     margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
-    what = "the one-step output prediction error over the record's second half"
-    rule = (f"{what} is more than {margin} below the design eta's" if chosen != weights.eta
+    what = "one-step output prediction error over the record's second half"
+    rule = (f"its {what} is more than {margin} below the design eta's" if chosen != weights.eta
             else f"the design's: no other eta's {what} is more than {margin} below it")  # fmt: skip
-    rule = f"{rule}; in output scales {tried}"
+    rule = f"{rule}; the errors in output scales: {tried}"
     return chosen, rule
 
 

@@ -493,7 +493,7 @@ def check_pairs(
     Half of the pairs are close (see :func:`~uiest.detectability.certificate.sample_pairs`); with a lift, pairs
     are drawn until ``n_pairs`` have both points in its domain, half of them close
     (:func:`~uiest.detectability.certificate.sample_admitted_pairs`), and only those are scored (none: ``pairs == 0``,
-    ratio ``-inf``).
+    ratio NaN).
     """
     rng = np.random.default_rng(seed)
     n = model.n
@@ -509,8 +509,8 @@ def check_pairs(
     else:
         a, b, u, drawn = sample_admitted_pairs(rng, joint, model.u_box, n_pairs, scale,
                                                lambda a, b, u: lift.admits(a, b, u, n))  # fmt: skip
-    if not len(a):  # no drawn pair lies in the lift's domain
-        return PairCheck(worst_ratio=-np.inf, pairs=0, drawn=drawn)
+    if not len(a):  # no drawn pair lies in the lift's domain: nothing tested
+        return PairCheck(worst_ratio=float("nan"), pairs=0, drawn=drawn)
     z, d, zt, dt = a[:, :n], a[:, n:], b[:, :n], b[:, n:]
 
     def run(fun: ca.Function, *cols: FloatArray) -> FloatArray:
