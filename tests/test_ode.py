@@ -192,4 +192,4 @@ def test_the_collocation_check_does_not_depend_on_the_states_units():
                             nw=1, nv=1, **spec)  # fmt: skip
         return [str(c.message).split(" (")[1].split(",")[0] for c in caught if "Newton" in str(c.message)]
 
-    assert said(1.0) == said(1e-7) == ["the step's error from them 0.63 of X's width"]
+    assert said(1.0) == said(1e-7) == ["their residual times the step 0.63 of X's width"]

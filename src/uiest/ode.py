@@ -119,8 +119,9 @@ def _radau_newton(
 
 
 COLLOCATION_RTOL = 1e-6
-"""The step's error from the stage equations' residual after the Newton iterations (``h |residual|``), relative to the
-state's width in X, above which :func:`collocation_unconverged` reports a point."""
+"""The stage equations' residual after the Newton iterations times the step (``h |residual|``, a measure of how far
+the step is from solving them, in the state's units), relative to the state's width in X, above which
+:func:`collocation_unconverged` reports a point."""
 
 
 def collocation_unconverged(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, h: float) -> str | None:
@@ -154,7 +155,7 @@ def collocation_unconverged(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref
     where = [float(f"{value:.6g}") for value in points[worst]]
     return (
         f"collocation's {NEWTON_ITERATIONS} Newton iterations leave its stage equations unsolved at x = {where} "
-        f"(the step's error from them {size}, step {h:.4g}): the sampled model is wrong there; more substeps"
+        f"(their residual times the step {size}, step {h:.4g}): the sampled model is wrong there; more substeps"
     )
 
 
