@@ -399,6 +399,10 @@ def test_a_design_eta_above_every_discount_tried_is_kept_without_a_trial_run():
 
     from uiest.estimate import _smooth_discount
 
-    system = get("closed-form").build()  # no run: the design (None) and the record are never read
-    eta, why = _smooth_discount(system, SimpleNamespace(eta=0.995), np.ones(1), None, np.zeros(2), {}, None, None)
+    system = get("closed-form").build()  # no run: the record is never read
+    built = []
+    chosen, why = _smooth_discount(system, lambda eta: built.append(eta) or SimpleNamespace(eta=eta), 0.995,
+                                   np.zeros(2), None, None)  # fmt: skip
+    eta = chosen.eta
+    assert built == [0.995]
     assert eta == 0.995 and why == "the design's; none of 0.95, 0.99 is above it"

@@ -66,6 +66,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -336,9 +337,13 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
     prior = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
-    chosen, why_eta = _smooth_discount(system, weights, variance, mhe, x0, options, u, y)
-    data_prior = SmoothInputMHE(system, weights=replace(weights, eta=chosen), dw_variance=variance,
-                                dw_bound=mhe.dw_bound, N=mhe.N, x0_prior=x0, **options)  # fmt: skip
+
+    def build(eta: float) -> SmoothInputMHE:
+        return SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance, dw_bound=mhe.dw_bound,
+                              N=mhe.N, x0_prior=x0, **options)  # fmt: skip
+
+    data_prior, why_eta = _smooth_discount(system, build, weights.eta, x0, u, y)
+    chosen = data_prior.weights.eta
     data_prior.why_uncertified = (
         f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
     )
@@ -347,31 +352,31 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     return data_prior, note
 
 
-def _smooth_discount(system: System, weights: Any, variance: FloatArray, design: SmoothInputMHE, x0: FloatArray,
-                     options: dict[str, Any], u: FloatArray, y: FloatArray) -> tuple[float, str]:  # fmt: skip
-    """The data-tuned smooth-input MHE's eta, and why: the design's, or one of :data:`SMOOTH_DISCOUNTS` above it.
+def _smooth_discount(system: System, build: Callable[[float], SmoothInputMHE], design: float, x0: FloatArray,
+                     u: FloatArray, y: FloatArray) -> tuple[SmoothInputMHE, str]:  # fmt: skip
+    """The data-tuned smooth-input MHE, ``build(eta)`` at the design's eta or one of :data:`SMOOTH_DISCOUNTS` above it.
 
     Each candidate runs on the record and is scored by its one-step output prediction error
-    (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`).
+    (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`). Returns the chosen estimator
+    and why it was chosen.
     """
-    candidates = (weights.eta, *(eta for eta in SMOOTH_DISCOUNTS if eta > weights.eta))
+    candidates = (design, *(eta for eta in SMOOTH_DISCOUNTS if eta > design))
     if len(candidates) == 1:
-        return weights.eta, f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
+        return build(design), f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
+    built: dict[float, SmoothInputMHE] = {}
     errors: dict[float, float] = {}
     for eta in candidates:
-        candidate = SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance,
-                                   dw_bound=design.dw_bound, N=design.N, x0_prior=x0, **options)  # fmt: skip
+        built[eta] = build(eta)
         with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
-            result = candidate.run(u if system.nu else None, y, x0_prior=x0)
+            result = built[eta].run(u if system.nu else None, y, x0_prior=x0)
         errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
-    chosen = preferred_discount(errors, weights.eta)
+    chosen = preferred_discount(errors, design)
     tried = ", ".join(f"eta {eta:.3g}: {error:#.4g}" for eta, error in errors.items())
     margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
     what = "one-step output prediction error over the record's second half"
-    rule = (f"its {what} is more than {margin} below the design eta's" if chosen != weights.eta
+    rule = (f"its {what} is more than {margin} below the design eta's" if chosen != design
             else f"the design's: no other eta's {what} is more than {margin} below it")  # fmt: skip
-    rule = f"{rule}; the errors in output scales: {tried}"
-    return chosen, rule
+    return built[chosen], f"{rule}; the errors in output scales: {tried}"
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],

@@ -158,15 +158,19 @@ def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: Fl
     ``y (K+1, ny)``; missing outputs are left out; inf where no output or prediction is finite.
     """
     K = len(y) - 1
-    errors = []
-    for k in range(K // 2, K):
-        newest = [w_hat[j] for j in (k - 1, k - 2) if 0 <= j < len(w_hat) and np.all(np.isfinite(w_hat[j]))]
-        w = newest[0] if newest else system.nominal_w
-        if not np.all(np.isfinite(x_hat[k])):
-            continue
-        with np.errstate(all="ignore"):
-            errors.append((y[k + 1] - system.output(system.step(x_hat[k], u[k], w))) / system.y.scale)
-    squares = np.square(np.asarray(errors, dtype=float))
+    ks = np.arange(K // 2, K)
+    w = np.tile(system.nominal_w, (len(ks), 1))
+    for lag in (2, 1):  # the newer finite estimate overwrites the older
+        j = ks - lag
+        usable = np.flatnonzero((j >= 0) & (j < len(w_hat)))
+        usable = usable[np.all(np.isfinite(w_hat[j[usable]]), axis=1)]
+        w[usable] = w_hat[j[usable]]
+    keep = np.all(np.isfinite(x_hat[ks]), axis=1)
+    if not keep.any():
+        return float("inf")
+    with np.errstate(all="ignore"):
+        predicted = system.output(system.step(x_hat[ks[keep]], u[ks[keep]], w[keep]))
+        squares = np.square((y[ks[keep] + 1] - predicted) / system.y.scale)
     if not np.isfinite(squares).any():
         return float("inf")
     return float(np.sqrt(np.nanmean(np.where(np.isfinite(squares), squares, np.nan))))
