@@ -249,6 +249,7 @@ def test_linear_zero_outside_and_at_one():
     at_one = analyse(linear([1.0, 0.5]))
     assert not at_one.random_walk.detectable and at_one.random_walk.mode == pytest.approx(1.0)
     assert at_one.recommendation is Recommendation.EKF_UKF and "not detectable either" in at_one.reason
+    assert at_one.cause is Cause.ZERO_OUTSIDE  # its modulus is 1 to rounding: on the circle, not inside it
 
 
 def test_euler_frobenius_roots():

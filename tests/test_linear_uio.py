@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from uiest import DataError, ModelError, OptionError, System, UniformNoise, simulate
+from uiest.detectability.linear import linear_strong_detectability
 from uiest.estimators import EstimationResult, LinearUIO, Outcome
 from uiest.models import closed_form, linear
 
@@ -71,6 +72,15 @@ def test_refused_without_matching_or_with_unstable_zeros_or_nonlinear():
         LinearUIO(closed_form.system())
     with pytest.raises(OptionError, match="system"):
         LinearUIO(A)
+
+
+def test_a_zero_on_the_unit_circle_is_not_strongly_detectable_and_no_observer_is_built():
+    # the zero at 1 is computed as 0.9999999999999998: an undamped motion no output sees, not a decaying one
+    A, E, C = [[0.5, 0.1, 0], [0, 1.0, 0.2], [0.1, 0, 0.7]], [[1], [0], [0]], [[1, 0, 0], [0, 0, 1]]
+    det = linear_strong_detectability(A, E, C)
+    assert not det.strongly_detectable and "on the unit circle" in det.reason
+    with pytest.raises(ModelError, match="on the unit circle"):
+        LinearUIO.from_matrices(A, E, C)
 
 
 def test_from_matrices_offsets_and_known_inputs():

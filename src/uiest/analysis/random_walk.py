@@ -21,12 +21,10 @@ import scipy.linalg
 
 from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
+from uiest.detectability.linear import off_unit_disk
 from uiest.detectability.structure import RANK_RTOL
 
 __all__ = ["RandomWalkDetectability", "random_walk_detectability"]
-
-UNIT_TOL = 1e-9
-"""Eigenvalues of A with modulus above ``1 - UNIT_TOL`` are tested."""
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -65,7 +63,7 @@ def random_walk_detectability(lin: Linearisations) -> RandomWalkDetectability:
         A, B, C = lin.A[i], lin.B[i], lin.C[i]
         n = A.shape[0]
         for lam in np.linalg.eigvals(A):
-            if abs(lam) >= 1.0 - UNIT_TOL and _deficient(np.vstack([A - lam * np.eye(n), C])):
+            if off_unit_disk(abs(lam)) and _deficient(np.vstack([A - lam * np.eye(n), C])):
                 return RandomWalkDetectability(detectable=False, mode=complex(lam), point=lin.x[i] * 1.0)
         Q = scipy.linalg.orth(B) if B.size else np.zeros((n, 0))  # redundant input columns are one direction
         if Q.shape[1]:

@@ -29,6 +29,7 @@ import numpy as np
 from uiest.analysis.designs import EstimatorDesign
 from uiest.analysis.random_walk import RandomWalkDetectability
 from uiest.analysis.zeros import Zero, Zeros
+from uiest.detectability.linear import off_unit_disk
 from uiest.guarantee import Guarantee
 
 if TYPE_CHECKING:
@@ -95,7 +96,7 @@ def decide(matching: bool, zeros: Zeros, strong: EstimatorDesign, delayed: Estim
         return Recommendation.DELAYED_UISE, Cause.DELAYED_INFORMATIVE
     if not matching:
         cause = Cause.MATCHING_FAILS
-    elif zeros.largest_modulus >= 1.0:
+    elif off_unit_disk(zeros.largest_modulus):
         cause = Cause.ZERO_OUTSIDE
     elif not strong.certified:
         cause = Cause.NOT_CERTIFIED
@@ -290,7 +291,7 @@ def reason(a: ModelAnalysis) -> str:
         limiting = None
     elif cause is Cause.NOT_CERTIFIED:
         text = f"strong detectability is {_certificate_text(strong)}"
-        if not a.x_bounded and a.zeros.largest_modulus < 1.0:  # no zero speaks against a certificate
+        if not a.x_bounded and not off_unit_disk(a.zeros.largest_modulus):  # no zero speaks against a certificate
             text += ("; no zero of the model lies on or outside the unit circle: give X bounds (x_bounds) and "
                      "analyse again, as a certificate may then exist")  # fmt: skip
     elif cause is Cause.WINDOW_TOO_LONG:

@@ -34,10 +34,28 @@ from uiest.detectability.strong import worst_case_ratio
 from uiest.detectability.strong_lmi import StrongLMI
 from uiest.errors import ModelError, OptionError
 
-__all__ = ["LinearStrongDetectability", "invariant_zeros", "linear_strong_detectability"]
+__all__ = [
+    "UNIT_CIRCLE_TOL",
+    "LinearStrongDetectability",
+    "invariant_zeros",
+    "linear_strong_detectability",
+    "observer_gain",
+    "off_unit_disk",
+]
 
 FloatArray = NDArray[np.float64]
 ComplexArray = NDArray[np.complex128]
+
+UNIT_CIRCLE_TOL = 1e-9
+"""A zero or eigenvalue whose modulus is within this of 1 lies on the unit circle: computed moduli carry rounding
+(a zero exactly at 1 comes out as 0.9999999999999999), and one on the circle is an undamped motion, not a decaying
+one."""
+
+
+def off_unit_disk(modulus: float) -> bool:
+    """Whether a zero of modulus ``modulus`` is on or outside the unit circle (within :data:`UNIT_CIRCLE_TOL`)."""
+    return modulus >= 1.0 - UNIT_CIRCLE_TOL
+
 
 _SEED = 20_240_517  # fixed seed of the random pencil compressions: results are deterministic
 _MATCH_TOL = 1e-4  # two compressions agree on a candidate z within _MATCH_TOL * (1 + |z|)
@@ -298,7 +316,7 @@ def linear_strong_detectability(
         mu_min, ok, reason = _zeros_verdict(zeros, rank_B)
         if ok:
             try:
-                K = _observer_gain(E, C_)
+                K = observer_gain(E, C_)
             except (np.linalg.LinAlgError, ValueError) as exc:
                 reason = reason[:-1] + f", but the Riccati equation for the observer gain failed ({exc})."
     n, p = A_.shape[0], C_.shape[0]
@@ -343,7 +361,7 @@ def linear_strong_detectability(
 def _zeros_verdict(zeros: np.ndarray, rank_B: int) -> tuple[float, bool, str]:
     """With matching: ``(mu_min, strongly_detectable, reason)`` from the invariant zeros' largest modulus."""
     radius = float(np.max(np.abs(zeros), initial=0.0))
-    mu_min, ok = radius**2, radius < 1.0
+    mu_min, ok = radius**2, not off_unit_disk(radius)
     head = f"rank(CB) = rank(B) = {rank_B} (matching holds)"
     if not zeros.size:
         return (
@@ -360,12 +378,14 @@ def _zeros_verdict(zeros: np.ndarray, rank_B: int) -> tuple[float, bool, str]:
                 f"{radius:.6g}), so the system is strongly detectable with mu_min = {mu_min:.6g}."
             ),
         )
+    where = (f"has modulus {radius:.6g} >= 1" if radius >= 1.0
+             else f"lies on the unit circle (modulus 1 to within {UNIT_CIRCLE_TOL:g})")  # fmt: skip
     return (
         mu_min,
         ok,
         (
-            f"{head} but the invariant zero {_fmt(zeros[0])} has modulus {radius:.6g} >= 1, so the system is "
-            f"not strongly detectable (mu_min = {mu_min:.6g})."
+            f"{head} but the invariant zero {_fmt(zeros[0])} {where}, so the system is not strongly detectable "
+            f"(mu_min = {mu_min:.6g})."
         ),
     )
 
@@ -391,7 +411,7 @@ def _fmt(z: complex) -> str:
     return f"{z.real:.6g}" if z.imag == 0 else f"{z.real:.6g}{z.imag:+.6g}j"
 
 
-def _observer_gain(E: FloatArray, C: FloatArray) -> FloatArray:
+def observer_gain(E: FloatArray, C: FloatArray) -> FloatArray:
     """``K = E P C^T (C P C^T + I)^-1`` with P from the DARE of the dual pair ``(E^T, C^T)``, Q = R = I."""
     n, p = E.shape[0], C.shape[0]
     if p == 0:

@@ -32,13 +32,12 @@ from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 from numpy.typing import ArrayLike
 
 from uiest.box import FloatArray, as_vector
 from uiest.checks import real_array
 from uiest.detectability import lmi
-from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability
+from uiest.detectability.linear import LinearStrongDetectability, linear_strong_detectability, observer_gain
 from uiest.errors import DataError, ModelError, OptionError
 from uiest.estimators.base import StreamingEstimator, collect_run
 from uiest.estimators.bounds import impulse_bound
@@ -51,15 +50,6 @@ from uiest.system import System
 from uiest.theory import LINEAR_STRONG_DETECTABILITY
 
 __all__ = ["LinearUIO"]
-
-
-def _dare_gain(E: FloatArray, C: FloatArray) -> FloatArray:
-    """``K1 = E P C^T (C P C^T + I)^-1`` with P from the DARE of ``(E^T, C^T)``, Q = R = I."""
-    n, p = E.shape[0], C.shape[0]
-    if p == 0:
-        return np.zeros((n, 0))
-    P = scipy.linalg.solve_discrete_are(E.T, C.T, np.eye(n), np.eye(p))
-    return np.asarray(E @ P @ C.T @ np.linalg.inv(C @ P @ C.T + np.eye(p)), dtype=float)
 
 
 class LinearUIO(StreamingEstimator):
@@ -165,7 +155,11 @@ class LinearUIO(StreamingEstimator):
             except ValueError as exc:
                 raise OptionError(f"poles: pole placement on (T A, C) failed: {exc}") from exc
         else:
-            K1 = _dare_gain(E, self.C)
+            try:
+                K1 = observer_gain(E, self.C)
+            except (np.linalg.LinAlgError, ValueError) as exc:
+                raise ModelError(f"system: the Riccati equation for the observer gain of (T A, C) failed ({exc}); "
+                                 "give poles= or gain=") from exc  # fmt: skip
         self.K1 = np.asarray(K1, dtype=float)
         self.F = E - self.K1 @ self.C
         self.spectral_radius = float(np.max(np.abs(np.linalg.eigvals(self.F)), initial=0.0))
