@@ -9,6 +9,7 @@ from uiest.filter_fit import check_models, fit_filter
 from uiest.input_model import InputModel
 from uiest.likelihood import (
     DEFAULT_GRID,
+    GRID_EXTENSION,
     LIKELIHOOD_INTERVAL,
     ProfileShape,
     Score,
@@ -219,6 +220,50 @@ def test_the_profile_says_where_the_likelihood_interval_lies(peak, shape):
         assert (lo, hi) == (DEFAULT_GRID[0], DEFAULT_GRID[-1]) and profile.spread == 0.0
     record = profile.to_dict()
     assert record["shape"] == shape.value and len(record["log_likelihood"]) == len(profile.factors)
+
+
+@pytest.mark.parametrize("peak", [-12.0, 5.0, -20.0])
+def test_the_grid_grows_beyond_an_end_where_the_likelihood_is_largest(peak):
+    score, calls = _synthetic(peak)
+    profile = maximise_likelihood(score, DEFAULT_GRID, name="w_variance", unit="w.scale^2", scale=np.ones(1),
+                                  extend=GRID_EXTENSION)  # fmt: skip
+    if peak == -20.0:  # twelve decades below the grid: six more are not enough, and the summary says so
+        assert profile.extended == GRID_EXTENSION and profile.at_end and profile.chosen == pytest.approx(1e-14)
+        assert "its largest value; a smaller one may fit better" in profile.summary()
+        assert len(calls) == len(DEFAULT_GRID) + GRID_EXTENSION
+        return
+    # half-decade steps until the point beyond the peak is lower, then the golden-section refinement
+    assert profile.shape is ProfileShape.INTERIOR and not profile.at_end
+    assert abs(np.log10(profile.chosen) - peak) < 0.03 and profile.extended == 2 * abs(peak - np.clip(peak, -8, 2)) + 1
+    assert (
+        "95 % interval" in profile.summary() and f"{profile.extended} points beyond the given grid" in profile.summary()
+    )
+    assert profile.to_dict()["extended"] == profile.extended
+
+
+def test_a_variance_at_the_grid_s_end_is_not_said_to_fit_as_well_as_smaller_ones():
+    score, _ = _synthetic(-12.0)
+    profile = maximise_likelihood(score, DEFAULT_GRID, name="w_variance", unit="w.scale^2", scale=np.ones(1))
+    assert profile.at_end and "a smaller one may fit better" in profile.summary()
+    assert "fits as well" not in profile.summary()
+
+
+@pytest.mark.slow
+def test_an_input_in_a_large_unit_has_its_variance_found_below_the_default_grid():
+    # w in a unit 1e4 times the signal's (a flow in m^3/s where it is 1e-4): its variance factor 2.5e-11 lies below
+    # the default grid's 1e-8, which used to be chosen with "any value up to 1.01e-08 fits as well"
+    system = linear.linear_system(A, 1e4 * B_X3, C, B_u=B_U, x_bounds=(-50, 50), v_bounds=(-0.1, 0.1),
+                                  u_bounds=(-2, 2), x_scale=10.0)  # fmt: skip
+    rng = np.random.default_rng(3)
+    K = 400
+    u = rng.uniform(-1, 1, (K, 1))
+    w = np.cumsum(1e-4 * STEP * rng.standard_normal(K))[:, None]
+    truth = simulate(system, [1.0, -1.0, 2.0], K, u=u, w=w, v=NOISE * rng.standard_normal((K + 1, 2)))
+    ekf = EKF.fit(system, truth.u, truth.y, x0_prior=np.zeros(3), v_covariance=NOISE**2, prior_factors=[1.0])
+    profile = ekf.likelihood
+    true_factor = (1e-4 * STEP) ** 2 / system.w.scale[0] ** 2
+    assert profile.extended > 0 and profile.shape is ProfileShape.INTERIOR and not profile.at_end
+    assert 0.5 < profile.chosen / true_factor < 2.0
 
 
 def test_runs_that_diverged_or_failed_are_never_chosen():

@@ -19,7 +19,7 @@ maximise_likelihood`'s grid and golden-section refinement). The models have the 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -143,17 +143,19 @@ def fit_filter(
     variances: FloatArray,
     prior_factors: FloatArray | None,
     scale: FloatArray,
+    extend: int = 0,
 ) -> FilterFit:
     """Maximise ``score(model, q, c)`` for each model (module docstring); ``prior_factors`` None holds c = 1.
 
-    ``variances`` and ``prior_factors`` are grids (:func:`~uiest.likelihood.check_grid`); ``scale`` is w's (nw,).
+    ``variances`` and ``prior_factors`` are grids (:func:`~uiest.likelihood.check_grid`); ``scale`` is w's (nw,);
+    ``extend``: points the variances' grid may grow by beyond an end (:func:`~uiest.likelihood.maximise_likelihood`).
     A model every run of whose search diverged or failed is kept in :attr:`FilterFit.failed`; OptionError when
     every model's did (:func:`~uiest.likelihood.maximise_likelihood`).
     """
     fits, failed = [], []
     for model in models:
         try:
-            fits.append(_fit_model(score, model, variances, prior_factors, scale))
+            fits.append(_fit_model(score, model, variances, prior_factors, scale, extend))
         except OptionError as exc:
             failed.append((model, str(exc)))
     if not fits:
@@ -167,21 +169,26 @@ def _fit_model(
     variances: FloatArray,
     prior_factors: FloatArray | None,
     scale: FloatArray,
+    extend: int,
 ) -> ModelFit:
     """One model's coordinate ascent: q at c = 1, c at that q, q at that c (module docstring)."""
 
     def of_q(c: float) -> Callable[[float], Score]:
         return lambda q: score(model, q, c)
 
-    variance = maximise_likelihood(of_q(1.0), variances, name="w_variance", unit="w.scale^2", scale=scale)
+    variance = maximise_likelihood(of_q(1.0), variances, name="w_variance", unit="w.scale^2", scale=scale,
+                                   extend=extend)  # fmt: skip
     if prior_factors is None:
         return ModelFit(input_model=model, variance=variance, prior=None)
     q = variance.chosen
     prior = maximise_likelihood(lambda c: score(model, q, c), prior_factors, name="prior_factor",
                                 unit="x (P0, W0, W0_rate)", scale=np.ones(1))  # fmt: skip
     if prior.chosen != 1.0:  # q searched again at the chosen c, its grid holding the q already scored there
-        again = np.union1d(variances, [q])
-        variance = maximise_likelihood(of_q(prior.chosen), again, name="w_variance", unit="w.scale^2", scale=scale)
+        again = np.union1d(variance.grid, [q])
+        grown = variance.extended  # points of `again` beyond the given grid
+        variance = maximise_likelihood(of_q(prior.chosen), again, name="w_variance", unit="w.scale^2", scale=scale,
+                                       extend=extend - grown)  # fmt: skip
+        variance = replace(variance, extended=variance.extended + grown)
     return ModelFit(input_model=model, variance=variance, prior=prior)
 
 

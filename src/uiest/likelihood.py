@@ -36,6 +36,10 @@ REFINE_STEPS = 8
 DEFAULT_GRID = np.logspace(-8, 2, 21)
 """Variance factors tried by default (times the signal's scale^2): a random walk from nearly constant to 10 scales per
 step."""
+GRID_EXTENSION = 12
+"""Points the default grid grows by, at its own spacing, beyond an end where the likelihood is largest (six decades
+of half-decade steps): a signal whose scale was not given (w's scale 1 where w is a flow of 1e-5 m^3/s, say) puts
+the maximum outside the grid, and a variance at the grid's end would be far from the one the record supports."""
 GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 
 
@@ -103,7 +107,10 @@ class LikelihoodProfile:
     scale : ndarray (m,)
         The signal's scale: the variance is ``factor * scale^2`` per component.
     grid : ndarray (g,)
-        The grid's factors (its ends are the profile's ends).
+        The grid's factors (its ends are the profile's ends), with the points it was extended by.
+    extended : int
+        Points added beyond the given grid's ends, where the likelihood was largest at an end
+        (:func:`maximise_likelihood`'s ``extend``).
 
     """
 
@@ -114,6 +121,7 @@ class LikelihoodProfile:
     unscored: NDArray[np.int_]
     scale: FloatArray
     grid: FloatArray
+    extended: int = 0
 
     @property
     def best(self) -> int:
@@ -166,6 +174,11 @@ class LikelihoodProfile:
         return float(np.exp(log_q))
 
     @property
+    def at_end(self) -> bool:
+        """The largest value is the grid's first or last point: the maximum may lie beyond the grid."""
+        return self.best in (0, len(self.factors) - 1) and self.shape is not ProfileShape.FLAT
+
+    @property
     def shape(self) -> ProfileShape:
         """Where the likelihood interval lies on the grid (:class:`ProfileShape`)."""
         inside = self.log_likelihood >= self.maximum - LIKELIHOOD_INTERVAL
@@ -189,11 +202,15 @@ class LikelihoodProfile:
                 f"{self.grid[-1]:.3g}, within {LIKELIHOOD_INTERVAL} of its maximum everywhere; the record does not "
                 "determine it)"
             )
+        grown = f" ({self.extended} points beyond the given grid)" if self.extended else ""
+        if self.at_end:
+            side = "smaller" if self.best == 0 else "larger"
+            return text + f"{grown}: its largest value; a {side} one may fit better)"
         if shape is ProfileShape.LOWER_END:
-            return text + f": any value up to {hi:.3g} fits as well, down to the grid's {self.grid[0]:.3g})"
+            return text + f": any value up to {hi:.3g} fits as well, down to the grid's {self.grid[0]:.3g}{grown})"
         if shape is ProfileShape.UPPER_END:
-            return text + f": any value from {lo:.3g} fits as well, up to the grid's {self.grid[-1]:.3g})"
-        return text + f"; 95 % interval {lo:.3g} .. {hi:.3g})"
+            return text + f": any value from {lo:.3g} fits as well, up to the grid's {self.grid[-1]:.3g}{grown})"
+        return text + f"; 95 % interval {lo:.3g} .. {hi:.3g}{grown})"
 
     def to_dict(self) -> dict[str, object]:
         """Plain data: the profile's points, the choice, the interval and the shape."""
@@ -207,6 +224,8 @@ class LikelihoodProfile:
             "chosen": self.chosen,
             "interval": [lo, hi],
             "shape": self.shape.value,
+            "at_end": self.at_end,
+            "extended": self.extended,
         }
 
 
@@ -247,9 +266,12 @@ def maximise_likelihood(
     unit: str,
     scale: FloatArray,
     refine: int = REFINE_STEPS,
+    extend: int = 0,
 ) -> LikelihoodProfile:
     """Evaluate ``score`` on ``grid`` (factors, increasing) and refine the best interior point; the profile.
 
+    Where the best value is at an end of the grid, the grid grows beyond that end at the spacing of its end points
+    (half a decade for one point), one point at a time, until the best is interior or ``extend`` points were added.
     The refinement is a golden-section search in ``log q`` between the best grid point's neighbours, ``refine``
     evaluations (none when the best is an end of the grid, or ``refine = 0``). Raises OptionError when no run is
     admissible (:attr:`Score.admissible`).
@@ -270,6 +292,7 @@ def maximise_likelihood(
             "record; give a smaller P0 (the default is X's uniform variance) or a prior closer to the data "
             "(x0_prior; --x0 in `uiest estimate`)"
         )
+    grid, values, extended = _extended(value, np.asarray(grid, dtype=float), values, extend)
     best = int(np.argmax(values))
     if refine > 0 and 0 < best < len(grid) - 1:
         a, b = float(np.log(grid[best - 1])), float(np.log(grid[best + 1]))
@@ -293,12 +316,33 @@ def maximise_likelihood(
         log_likelihood=np.array([s.log_likelihood if s.admissible else -np.inf for s in scores]),
         unscored=np.array([s.unscored + s.diverged for s in scores], dtype=int),
         scale=np.asarray(scale, dtype=float),
-        grid=np.asarray(grid, dtype=float),
+        grid=grid,
+        extended=extended,
     )
+
+
+def _extended(value: Callable[[float], float], grid: FloatArray, values: FloatArray,
+              extend: int) -> tuple[FloatArray, FloatArray, int]:  # fmt: skip
+    """``grid`` and its ``values`` grown beyond the end holding the best value (:func:`maximise_likelihood`)."""
+    added = 0
+    while added < extend:
+        best = int(np.argmax(values))
+        if 0 < best < len(grid) - 1 or np.all(values == values[best]):  # interior, or flat: nothing to follow
+            break
+        step = grid[1] / grid[0] if len(grid) > 1 else np.sqrt(10.0)
+        if best == 0:
+            q = float(grid[0] / step)
+            grid, values = np.concatenate([[q], grid]), np.concatenate([[value(q)], values])
+        else:
+            q = float(grid[-1] * (grid[-1] / grid[-2] if len(grid) > 1 else step))
+            grid, values = np.concatenate([grid, [q]]), np.concatenate([values, [value(q)]])
+        added += 1
+    return grid, values, added
 
 
 __all__ = [
     "DEFAULT_GRID",
+    "GRID_EXTENSION",
     "LIKELIHOOD_INTERVAL",
     "LikelihoodProfile",
     "ProfileShape",

@@ -29,7 +29,7 @@ from uiest.estimators.kalman import EKF
 from uiest.estimators.standard_mhe import StandardMHE
 from uiest.estimators.weights import MHEWeights
 from uiest.health import quiet_bound_warnings
-from uiest.likelihood import ProfileShape, Score, check_grid, maximise_likelihood
+from uiest.likelihood import GRID_EXTENSION, ProfileShape, Score, check_grid, maximise_likelihood
 from uiest.run_data import check_run_data
 from uiest.system import System
 
@@ -94,7 +94,8 @@ def fit_standard_mhe(
     eta : float
         Its discount in (0, 1) (1 would make the cost the exact negative log-posterior of the window).
     variances : array_like, optional
-        Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, refined).
+        Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, grown beyond an end
+        where the likelihood is largest, :data:`~uiest.likelihood.GRID_EXTENSION`; refined).
     v_covariance, P0 : array_like, optional
         As for the Kalman filters (defaults: V's uniform variance, ``x.scale^2 / 12``); held fixed. ``P0`` is the
         filter's prior of x[0]; the window's prior weight is ``arrival_covariance()^-1``.
@@ -106,7 +107,7 @@ def fit_standard_mhe(
     StandardMHE
         With :func:`likelihood_weights` at the chosen variance (explicit weights: no guarantee) and
         ``likelihood``, the :class:`~uiest.likelihood.LikelihoodProfile`. Warns (``UserWarning``) when the profile
-        is flat or reaches the default grid's upper end.
+        is flat or largest at an end of the grid.
 
     """
     u_arr, y_arr = check_run_data(system, u, y)
@@ -117,8 +118,9 @@ def fit_standard_mhe(
         return WhiteInputEKF(system, w_variance=factor * scale2, x0_prior=x0_prior, v_covariance=v_covariance,
                              P0=P0).score(u_arr, y_arr)  # fmt: skip
 
-    profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale)
-    if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
+    profile = maximise_likelihood(score, grid, name="w_variance", unit="w.scale^2", scale=system.w.scale,
+                                  extend=GRID_EXTENSION if variances is None else 0)  # fmt: skip
+    if profile.shape is ProfileShape.FLAT or profile.at_end:
         warnings.warn(f"fit_standard_mhe: {profile.summary()}", UserWarning, stacklevel=2)
     weights = likelihood_weights(system, u_arr, y_arr, x0_prior=x0_prior, eta=eta, w_variance=profile.variance,
                                  v_covariance=v_covariance, P0=P0)  # fmt: skip

@@ -55,7 +55,14 @@ from uiest.filter_fit import FilterFit, check_models, check_prior_factors, fit_f
 from uiest.guarantee import Guarantee
 from uiest.health import Outcome, at_bound, quiet_bound_warnings
 from uiest.input_model import InputModel
-from uiest.likelihood import LikelihoodProfile, ProfileShape, Score, check_grid, innovation_log_density
+from uiest.likelihood import (
+    GRID_EXTENSION,
+    LikelihoodProfile,
+    ProfileShape,
+    Score,
+    check_grid,
+    innovation_log_density,
+)
 from uiest.results import EstimationResult, StepEstimate, Trajectory
 from uiest.run_data import check_run_data, check_u_prev, check_y
 from uiest.system import System
@@ -406,8 +413,9 @@ class KalmanFilter(StreamingEstimator):
         y : array_like (K+1, ny)
         x0_prior : array_like (nx,)
         variances : array_like, optional
-            Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, refined around
-            the best interior point).
+            Factors ``q`` of ``w.scale^2`` to try (default :data:`~uiest.likelihood.DEFAULT_GRID`, grown by up to
+            :data:`~uiest.likelihood.GRID_EXTENSION` points beyond an end where the likelihood is largest), refined
+            around the best interior point.
         input_models : InputModel or str, or a sequence of them, optional
             The unknown input's models to compare (default: every :class:`~uiest.input_model.InputModel`).
         prior_factors : array_like, optional
@@ -426,7 +434,7 @@ class KalmanFilter(StreamingEstimator):
             shape) and :attr:`filter_fit` every model's profiles (:class:`~uiest.filter_fit.FilterFit`). A filter
             that diverged or failed an update on the record is never chosen; when every one of a search did,
             OptionError. Warns (``UserWarning``) when the chosen variance's profile is flat over the whole grid
-            (the record does not determine it) or reaches the default grid's upper end.
+            (the record does not determine it) or largest at an end of the grid (grown, for the default one).
 
         """
         if "input_model" in keywords:
@@ -446,10 +454,11 @@ class KalmanFilter(StreamingEstimator):
             return cls(system, w_variance=q * system.w.scale**2, x0_prior=x0_prior, input_model=model, **options)
 
         found = fit_filter(lambda m, q, c: build(m, q, c).score(u_arr, y_arr), models=models, variances=grid,
-                           prior_factors=factors, scale=system.w.scale)  # fmt: skip
+                           prior_factors=factors, scale=system.w.scale,
+                           extend=GRID_EXTENSION if variances is None else 0)  # fmt: skip
         best = found.best
         profile = best.variance
-        if profile.shape is ProfileShape.FLAT or (variances is None and profile.shape is ProfileShape.UPPER_END):
+        if profile.shape is ProfileShape.FLAT or profile.at_end:
             warnings.warn(f"{cls.__name__}.fit: {profile.summary()}", UserWarning, stacklevel=2)
         estimator = build(best.input_model, profile.chosen, best.prior_factor)
         estimator.likelihood = profile
