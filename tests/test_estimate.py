@@ -1,5 +1,6 @@
 """Models of one's own (register, model files), measured records (from_pandas, CSV) and `uiest estimate`."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -238,6 +239,9 @@ def test_estimator_all_runs_every_estimator_the_model_admits(tmp_path):
     assert (out / "estimates.png").exists() and len(list(out.glob("*.png"))) == 1
     for kind in ("delayed", "two-stage", "uio"):
         assert f"{kind}: not run (" in result.output
+    # the standard MHE predicts x[k] from y[..k-1]: labelled, not ranked silently beside the filtered estimates
+    assert result.output.count("(one step") == 1 and "mhe (one step" in result.output  # the table wraps its cells
+    assert json.loads((out / "manifest.json").read_text())["one_step_ahead"] == ["mhe"]
 
 
 @pytest.mark.slow
@@ -406,3 +410,17 @@ def test_a_design_eta_above_every_discount_tried_is_kept_without_a_trial_run():
     eta = chosen.eta
     assert built == [0.995]
     assert eta == 0.995 and why == "the design's; none of 0.95, 0.99 is above it"
+
+
+def test_the_prior_line_asks_for_x0_only_where_it_was_not_given():
+    from types import SimpleNamespace
+
+    from uiest.cli import _prior_text
+
+    entry = get("closed-form")
+    system = entry.build()
+    x0 = np.asarray(entry.simulation().x0, dtype=float)
+    record = SimpleNamespace(x=x0[None, :])  # the record's truth starts at the prior
+    given, default = _prior_text(system, record, x0, "1,2", entry), _prior_text(system, record, x0, None, entry)
+    assert "the record's true x[0]" in given and "give --x0" not in given and "(from --x0)" in given
+    assert default.endswith("(give --x0)")

@@ -311,6 +311,7 @@ def estimate(
     given = {"lag": lag, "horizon": horizon, "w_variance": w_variance, "x0": x0}
     manifest = _estimate_manifest(model=model, data=data, prior=prior, estimators=list(results),
                                   weights={kind: notes[kind] for kind in results}, not_run=skipped,
+                                  one_step_ahead=[kind for kind, result in results.items() if result.one_step_ahead],
                                   options=given)  # fmt: skip
     written = write_estimates(out, system, record, results, manifest=manifest)
     console.print(f"wrote {', '.join(str(p) for p in written)}", markup=False, soft_wrap=True)
@@ -358,7 +359,8 @@ def _prior_text(system: Any, record: Any, prior: Any, x0: str | None, entry: Any
     text = f"prior x[0]: {values} (from {source})"
     truth = record.x[0] if record.x is not None and len(record.x) else None
     if truth is not None and np.all(np.isfinite(truth)) and np.allclose(prior, truth, rtol=1e-9, atol=0.0):
-        text += ", the record's true x[0]: the errors leave out a start from a wrong prior (give --x0)"
+        text += ", the record's true x[0]: the errors leave out a start from a wrong prior"
+        text += "" if x0 is not None else " (give --x0)"
     return text
 
 
@@ -418,7 +420,8 @@ def _print_estimates(
         table.add_column(column)
     for kind, result in results.items():
         error = error_text(system, rmse[kind], lagged=kind == "delayed" and result.x_lag is not None)
-        table.add_row(kind, notes[kind], error, str(result.guarantee))
+        label = f"{kind} (one step ahead: x[k] from y[..k-1])" if result.one_step_ahead else kind
+        table.add_row(label, notes[kind], error, str(result.guarantee))
     console.print(table)
     for kind, why in skipped.items():
         console.print(f"{kind}: not run ({why})", markup=False, highlight=False, soft_wrap=True)

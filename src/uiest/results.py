@@ -425,6 +425,9 @@ class EstimationResult(_PicklableNames):
         Fixed-lag estimates: row j estimates ``x[j]`` from the window at step ``j + lag`` (the
         last ``lag`` rows NaN); None when lag = 0.
     lag : int
+    one_step_ahead : bool
+        ``x_hat[k]`` is predicted from the measurements up to ``y[k-1]`` (the standard MHE, the two-stage UISE):
+        its error includes what the unknown input ``w[k-1]`` did, which no earlier output shows.
     at_bound : ndarray (K+1, nx) of bool
         States on or beyond a finite side of X (default: none).
     solver_status, primary_status, reason : ndarray (K+1,) of str
@@ -453,6 +456,7 @@ class EstimationResult(_PicklableNames):
     time_unit: str = "s"
     x_lag: FloatArray | None = None
     lag: int = 0
+    one_step_ahead: bool = False
     at_bound: NDArray[np.bool_] = field(default_factory=_not_given)
     solver_status: NDArray[np.str_] = field(default_factory=_not_given)
     fallback: NDArray[np.bool_] = field(default_factory=_not_given)

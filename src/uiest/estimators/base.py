@@ -871,6 +871,7 @@ def collect_run(estimator: Any, u_arr: FloatArray, y_arr: FloatArray) -> Estimat
         time_unit=s.time_unit,
         x_lag=x_lag if lag else None,
         lag=lag,
+        one_step_ahead=bool(getattr(estimator, "one_step_ahead", False)),
         at_bound=states_at_bound,
         **{name: np.array(values, dtype=HEALTH_FIELDS[name]) for name, values in health.items()},
         cpu_time=cpu_time,
