@@ -480,3 +480,15 @@ def test_a_wide_domain_does_not_let_rounding_refute_a_certificate():
     cert = certify_strong_detectability(henon)
     assert cert.certified, cert.reason
     assert 0.99 < cert.falsification.worst_ratio < 1.0
+
+
+def test_an_lmi_whose_data_overflow_is_a_failed_solve_not_a_crash():
+    # a sampled model whose Jacobian is huge somewhere in the cover: cvxpy refuses the products as NaN or Inf
+    import cvxpy as cp
+
+    from uiest.detectability import lmi
+
+    X = cp.Variable((2, 2), symmetric=True)
+    A = np.array([[1e200, 0.0], [0.0, 1.0]])
+    problem = cp.Problem(cp.Minimize(cp.trace(X)), [lmi.symmetric(A.T @ X @ A) >> np.eye(2)])
+    assert lmi.solve(problem) == "nonfinite_data"

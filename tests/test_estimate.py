@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from uiest import DataError, ModelError, OptionError, System, simulate
 from uiest.cli import RUN_DESIGNS_ITS_OWN, app
+from uiest.estimate import build_estimator
 from uiest.models import get, load, names, register
 from uiest.models import linear as linear_models
 from uiest.results import Trajectory, read_record
@@ -108,7 +109,6 @@ def test_uiest_estimate_on_a_model_file_and_its_measurements(tmp_path):
 
 
 def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one():
-    from uiest.estimate import build_estimator
 
     A = np.array([[1.0, 0, 0], [1.0, 0, 0], [0, 0, 0.5]])
     system = linear_models.linear_system(A, [[1.0], [0.0], [0.0]], [[0.0, 1.0, 0.0]], x_bounds=(-100, 100),
@@ -128,7 +128,7 @@ def test_estimate_refuses_a_uise_without_matching_and_points_to_the_delayed_one(
 
 @pytest.mark.slow
 def test_estimate_fits_the_mhe_where_its_certificate_is_vacuous_and_names_why_a_uise_has_none():
-    from uiest.estimate import build_estimator
+
     from uiest.results import read_record
 
     entry = load(REACTOR)
@@ -365,7 +365,7 @@ def test_another_discount_replaces_the_design_only_when_it_predicts_more_than_tw
 
 
 def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_outputs_best():
-    from uiest.estimate import build_estimator
+
     from uiest.tuning import SMOOTH_DISCOUNTS, prediction_error, preferred_discount
 
     # the crop model's augmented model does not certify: the window prior is the EKF's settled covariance on the
@@ -424,3 +424,24 @@ def test_the_prior_line_asks_for_x0_only_where_it_was_not_given():
     given, default = _prior_text(system, record, x0, "1,2", entry), _prior_text(system, record, x0, None, entry)
     assert "the record's true x[0]" in given and "give --x0" not in given and "(from --x0)" in given
     assert default.endswith("(give --x0)")
+
+
+def test_an_estimator_that_fails_unexpectedly_is_named_and_the_others_still_run(tmp_path, monkeypatch):
+    import uiest.cli
+
+    def build(kind, *args, **kwargs):
+        if kind == "ukf":
+            raise ValueError("a defect")
+        return build_estimator(kind, *args, **kwargs)
+
+    monkeypatch.setattr(uiest.cli, "build_estimator", build)
+    data = tmp_path / "closed_form.csv"
+    setup = get("closed-form").simulation()
+    simulate(get("closed-form").build(), setup.x0, 20, u=setup.u, w=setup.w, v=setup.noise, seed=1).to_pandas().to_csv(
+        data
+    )
+    kinds = ["--estimator", "ekf", "--estimator", "ukf", "--w-variance", "0.01", "--out", str(tmp_path / "out")]
+    result = CliRunner().invoke(app, ["estimate", "closed-form", "--data", str(data), *kinds], terminal_width=400)
+    assert result.exit_code == 0, result.output
+    assert "ukf: not run (internal error, please report it: ValueError: a defect)" in " ".join(result.output.split())
+    assert (tmp_path / "out" / "estimates_ekf.csv").exists()

@@ -26,7 +26,15 @@ from uiest.box import as_vector
 from uiest.checks import check_samples
 from uiest.detectability import certify_delta_ioss, certify_reduced_model, certify_strong_detectability
 from uiest.detectability.falsify import pairs_text
-from uiest.errors import BoundWarning, CertificationError, FailureWarning, ModelError, OptionError, UiestError
+from uiest.errors import (
+    BoundWarning,
+    CertificationError,
+    FailureWarning,
+    ModelError,
+    OptionError,
+    SolverError,
+    UiestError,
+)
 from uiest.estimate import (
     ALL,
     ESTIMATORS,
@@ -36,6 +44,7 @@ from uiest.estimate import (
     default_prior,
     error_text,
     errors_against_truth,
+    internal_error,
     recommended,
     run_estimators,
     write_estimates,
@@ -405,7 +414,13 @@ def _build_estimators(
                 raise
             refused.append(type(exc)(f"--estimator {kind}: {exc}"))
             skipped[kind] = str(exc)
+        except Exception as exc:  # a defect met by one estimator: the others still run, and the error is named
+            if len(kinds) == 1:
+                raise
+            skipped[kind] = internal_error(exc)
     if not built:  # none to run: the first refusal is the command's error
+        if not refused:
+            raise SolverError(f"--estimator: none could be built: {'; '.join(skipped.values())}")
         raise refused[0] from None
     return built, notes, skipped
 

@@ -117,6 +117,7 @@ __all__ = [
     "default_prior",
     "error_text",
     "errors_against_truth",
+    "internal_error",
     "recommended",
     "run_estimators",
     "write_estimates",
@@ -157,7 +158,14 @@ def build_all(
             built[kind], notes[kind] = build_estimator(kind, entry, system, x0, **options)
         except (ModelError, CertificationError, OptionError) as exc:  # not admitted, or not built on this record
             skipped[kind] = str(exc)
+        except Exception as exc:  # a defect met by one estimator: the others are still built, and the error named
+            skipped[kind] = internal_error(exc)
     return built, notes, skipped
+
+
+def internal_error(exc: Exception) -> str:
+    """Why an estimator was not built where an unexpected exception (a defect, not a refusal) stopped it."""
+    return f"internal error, please report it: {type(exc).__name__}: {exc}"
 
 
 def default_prior(entry: ModelEntry, system: System) -> FloatArray:

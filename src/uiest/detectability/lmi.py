@@ -144,13 +144,21 @@ def symmetric(expr: cp.Expression) -> cp.Expression:
 
 
 def solve(problem: cp.Problem) -> str:
-    """Solve with the default LMI solver; return the status ('solver_error' if it raised)."""
+    """Solve with the default LMI solver; return the status.
+
+    ``'nonfinite_data'`` where cvxpy refuses the problem's data as NaN or infinite (a Jacobian that overflows at a
+    point of the domain, or products of huge ones), ``'solver_error'`` where the solver raised.
+    """
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", UserWarning)  # 'inaccurate' shows up in the status instead
             problem.solve(solver=SOLVER)
     except cp.error.SolverError:
         return "solver_error"
+    except ValueError as exc:  # cvxpy's check of the data it hands the solver
+        if "NaN or Inf" not in str(exc):
+            raise
+        return "nonfinite_data"
     except BaseException as exc:  # a Rust panic in Clarabel: pyo3's PanicException derives from BaseException only
         if type(exc).__name__ != "PanicException":
             raise
