@@ -291,6 +291,33 @@ def test_analysis_is_plain_data_and_refuses_bad_input(analysed):
         analyse(pendulum(), x0=[0.0])
 
 
+def _refused(name):
+    raise ValueError(f"not JSON: {name}")
+
+
+def test_json_text_writes_non_finite_numbers_as_null():
+    from uiest.json_text import json_text
+
+    text = json_text({"a": [1.0, float("inf"), np.nan], "b": np.array([2.5, -np.inf]), "c": np.float64("nan")})
+    assert json.loads(text, parse_constant=_refused) == {"a": [1.0, None, None], "b": [2.5, None], "c": None}
+
+
+def test_cli_analyse_json_of_an_unbounded_floor_is_json_any_reader_parses(tmp_path):
+    # a zero at 1.2: x2's error floor is unbounded and no rate is certified (inf and NaN in the analysis's data)
+    model = tmp_path / "zero_outside.py"
+    model.write_text(
+        "import numpy as np\nfrom uiest.models import linear\n\n\ndef build():\n"
+        "    A = np.array([[0.5, 0.1, 0.0], [0.0, 1.2, 0.2], [0.1, 0.0, 0.7]])\n"
+        "    return linear.linear_system(A, [[1.0], [0.0], [0.0]], [[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]],\n"
+        "                                x_bounds=(-20, 20), v_bounds=(-0.02, 0.02))\n"
+    )
+    out = tmp_path / "analysis.json"
+    result = CliRunner().invoke(app, ["analyse", str(model), "--json", str(out)])
+    assert result.exit_code == 0, result.output
+    data = json.loads(out.read_text(), parse_constant=_refused)  # no NaN, no Infinity (RFC 8259)
+    assert data["near_zeros"]["error_floor"][1] is None  # unbounded
+
+
 def test_cli_analyse_prints_the_recommendation_and_writes_json(tmp_path):
     runner = CliRunner()
     out = tmp_path / "analysis.json"

@@ -6,7 +6,6 @@ import contextlib
 import contextvars
 import functools
 import itertools
-import json
 import math
 import time
 import warnings
@@ -56,6 +55,7 @@ from uiest.experiments.solver_bench import TABLE_HEADER, bench_window_solvers, t
 from uiest.experiments.study_store import StudyStore
 from uiest.experiments.sweep import Sweep, SweepProgress
 from uiest.experiments.sweep import sweep as run_sweep
+from uiest.json_text import json_text
 from uiest.lock import folder_lock
 from uiest.paths import writable_file, writable_folder
 from uiest.plotting import plot_trajectory, save_figure
@@ -524,7 +524,7 @@ def certify(
         if guarantee is not None:  # None: the certificate does not hold, so no estimator is built from it
             line = f"  {guarantee['estimator']} with N = min horizon, {guarantee['theorem']}: {guarantee['text']}"
             console.print(line, highlight=False, soft_wrap=True, markup=False)
-    write_text(out, json.dumps({"model": model, "certificates": records}, indent=2, default=float))
+    write_text(out, json_text({"model": model, "certificates": records}, default=float))
     console.print(f"wrote {out}")
 
 
@@ -545,7 +545,7 @@ def analyse(
         analysis = analyse_model(system, max_horizon=max_horizon)
     console.print(analysis.text(), highlight=False, soft_wrap=True, markup=False)
     if json_file is not None:
-        write_text(json_file, json.dumps({"model": model, **analysis.to_dict()}, indent=2, default=float))
+        write_text(json_file, json_text({"model": model, **analysis.to_dict()}, default=float))
         console.print(f"wrote {json_file}")
 
 
@@ -801,7 +801,7 @@ def bench(
         report=report,
     )
     if json_file is not None:
-        write_text(json_file, json.dumps(records, indent=2))
+        write_text(json_file, json_text(records))
         console.print(f"wrote {json_file}")
 
 

@@ -64,7 +64,6 @@ simulated record, which also holds the true states):
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Callable
 from dataclasses import replace
@@ -85,6 +84,7 @@ from uiest.estimators import EKF, SmoothInputMHE, StandardMHE, UISEWeights, smoo
 from uiest.estimators.design_search import ERROR_TOLERANCE
 from uiest.health import quiet_bound_warnings
 from uiest.input_model import InputModel
+from uiest.json_text import json_text
 from uiest.lock import holds_folder
 from uiest.models import ModelEntry
 from uiest.paths import plain_name
@@ -474,7 +474,7 @@ def write_estimates(
         save_figure(figure, stage / "estimates.png")
         if manifest is not None:
             files = sorted(path.name for path in written)
-            write_text(stage / "manifest.json", json.dumps({**manifest, "files": files}, indent=2))
+            write_text(stage / "manifest.json", json_text({**manifest, "files": files}))
     if manifest is not None:
         written.append(out / "manifest.json")
     _remove_stale(out, written)

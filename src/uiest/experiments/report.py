@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import functools
-import json
 import math
 import os
 from dataclasses import dataclass
@@ -24,6 +23,7 @@ from uiest.experiments.runner import StudyResult, noise_model
 from uiest.experiments.scenario import EstimatorSpec
 from uiest.guarantee import Guarantee
 from uiest.health import BOUND_SHARE
+from uiest.json_text import json_text
 from uiest.lock import holds_folder
 from uiest.noise import UniformNoise
 from uiest.plotting import pyplot, robust_limits
@@ -407,7 +407,7 @@ def _write_files(study: StudyResult, out: Path, *, wall_time: float, final: Path
     write_text(out / "report.md", "\n".join(_report_lines(study, tables, wall_time)))
     written.append(out / "report.md")
     manifest = _manifest(study, out, written, wall_time)
-    write_text(out / "manifest.json", json.dumps(manifest, indent=2))
+    write_text(out / "manifest.json", json_text(manifest))
     return manifest
 
 

@@ -42,6 +42,7 @@ from uiest.experiments.scenario import Scenario
 from uiest.experiments.study_model import study_model
 from uiest.experiments.sweep_design import SWEEPABLE, Sweep, Task, apply
 from uiest.health import quiet_bound_warnings
+from uiest.json_text import json_text
 from uiest.lock import holds_folder
 from uiest.paths import writable_file, writable_folder
 from uiest.plotting import pyplot
@@ -301,7 +302,7 @@ def _write_manifest(
         "seeds": {"base": scenario.seed, "noise": [scenario.seed + r for r in range(scenario.runs)]},
         "calls": calls,
     }
-    write_text(path, json.dumps(manifest, indent=2, default=str))
+    write_text(path, json_text(manifest, default=str))
 
 
 @holds_folder("out")
