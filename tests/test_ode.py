@@ -132,7 +132,7 @@ def test_collocation_matches_solve_ivp_on_the_nonlinear_reactor():
     np.testing.assert_allclose(x, reference, rtol=1e-6)
 
 
-def test_an_input_integral_that_varies_over_x_is_warned_of_and_the_rk4_channel_is_not():
+def test_an_input_integral_that_varies_over_x_puts_w_inside_the_integrator_unless_asked_to_keep_it():
     # dx/dt = (x0 x1, w - x1): Gamma = int exp(A s) ds G, A = [[x1, x0], [0, -1]], is (0, 0.095) at X's centre and
     # grows without bound towards x1 = 100 (exp(10)): the integral channel fixed at the centre misstates w's effect
     def rhs(x, u, w):
@@ -141,13 +141,22 @@ def test_an_input_integral_that_varies_over_x_is_warned_of_and_the_rk4_channel_i
     def sampled(**options):
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.1, x_bounds=(-100.0, 100.0),
-                            v_bounds=(-0.01, 0.01), **options)  # fmt: skip
-        return [str(c.message) for c in caught if "per-sample integral" in str(c.message)]
+            system = System.from_ode(rhs, lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, dt=0.1,
+                                     x_bounds=(-100.0, 100.0), v_bounds=(-0.01, 0.01), **options)  # fmt: skip
+        return system, [str(c.message) for c in caught if "per-sample integral" in str(c.message)]
 
-    (said,) = sampled()
-    assert "that integral differs from it by" in said and "input_channel='rk4'" in said
-    assert not sampled(input_channel="rk4")
+    from scipy.integrate import solve_ivp
+
+    chosen, (said,) = sampled()
+    assert chosen.sampled_from.input_channel == "rk4" and "so w enters inside the integrator" in said
+    x, w = np.array([2.0, 5.0]), np.array([1.0])  # away from X's centre: w's effect as the ODE's, not the centre's
+    flow = solve_ivp(lambda t, z: rhs(z, None, w), (0.0, 0.1), x, rtol=1e-12, atol=1e-12).y[:, -1]
+    rest = solve_ivp(lambda t, z: rhs(z, None, [0.0]), (0.0, 0.1), x, rtol=1e-12, atol=1e-12).y[:, -1]
+    effect = chosen.step(x, None, w) - chosen.step(x, None, [0.0])
+    np.testing.assert_allclose(effect, flow - rest, rtol=0.02)
+    kept, (said,) = sampled(input_channel="integral")
+    assert kept.sampled_from.input_channel == "integral" and "input_channel='rk4' keeps w inside" in said
+    assert not sampled(input_channel="rk4")[1]
 
 
 def _runaway_cstr(**options):

@@ -254,8 +254,8 @@ def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarra
         return None
     factor = f"{spread[worst]:.3g} times its size" if np.isfinite(spread[worst]) else "more than doubles can hold"
     return (f"w enters through its per-sample integral at X's centre, but at x = {np.round(points[worst], 6).tolist()} "
-            f"that integral differs from it by {factor}: away from the centre the model misstates w's effect by that "
-            "much; input_channel='rk4' keeps w inside the integrator")  # fmt: skip
+            f"that integral differs from it by {factor}: away from the centre a constant direction misstates w's "
+            "effect by that much")  # fmt: skip
 
 
 def input_integral(A_ref: np.ndarray, G: np.ndarray, dt: float) -> np.ndarray:
