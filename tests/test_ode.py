@@ -148,7 +148,7 @@ def test_an_input_integral_that_varies_over_x_puts_w_inside_the_integrator_unles
     from scipy.integrate import solve_ivp
 
     chosen, (said,) = sampled()
-    assert chosen.sampled_from.input_channel == "rk4" and "so w enters inside the integrator" in said
+    assert chosen.sampled_from.input_channel == "rk4" and "so w enters inside the integrator" in said  # spread >> 1
     x, w = np.array([2.0, 5.0]), np.array([1.0])  # away from X's centre: w's effect as the ODE's, not the centre's
     flow = solve_ivp(lambda t, z: rhs(z, None, w), (0.0, 0.1), x, rtol=1e-12, atol=1e-12).y[:, -1]
     rest = solve_ivp(lambda t, z: rhs(z, None, [0.0]), (0.0, 0.1), x, rtol=1e-12, atol=1e-12).y[:, -1]

@@ -22,8 +22,8 @@ known about it (it may grow without bound). Only the level of tank 1 is measured
 # ---------
 # :py:meth:`uiest.System.from_ode` samples ``dx/dt = rhs(x, u, w)`` every ``dt`` (RK4; the unknown
 # input enters through its per-sample integral at X's centre, so its direction stays constant; where
-# that integral varies over X by more than a quarter of its size, ``from_ode`` warns, and
-# ``input_channel="rk4"`` keeps the input inside the integrator instead). The
+# that integral varies over X by more than a quarter of its size, ``from_ode`` warns, and by more than its
+# size it keeps the input inside the integrator instead, as ``input_channel="rk4"`` does). The
 # callables receive CasADi symbols, so use ``numpy`` functions that CasADi overloads (``np.sqrt``,
 # ``np.exp``, ``np.sin``). The boxes are part of the model: ``x_bounds`` is the domain X the
 # estimators constrain their estimates to, ``v_bounds`` the measurement noise's range V, and

@@ -225,10 +225,24 @@ def _probe_jacobians(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.nd
 INPUT_SPREAD = 0.25
 """The per-sample input integral may differ from the one at X's centre by this fraction of it over X before
 :meth:`System.from_ode <uiest.system.System.from_ode>` warns."""
+INPUT_SPREAD_LIMIT = 1.0
+"""Where the per-sample input integral differs from the one at X's centre by more than this fraction of it (more
+than its own size: a constant direction then misstates even the size or sign of w's effect), ``System.from_ode``
+puts w inside the integrator unless the constant direction is asked for."""
 
 
-def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, dt: float) -> str | None:
-    """Why the input channel ``"integral"`` (``Gamma`` fixed at X's centre) misstates w's effect in ``box``, or None.
+@dataclass(frozen=True)
+class InputSpread:
+    """How far the input channel ``"integral"`` (``Gamma`` fixed at X's centre) misstates w's effect in a box."""
+
+    spread: float
+    """The largest ``|Gamma(x) - Gamma| / |Gamma|`` over the points probed (inf where the integral overflows)."""
+    text: str
+    """The sentence that says where and by how much."""
+
+
+def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarray, dt: float) -> InputSpread | None:
+    """How far the input channel ``"integral"`` (``Gamma`` fixed at X's centre) misstates w's effect in ``box``.
 
     ``Gamma(x) = int_0^dt exp(A(x) s) ds G`` at the points of :func:`_probe_jacobians` against ``Gamma`` at the
     centre: None when ``|Gamma(x) - Gamma| <= INPUT_SPREAD |Gamma|`` (2-norms) at every point.
@@ -253,9 +267,10 @@ def input_spread(rhs: ca.Function, box: Box, u_ref: np.ndarray, w_ref: np.ndarra
     if spread[worst] <= INPUT_SPREAD:
         return None
     factor = f"{spread[worst]:.3g} times its size" if np.isfinite(spread[worst]) else "more than doubles can hold"
-    return (f"w enters through its per-sample integral at X's centre, but at x = {np.round(points[worst], 6).tolist()} "
-            f"that integral differs from it by {factor}: away from the centre a constant direction misstates w's "
-            "effect by that much")  # fmt: skip
+    where = np.round(points[worst], 6).tolist()
+    text = (f"w's per-sample integral at x = {where} differs from the one at X's centre by {factor}: a constant "
+            "direction, taken at the centre, misstates w's effect by that much away from it")  # fmt: skip
+    return InputSpread(float(spread[worst]), text)
 
 
 def input_integral(A_ref: np.ndarray, G: np.ndarray, dt: float) -> np.ndarray:

@@ -414,13 +414,13 @@ class System:
         u and w are held over each sample. The drift is integrated by RK4 (``method="rk4"``) or, for stiff models, by
         Radau IIA collocation (``method="collocation"``), ``substeps`` steps per sample; where rhs is affine in w with
         a constant matrix G, the unknown input enters through its per-sample integral ``Gamma (w - w0)`` (constant
-        direction, linearised at the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). Where
-        that integral differs over X by more than :data:`~uiest.ode.INPUT_SPREAD` of its size, a constant direction
-        would misstate w's effect, and w enters inside the integrator unless ``input_channel="integral"`` is given;
-        both warn. See :mod:`uiest.ode` for the discretisation error. Warns where RK4 grows a mode the ODE damps
-        somewhere in X. Further keywords
-        as in :meth:`from_functions`. The system keeps the continuous model in ``sampled_from`` (the analysis names
-        the zeros sampling created from it).
+        direction, linearised at the centre of X and U; ``input_channel="rk4"`` keeps w inside RK4 instead). Warns
+        where that integral differs over X by more than :data:`~uiest.ode.INPUT_SPREAD` of its size; where by more
+        than :data:`~uiest.ode.INPUT_SPREAD_LIMIT` (a constant direction would misstate even the size or sign of w's
+        effect), w enters inside the integrator unless ``input_channel="integral"`` is given. See :mod:`uiest.ode`
+        for the discretisation error. Warns where RK4 grows a mode the ODE damps somewhere in X. Further keywords as
+        in :meth:`from_functions`. The system keeps the continuous model in ``sampled_from`` (the analysis names the
+        zeros sampling created from it).
 
         Parameters
         ----------
@@ -484,15 +484,15 @@ class System:
         if unstable:
             warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
         spread = ode.input_spread(rhs_f, X, u_ref, w_ref, dt) if channel == "integral" else None
-        if spread and input_channel is None:  # a constant direction would be another model than the ODE's over X
+        if spread and spread.spread > ode.INPUT_SPREAD_LIMIT and input_channel is None:  # another model than the ODE
             f, channel = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel="rk4", method=method,
                                         x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
-            warnings.warn(f"from_ode: {spread}; so w enters inside the integrator (input_channel='rk4'), its direction "
-                          "varying with the state as the ODE's does (input_channel='integral' keeps the constant "
-                          "direction the certificates of x+ = f1 + B w need, over a narrower X)", UserWarning,
+            warnings.warn(f"from_ode: {spread.text}; so w enters inside the integrator (input_channel='rk4'), its "
+                          "direction varying with the state as the ODE's does (input_channel='integral' keeps the "
+                          "constant direction the certificates of x+ = f1 + B w need: narrow X first)", UserWarning,
                           stacklevel=2)  # fmt: skip
         elif spread:
-            warnings.warn(f"from_ode: {spread}; input_channel='rk4' keeps w inside the integrator", UserWarning,
+            warnings.warn(f"from_ode: {spread.text}; input_channel='rk4' keeps w inside the integrator", UserWarning,
                           stacklevel=2)  # fmt: skip
         try:
             system = cls.from_functions(f, h_f, dt=dt, **spec)
