@@ -483,3 +483,19 @@ def test_a_measured_states_floor_names_no_frequency_and_a_shared_point_is_named_
     assert sentence is not None and sentence.count("linearised at") == 1
     assert "; one growing 1.2-fold per sample moves x[3] by any amount" in sentence
     assert "x[0] 0.01, x[1] 0.01, x[2] unbounded" in str(a)
+
+
+def test_a_failed_solve_reads_as_undecided_and_claims_no_smallest_rate():
+    from types import SimpleNamespace
+
+    from uiest.analysis.recommend import _certificate_text
+    from uiest.detectability.certificate import CertificateStatus
+    from uiest.detectability.lmi import Bisection
+
+    failed = SimpleNamespace(certificate=object(), status=CertificateStatus.SOLVER_FAILED)
+    assert _certificate_text(failed) == "undecided: the LMI solver failed"  # was "strong detectability is solver failed"
+    assert _certificate_text(SimpleNamespace(certificate=object(), status=CertificateStatus.INFEASIBLE)) == "infeasible"
+    none_proved = Bisection(rate=None, outcome="solver failed", failed_at=(0.999999, 0.99999), probes=2)
+    assert none_proved.note == "the solver failed at rate(s) 0.999999, 0.99999"
+    some_proved = Bisection(rate=0.9, outcome="feasible", failed_at=(0.5,), probes=4)
+    assert some_proved.note.endswith("so the smallest rate is an upper estimate")

@@ -29,6 +29,7 @@ import numpy as np
 from uiest.analysis.designs import EstimatorDesign
 from uiest.analysis.random_walk import RandomWalkDetectability
 from uiest.analysis.zeros import Zero, Zeros
+from uiest.detectability.certificate import CertificateStatus
 from uiest.detectability.linear import off_unit_disk
 from uiest.guarantee import Guarantee
 
@@ -238,11 +239,21 @@ FIRST_CLAUSE = r" \(|; "
 """Where an error message's first clause ends (the reason quotes only that)."""
 
 
+STATUS_PHRASE = {
+    CertificateStatus.SOLVER_FAILED: "undecided: the LMI solver failed",
+    CertificateStatus.RECHECK_FAILED: "undecided: the solution failed its independent re-check",
+    CertificateStatus.BELOW_RATE: "not certified at the rate asked: it is below the smallest certifiable rate",
+}
+"""How "strong detectability is ..." reads for a status whose name is no predicate."""
+
+
 def _certificate_text(design: EstimatorDesign) -> str:
     if design.certificate is None:
         first = re.split(FIRST_CLAUSE, design.not_applicable, maxsplit=1)[0]
         return f"not applicable: {first}"
-    return str(design.status)
+    status = design.status
+    assert status is not None
+    return STATUS_PHRASE.get(status, str(status))
 
 
 def _window_text(design: EstimatorDesign, max_horizon: int) -> str:

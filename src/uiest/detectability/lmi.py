@@ -195,6 +195,8 @@ class Bisection:
         if not self.failed_at:
             return ""
         rates = ", ".join(f"{r:.6g}" for r in self.failed_at)
+        if self.rate is None:  # no rate was proved: there is no smallest one to qualify
+            return f"the solver failed at rate(s) {rates}"
         return f"the solver failed at rate(s) {rates}, so the smallest rate is an upper estimate"
 
 
