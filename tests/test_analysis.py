@@ -493,7 +493,7 @@ def test_a_failed_solve_reads_as_undecided_and_claims_no_smallest_rate():
     from uiest.detectability.lmi import Bisection
 
     failed = SimpleNamespace(certificate=object(), status=CertificateStatus.SOLVER_FAILED)
-    assert _certificate_text(failed) == "undecided: the LMI solver failed"  # was "strong detectability is solver failed"
+    assert _certificate_text(failed) == "undecided: the LMI solver failed"  # was "... is solver failed"
     assert _certificate_text(SimpleNamespace(certificate=object(), status=CertificateStatus.INFEASIBLE)) == "infeasible"
     none_proved = Bisection(rate=None, outcome="solver failed", failed_at=(0.999999, 0.99999), probes=2)
     assert none_proved.note == "the solver failed at rate(s) 0.999999, 0.99999"
