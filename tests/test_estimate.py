@@ -445,3 +445,33 @@ def test_an_estimator_that_fails_unexpectedly_is_named_and_the_others_still_run(
     assert result.exit_code == 0, result.output
     assert "ukf: not run (internal error, please report it: ValueError: a defect)" in " ".join(result.output.split())
     assert (tmp_path / "out" / "estimates_ekf.csv").exists()
+
+
+def test_the_fallback_uise_weighs_an_output_mismatch_by_the_noise_not_by_x_s_width():
+    # I counted to +-100 on an X 1e7 wide: weighted by y's scale, a residual of 5e4 cost (5e-3)^2 and the SIR model's
+    # fallback UISE put I at 0 for 199 of 200 steps (RMSE 6.2e5 persons; 94 with these weights)
+    from uiest.estimate import fallback_weights
+
+    system = linear_models.linear_system(np.array([[0.9, 0.2], [0.0, 0.5]]), [[1.0], [0.0]], [[1.0, 0.0]],
+                                         x_bounds=(0.0, 1e7), v_bounds=(-100.0, 100.0))  # fmt: skip
+    weights = fallback_weights(system)
+    np.testing.assert_allclose(weights.R_y, [[12.0 / 200.0**2]])  # 1 / V's uniform variance
+    assert weights.mu == 0.8 and weights.P[0, 0] == pytest.approx(1.0 / system.x.scale[0] ** 2)
+
+
+@pytest.mark.slow
+def test_the_fallback_uise_holds_an_output_to_its_noise_where_that_predicts_the_record_better():
+    from uiest.estimate import build_estimator as build
+
+    N, gamma, K = 1e7, 0.1, 200  # an epidemic: infected counted to +-100 persons, the contact rate unknown
+    system = System.from_callables(
+        lambda x, u, w: [x[0] - w[0] * x[0] * x[1] / N, x[1] + w[0] * x[0] * x[1] / N - gamma * x[1]],
+        lambda x, v: [x[1] + v[0]], nx=2, nw=1, nv=1, x_bounds=((0.0, 0.0), (N, N)), v_bounds=(-100.0, 100.0),
+        w_range=(0.0, 1.0), name="sir")  # fmt: skip
+    beta = np.where(np.arange(K) < 60, 0.3, 0.18 + 0.002 * np.maximum(np.arange(K) - 120, 0))[:, None]
+    truth = simulate(system, [N - 1.0, 1.0], K, w=beta, v=np.random.default_rng(3).uniform(-100, 100, (K + 1, 1)))
+    register("sir-fallback", lambda: system)
+    uise, note = build("uise", get("sir-fallback"), system, np.array([N / 2, N / 2]), record=truth)
+    assert "explicit weights" in note and "output residuals weighted per noise" in note
+    error = uise.run(None, truth.y, x0_prior=[N / 2, N / 2]).x_hat[50:, 1] - truth.x[50:, 1]
+    assert np.sqrt(np.mean(error**2)) < 300.0  # per y's scale: I held at 0, RMSE 6e5

@@ -8,8 +8,10 @@ model certifies:
 - ``uise``: :meth:`UISE.design <uiest.estimators.UISE.design>` (certified mu and N <= ``horizon``,
   chosen for accuracy; without ``horizon``: N <= 30, or, where no window of at most 30 certifies,
   N <= 60); when there is no certified design (the model does not certify, or its certified window is
-  longer than that limit), explicit weights ``UISEWeights.from_scales(mu=0.8)`` with N = ``horizon``
-  (default 20), and the run says why (naming ``--horizon``) and that it has no guarantee.
+  longer than that limit), explicit weights with mu = 0.8 and N = ``horizon`` (default 20), and the run says
+  why (naming ``--horizon``) and that it has no guarantee. Those weights are per scale
+  (``UISEWeights.from_scales``), or, given a record, hold the outputs to their noise instead
+  (:func:`fallback_weights`) where that run predicts the record's outputs one step ahead more than 2 % better.
 - ``delayed``: the same for :class:`~uiest.estimators.DelayedUISE` (relative degree 2, ``lag >= 1``).
 - ``two-stage``: :meth:`TwoStageUISE.design <uiest.estimators.TwoStageUISE.design>` on the
   model's reduction (a model without ``reduction()`` is refused), same fallback.
@@ -68,7 +70,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -77,10 +79,11 @@ from uiest.analysis import Recommendation, analyse
 from uiest.atomic import remove_unwritten, staged_folder, write_file, write_text
 from uiest.box import FloatArray
 from uiest.checks import user_stacklevel
+from uiest.covariance import noise_variance
 from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
-from uiest.estimators import EKF, SmoothInputMHE, StandardMHE, UISEWeights, smooth_mhe
+from uiest.estimators import EKF, UISE, SmoothInputMHE, StandardMHE, UISEWeights, smooth_mhe
 from uiest.estimators.design_search import ERROR_TOLERANCE
 from uiest.health import quiet_bound_warnings
 from uiest.input_model import InputModel
@@ -126,6 +129,8 @@ __all__ = [
 ESTIMATORS = ("uise", "delayed", "two-stage", "mhe", "smooth", "ekf", "ukf", "uio")
 ALL = "all"
 """``--estimator all``: every estimator of :data:`ESTIMATORS` the model admits."""
+Key = TypeVar("Key")
+
 FALLBACK_RATE = 0.8
 """Discount of the explicit weights used when a model does not certify (a slow forgetting, as the designs pick)."""
 DEFAULT_HORIZON = 20
@@ -261,8 +266,8 @@ def build_estimator(
             reason = str(exc)
         note = f"no certified design ({reason}); explicit weights mu={FALLBACK_RATE}, N={N}, no guarantee"
         if kind == "uise":
-            return est.UISE(system, weights=est.UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0,
-                            **options), note  # fmt: skip
+            fallback, weighting = _fallback_uise(system, N, x0, options, record)
+            return fallback, f"{note}; {weighting}"
         if kind == "delayed":
             delayed = est.DelayedUISE(system, weights=_delayed_weights(system), N=max(N, lag + 1),
                                       x0_prior=x0, lag=max(lag, 1))  # fmt: skip
@@ -371,20 +376,51 @@ def _smooth_discount(system: System, build: Callable[[float], SmoothInputMHE], d
     candidates = (design, *(eta for eta in SMOOTH_DISCOUNTS if eta > design))
     if len(candidates) == 1:
         return build(design), f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
-    built: dict[float, SmoothInputMHE] = {}
-    errors: dict[float, float] = {}
-    for eta in candidates:
-        built[eta] = build(eta)
-        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
-            result = built[eta].run(u if system.nu else None, y, x0_prior=x0)
-        errors[eta] = prediction_error(system, result.x_hat, result.w_hat, u, y)
-    chosen = preferred_discount(errors, design)
+    built = {eta: build(eta) for eta in candidates}
+    chosen, errors = _scored_trials(system, built, design, x0, u, y)
     tried = ", ".join(f"eta {eta:.3g}: {error:#.4g}" for eta, error in errors.items())
     margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
     what = "one-step output prediction error over the record's second half"
     rule = (f"its {what} is more than {margin} below the design eta's" if chosen != design
             else f"the design's: no other eta's {what} is more than {margin} below it")  # fmt: skip
     return built[chosen], f"{rule}; the errors in output scales: {tried}"
+
+
+def _scored_trials(system: System, trials: dict[Key, Any], default: Key, x0: FloatArray, u: FloatArray,
+                   y: FloatArray) -> tuple[Key, dict[Key, float]]:  # fmt: skip
+    """Each trial estimator's run on the record scored by its one-step output prediction error; the one to use.
+
+    The ``default`` unless another predicts more than ``ERROR_TOLERANCE`` better
+    (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`; no true states needed).
+    """
+    errors: dict[Key, float] = {}
+    for key, estimator in trials.items():
+        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
+            result = estimator.run(u if system.nu else None, y, x0_prior=x0)
+        errors[key] = prediction_error(system, result.x_hat, result.w_hat, u, y)
+    return preferred_discount(errors, default), errors
+
+
+def _fallback_uise(system: System, N: int, x0: FloatArray, options: dict[str, Any],
+                   record: Trajectory | None) -> tuple[UISE, str]:  # fmt: skip
+    """The UISE with explicit weights: per scale, or with the outputs held to their noise where that predicts better.
+
+    Without a record the weights per scale (:meth:`UISEWeights.from_scales`); with one, also
+    :func:`fallback_weights`, each run on it and chosen by :func:`_scored_trials`.
+    """
+    trials = {
+        "per scale": UISE(system, weights=UISEWeights.from_scales(system, FALLBACK_RATE), N=N, x0_prior=x0, **options)
+    }
+    if record is None or not system.nv:
+        return trials["per scale"], "output residuals weighted per y's scale"
+    trials["per noise"] = UISE(system, weights=fallback_weights(system), N=N, x0_prior=x0, **options)
+    u, y = check_run_data(system, record.u if system.nu else None, record.y)
+    chosen, errors = _scored_trials(system, trials, "per scale", x0, u, y)
+    tried = ", ".join(f"{key}: {error:#.4g}" for key, error in errors.items())
+    why = ("more than 2 % below per scale's" if chosen != "per scale"
+           else "no other more than 2 % below it")  # fmt: skip
+    return trials[chosen], (f"output residuals weighted {chosen} ({why} in one-step output prediction error over the "
+                            f"record's second half, in output scales: {tried})")  # fmt: skip
 
 
 def _standard_mhe(system: System, x0: FloatArray, N: int, horizon: int | None, options: dict[str, Any],
@@ -431,6 +467,24 @@ def _record_data(kind: str, system: System, record: Trajectory | None) -> tuple[
     if record is None:
         raise OptionError(f"--w-variance: required for {kind} without measurements to fit it to (--data)")
     return (record.u if system.nu else None), record.y
+
+
+def fallback_weights(system: System) -> UISEWeights:
+    """The UISE's explicit weights where no certified design is had: mu = FALLBACK_RATE, outputs held to their noise.
+
+    Per scaled unit (:meth:`UISEWeights.from_scales`), except the output residual's weight, ``1 / sigma_y^2`` with
+    ``sigma_y^2 = diag(D Sigma_v D^T)`` (``D = dh/dv`` at X's centre, V's uniform variance; at least
+    :data:`~uiest.estimators.smooth_mhe.NOISE_FLOOR` of y's scale): an output mismatch costs as much as the noise
+    that would explain it, whatever y's scale. Weighted by y's scale instead, a record of I = 1e6 persons counted to
+    +-100 on an X 1e7 wide left a residual of 5e4 costing (5e-3)^2, and the estimate ignored the outputs.
+    """
+    center = system.x.bounds.center
+    D = system.linearize(np.where(np.isfinite(center), center, 0.0)).D_v
+    if not system.nv:
+        return UISEWeights.from_scales(system, FALLBACK_RATE)
+    floor = (smooth_mhe.NOISE_FLOOR * system.y.scale) ** 2
+    sigma_y = np.maximum(np.einsum("ij,j,ij->i", D, noise_variance(system), D), floor)
+    return UISEWeights.from_scales(system, FALLBACK_RATE, output=system.y.scale**2 / sigma_y)
 
 
 def _delayed_weights(system: System) -> Any:

@@ -17,7 +17,7 @@ moving its oldest state instead.
 from __future__ import annotations
 
 import warnings
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -151,6 +151,9 @@ def likelihood_weights(
                                      P0=arrival_covariance(white, u_arr, y_arr), at=x0_prior)  # fmt: skip
 
 
+Key = TypeVar("Key")
+
+
 def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: FloatArray, y: FloatArray) -> float:
     """The RMS one-step output prediction error of a run over the record's second half, in output scales.
 
@@ -178,8 +181,8 @@ def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: Fl
     return float(np.sqrt(np.nanmean(np.where(np.isfinite(squares), squares, np.nan))))
 
 
-def preferred_discount(errors: dict[float, float], design: float) -> float:
-    """The eta to use of ``errors`` (eta -> :func:`prediction_error`).
+def preferred_discount(errors: dict[Key, float], design: Key) -> Key:
+    """The candidate to use of ``errors`` (an eta, or any key -> :func:`prediction_error`).
 
     The design's, unless another's error is smaller by more than the design search's ``ERROR_TOLERANCE`` (a
     smaller difference is within a record's scatter).
