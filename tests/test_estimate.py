@@ -475,3 +475,33 @@ def test_the_fallback_uise_holds_an_output_to_its_noise_where_that_predicts_the_
     assert "explicit weights" in note and "output residuals weighted per noise" in note
     error = uise.run(None, truth.y, x0_prior=[N / 2, N / 2]).x_hat[50:, 1] - truth.x[50:, 1]
     assert np.sqrt(np.mean(error**2)) < 300.0  # per y's scale: I held at 0, RMSE 6e5
+
+
+@pytest.mark.slow
+def test_the_data_tuned_smooth_mhe_forgets_a_wrong_prior_as_fast_as_the_ekf():
+    # a cart on a spring sampled at 10 ms, position measured, an unknown force; the prior a quarter of X's width off.
+    # The window prior once weighed x[0] by the EKF's settled covariance from the first sample: 4.7x the EKF's error.
+    from uiest.estimators import EKF
+    from uiest.tuning import arrival_covariances
+
+    def rhs(x, u, w):
+        return [x[1], (-8.0 * x[0] - 1.0 * x[1] + w[0]) / 2.0]
+
+    system = System.from_ode(rhs, lambda x, v: [x[0] + v[0]], nx=2, nw=1, nv=1, dt=0.01,
+                             x_bounds=((-1.0, -5.0), (1.0, 5.0)), v_bounds=(-1e-4, 1e-4), name="cart")  # fmt: skip
+    K = 300
+    force = (2.0 * np.sin(1.5 * 0.01 * np.arange(K)) + 3.0 * (0.01 * np.arange(K) > 2.0))[:, None]
+    truth = simulate(system, [0.1, 0.0], K, w=force, v=np.random.default_rng(1).uniform(-1e-4, 1e-4, (K + 1, 1)))
+    register("cart-prior", lambda: system)
+    prior = np.array([0.6, 2.5])
+    errors = {}
+    for kind in ("smooth", "ekf"):
+        estimator, _ = build_estimator(kind, get("cart-prior"), system, prior, record=truth)
+        errors[kind] = np.sqrt(np.mean(((estimator.run(None, truth.y, x0_prior=prior).x_hat - truth.x) / 2.0) ** 2))
+    assert errors["smooth"] < 1.5 * errors["ekf"]
+    # each window's prior: the EKF's prior covariance at k = 0, its posterior ones after
+    ekf = EKF(system, w_variance=1.0, x0_prior=prior)
+    settled, starts = arrival_covariances(ekf, np.zeros((K, 0)), truth.y, with_input=True)
+    np.testing.assert_allclose(starts[0], np.diag([ekf.P0[0, 0], ekf.P0[1, 1], ekf.W0[0, 0]]))
+    assert starts.shape == (K + 1, 3, 3) and np.trace(starts[-1, :2, :2]) < 1e-3 * np.trace(starts[0, :2, :2])
+    np.testing.assert_allclose(starts[K // 2 :].mean(axis=0), settled, rtol=0.05)

@@ -204,6 +204,34 @@ def test_the_sliding_window_solves_its_least_squares_problem_with_the_prior_rule
     assert cert.min_horizon() > N and "N=4 < min_horizon()" in result.guarantee.reason  # a short window, no guarantee
 
 
+def test_a_window_that_starts_where_arrival_weights_are_given_is_weighted_by_them():
+    # the weight of a window's prior is arrival_P[s] for the window that starts at time s (the uncertainty of the
+    # estimate it starts from), the weights' P after them
+    import dataclasses
+
+    system, A, B, C = double_integrator(v_bound=0.05, x_bound=100.0)
+    N, K, variance = 4, 16, 0.005
+    weights = variance_weights(augmented_system(system, 3 * np.sqrt(variance)), variance, 0.9)
+    arrival = np.array([(1.0 + 3.0 * s) * weights.P for s in range(7)])
+    mhe = SmoothInputMHE(system, weights=weights, dw_variance=variance, N=N, x0_prior=[0.2, 0.0], w0_prior=[1.0],
+                         arrival_P=arrival)  # fmt: skip
+    w = (2.0 * np.cos(0.2 * np.arange(K)))[:, None]
+    traj = simulate(system, [0.0, 0.5], K, w=w, v=UniformNoise.symmetric(0.01), seed=3)
+    result = mhe.run(None, traj.y)
+    delivered = []
+    for k in range(K + 1):
+        L, start = min(N, k), max(k - N, 0)
+        prior = np.array([0.2, 0.0, 1.0]) if start == 0 else delivered[start]
+        own = dataclasses.replace(weights, P=arrival[start]) if start < len(arrival) else weights
+        nodes = window_least_squares(A, B, C, own, L, prior, traj.y[k - L : k + 1])
+        delivered.append(nodes[-1])
+        np.testing.assert_allclose(result.x_hat[k], nodes[-1][:2], atol=1e-7, err_msg=f"k={k}")
+    with pytest.raises(OptionError, match="arrival_P: expected finite"):
+        SmoothInputMHE(system, weights=weights, dw_variance=variance, N=N, arrival_P=np.eye(3))
+    with pytest.raises(OptionError, match="arrival_P: expected symmetric positive semi-definite"):
+        SmoothInputMHE(system, weights=weights, dw_variance=variance, N=N, arrival_P=-np.eye(3)[None])
+
+
 # ---------------------------------------------------------------------------------------------- sampled mechanics
 
 

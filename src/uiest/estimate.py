@@ -98,7 +98,7 @@ from uiest.run_data import check_run_data
 from uiest.system import System
 from uiest.tuning import (
     SMOOTH_DISCOUNTS,
-    arrival_covariance,
+    arrival_covariances,
     fit_standard_mhe,
     likelihood_weights,
     prediction_error,
@@ -348,12 +348,13 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
             return mhe, f"{why}; explicit weights eta={mhe.weights.eta:.3g}, N={mhe.N}, {increments}"
         return mhe, certified
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
-    prior = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
+    prior, starts = arrival_covariances(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
+    arrival = 0.5 * np.linalg.inv(starts)  # each window's prior: what the EKF knew of its first node
 
     def build(eta: float) -> SmoothInputMHE:
         return SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance, dw_bound=mhe.dw_bound,
-                              N=mhe.N, x0_prior=x0, **options)  # fmt: skip
+                              N=mhe.N, x0_prior=x0, arrival_P=arrival, **options)  # fmt: skip
 
     data_prior, why_eta = _smooth_discount(system, build, weights.eta, x0, u, y)
     chosen = data_prior.weights.eta

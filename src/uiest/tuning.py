@@ -201,23 +201,47 @@ def arrival_covariance(estimator: EKF, u: FloatArray, y: FloatArray, *, with_inp
     ``with_input``: the covariance of ``(x, w)`` (nx + nw, nx + nw) instead, the filter's random-walk input included
     (the smooth-input MHE's window prior; w in scales of w).
     """
+    return arrival_covariances(estimator, u, y, with_input=with_input)[0]
+
+
+def arrival_covariances(
+    estimator: EKF, u: FloatArray, y: FloatArray, *, with_input: bool = False
+) -> tuple[FloatArray, FloatArray]:
+    """:func:`arrival_covariance`, and the uncertainty of what the window that starts at time k starts from, k = 0..K.
+
+    (K+1, n, n): at k = 0 the filter's prior covariance (the window's prior is x[0]'s), at k >= 1 its posterior
+    covariance after y[k] (the window's prior is the estimate delivered at time k), floored as the settled one; where
+    it is not finite, the settled one.
+    """
     estimator.reset()
     system = estimator.system
     n, K = system.nx + (system.nw if with_input else 0), len(y) - 1
+    scale = np.concatenate([system.x.scale, system.w.scale]) if with_input else system.x.scale
+    outer = np.outer(scale, scale)
+
+    def floored(P: FloatArray) -> FloatArray:
+        values, vectors = np.linalg.eigh(0.5 * (P + P.T) / outer)
+        return (vectors * np.maximum(values, ARRIVAL_FLOOR**2)) @ vectors.T * outer
+
     total, count = np.zeros((n, n)), 0
+    starts = np.full((K + 1, n, n), np.nan)
+    starts[0] = floored(estimator._prior_covariance()[:n, :n])
     with quiet_bound_warnings():
         for k in range(K + 1):
             estimator.step(None if k == 0 else u[k - 1], y[k])
             P = estimator.covariance
-            if k >= K // 2 and P is not None and np.all(np.isfinite(P)):
+            if P is None or not np.all(np.isfinite(P)):
+                continue
+            if k:
+                starts[k] = floored(P[:n, :n])
+            if k >= K // 2:
                 total += P[:n, :n]
                 count += 1
     if not count:
         raise OptionError("P0: the filter of the chosen variance has no finite covariance on the record's second half")
-    scale = np.concatenate([system.x.scale, system.w.scale]) if with_input else system.x.scale
-    values, vectors = np.linalg.eigh(total / count / np.outer(scale, scale))
-    floored = (vectors * np.maximum(values, ARRIVAL_FLOOR**2)) @ vectors.T
-    return floored * np.outer(scale, scale)
+    settled = floored(total / count)
+    starts[~np.all(np.isfinite(starts), axis=(1, 2))] = settled
+    return settled, starts
 
 
-__all__ = ["WhiteInputEKF", "arrival_covariance", "fit_standard_mhe", "likelihood_weights"]
+__all__ = ["WhiteInputEKF", "arrival_covariance", "arrival_covariances", "fit_standard_mhe", "likelihood_weights"]

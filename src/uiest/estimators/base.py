@@ -35,7 +35,7 @@ import pickle
 import time
 import warnings
 from collections import deque
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -301,6 +301,7 @@ class WindowEstimator(StreamingEstimator):
         options: Mapping[str, Any],
         w_box: Box | None = None,
         w_prior: FloatArray | None = None,
+        start_schedules: Sequence[Schedule] = (),
     ) -> None:
         self.information_horizon: InformationHorizon | None = (
             None if schedule is None else information_horizon(schedule, model, one_step_ahead=self.one_step_ahead)
@@ -314,6 +315,8 @@ class WindowEstimator(StreamingEstimator):
         else:
             self.requested_N = None
         self.system, self.model, self.schedule, self.N = system, model, schedule, N
+        self.start_schedules = tuple(start_schedules)
+        """``start_schedules[s]``: the weights of the window that starts at time s; later ones: :attr:`schedule`."""
         self.w_box = w_box
         self.w_prior = model.nominal_w if w_prior is None else w_prior
         v_bar = np.zeros(system.nv) if v_prior is None else as_vector(v_prior, system.nv, "v_prior")
@@ -532,7 +535,8 @@ class WindowEstimator(StreamingEstimator):
             node, outcome = self._propagate(u_vec), Outcome.PROPAGATED
         else:
             data = self._window_data(length)
-            entry, attempts = self._solve_window(length, prior, u_win, y_win, data)
+            own = self.start_schedules[start] if start < len(self.start_schedules) else None
+            entry, attempts = self._solve_window(length, prior, u_win, y_win, data, own)
             solution = attempts[-1]
             if solution.success:
                 unpacked = entry.problem.unpack(solution.z)
@@ -719,24 +723,37 @@ class WindowEstimator(StreamingEstimator):
         return np.concatenate((self._data.last(length), np.zeros((1, self.model.nd))))
 
     def _solve_window(
-        self, length: int, prior: FloatArray, u_win: FloatArray, y_win: FloatArray, data: FloatArray | None
+        self,
+        length: int,
+        prior: FloatArray,
+        u_win: FloatArray,
+        y_win: FloatArray,
+        data: FloatArray | None,
+        own: Schedule | None = None,
     ) -> tuple[_Cached, list[WindowSolution]]:
-        """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts."""
+        """Warm start from the shifted last solution, one cold retry; returns the entry and the attempts.
+
+        ``own``: this window's weights where they are not :attr:`schedule`'s (:attr:`start_schedules`).
+        """
         gap = self.free_input and length > 0 and not self.one_step_ahead and any_true(np.isnan(y_win))
         entry = self._cached(length, gap)
         problem = entry.problem
         z0, duals = self._guess(problem, length, prior, u_win, data)
         w_bar, weights = entry.w_bar, entry.weights
+        schedule = own or self.schedule
+        assert schedule is not None  # models with state have weights
+        if own is not None and not gap:
+            measured = range(length if self.one_step_ahead else length + 1)
+            weights = problem.weight_vector(own.window(length, measured))
         if gap:  # the flat inputs stay where the last window left them
-            assert self.schedule is not None
             start = problem.unpack(z0)
             w_bar = start.w
             gain = self._input_gain(start, u_win[-1])
-            weights = problem.weight_vector(self._gap_weights(self.schedule.window(length, range(length + 1)), length,
+            weights = problem.weight_vector(self._gap_weights(schedule.window(length, range(length + 1)), length,
                                                               gain))  # fmt: skip
-        if gap or entry.parameters is None:
+        if gap or own is not None or entry.parameters is None:
             p = problem.parameters(prior, u_win, y_win, v_bar=entry.v_bar, w_bar=w_bar, data=data, weights=weights)
-            if not gap:
+            if not gap and own is None:
                 entry.parameters = p.copy()
         else:
             p = problem.with_data(entry.parameters, prior, u_win, y_win, data)

@@ -100,6 +100,20 @@ def noise_variance(system: System) -> FloatArray:
     return np.where(np.isfinite(V.width), V.width**2 / 12.0, system.v.scale**2)
 
 
+def _weight_matrices(value: ArrayLike, n: int, name: str) -> FloatArray:
+    """Symmetric positive semi-definite (m, n, n) weights, or OptionError naming ``name``."""
+    try:
+        stack = np.asarray(value, dtype=float)
+    except (TypeError, ValueError):
+        raise OptionError(f"{name}: expected (m, {n}, {n}) matrices, got {value!r}") from None
+    if stack.ndim != 3 or stack.shape[1:] != (n, n) or not len(stack) or not np.all(np.isfinite(stack)):
+        raise OptionError(f"{name}: expected finite (m, {n}, {n}) matrices with m >= 1, got shape {stack.shape}")
+    symmetric = 0.5 * (stack + stack.transpose(0, 2, 1))
+    if not np.allclose(stack, symmetric) or np.linalg.eigvalsh(symmetric)[:, 0].min() < 0.0:
+        raise OptionError(f"{name}: expected symmetric positive semi-definite matrices")
+    return symmetric
+
+
 def variance_weights(augmented: System, dw_variance: ArrayLike, eta: float) -> MHEWeights:
     """The weights of the module docstring: ``Q_w = Sigma_dw^-1 / 2``, ``Q_v = Sigma_v^-1``, ``R = 2 Sigma_y^-1``.
 
@@ -184,6 +198,12 @@ class SmoothInputMHE(WindowEstimator):
         a constant Jacobian, so the certificate's inequality holds for any estimated increment.
     normalise : bool, optional
         As for :class:`~uiest.estimators.StandardMHE` (raise a tiny eta to ``SPAN^(-1/N)``).
+    arrival_P : array_like (m, nx + nw, nx + nw), optional
+        ``arrival_P[s]``: the prior weight of ``(x[s], w[s])`` in the window that starts at time s, for s < m
+        (later windows: the weights' ``P``). A filter's covariances along the record give them
+        (:func:`uiest.tuning.arrival_covariances`): the first estimates a window starts from are far less certain
+        than the settled ones, and a ``P`` taken from a filter's settled covariance holds a wrong x[0] for hundreds
+        of samples.
     **options
         Window options (:class:`~uiest.estimators.WindowOptions`), as keywords or one ``window=WindowOptions(...)``.
 
@@ -213,6 +233,7 @@ class SmoothInputMHE(WindowEstimator):
         v_prior: ArrayLike | None = None,
         constrain_increments: bool = False,
         normalise: bool | None = None,
+        arrival_P: ArrayLike | None = None,
         **options: Any,
     ) -> None:
         check_system(system)
@@ -240,9 +261,20 @@ class SmoothInputMHE(WindowEstimator):
         self.w0_prior = W.center if w0_prior is None else as_vector(w0_prior, system.nw, "w0_prior")
         if not W.contains(self.w0_prior):
             raise DataError(f"w0_prior: expected a point in W = {W}, got {self.w0_prior.tolist()}")
-        super().__init__(system, WindowModel.from_system(aug), schedule=self.weights.schedule(), N=N,
-                         x0_prior=x0_prior, v_prior=v_prior, options=options,
-                         w_box=aug.w_range if constrain_increments else None, w_prior=aug.nominal_w)  # fmt: skip
+        self.arrival_P = None if arrival_P is None else _weight_matrices(arrival_P, aug.nx, "arrival_P")
+        arrival = [] if self.arrival_P is None else [replace(self.weights, P=P).schedule() for P in self.arrival_P]
+        super().__init__(
+            system,
+            WindowModel.from_system(aug),
+            schedule=self.weights.schedule(),
+            N=N,
+            x0_prior=x0_prior,
+            v_prior=v_prior,
+            options=options,
+            w_box=aug.w_range if constrain_increments else None,
+            w_prior=aug.nominal_w,
+            start_schedules=arrival,
+        )
 
     @classmethod
     def design(
