@@ -2,7 +2,8 @@
 
 Run: ``PYTHONPATH=src python bench/data_prior_eta.py [--seeds 5] [--only chemostat,crop-growth]``. Where a model has
 no informative certificate, ``uiest estimate`` builds the smooth-input MHE with the window prior ``0.5 inv(C)``, C the
-random-walk EKF's settled covariance of (x, w) on the record (:func:`uiest.tuning.arrival_covariance`), at the
+random-walk EKF's settled covariance of (x, w) on the record, and the window that starts at time s with ``0.5
+inv(C_s)``, C_s that EKF's covariance of (x[s], w[s]) (:func:`uiest.tuning.arrival_covariances`), at the
 design's eta (``FALLBACK_ETA`` or the certificate's), and the standard MHE with Gaussian weights whose prior is the
 white-input EKF's settled covariance (:func:`uiest.tuning.fit_standard_mhe`) at ``FALLBACK_RATE``. The cost weighs the
 prior by ``eta^N`` and stage j by ``eta^(j-1)``; at eta = 1 it is the window's negative log-posterior.
@@ -43,7 +44,7 @@ from uiest.input_model import InputModel
 from uiest.models import SimulationSetup
 from uiest.noise import UniformNoise
 from uiest.run_data import check_run_data
-from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariance, fit_standard_mhe, prediction_error, preferred_discount
+from uiest.tuning import SMOOTH_DISCOUNTS, arrival_covariances, fit_standard_mhe, prediction_error, preferred_discount
 
 ONE = 1.0 - 1e-9
 ROOT = Path(__file__).resolve().parents[1]
@@ -130,13 +131,14 @@ def runs(entry: models.ModelEntry, seed: int, prior: str) -> dict[str, dict[str,
     window = min(smooth_mhe.DEFAULT_HORIZON, DEFAULT_MAX_HORIZON)
     design = SmoothInputMHE.design(system, dw_variance=variance, x0_prior=x0, N=window,
                                    max_horizon=DEFAULT_MAX_HORIZON)  # fmt: skip
-    settled = arrival_covariance(EKF(system, w_variance=variance, x0_prior=x0), u_checked, y, with_input=True)
+    settled, starts = arrival_covariances(EKF(system, w_variance=variance, x0_prior=x0), u_checked, y, with_input=True)
     standard = fit_standard_mhe(system, u, y, x0_prior=x0, N=DEFAULT_HORIZON, eta=FALLBACK_RATE)
     for label, eta in (("design", None), ("0.95", 0.95), ("0.99", 0.99), ("1", ONE)):
         weights = replace(design.weights, eta=design.weights.eta if eta is None else max(eta, design.weights.eta),
                           P=0.5 * np.linalg.inv(settled))  # fmt: skip
         out[f"smooth {label}"] = score(SmoothInputMHE(system, weights=weights, dw_variance=variance,
-                                                      dw_bound=design.dw_bound, N=design.N, x0_prior=x0))  # fmt: skip
+                                                      dw_bound=design.dw_bound, N=design.N, x0_prior=x0,
+                                                      arrival_P=0.5 * np.linalg.inv(starts)))  # fmt: skip
         weights = replace(standard.weights, eta=FALLBACK_RATE if eta is None else eta)
         out[f"mhe {label}"] = score(StandardMHE(system, weights=weights, N=DEFAULT_HORIZON, x0_prior=x0))
     library = ["smooth design"] + [f"smooth {eta:g}" for eta in SMOOTH_DISCOUNTS]  # the set uiest estimate tries

@@ -368,7 +368,7 @@ def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_out
 
     from uiest.tuning import SMOOTH_DISCOUNTS, prediction_error, preferred_discount
 
-    # the crop model's augmented model does not certify: the window prior is the EKF's settled covariance on the
+    # the crop model's augmented model does not certify: the window priors are the EKF's covariances on the
     # data, and the discount (0.8 by default) is chosen among it, 0.95 and 0.99 by the one-step prediction error
     entry = get("crop-growth")
     system, setup = entry.build(), entry.simulation()

@@ -28,8 +28,9 @@ model certifies:
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
   increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
   dw[k]``) fitted to the record with the EKF's default prior, and ``max_horizon`` as for the UISE; its
-  certificate's weights where their guarantee is informative, otherwise (with a record) the window prior from the
-  EKF's settled covariance on the record (:func:`uiest.tuning.arrival_covariance`), as for ``mhe``, and the discount
+  certificate's weights where their guarantee is informative, otherwise (with a record) the window priors from that
+  EKF's covariances on the record (:func:`uiest.tuning.arrival_covariances`: each window's prior weighed by what the
+  EKF knew of its first node, its prior covariance at k = 0, its posterior ones after), and the discount
   eta among the design's and :data:`~uiest.tuning.SMOOTH_DISCOUNTS` above it whose run on the record predicts the
   outputs best one step ahead (:func:`uiest.tuning.prediction_error`; no true states); the note gives each eta's
   error.
@@ -327,11 +328,13 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
                 options: dict[str, Any], record: Trajectory | None) -> tuple[Any, str]:  # fmt: skip
     """The smooth-input MHE with increments of variance ``factor * w.scale^2`` (:meth:`SmoothInputMHE.design`).
 
-    Its certificate's weights are kept where their guarantee is informative; otherwise, given a record, the window's
-    prior weight is the inverse of the random-walk EKF's settled covariance of ``(x, w)`` on it
-    (:func:`uiest.tuning.arrival_covariance`), with the design's eta and N and no guarantee: the certificate's prior
-    (or the EKF's ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the
-    window explain the data by moving its oldest states.
+    Its certificate's weights are kept where their guarantee is informative; otherwise, given a record, the prior
+    weight of the window that starts at time s is the inverse of the random-walk EKF's covariance of ``(x[s], w[s])``
+    on it (its prior covariance at s = 0, its posterior one after y[s]; :func:`uiest.tuning.arrival_covariances`),
+    ``P`` its settled covariance, with the design's eta and N and no guarantee: the certificate's prior (or the EKF's
+    ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the window explain
+    the data by moving its oldest states; a prior as tight as the settled covariance from the first sample on holds a
+    wrong x[0] for hundreds of samples.
     """
     variance = factor * system.w.scale**2
     lag = options.get("lag", 0)
@@ -358,11 +361,9 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
 
     data_prior, why_eta = _smooth_discount(system, build, weights.eta, x0, u, y)
     chosen = data_prior.weights.eta
-    data_prior.why_uncertified = (
-        f"its window prior is the EKF's settled covariance on the data, not a certificate's ({why})"
-    )
-    note = (f"no informative certified design (its guarantee says why); window prior: the EKF's settled covariance "
-            f"of (x, w) on the data, eta={chosen:.3g} ({why_eta}), N={mhe.N}, {increments}")  # fmt: skip
+    data_prior.why_uncertified = f"its window priors are the EKF's covariances on the data, not a certificate's ({why})"
+    note = (f"no informative certified design (its guarantee says why); window priors: the EKF's covariances of "
+            f"(x, w) on the data, eta={chosen:.3g} ({why_eta}), N={mhe.N}, {increments}")  # fmt: skip
     return data_prior, note
 
 
