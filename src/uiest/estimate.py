@@ -353,17 +353,25 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
     prior, starts = arrival_covariances(EKF(system, w_variance=variance, x0_prior=x0), u, y, with_input=True)
     weights = replace(mhe.weights, P=0.5 * np.linalg.inv(prior))
-    arrival = 0.5 * np.linalg.inv(starts)  # each window's prior: what the EKF knew of its first node
 
-    def build(eta: float) -> SmoothInputMHE:
+    def build(eta: float, arrival: FloatArray | None = None) -> SmoothInputMHE:
         return SmoothInputMHE(system, weights=replace(weights, eta=eta), dw_variance=variance, dw_bound=mhe.dw_bound,
                               N=mhe.N, x0_prior=x0, arrival_P=arrival, **options)  # fmt: skip
 
-    data_prior, why_eta = _smooth_discount(system, build, weights.eta, x0, u, y)
+    # a prior of x[0] the data contradict shows in the first predictions: then weigh each window's prior by what the
+    # EKF knew of its first node (its prior covariance at k = 0, its posterior ones after), so that x[0] is let go
+    arrivals = {"settled": None, "per window": 0.5 * np.linalg.inv(starts)}
+    trials = {key: build(weights.eta, arrival) for key, arrival in arrivals.items()}
+    kept, errors = _scored_trials(system, trials, "settled", x0, u, y, first=0)
+    source = {"settled": "the EKF's settled covariance of (x, w) on the data",
+              "per window": "the EKF's covariance of (x, w) at each window's first node"}[kept]  # fmt: skip
+    compared = (f"whole-record one-step prediction error {errors['per window']:#.4g} against {errors['settled']:#.4g} "
+                "with the settled one, at the design's eta")  # fmt: skip
+    data_prior, why_eta = _smooth_discount(system, lambda eta: build(eta, arrivals[kept]), weights.eta, x0, u, y)
     chosen = data_prior.weights.eta
-    data_prior.why_uncertified = f"its window priors are the EKF's covariances on the data, not a certificate's ({why})"
-    note = (f"no informative certified design (its guarantee says why); window priors: the EKF's covariances of "
-            f"(x, w) on the data, eta={chosen:.3g} ({why_eta}), N={mhe.N}, {increments}")  # fmt: skip
+    data_prior.why_uncertified = f"its window prior is {source}, not a certificate's ({why})"
+    note = (f"no informative certified design (its guarantee says why); window prior: {source} ({compared}), "
+            f"eta={chosen:.3g} ({why_eta}), N={mhe.N}, {increments}")  # fmt: skip
     return data_prior, note
 
 
@@ -389,17 +397,18 @@ def _smooth_discount(system: System, build: Callable[[float], SmoothInputMHE], d
 
 
 def _scored_trials(system: System, trials: dict[Key, Any], default: Key, x0: FloatArray, u: FloatArray,
-                   y: FloatArray) -> tuple[Key, dict[Key, float]]:  # fmt: skip
+                   y: FloatArray, first: int | None = None) -> tuple[Key, dict[Key, float]]:  # fmt: skip
     """Each trial estimator's run on the record scored by its one-step output prediction error; the one to use.
 
     The ``default`` unless another predicts more than ``ERROR_TOLERANCE`` better
-    (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`; no true states needed).
+    (:func:`~uiest.tuning.prediction_error` from ``first``, :func:`~uiest.tuning.preferred_discount`; no true states
+    needed).
     """
     errors: dict[Key, float] = {}
     for key, estimator in trials.items():
         with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
             result = estimator.run(u if system.nu else None, y, x0_prior=x0)
-        errors[key] = prediction_error(system, result.x_hat, result.w_hat, u, y)
+        errors[key] = prediction_error(system, result.x_hat, result.w_hat, u, y, first)
     return preferred_discount(errors, default), errors
 
 

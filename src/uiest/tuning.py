@@ -154,16 +154,18 @@ def likelihood_weights(
 Key = TypeVar("Key")
 
 
-def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: FloatArray, y: FloatArray) -> float:
+def prediction_error(system: System, x_hat: FloatArray, w_hat: FloatArray, u: FloatArray, y: FloatArray,
+                     first: int | None = None) -> float:  # fmt: skip
     """The RMS one-step output prediction error of a run over the record's second half, in output scales.
 
-    ``y[k+1] - h(f(x_hat[k], u[k], w))`` (no noise) for ``k = K // 2 .. K - 1``, with ``w`` the newest estimate of the
+    ``y[k+1] - h(f(x_hat[k], u[k], w))`` (no noise) for ``k = first .. K - 1`` (default ``first = K // 2``: the
+    second half, past the transient from the prior; 0: the whole record), with ``w`` the newest estimate of the
     unknown input at time k (``w_hat[k-1]``, else ``w_hat[k-2]``, else ``nominal_w``): x_hat[k] has seen ``y[..k]``
     only, so this scores an estimator without the true states. ``x_hat (K+1, nx)``, ``w_hat (K, nw)``, ``u (K, nu)``,
     ``y (K+1, ny)``; missing outputs are left out; inf where no output or prediction is finite.
     """
     K = len(y) - 1
-    ks = np.arange(K // 2, K)
+    ks = np.arange(K // 2 if first is None else first, K)
     w = np.tile(system.nominal_w, (len(ks), 1))
     for lag in (2, 1):  # the newer finite estimate overwrites the older
         j = ks - lag
