@@ -368,8 +368,9 @@ def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_out
 
     from uiest.tuning import SMOOTH_DISCOUNTS, prediction_error, preferred_discount
 
-    # the crop model's augmented model does not certify: the window priors are the EKF's covariances on the
-    # data, and the discount (0.8 by default) is chosen among it, 0.95 and 0.99 by the one-step prediction error
+    # the crop model's augmented model does not certify: from the exact prior the window prior is the EKF's settled
+    # covariance on the data (per-window priors do not predict the record better), and the discount (0.8 by default)
+    # is chosen among it, 0.95 and 0.99 by the one-step prediction error
     entry = get("crop-growth")
     system, setup = entry.build(), entry.simulation()
     record = simulate(system, setup.x0, 100, u=setup.u, w=setup.w, v=setup.noise, seed=1)
@@ -379,6 +380,7 @@ def test_the_data_tuned_smooth_mhe_takes_the_discount_whose_run_predicts_the_out
     assert list(tried)[1:] == list(SMOOTH_DISCOUNTS) and design < SMOOTH_DISCOUNTS[0]
     assert smooth.weights.eta == preferred_discount(tried, design) != design  # 0.95 or 0.99 predicts better here
     assert f"eta={smooth.weights.eta:.3g} (its one-step output prediction error" in note
+    assert "window prior: the EKF's settled covariance of (x, w) on the data" in note and smooth.arrival_P is None
     result = smooth.run(record.u, record.y, x0_prior=setup.x0)  # the chosen estimator's own run scores as noted
     chosen = prediction_error(system, result.x_hat, result.w_hat, record.u, record.y)
     assert chosen == pytest.approx(tried[smooth.weights.eta], rel=1e-3)
@@ -481,6 +483,8 @@ def test_the_fallback_uise_holds_an_output_to_its_noise_where_that_predicts_the_
 def test_the_data_tuned_smooth_mhe_forgets_a_wrong_prior_as_fast_as_the_ekf():
     # a cart on a spring sampled at 10 ms, position measured, an unknown force; the prior a quarter of X's width off.
     # The window prior once weighed x[0] by the EKF's settled covariance from the first sample: 4.7x the EKF's error.
+    # The data say the prior is wrong (the first predictions miss), so each window's prior is weighed by what the EKF
+    # knew of its first node.
     from uiest.estimators import EKF
     from uiest.tuning import arrival_covariances
 
@@ -496,7 +500,9 @@ def test_the_data_tuned_smooth_mhe_forgets_a_wrong_prior_as_fast_as_the_ekf():
     prior = np.array([0.6, 2.5])
     errors = {}
     for kind in ("smooth", "ekf"):
-        estimator, _ = build_estimator(kind, get("cart-prior"), system, prior, record=truth)
+        estimator, note = build_estimator(kind, get("cart-prior"), system, prior, record=truth)
+        if kind == "smooth":
+            assert "window prior: the EKF's covariance of (x, w) at each window's first node" in note
         errors[kind] = np.sqrt(np.mean(((estimator.run(None, truth.y, x0_prior=prior).x_hat - truth.x) / 2.0) ** 2))
     assert errors["smooth"] < 1.5 * errors["ekf"]
     # each window's prior: the EKF's prior covariance at k = 0, its posterior ones after

@@ -388,3 +388,10 @@ def test_arrival_covariance_with_the_input_extends_that_of_x():
     np.testing.assert_allclose(joint[:3, :3], x_only, rtol=1e-9, atol=1e-12)
     # the unmeasured input's uncertainty settles at the random walk's scale, not at its prior W0 = w.scale^2
     assert STEP**2 / 10 < joint[3, 3] < 10 * STEP**2
+
+
+def test_a_profile_flat_within_the_likelihood_interval_is_not_followed_beyond_the_grid():
+    # rising by 0.1 over the grid's ten decades: the record does not determine the variance, and no point is added
+    profile = maximise_likelihood(lambda q: Score(log_likelihood=0.01 * np.log10(q)), DEFAULT_GRID, name="w_variance",
+                                  unit="w.scale^2", scale=np.ones(1), extend=GRID_EXTENSION)  # fmt: skip
+    assert profile.extended == 0 and profile.shape is ProfileShape.FLAT and len(profile.factors) == len(DEFAULT_GRID)

@@ -31,7 +31,6 @@ from uiest.errors import (
     FailureWarning,
     ModelError,
     OptionError,
-    SolverError,
     UiestError,
 )
 from uiest.estimate import (
@@ -405,6 +404,7 @@ def _build_estimators(
     notes: dict[str, str] = {}
     skipped: dict[str, str] = {}
     refused: list[Exception] = []
+    defects: list[Exception] = []
     for kind in dict.fromkeys(kinds):
         status.update(f"building {kind}")
         try:
@@ -417,11 +417,10 @@ def _build_estimators(
         except Exception as exc:  # a defect met by one estimator: the others still run, and the error is named
             if len(kinds) == 1:
                 raise
+            defects.append(exc)
             skipped[kind] = internal_error(exc)
-    if not built:  # none to run: the first refusal is the command's error
-        if not refused:
-            raise SolverError(f"--estimator: none could be built: {'; '.join(skipped.values())}")
-        raise refused[0] from None
+    if not built:  # none to run: the first refusal is the command's error (a defect's own, where none was refused)
+        raise (refused or defects)[0] from None
     return built, notes, skipped
 
 

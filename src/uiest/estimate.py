@@ -28,9 +28,10 @@ model certifies:
 - ``smooth``: :meth:`SmoothInputMHE.design <uiest.estimators.SmoothInputMHE.design>` with the
   increments' variance ``w_variance`` or the variance of the EKF's random walk (the same model: ``w[k+1] = w[k] +
   dw[k]``) fitted to the record with the EKF's default prior, and ``max_horizon`` as for the UISE; its
-  certificate's weights where their guarantee is informative, otherwise (with a record) the window priors from that
-  EKF's covariances on the record (:func:`uiest.tuning.arrival_covariances`: each window's prior weighed by what the
-  EKF knew of its first node, its prior covariance at k = 0, its posterior ones after), and the discount
+  certificate's weights where their guarantee is informative, otherwise (with a record) the window prior from that
+  EKF's settled covariance on the record, or, where that predicts the whole record one step ahead more than 2 %
+  better (a prior of x[0] the data contradict), each window's from the EKF's covariance of its first node (its prior
+  covariance at k = 0, its posterior ones after; :func:`uiest.tuning.arrival_covariances`), and the discount
   eta among the design's and :data:`~uiest.tuning.SMOOTH_DISCOUNTS` above it whose run on the record predicts the
   outputs best one step ahead (:func:`uiest.tuning.prediction_error`; no true states); the note gives each eta's
   error.
@@ -328,13 +329,14 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
                 options: dict[str, Any], record: Trajectory | None) -> tuple[Any, str]:  # fmt: skip
     """The smooth-input MHE with increments of variance ``factor * w.scale^2`` (:meth:`SmoothInputMHE.design`).
 
-    Its certificate's weights are kept where their guarantee is informative; otherwise, given a record, the prior
-    weight of the window that starts at time s is the inverse of the random-walk EKF's covariance of ``(x[s], w[s])``
-    on it (its prior covariance at s = 0, its posterior one after y[s]; :func:`uiest.tuning.arrival_covariances`),
-    ``P`` its settled covariance, with the design's eta and N and no guarantee: the certificate's prior (or the EKF's
-    ``P0``) is far weaker than what the data determine, and a window prior that never tightens lets the window explain
-    the data by moving its oldest states; a prior as tight as the settled covariance from the first sample on holds a
-    wrong x[0] for hundreds of samples.
+    Its certificate's weights are kept where their guarantee is informative; otherwise, given a record, the window's
+    prior weight is the inverse of the random-walk EKF's settled covariance of ``(x, w)`` on it, with the design's N
+    and no guarantee: the certificate's prior (or the EKF's ``P0``) is far weaker than what the data determine, and a
+    window prior that never tightens lets the window explain the data by moving its oldest states. That weight holds
+    a wrong x[0] for hundreds of samples, so where per-window weights (the window that starts at time s weighed by the
+    inverse of the EKF's covariance of ``(x[s], w[s])``, its prior one at s = 0, its posterior one after y[s];
+    :func:`uiest.tuning.arrival_covariances`) predict the whole record one step ahead more than 2 % better at the
+    design's eta, they are used. Then eta is chosen (:func:`_smooth_discount`).
     """
     variance = factor * system.w.scale**2
     lag = options.get("lag", 0)
@@ -428,8 +430,9 @@ def _fallback_uise(system: System, N: int, x0: FloatArray, options: dict[str, An
     u, y = check_run_data(system, record.u if system.nu else None, record.y)
     chosen, errors = _scored_trials(system, trials, "per scale", x0, u, y)
     tried = ", ".join(f"{key}: {error:#.4g}" for key, error in errors.items())
-    why = ("more than 2 % below per scale's" if chosen != "per scale"
-           else "no other more than 2 % below it")  # fmt: skip
+    margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
+    why = (f"more than {margin} below per scale's" if chosen != "per scale"
+           else f"no other more than {margin} below it")  # fmt: skip
     return trials[chosen], (f"output residuals weighted {chosen} ({why} in one-step output prediction error over the "
                             f"record's second half, in output scales: {tried})")  # fmt: skip
 

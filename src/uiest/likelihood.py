@@ -327,7 +327,8 @@ def _extended(value: Callable[[float], float], grid: FloatArray, values: FloatAr
     added = 0
     while added < extend:
         best = int(np.argmax(values))
-        if 0 < best < len(grid) - 1 or np.all(values == values[best]):  # interior, or flat: nothing to follow
+        finite = values[np.isfinite(values)]
+        if 0 < best < len(grid) - 1 or finite.max() - finite.min() <= LIKELIHOOD_INTERVAL:  # interior, or flat
             break
         step = grid[1] / grid[0] if len(grid) > 1 else np.sqrt(10.0)
         if best == 0:

@@ -33,7 +33,7 @@ from scipy.optimize import minimize_scalar
 
 from uiest.analysis.points import Linearisations
 from uiest.box import FloatArray
-from uiest.detectability.linear import invariant_zeros
+from uiest.detectability.linear import UNIT_CIRCLE_TOL, invariant_zeros
 from uiest.system import System
 
 __all__ = ["FrequencyMinimum", "NearZeros", "find_near_zeros"]
@@ -237,7 +237,7 @@ def _floor_at_outer_zeros(
     best, share = None, -1.0
     for i in range(lin.count):
         zeros = invariant_zeros(lin.A[i], lin.B[i], lin.C[i])
-        for z in zeros[np.abs(zeros) >= 1.0]:
+        for z in zeros[np.abs(zeros) >= 1.0 - UNIT_CIRCLE_TOL]:  # on the circle to rounding, or outside
             at = _floor(lin.A[i], bases[i], C_noise[i], scale, np.array([z]), unseen_rtol=ZERO_RTOL)[0]
             found.raise_to(at, complex(z), lin.x[i] * 1.0)
             if np.max(at / width) > share:
