@@ -483,17 +483,8 @@ class System:
         unstable = check(rhs_f, X, u_ref, w_ref, dt / substeps)
         if unstable:
             warnings.warn(f"from_ode: {unstable}", UserWarning, stacklevel=2)
-        spread = ode.input_spread(rhs_f, X, u_ref, w_ref, dt) if channel == "integral" else None
-        if spread and spread.spread > ode.INPUT_SPREAD_LIMIT and input_channel is None:  # another model than the ODE
-            f, channel = ode.discretise(rhs_f, dt=dt, substeps=substeps, input_channel="rk4", method=method,
-                                        x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
-            warnings.warn(f"from_ode: {spread.text}; so w enters inside the integrator (input_channel='rk4'), its "
-                          "direction varying with the state as the ODE's does (input_channel='integral' keeps the "
-                          "constant direction the certificates of x+ = f1 + B w need: narrow X first)", UserWarning,
-                          stacklevel=2)  # fmt: skip
-        elif spread:
-            warnings.warn(f"from_ode: {spread.text}; input_channel='rk4' keeps w inside the integrator", UserWarning,
-                          stacklevel=2)  # fmt: skip
+        if channel == "integral":  # "rk4" where a constant direction misstates w's effect by more than its size
+            f, channel = _checked_channel(rhs_f, f, input_channel, X, u_ref, w_ref, (dt, substeps, method))
         try:
             system = cls.from_functions(f, h_f, dt=dt, **spec)
         except ModelError as exc:
@@ -742,3 +733,29 @@ def output_spread(h: ca.Function, x: Signal, v: Signal, at: FloatArray | None = 
         raise ModelError(f"h: evaluation failed at the domain centre: {exc}") from exc
     spread = np.sqrt(((sens * np.concatenate([x.scale, v.scale])) ** 2).sum(axis=1))
     return np.where(np.isfinite(spread) & (spread > 0), spread, np.nan)
+
+
+def _checked_channel(
+    rhs: ca.Function, f: ca.Function, asked: str | None, X: Box, u_ref: np.ndarray, w_ref: np.ndarray,
+    sampling: tuple[float, int, str]
+) -> tuple[ca.Function, str]:  # fmt: skip
+    """The sampled model ``f`` of the integral channel, or of "rk4" where that misstates w's effect.
+
+    "rk4" only where ``asked`` is None; a warning wherever the per-sample integral varies over X
+    (:func:`uiest.ode.input_spread`). ``sampling``: ``(dt, substeps, method)``.
+    """
+    dt, substeps, method = sampling
+    spread = ode.input_spread(rhs, X, u_ref, w_ref, dt)
+    if spread is None:
+        return f, "integral"
+    if spread.spread > ode.INPUT_SPREAD_LIMIT and asked is None:  # another model than the ODE over X
+        f, channel = ode.discretise(rhs, dt=dt, substeps=substeps, input_channel="rk4", method=method,
+                                    x_ref=X.center, u_ref=u_ref, w_ref=w_ref)  # fmt: skip
+        warnings.warn(f"from_ode: {spread.text}; so w enters inside the integrator (input_channel='rk4'), its "
+                      "direction varying with the state as the ODE's does (input_channel='integral' keeps the "
+                      "constant direction the certificates of x+ = f1 + B w need: narrow X first)", UserWarning,
+                      stacklevel=3)  # fmt: skip
+        return f, channel
+    warnings.warn(f"from_ode: {spread.text}; input_channel='rk4' keeps w inside the integrator", UserWarning,
+                  stacklevel=3)  # fmt: skip
+    return f, "integral"
