@@ -362,7 +362,10 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
 
     # a prior of x[0] the data contradict shows in the first predictions: then weigh each window's prior by what the
     # EKF knew of its first node (its prior covariance at k = 0, its posterior ones after), so that x[0] is let go
-    arrivals = {"settled": None, "per window": 0.5 * np.linalg.inv(starts)}
+    arrivals: dict[str, FloatArray | None] = {
+        "settled": None,
+        "per window": np.asarray(0.5 * np.linalg.inv(starts), dtype=float),
+    }
     trials = {key: build(weights.eta, arrival) for key, arrival in arrivals.items()}
     kept, errors = _scored_trials(system, trials, "settled", x0, u, y, first=0)
     source = {"settled": "the EKF's settled covariance of (x, w) on the data",
