@@ -20,7 +20,7 @@ import uiest
 SOURCES = Path(uiest.__file__).resolve().parent
 
 LAYERS: tuple[tuple[str, tuple[str, ...]], ...] = (
-    ("base", ("errors", "checks", "box", "paths", "atomic", "lock", "progress_lines", "theory", "sampling",
+    ("base", ("errors", "checks", "box", "paths", "atomic", "json_text", "lock", "progress_lines", "theory", "sampling",
               "guarantee", "health", "input_model")),
     ("system", ("signal", "system", "ode", "noise", "simulate", "results", "run_data", "covariance", "likelihood",
                 "filter_fit", "scales", "augmented", "plotting")),
