@@ -38,9 +38,19 @@ def noise_variance(system: System) -> FloatArray:
     return np.where(np.isfinite(V.width), V.width**2 / 12.0, system.v.scale**2)
 
 
+def output_noise_variance(system: System, floor: float) -> FloatArray:
+    """The noise's variance seen in each output, ``diag(D Sigma_v D^T)`` (ny,), at least ``(floor * y.scale)^2``.
+
+    ``D = dh/dv`` at X's centre (0 on an infinite side), ``Sigma_v`` V's uniform variance (:func:`noise_variance`).
+    """
+    center = system.x.bounds.center
+    D = system.linearize(np.where(np.isfinite(center), center, 0.0)).D_v
+    return np.maximum(np.einsum("ij,j,ij->i", D, noise_variance(system), D), (floor * system.y.scale) ** 2)
+
+
 def prior_variance(system: System) -> FloatArray:
     """x[0]'s default variance ``x.scale^2 / 12``: uniform over a box one scale wide; (nx,)."""
     return system.x.scale**2 / 12.0
 
 
-__all__ = ["as_covariance", "noise_variance", "prior_variance"]
+__all__ = ["as_covariance", "noise_variance", "output_noise_variance", "prior_variance"]

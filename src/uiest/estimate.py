@@ -81,7 +81,7 @@ from uiest.analysis import Recommendation, analyse
 from uiest.atomic import remove_unwritten, staged_folder, write_file, write_text
 from uiest.box import FloatArray
 from uiest.checks import user_stacklevel
-from uiest.covariance import noise_variance
+from uiest.covariance import output_noise_variance
 from uiest.delay import delayed_system, matching_ranks
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, HorizonError, ModelError, OptionError
@@ -367,12 +367,14 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
         "per window": np.asarray(0.5 * np.linalg.inv(starts), dtype=float),
     }
     trials = {key: build(weights.eta, arrival) for key, arrival in arrivals.items()}
-    kept, errors = _scored_trials(system, trials, "settled", x0, u, y, first=0)
+    runs: dict[str, EstimationResult] = {}
+    kept, errors = _scored_trials(system, trials, "settled", x0, u, y, first=0, runs=runs)
     source = {"settled": "the EKF's settled covariance of (x, w) on the data",
               "per window": "the EKF's covariance of (x, w) at each window's first node"}[kept]  # fmt: skip
     compared = (f"whole-record one-step prediction error {errors['per window']:#.4g} against {errors['settled']:#.4g} "
                 "with the settled one, at the design's eta")  # fmt: skip
-    data_prior, why_eta = _smooth_discount(system, lambda eta: build(eta, arrivals[kept]), weights.eta, x0, u, y)
+    data_prior, why_eta = _smooth_discount(system, lambda eta: build(eta, arrivals[kept]), weights.eta, x0, u, y,
+                                           (trials[kept], runs[kept]))  # fmt: skip
     chosen = data_prior.weights.eta
     data_prior.why_uncertified = f"its window prior is {source}, not a certificate's ({why})"
     note = (f"no informative certified design (its guarantee says why); window prior: {source} ({compared}), "
@@ -381,18 +383,21 @@ def _smooth_mhe(system: System, x0: FloatArray, factor: float, source: str, hori
 
 
 def _smooth_discount(system: System, build: Callable[[float], SmoothInputMHE], design: float, x0: FloatArray,
-                     u: FloatArray, y: FloatArray) -> tuple[SmoothInputMHE, str]:  # fmt: skip
+                     u: FloatArray, y: FloatArray,
+                     done: tuple[SmoothInputMHE, EstimationResult] | None = None
+                     ) -> tuple[SmoothInputMHE, str]:  # fmt: skip
     """The data-tuned smooth-input MHE, ``build(eta)`` at the design's eta or one of :data:`SMOOTH_DISCOUNTS` above it.
 
     Each candidate runs on the record and is scored by its one-step output prediction error
     (:func:`~uiest.tuning.prediction_error`, :func:`~uiest.tuning.preferred_discount`). Returns the chosen estimator
-    and why it was chosen.
+    and why it was chosen. ``done``: the design eta's estimator and its run on the record, where already made.
     """
     candidates = (design, *(eta for eta in SMOOTH_DISCOUNTS if eta > design))
     if len(candidates) == 1:
-        return build(design), f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
-    built = {eta: build(eta) for eta in candidates}
-    chosen, errors = _scored_trials(system, built, design, x0, u, y)
+        kept = build(design) if done is None else done[0]
+        return kept, f"the design's; none of {', '.join(f'{eta:g}' for eta in SMOOTH_DISCOUNTS)} is above it"
+    built = {eta: done[0] if done is not None and eta == design else build(eta) for eta in candidates}
+    chosen, errors = _scored_trials(system, built, design, x0, u, y, runs=None if done is None else {design: done[1]})
     tried = ", ".join(f"eta {eta:.3g}: {error:#.4g}" for eta, error in errors.items())
     margin = f"{100 * (ERROR_TOLERANCE - 1):g} %"
     what = "one-step output prediction error over the record's second half"
@@ -402,18 +407,21 @@ def _smooth_discount(system: System, build: Callable[[float], SmoothInputMHE], d
 
 
 def _scored_trials(system: System, trials: dict[Key, Any], default: Key, x0: FloatArray, u: FloatArray,
-                   y: FloatArray, first: int | None = None) -> tuple[Key, dict[Key, float]]:  # fmt: skip
+                   y: FloatArray, first: int | None = None,
+                   runs: dict[Key, EstimationResult] | None = None) -> tuple[Key, dict[Key, float]]:  # fmt: skip
     """Each trial estimator's run on the record scored by its one-step output prediction error; the one to use.
 
     The ``default`` unless another predicts more than ``ERROR_TOLERANCE`` better
     (:func:`~uiest.tuning.prediction_error` from ``first``, :func:`~uiest.tuning.preferred_discount`; no true states
-    needed).
+    needed). ``runs``: runs already made (used, not repeated), and where the new ones are kept.
     """
+    runs = {} if runs is None else runs
     errors: dict[Key, float] = {}
     for key, estimator in trials.items():
-        with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
-            result = estimator.run(u if system.nu else None, y, x0_prior=x0)
-        errors[key] = prediction_error(system, result.x_hat, result.w_hat, u, y, first)
+        if key not in runs:
+            with quiet_bound_warnings():  # trial runs: the chosen one's run reports its own steps
+                runs[key] = estimator.run(u if system.nu else None, y, x0_prior=x0)
+        errors[key] = prediction_error(system, runs[key].x_hat, runs[key].w_hat, u, y, first)
     return preferred_discount(errors, default), errors
 
 
@@ -495,12 +503,9 @@ def fallback_weights(system: System) -> UISEWeights:
     that would explain it, whatever y's scale. Weighted by y's scale instead, a record of I = 1e6 persons counted to
     +-100 on an X 1e7 wide left a residual of 5e4 costing (5e-3)^2, and the estimate ignored the outputs.
     """
-    center = system.x.bounds.center
-    D = system.linearize(np.where(np.isfinite(center), center, 0.0)).D_v
     if not system.nv:
         return UISEWeights.from_scales(system, FALLBACK_RATE)
-    floor = (smooth_mhe.NOISE_FLOOR * system.y.scale) ** 2
-    sigma_y = np.maximum(np.einsum("ij,j,ij->i", D, noise_variance(system), D), floor)
+    sigma_y = output_noise_variance(system, smooth_mhe.NOISE_FLOOR)
     return UISEWeights.from_scales(system, FALLBACK_RATE, output=system.y.scale**2 / sigma_y)
 
 

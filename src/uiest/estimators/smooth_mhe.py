@@ -47,6 +47,7 @@ from numpy.typing import ArrayLike
 from uiest.augmented import augmented_system, increment_bound
 from uiest.box import Box, FloatArray, as_vector
 from uiest.checks import check_flag, check_int, user_stacklevel
+from uiest.covariance import noise_variance, output_noise_variance
 from uiest.detectability import certify_delta_ioss
 from uiest.errors import CertificationError, DataError, ModelError, OptionError
 from uiest.estimators.base import WindowEstimator
@@ -94,12 +95,6 @@ def increments(dw_bound: ArrayLike | None, dw_variance: ArrayLike | None, nw: in
     return bound, (bound / DW_SIGMAS) ** 2 if variance is None else variance
 
 
-def noise_variance(system: System) -> FloatArray:
-    """Sigma_v's diagonal: V's uniform variance ``width^2 / 12`` where finite, else ``v.scale^2`` (as the EKF's)."""
-    V = system.v.bounds
-    return np.where(np.isfinite(V.width), V.width**2 / 12.0, system.v.scale**2)
-
-
 def _weight_matrices(value: ArrayLike, n: int, name: str) -> FloatArray:
     """Symmetric positive semi-definite (m, n, n) weights, or OptionError naming ``name``."""
     try:
@@ -132,8 +127,7 @@ def variance_weights(augmented: System, dw_variance: ArrayLike, eta: float) -> M
     """
     variance = increment_bound(dw_variance, augmented.nw, "dw_variance")
     sigma_v = noise_variance(augmented)
-    D = augmented.linearize(augmented.x.bounds.center).D_v
-    sigma_y = np.maximum(np.einsum("ij,j,ij->i", D, sigma_v, D), (NOISE_FLOOR * augmented.y.scale) ** 2)
+    sigma_y = output_noise_variance(augmented, NOISE_FLOOR)
     nx = augmented.nx - augmented.nw
     sigma_0 = augmented.x.scale**2 / np.concatenate([np.full(nx, 12.0), np.ones(augmented.nw)])
     return MHEWeights(eta=eta, P=np.diag(0.5 / sigma_0), Q_w=np.diag(0.5 / variance), Q_v=np.diag(1.0 / sigma_v),
